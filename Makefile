@@ -1,0 +1,43 @@
+# ether_ros: `make demo` and `make test` install whatever is missing, then run.
+SHELL := /bin/bash
+VENV := .venv
+PY := $(VENV)/bin/python
+export PATH := $(CURDIR)/$(VENV)/bin:$(HOME)/.cargo/bin:$(PATH)
+export CARGO_TERM_COLOR := never
+
+.PHONY: all bootstrap build lint test test-rust test-python demo bench clean
+
+all: build
+
+bootstrap:
+	@bash scripts/bootstrap.sh
+
+# The extension module, built in release mode: the cyclic path and the simulator must be fast even in tests.
+build: bootstrap
+	@VIRTUAL_ENV=$(CURDIR)/$(VENV) $(VENV)/bin/maturin develop --release > $(VENV)/build.log 2>&1 || (tail -40 $(VENV)/build.log; exit 1)
+	@$(PY) -c "import ether_ros._native as n; print('[build] ether_ros._native', n.__version__)"
+
+lint: bootstrap
+	$(VENV)/bin/ruff check python tests bench scripts
+	$(VENV)/bin/ruff format --check python tests bench scripts
+	$(VENV)/bin/mypy
+	cargo fmt --all -- --check
+	cargo clippy --workspace --all-targets -q -- -D warnings
+
+test-rust:
+	cargo test --workspace -q
+
+test-python: build
+	$(PY) -m pytest -q -p no:cacheprovider $(PYTEST_ARGS)
+
+test: build lint test-rust test-python
+
+demo: build
+	$(VENV)/bin/ether-ros demo
+
+bench: build
+	$(PY) bench/run.py
+
+clean:
+	cargo clean
+	rm -rf $(VENV) build dist

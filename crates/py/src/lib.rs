@@ -1,0 +1,15 @@
+//! `ether_ros._native`: the Rust core seen from Python. Each part registers its own classes so
+//! the simulator and the engine bindings stay in their own files.
+
+use pyo3::prelude::*;
+
+mod engine_bindings;
+mod sim_bindings;
+
+#[pymodule]
+fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    sim_bindings::register(m)?;
+    engine_bindings::register(m)?;
+    Ok(())
+}

@@ -1,0 +1,28 @@
+//! The contract between a virtual slave controller and the firmware model running behind it.
+//!
+//! The ESC core copies received RxPDO data into the object dictionary before a control step and
+//! copies the mapped TxPDO entries out of it afterwards, exactly as a slave stack such as SOES
+//! does. A device therefore never sees frames or byte offsets: it reads its commands and writes
+//! its feedback by (index, subindex), and works whatever PDO mapping the master chose.
+
+use crate::od::ObjectDictionary;
+
+/// A slave's firmware model.
+pub trait DeviceApp: Send {
+    /// Period of the firmware's control loop in nanoseconds (the Laelaps leg: 100 µs, 10 kHz).
+    fn period_ns(&self) -> u64;
+
+    /// One control step at the slave's local time `local_time_ns` (its DC clock, with drift).
+    /// `outputs_valid` is true only in OP with outputs not timed out by the process-data
+    /// watchdog; when false the firmware must put its actuators into their safe state
+    /// (no torque) and ignore the commanded values.
+    fn step(&mut self, od: &mut ObjectDictionary, local_time_ns: u64, outputs_valid: bool);
+
+    /// Power-on reset (fault injection "reset slave", or the simulator starting).
+    fn reset(&mut self, od: &mut ObjectDictionary);
+
+    /// Named physical state for tests, plots and the simulator front (SI units).
+    fn probe(&self) -> Vec<(&'static str, f64)> {
+        Vec::new()
+    }
+}

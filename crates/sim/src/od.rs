@@ -1,0 +1,202 @@
+//! CoE object dictionary of a virtual slave: the values the device application reads and writes
+//! and that the SDO server and the process-data mapping expose. Built from the ESI by the Python
+//! front (one `EntrySpec` per subindex); values are little-endian byte strings as on the wire.
+
+use std::collections::{BTreeMap, HashMap};
+
+/// ETG.1000.6 data type codes used by the simulator.
+pub mod dtype {
+    pub const BOOL: u16 = 0x0001;
+    pub const INT8: u16 = 0x0002;
+    pub const INT16: u16 = 0x0003;
+    pub const INT32: u16 = 0x0004;
+    pub const UINT8: u16 = 0x0005;
+    pub const UINT16: u16 = 0x0006;
+    pub const UINT32: u16 = 0x0007;
+    pub const REAL32: u16 = 0x0008;
+    pub const VISIBLE_STRING: u16 = 0x0009;
+    pub const OCTET_STRING: u16 = 0x000A;
+    pub const INT64: u16 = 0x0015;
+    pub const REAL64: u16 = 0x0011;
+    pub const UINT64: u16 = 0x001B;
+
+    /// Signed integer types (their values are sign-extended when read as i64).
+    pub fn is_signed(t: u16) -> bool {
+        matches!(t, INT8 | INT16 | INT32 | INT64)
+    }
+}
+
+/// Access rights per AL state group, as in ESI `<Access>`: ro, rw, wo.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Access {
+    ReadOnly,
+    ReadWrite,
+    WriteOnly,
+}
+
+/// One subindex of the dictionary.
+#[derive(Clone, Debug)]
+pub struct Entry {
+    pub index: u16,
+    pub subindex: u8,
+    pub name: String,
+    pub data_type: u16,
+    pub bit_length: u16,
+    pub access: Access,
+    pub pdo_mappable: bool,
+    /// Current value, `ceil(bit_length / 8)` bytes, little endian.
+    pub value: Vec<u8>,
+}
+
+/// One object (index) with its name and object code (7 VAR, 8 ARRAY, 9 RECORD).
+#[derive(Clone, Debug)]
+pub struct Object {
+    pub index: u16,
+    pub name: String,
+    pub object_code: u8,
+}
+
+/// The dictionary. Lookups by (index, subindex) are O(1); iteration is in index order.
+#[derive(Clone, Debug, Default)]
+pub struct ObjectDictionary {
+    objects: BTreeMap<u16, Object>,
+    entries: Vec<Entry>,
+    by_key: HashMap<(u16, u8), usize>,
+}
+
+impl ObjectDictionary {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    pub fn add_object(&mut self, object: Object) {
+        self.objects.insert(object.index, object);
+    }
+
+    /// Add or replace an entry. Its value is padded/truncated to the bit length.
+    pub fn add_entry(&mut self, mut entry: Entry) {
+        entry.value.resize((entry.bit_length as usize).div_ceil(8), 0);
+        let key = (entry.index, entry.subindex);
+        match self.by_key.get(&key) {
+            Some(&i) => self.entries[i] = entry,
+            None => {
+                self.by_key.insert(key, self.entries.len());
+                self.entries.push(entry);
+            }
+        }
+    }
+
+    pub fn object(&self, index: u16) -> Option<&Object> {
+        self.objects.get(&index)
+    }
+
+    pub fn objects(&self) -> impl Iterator<Item = &Object> {
+        self.objects.values()
+    }
+
+    pub fn entry(&self, index: u16, subindex: u8) -> Option<&Entry> {
+        self.by_key.get(&(index, subindex)).map(|&i| &self.entries[i])
+    }
+
+    pub fn entry_mut(&mut self, index: u16, subindex: u8) -> Option<&mut Entry> {
+        self.by_key.get(&(index, subindex)).map(|&i| &mut self.entries[i])
+    }
+
+    /// Entries of one object, in subindex order.
+    pub fn entries_of(&self, index: u16) -> Vec<&Entry> {
+        let mut v: Vec<&Entry> = self.entries.iter().filter(|e| e.index == index).collect();
+        v.sort_by_key(|e| e.subindex);
+        v
+    }
+
+    pub fn get_bytes(&self, index: u16, subindex: u8) -> Option<&[u8]> {
+        self.entry(index, subindex).map(|e| e.value.as_slice())
+    }
+
+    /// Set raw bytes; returns false when the entry does not exist. Extra bytes are ignored and
+    /// missing ones are zero, so a value never changes an entry's size.
+    pub fn set_bytes(&mut self, index: u16, subindex: u8, bytes: &[u8]) -> bool {
+        match self.entry_mut(index, subindex) {
+            Some(e) => {
+                let n = e.value.len();
+                for (i, b) in e.value.iter_mut().enumerate() {
+                    *b = if i < bytes.len() && i < n { bytes[i] } else { 0 };
+                }
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// Read an integer or bool entry as i64 (sign-extended for signed types). Missing: 0.
+    pub fn get_int(&self, index: u16, subindex: u8) -> i64 {
+        let Some(e) = self.entry(index, subindex) else { return 0 };
+        let mut raw = [0u8; 8];
+        let n = e.value.len().min(8);
+        raw[..n].copy_from_slice(&e.value[..n]);
+        let v = u64::from_le_bytes(raw);
+        let bits = (e.bit_length as u32).clamp(1, 64);
+        if dtype::is_signed(e.data_type) && bits < 64 {
+            let shift = 64 - bits;
+            ((v << shift) as i64) >> shift
+        } else if bits < 64 {
+            (v & ((1u64 << bits) - 1)) as i64
+        } else {
+            v as i64
+        }
+    }
+
+    /// Write an integer or bool entry, truncated to its bit length. Missing entries are ignored.
+    pub fn set_int(&mut self, index: u16, subindex: u8, value: i64) {
+        if let Some(e) = self.entry_mut(index, subindex) {
+            let bytes = value.to_le_bytes();
+            let n = e.value.len().min(8);
+            e.value[..n].copy_from_slice(&bytes[..n]);
+            let bits = e.bit_length as usize;
+            if bits % 8 != 0 && n > 0 {
+                e.value[n - 1] &= (1u8 << (bits % 8)) - 1;
+            }
+        }
+    }
+
+    pub fn get_bool(&self, index: u16, subindex: u8) -> bool {
+        self.get_int(index, subindex) & 1 != 0
+    }
+
+    pub fn entries(&self) -> &[Entry] {
+        &self.entries
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn entry(index: u16, sub: u8, t: u16, bits: u16) -> Entry {
+        Entry {
+            index,
+            subindex: sub,
+            name: format!("e{index:04x}:{sub}"),
+            data_type: t,
+            bit_length: bits,
+            access: Access::ReadWrite,
+            pdo_mappable: true,
+            value: vec![],
+        }
+    }
+
+    #[test]
+    fn signed_values_round_trip_and_truncate() {
+        let mut od = ObjectDictionary::new();
+        od.add_entry(entry(0x6010, 1, dtype::INT16, 16));
+        od.add_entry(entry(0x7000, 1, dtype::BOOL, 1));
+        od.set_int(0x6010, 1, -1234);
+        assert_eq!(od.get_int(0x6010, 1), -1234);
+        assert_eq!(od.get_bytes(0x6010, 1), Some(&(-1234i16).to_le_bytes()[..]));
+        od.set_int(0x7000, 1, 3);
+        assert_eq!(od.get_int(0x7000, 1), 1);
+        assert!(od.get_bool(0x7000, 1));
+        assert_eq!(od.get_int(0x1234, 1), 0);
+        assert!(!od.set_bytes(0x1234, 1, &[1]));
+    }
+}

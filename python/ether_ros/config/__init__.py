@@ -1,0 +1,1 @@
+"""Bus configuration (YAML) and device descriptions (ESI XML), parsed into typed models."""

@@ -1,0 +1,1 @@
+"""ROS 2 interface: the lifecycle node and message conversion."""

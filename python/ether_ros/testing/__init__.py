@@ -1,0 +1,1 @@
+"""Helpers for tests and benchmarks: veth pairs, network namespaces, subprocess management."""

@@ -1,0 +1,40 @@
+"""Shared fixtures. Tests that need veth pairs create and remove them themselves."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from ether_ros.testing.netns import VethPair, can_create_veth
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="session")
+def repo() -> Path:
+    return REPO
+
+
+@pytest.fixture(scope="session")
+def veth_allowed() -> bool:
+    return can_create_veth()
+
+
+@pytest.fixture
+def veth(veth_allowed: bool) -> Iterator[VethPair]:
+    """A fresh veth pair (master end in this namespace, slave end too)."""
+    if not veth_allowed:
+        pytest.fail("creating a veth pair needs root or CAP_NET_ADMIN; run the tests as root")
+    with VethPair.create() as pair:
+        yield pair
+
+
+@pytest.fixture
+def veth_ns(veth_allowed: bool) -> Iterator[VethPair]:
+    """A fresh veth pair whose slave end lives in its own network namespace."""
+    if not veth_allowed:
+        pytest.fail("creating a network namespace needs root; run the tests as root")
+    with VethPair.create(netns=True) as pair:
+        yield pair
