@@ -1,2 +1,481 @@
 //! The master's engine: owns the link, serves acyclic datagrams for the Python bring-up, and
-//! runs the cyclic real-time thread in OP. See docs/architecture.md.
+//! runs the cyclic real-time thread in OP. See docs/engine.md and docs/architecture.md.
+//!
+//! Ownership of the link moves: while the bus is not cyclic, `transact` uses it in the calling
+//! thread; `start_cyclic` hands it to the RT thread, which returns it when `stop_cyclic` joins
+//! it. While cyclic, `transact` posts its frame to a one-slot mailbox that the RT thread sends
+//! after the cyclic frame.
+
+pub mod clock;
+pub mod cyclic;
+pub mod frames;
+pub mod handover;
+pub mod link;
+pub mod plan;
+pub mod rt;
+pub mod stats;
+
+use std::sync::atomic::Ordering;
+use std::sync::{mpsc, Arc, Mutex, MutexGuard};
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+pub use clock::now_ns;
+use cyclic::{Cyclic, Exchange, Shared};
+pub use frames::Request;
+use frames::{build_request_frame, reply_datagrams, reply_matches};
+use handover::mailbox_state;
+pub use handover::{flags, SampleRecord, RECORD_LEN};
+pub use link::{InProcessLink, Link, RawSocketLink, Received, Responder};
+pub use plan::Plan;
+use stats::Summary;
+
+use ether_ros_wire::MAX_FRAME_LEN;
+
+/// What went wrong, by kind (the Python binding maps kinds to exception types).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Error {
+    /// Bad argument: plan, datagrams, output write.
+    Invalid(String),
+    /// The link failed or is closed.
+    Link(String),
+    /// No reply within the retries.
+    Timeout(String),
+    /// Wrong state for the call (already cyclic, closed, ...).
+    State(String),
+    /// The real-time setup was refused (policy, affinity, memory lock).
+    Realtime(String),
+}
+
+impl std::fmt::Display for Error {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Error::Invalid(m)
+            | Error::Link(m)
+            | Error::Timeout(m)
+            | Error::State(m)
+            | Error::Realtime(m) => f.write_str(m),
+        }
+    }
+}
+
+impl std::error::Error for Error {}
+
+pub type Result<T> = std::result::Result<T, Error>;
+
+enum LinkState {
+    Idle(Box<dyn Link>),
+    Cyclic(JoinHandle<Box<dyn Link>>),
+    Closed,
+}
+
+/// Counters and histogram summaries, as `stats()` reports them.
+#[derive(Clone, Debug, Default)]
+pub struct StatsSnapshot {
+    pub counters: Vec<(&'static str, u64)>,
+    pub histograms: Vec<(&'static str, Summary)>,
+}
+
+pub struct Engine {
+    shared: Arc<Shared>,
+    state: Mutex<LinkState>,
+    exchange: Mutex<Option<Arc<Exchange>>>,
+    /// Serialises `transact` callers: the mailbox has one slot.
+    acyclic: Mutex<()>,
+    /// Serialises writers of the output buffer (the seqlock allows one writer).
+    output_writer: Mutex<()>,
+    /// Serialises consumers of the sample ring.
+    drain: Mutex<()>,
+    description: String,
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+enum MailboxOutcome {
+    Reply(Vec<u8>),
+    Timeout,
+    Aborted,
+}
+
+impl Engine {
+    /// An engine on a raw socket bound to `ifname`.
+    pub fn open_interface(ifname: &str) -> Result<Engine> {
+        let link = RawSocketLink::open(ifname).map_err(|e| Error::Link(e.to_string()))?;
+        Ok(Engine::with_link(Box::new(link)))
+    }
+
+    /// An engine on any link (in-process simulator, test responders).
+    pub fn with_link(link: Box<dyn Link>) -> Engine {
+        let description = link.describe();
+        Engine {
+            shared: Arc::new(Shared::default()),
+            state: Mutex::new(LinkState::Idle(link)),
+            exchange: Mutex::new(None),
+            acyclic: Mutex::new(()),
+            output_writer: Mutex::new(()),
+            drain: Mutex::new(()),
+            description,
+        }
+    }
+
+    pub fn describe(&self) -> &str {
+        &self.description
+    }
+
+    /// Join an RT thread that ended on its own (it never does unless it panicked), so the link
+    /// is back in our hands.
+    fn reap(&self, state: &mut LinkState) {
+        if let LinkState::Cyclic(h) = state {
+            if h.is_finished() {
+                self.join_into(state);
+            }
+        }
+    }
+
+    fn join_into(&self, state: &mut LinkState) {
+        if let LinkState::Cyclic(h) = std::mem::replace(state, LinkState::Closed) {
+            self.shared.stop.store(true, Ordering::Release);
+            *state = match h.join() {
+                Ok(link) => LinkState::Idle(link),
+                Err(_) => LinkState::Closed,
+            };
+            self.shared.mailbox.abort_pending();
+        }
+    }
+
+    /// Send `requests` in one frame and return each datagram's (data, working counter).
+    pub fn transact(
+        &self,
+        requests: &[Request],
+        timeout_ns: i64,
+        retries: u32,
+    ) -> Result<Vec<(Vec<u8>, u16)>> {
+        let _serial = lock(&self.acyclic);
+        let mut frame = [0u8; MAX_FRAME_LEN];
+        let mut attempts = 0u32;
+        while attempts <= retries {
+            let index = self.shared.acyclic_index.fetch_add(1, Ordering::Relaxed) & 0x7f;
+            let n = build_request_frame(&mut frame, index, requests).map_err(Error::Invalid)?;
+            let request = &frame[..n];
+            let mut state = lock(&self.state);
+            self.reap(&mut state);
+            match &mut *state {
+                LinkState::Idle(link) => {
+                    attempts += 1;
+                    if let Some(reply) = self.direct_attempt(link.as_mut(), request, timeout_ns)? {
+                        return Ok(reply_datagrams(&reply));
+                    }
+                }
+                LinkState::Cyclic(_) => {
+                    drop(state);
+                    match self.mailbox_attempt(request, timeout_ns) {
+                        MailboxOutcome::Reply(reply) => return Ok(reply_datagrams(&reply)),
+                        MailboxOutcome::Timeout => attempts += 1,
+                        // The RT thread stopped meanwhile: try again on the direct path.
+                        MailboxOutcome::Aborted => {}
+                    }
+                }
+                LinkState::Closed => return Err(self.closed()),
+            }
+        }
+        let names: Vec<&str> = requests.iter().map(|r| r.cmd.name()).collect();
+        Err(Error::Timeout(format!(
+            "no reply to the frame [{}] on {} after {} attempt(s) of {} µs",
+            names.join(", "),
+            self.description,
+            retries + 1,
+            timeout_ns / 1000
+        )))
+    }
+
+    fn closed(&self) -> Error {
+        Error::State(format!("the engine on {} is closed", self.description))
+    }
+
+    fn direct_attempt(
+        &self,
+        link: &mut dyn Link,
+        request: &[u8],
+        timeout_ns: i64,
+    ) -> Result<Option<Vec<u8>>> {
+        link.send(request)
+            .map_err(|e| Error::Link(format!("cannot send on {}: {e}", self.description)))?;
+        let deadline = now_ns() + timeout_ns;
+        let mut buf = vec![0u8; MAX_FRAME_LEN];
+        loop {
+            match link.recv(&mut buf, deadline) {
+                Ok(Some(r)) => {
+                    let reply = &buf[..r.len];
+                    if reply_matches(request, reply, false) {
+                        return Ok(Some(reply.to_vec()));
+                    }
+                    self.shared
+                        .stats
+                        .counters
+                        .unmatched_frames
+                        .fetch_add(1, Ordering::Relaxed);
+                }
+                Ok(None) => return Ok(None),
+                Err(e) => {
+                    return Err(Error::Link(format!(
+                        "cannot receive on {}: {e}",
+                        self.description
+                    )))
+                }
+            }
+        }
+    }
+
+    fn mailbox_attempt(&self, request: &[u8], timeout_ns: i64) -> MailboxOutcome {
+        let mb = &self.shared.mailbox;
+        mb.post(request, timeout_ns);
+        let cycle = self.shared.cycle_ns.load(Ordering::Relaxed);
+        // The RT thread picks the request up within a cycle; allow generous slack before
+        // concluding it never will.
+        let give_up = now_ns() + timeout_ns + 4 * cycle + 200_000_000;
+        let nap = Duration::from_nanos((cycle / 8).clamp(10_000, 200_000) as u64);
+        loop {
+            match mb.state.load(Ordering::Acquire) {
+                mailbox_state::DONE => {
+                    let reply = mb.reply();
+                    mb.state.store(mailbox_state::EMPTY, Ordering::Release);
+                    return MailboxOutcome::Reply(reply);
+                }
+                mailbox_state::TIMEOUT => {
+                    mb.state.store(mailbox_state::EMPTY, Ordering::Release);
+                    return MailboxOutcome::Timeout;
+                }
+                mailbox_state::ABORTED => {
+                    mb.state.store(mailbox_state::EMPTY, Ordering::Release);
+                    return MailboxOutcome::Aborted;
+                }
+                mailbox_state::REQUESTED if now_ns() > give_up && mb.cancel() => {
+                    return MailboxOutcome::Timeout;
+                }
+                _ => {}
+            }
+            if !self.shared.alive.load(Ordering::Acquire) {
+                // The loop ended (stop or crash): nothing will answer from there any more.
+                mb.abort_pending();
+            }
+            std::thread::sleep(nap);
+        }
+    }
+
+    /// Start the RT thread with `plan`. Fails if the plan is invalid, the thread is already
+    /// running, or the real-time setup is refused.
+    pub fn start_cyclic(&self, plan: Plan) -> Result<()> {
+        plan.validate()
+            .map_err(|e| Error::Invalid(format!("invalid cyclic plan: {e}")))?;
+        let layout = plan.layout().map_err(Error::Invalid)?;
+        let mut state = lock(&self.state);
+        self.reap(&mut state);
+        let link = match std::mem::replace(&mut *state, LinkState::Closed) {
+            LinkState::Idle(link) => link,
+            other => {
+                let running = matches!(other, LinkState::Cyclic(_));
+                *state = other;
+                return Err(if running {
+                    Error::State("the cyclic thread is already running".into())
+                } else {
+                    self.closed()
+                });
+            }
+        };
+        let rt = plan.rt;
+        let cycle_ns = plan.cycle_ns;
+        let ex = Arc::new(Exchange::new(plan, &layout));
+        let shared = self.shared.clone();
+        shared.stop.store(false, Ordering::Release);
+        shared.alive.store(false, Ordering::Release);
+        shared.cycle_ns.store(cycle_ns as i64, Ordering::Relaxed);
+        shared.last_command_ns.store(now_ns(), Ordering::Release);
+        let mut cyclic = Cyclic::new(link, shared.clone(), ex.clone(), layout);
+        let (ready_tx, ready_rx) = mpsc::sync_channel::<std::result::Result<(), String>>(1);
+        let spawned = std::thread::Builder::new()
+            .name("ether_ros-rt".into())
+            .stack_size(rt::RT_STACK)
+            .spawn(move || {
+                let setup = rt::apply(&rt, cycle_ns);
+                let ok = setup.is_ok();
+                // Alive from before start_cyclic returns, so is_running() is true at once.
+                shared.alive.store(ok, Ordering::Release);
+                let _ = ready_tx.send(setup);
+                if ok {
+                    let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| cyclic.run()));
+                    if r.is_err() {
+                        shared.alive.store(false, Ordering::Release);
+                    }
+                }
+                cyclic.link
+            });
+        let handle = match spawned {
+            Ok(h) => h,
+            Err(e) => return Err(Error::Realtime(format!("cannot start the RT thread: {e}"))),
+        };
+        match ready_rx.recv() {
+            Ok(Ok(())) => {
+                *state = LinkState::Cyclic(handle);
+                *lock(&self.exchange) = Some(ex);
+                Ok(())
+            }
+            Ok(Err(msg)) => {
+                *state = LinkState::Cyclic(handle);
+                self.join_into(&mut state);
+                Err(Error::Realtime(msg))
+            }
+            Err(_) => {
+                *state = LinkState::Cyclic(handle);
+                self.join_into(&mut state);
+                Err(Error::Realtime("the RT thread ended during setup".into()))
+            }
+        }
+    }
+
+    /// Stop and join the RT thread (no-op when not running).
+    pub fn stop_cyclic(&self) {
+        let mut state = lock(&self.state);
+        self.join_into(&mut state);
+    }
+
+    /// Stop and release the link (closes the socket).
+    pub fn close(&self) {
+        let mut state = lock(&self.state);
+        self.join_into(&mut state);
+        *state = LinkState::Closed;
+    }
+
+    pub fn is_closed(&self) -> bool {
+        matches!(*lock(&self.state), LinkState::Closed)
+    }
+
+    pub fn is_running(&self) -> bool {
+        matches!(*lock(&self.state), LinkState::Cyclic(_))
+            && self.shared.alive.load(Ordering::Acquire)
+    }
+
+    fn exchange(&self) -> Result<Arc<Exchange>> {
+        lock(&self.exchange)
+            .clone()
+            .ok_or_else(|| Error::State("no process image yet: call start_cyclic first".into()))
+    }
+
+    /// Write output bytes at image `offset`; the range must lie inside the plan's outputs.
+    pub fn write_outputs(&self, offset: usize, data: &[u8]) -> Result<()> {
+        let ex = self.exchange()?;
+        let end = offset.saturating_add(data.len());
+        let inside = ex
+            .output_runs
+            .iter()
+            .any(|&(o, l)| offset >= o && end <= o + l);
+        if !inside {
+            return Err(Error::Invalid(format!(
+                "write of {} byte(s) at image offset {offset} is outside the output ranges \
+                 (offset, length) {:?} of the {}-byte image",
+                data.len(),
+                ex.plan.output_ranges,
+                ex.plan.image_len
+            )));
+        }
+        {
+            let _w = lock(&self.output_writer);
+            ex.outputs.write(offset, data);
+        }
+        self.feed_watchdog();
+        Ok(())
+    }
+
+    /// The latest process image (inputs as last received, outputs as last sent).
+    pub fn read_inputs(&self) -> Result<Vec<u8>> {
+        Ok(self.exchange()?.image.read())
+    }
+
+    /// The output buffer as Python wrote it (what goes on the wire unless panic/watchdog).
+    pub fn outputs(&self) -> Result<Vec<u8>> {
+        Ok(self.exchange()?.outputs.read())
+    }
+
+    /// Move up to `max` samples out: (records, images), `RECORD_LEN` and image_len bytes each.
+    pub fn drain_samples(&self, max: usize) -> (Vec<u8>, Vec<u8>, usize) {
+        let Ok(ex) = self.exchange() else {
+            return (Vec::new(), Vec::new(), 0);
+        };
+        let _d = lock(&self.drain);
+        let (mut records, mut images) = (Vec::new(), Vec::new());
+        ex.ring.drain(max, &mut records, &mut images);
+        (records, images, ex.plan.image_len)
+    }
+
+    pub fn stats(&self) -> StatsSnapshot {
+        let s = &self.shared.stats;
+        StatsSnapshot {
+            counters: s
+                .counters
+                .named()
+                .iter()
+                .map(|(n, c)| (*n, c.load(Ordering::Relaxed)))
+                .collect(),
+            histograms: s
+                .histograms()
+                .iter()
+                .map(|(n, h)| (*n, h.summary()))
+                .collect(),
+        }
+    }
+
+    /// Zero counters and histograms. While cyclic, the RT thread does it at its next wake-up
+    /// (it is the histograms' only writer); this waits for that.
+    pub fn reset_stats(&self) {
+        if self.is_running() {
+            self.shared.reset_requested.store(true, Ordering::Release);
+            let cycle = self.shared.cycle_ns.load(Ordering::Relaxed);
+            let until = now_ns() + 4 * cycle + 500_000_000;
+            while self.shared.reset_requested.load(Ordering::Acquire)
+                && self.shared.alive.load(Ordering::Acquire)
+                && now_ns() < until
+            {
+                std::thread::sleep(Duration::from_micros(50));
+            }
+            if !self.shared.reset_requested.swap(false, Ordering::AcqRel) {
+                return;
+            }
+        }
+        self.shared.stats.reset();
+    }
+
+    /// Latch the safe image onto the wire from the next cyclic frame on.
+    pub fn panic(&self) {
+        if !self.shared.panic.swap(true, Ordering::AcqRel) {
+            self.shared
+                .stats
+                .counters
+                .panics
+                .fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// Back to the output buffer (rewrite it first). Also feeds the watchdog.
+    pub fn clear_panic(&self) {
+        self.feed_watchdog();
+        self.shared.panic.store(false, Ordering::Release);
+    }
+
+    pub fn is_panicked(&self) -> bool {
+        self.shared.panic.load(Ordering::Acquire)
+    }
+
+    /// Count as a fresh command for the watchdog without writing outputs.
+    pub fn feed_watchdog(&self) {
+        self.shared
+            .last_command_ns
+            .store(now_ns(), Ordering::Release);
+    }
+}
+
+impl Drop for Engine {
+    fn drop(&mut self) {
+        self.stop_cyclic();
+    }
+}

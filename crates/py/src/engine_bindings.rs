@@ -1,7 +1,586 @@
-//! Python bindings for the engine.
+//! Python bindings for the engine: `ether_ros._native.Engine` and its exceptions.
+//!
+//! Every call that can block (opening, transact, start/stop, close) releases the GIL. The plan
+//! dict is described in docs/engine.md; a missing or mistyped key is a `ValueError` naming it.
 
+use std::sync::{Arc, Mutex, Weak};
+
+use ether_ros_engine::plan::{CyclicDatagram, DcMode, DcPlan, Order, Policy, RtPlan};
+use ether_ros_engine::{flags, Engine, Error, InProcessLink, Plan, Request, Responder, RECORD_LEN};
+use ether_ros_wire::{Command, MAX_FRAME_LEN};
+use ether_ros_sim::network::Network;
+use pyo3::exceptions::{PyException, PyValueError};
 use pyo3::prelude::*;
+use pyo3::sync::PyOnceLock;
+use pyo3::types::{PyBytes, PyDict, PyList, PyTuple, PyType};
 
-pub fn register(_m: &Bound<'_, PyModule>) -> PyResult<()> {
+use crate::sim_bindings::SimNetwork;
+
+static ENGINE_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
+static ENGINE_TIMEOUT: PyOnceLock<Py<PyType>> = PyOnceLock::new();
+
+/// `EngineError` subclasses `ether_ros.errors.LinkError` (so the CLI reports it as a one-line
+/// user error); `Exception` if that module cannot be imported.
+fn engine_error(py: Python<'_>) -> &Bound<'_, PyType> {
+    ENGINE_ERROR
+        .get_or_init(py, || {
+            let base = py
+                .import("ether_ros.errors")
+                .and_then(|m| m.getattr("LinkError"))
+                .and_then(|c| c.cast_into::<PyType>().map_err(PyErr::from))
+                .unwrap_or_else(|_| py.get_type::<PyException>());
+            PyErr::new_type(
+                py,
+                c"ether_ros._native.EngineError",
+                Some(
+                    c"The engine cannot do what was asked: link failure, wrong state, or the \
+                        real-time setup was refused.",
+                ),
+                Some(&base),
+                None,
+            )
+            .expect("creating EngineError")
+        })
+        .bind(py)
+}
+
+fn engine_timeout(py: Python<'_>) -> &Bound<'_, PyType> {
+    ENGINE_TIMEOUT
+        .get_or_init(py, || {
+            PyErr::new_type(
+                py,
+                c"ether_ros._native.EngineTimeout",
+                Some(c"No reply to an acyclic frame within its retries."),
+                Some(engine_error(py)),
+                None,
+            )
+            .expect("creating EngineTimeout")
+        })
+        .bind(py)
+}
+
+fn to_py(py: Python<'_>, e: Error) -> PyErr {
+    match e {
+        Error::Invalid(m) => PyValueError::new_err(m),
+        Error::Timeout(m) => PyErr::from_type(engine_timeout(py).clone(), m),
+        Error::Link(m) | Error::State(m) | Error::Realtime(m) => {
+            PyErr::from_type(engine_error(py).clone(), m)
+        }
+    }
+}
+
+// ----- plan dict ---------------------------------------------------------------------------
+
+fn get<'py>(d: &Bound<'py, PyDict>, path: &str, key: &str) -> PyResult<Bound<'py, PyAny>> {
+    d.get_item(key)?
+        .ok_or_else(|| PyValueError::new_err(format!("plan is missing '{path}{key}'")))
+}
+
+fn typed<'py, T: for<'a> FromPyObject<'a, 'py>>(
+    v: &Bound<'py, PyAny>,
+    path: &str,
+    what: &str,
+) -> PyResult<T> {
+    v.extract::<T>().map_err(|_| {
+        let ty = v
+            .get_type()
+            .name()
+            .map(|n| n.to_string())
+            .unwrap_or_default();
+        PyValueError::new_err(format!("plan['{path}'] must be {what}, got {ty} {v}"))
+    })
+}
+
+fn req<'py, T: for<'a> FromPyObject<'a, 'py>>(
+    d: &Bound<'py, PyDict>,
+    path: &str,
+    key: &str,
+    what: &str,
+) -> PyResult<T> {
+    typed(&get(d, path, key)?, &format!("{path}{key}"), what)
+}
+
+fn opt<'py, T: for<'a> FromPyObject<'a, 'py>>(
+    d: &Bound<'py, PyDict>,
+    path: &str,
+    key: &str,
+    what: &str,
+    default: T,
+) -> PyResult<T> {
+    match d.get_item(key)? {
+        Some(v) if !v.is_none() => typed(&v, &format!("{path}{key}"), what),
+        _ => Ok(default),
+    }
+}
+
+fn sub_dict<'py>(d: &Bound<'py, PyDict>, key: &str) -> PyResult<Bound<'py, PyDict>> {
+    let v = get(d, "", key)?;
+    v.cast_into::<PyDict>()
+        .map_err(|_| PyValueError::new_err(format!("plan['{key}'] must be a dict")))
+}
+
+fn parse_plan(d: &Bound<'_, PyDict>) -> PyResult<Plan> {
+    let order = match req::<String>(d, "", "order", "a str")?.as_str() {
+        "send_at_wake" => Order::SendAtWake,
+        "send_then_wait" => Order::SendThenWait,
+        o => {
+            return Err(PyValueError::new_err(format!(
+                "plan['order'] = '{o}': expected 'send_at_wake' or 'send_then_wait'"
+            )))
+        }
+    };
+    let mut datagrams = Vec::new();
+    let list = get(d, "", "datagrams")?;
+    let list = list
+        .cast::<PyList>()
+        .map_err(|_| PyValueError::new_err("plan['datagrams'] must be a list of dicts"))?;
+    for (i, item) in list.iter().enumerate() {
+        let path = format!("datagrams[{i}].");
+        let item = item
+            .cast_into::<PyDict>()
+            .map_err(|_| PyValueError::new_err(format!("plan['datagrams'][{i}] must be a dict")))?;
+        let kind: String = req(&item, &path, "kind", "a str")?;
+        datagrams.push(match kind.as_str() {
+            "dc_write_ref" => CyclicDatagram::DcWriteRef { station: req(&item, &path, "station", "an int 0..=65535")? },
+            "dc_sync" => CyclicDatagram::DcSync { station: req(&item, &path, "station", "an int 0..=65535")? },
+            "lrw" => CyclicDatagram::Lrw {
+                address: req(&item, &path, "address", "an int 0..=2**32-1")?,
+                length: req(&item, &path, "length", "a non-negative int")?,
+                image_offset: req(&item, &path, "image_offset", "a non-negative int")?,
+                expected_wkc: req(&item, &path, "expected_wkc", "an int 0..=65535")?,
+            },
+            k => {
+                return Err(PyValueError::new_err(format!(
+                    "plan['datagrams'][{i}]['kind'] = '{k}': expected 'dc_write_ref', 'dc_sync' or 'lrw'"
+                )))
+            }
+        });
+    }
+    let dc = sub_dict(d, "dc")?;
+    let mode = match req::<String>(&dc, "dc.", "mode", "a str")?.as_str() {
+        "off" => DcMode::Off,
+        "ref_follows_master" => DcMode::RefFollowsMaster,
+        "master_follows_ref" => DcMode::MasterFollowsRef,
+        m => {
+            return Err(PyValueError::new_err(format!(
+                "plan['dc']['mode'] = '{m}': expected 'off', 'ref_follows_master' or 'master_follows_ref'"
+            )))
+        }
+    };
+    let rt = sub_dict(d, "rt")?;
+    let policy = match req::<String>(&rt, "rt.", "policy", "a str")?.as_str() {
+        "fifo" => Policy::Fifo,
+        "deadline" => Policy::Deadline,
+        "other" => Policy::Other,
+        p => {
+            return Err(PyValueError::new_err(format!(
+                "plan['rt']['policy'] = '{p}': expected 'fifo', 'deadline' or 'other'"
+            )))
+        }
+    };
+    Ok(Plan {
+        cycle_ns: req(d, "", "cycle_ns", "a positive int")?,
+        order,
+        datagrams,
+        image_len: req(d, "", "image_len", "a non-negative int")?,
+        output_ranges: opt(
+            d,
+            "",
+            "output_ranges",
+            "a list of (offset, length) pairs",
+            Vec::new(),
+        )?,
+        initial_image: req(d, "", "initial_image", "bytes")?,
+        safe_image: req(d, "", "safe_image", "bytes")?,
+        dc: DcPlan {
+            mode,
+            time_offset_ns: opt(&dc, "dc.", "time_offset_ns", "an int", 0)?,
+            sync0_shift_ns: opt(&dc, "dc.", "sync0_shift_ns", "an int", 0)?,
+        },
+        rt: RtPlan {
+            policy,
+            priority: opt(&rt, "rt.", "priority", "an int", 0)?,
+            cpu: opt(&rt, "rt.", "cpu", "an int or None", None)?,
+            runtime_ns: opt(&rt, "rt.", "runtime_ns", "a non-negative int", 0)?,
+            lock_memory: opt(&rt, "rt.", "lock_memory", "a bool", false)?,
+        },
+        watchdog_ns: opt(d, "", "watchdog_ns", "a non-negative int", 0)?,
+        ring_capacity: opt(d, "", "ring_capacity", "a positive int", 4096)?,
+    })
+}
+
+// ----- datagram requests -------------------------------------------------------------------
+
+fn parse_command(v: &Bound<'_, PyAny>, i: usize) -> PyResult<Command> {
+    if let Ok(code) = v.extract::<u8>() {
+        return Command::from_u8(code).ok_or_else(|| {
+            PyValueError::new_err(format!("datagram {i}: unknown command code {code}"))
+        });
+    }
+    if let Ok(name) = v.extract::<String>() {
+        return (0..=14u8)
+            .filter_map(Command::from_u8)
+            .find(|c| c.name().eq_ignore_ascii_case(&name))
+            .ok_or_else(|| {
+                PyValueError::new_err(format!("datagram {i}: unknown command '{name}'"))
+            });
+    }
+    Err(PyValueError::new_err(format!(
+        "datagram {i}: the command must be an int code or a name like 'FPRD'"
+    )))
+}
+
+fn parse_requests(datagrams: &Bound<'_, PyAny>) -> PyResult<Vec<Request>> {
+    let mut out = Vec::new();
+    for (i, item) in datagrams.try_iter()?.enumerate() {
+        let item = item?;
+        let t = item.cast::<PyTuple>().map_err(|_| {
+            PyValueError::new_err(format!(
+                "datagram {i} must be a tuple (cmd, address, data or length)"
+            ))
+        })?;
+        if t.len() != 3 {
+            return Err(PyValueError::new_err(format!(
+                "datagram {i} must be a tuple (cmd, address, data or length), got {} items",
+                t.len()
+            )));
+        }
+        let cmd = parse_command(&t.get_item(0)?, i)?;
+        let address: u32 = t.get_item(1)?.extract().map_err(|_| {
+            PyValueError::new_err(format!(
+                "datagram {i}: the address must be an int 0..=2**32-1"
+            ))
+        })?;
+        let third = t.get_item(2)?;
+        let (data, len) = if let Ok(n) = third.extract::<usize>() {
+            (None, n)
+        } else if let Ok(b) = third.extract::<Vec<u8>>() {
+            let n = b.len();
+            (Some(b), n)
+        } else {
+            return Err(PyValueError::new_err(format!(
+                "datagram {i}: the third item must be bytes to write or a length to read"
+            )));
+        };
+        out.push(Request {
+            cmd,
+            address,
+            data,
+            len,
+        });
+    }
+    Ok(out)
+}
+
+// ----- the in-process link -----------------------------------------------------------------
+
+/// A responder that lets the simulator's network process each frame in place. The network's
+/// mutex is shared with the `SimNetwork` methods Python calls (slave_info, fault, ...), so the
+/// in-process link is for tests and running without root, not for hard real time.
+fn sim_responder(net: Arc<Mutex<Network>>) -> Responder {
+    Box::new(move |buf: &mut [u8], len: usize| {
+        let mut net = net.lock().ok()?;
+        net.process_frame(&mut buf[..len]).then_some(len)
+    })
+}
+
+/// A responder that hands each frame to `net.process_frame(bytes) -> bytes | None`. It takes
+/// the GIL per frame: fine for tests and running without root, not for real-time use (the
+/// veth/NIC path never touches Python).
+fn python_responder(net: Py<PyAny>) -> Responder {
+    Box::new(move |buf: &mut [u8], len: usize| {
+        // SAFETY: a plain query of the interpreter state. After finalisation started (an engine
+        // still running at exit) there is no Python left to answer: the frame is lost.
+        if unsafe { pyo3::ffi::Py_IsInitialized() } == 0 {
+            return None;
+        }
+        Python::attach(|py| {
+            let reply = net
+                .call_method1(py, "process_frame", (PyBytes::new(py, &buf[..len]),))
+                .ok()?;
+            if reply.is_none(py) {
+                return None;
+            }
+            let bytes: Vec<u8> = reply.extract(py).ok()?;
+            let n = bytes.len().min(MAX_FRAME_LEN);
+            buf[..n].copy_from_slice(&bytes[..n]);
+            Some(n)
+        })
+    })
+}
+
+// ----- the class ---------------------------------------------------------------------------
+
+/// Every engine ever opened, so the interpreter's exit can stop RT threads that are still
+/// running (they must not outlive Python, least of all one that calls into the simulator).
+static ENGINES: Mutex<Vec<Weak<Engine>>> = Mutex::new(Vec::new());
+
+fn track(engine: Engine) -> Arc<Engine> {
+    let engine = Arc::new(engine);
+    let mut all = ENGINES.lock().unwrap_or_else(|e| e.into_inner());
+    all.retain(|w| w.strong_count() > 0);
+    all.push(Arc::downgrade(&engine));
+    engine
+}
+
+/// Registered with `atexit`: close every engine still alive.
+#[pyfunction]
+fn _close_all_engines(py: Python<'_>) {
+    let all: Vec<Arc<Engine>> = ENGINES
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .iter()
+        .filter_map(Weak::upgrade)
+        .collect();
+    py.detach(move || all.iter().for_each(|e| e.close()));
+}
+
+/// The master's engine: the link, acyclic datagrams, and the cyclic real-time thread.
+#[pyclass(name = "Engine", module = "ether_ros._native", frozen)]
+pub struct PyEngine {
+    inner: Arc<Engine>,
+}
+
+#[pymethods]
+impl PyEngine {
+    /// Open a raw socket on network interface `ifname` (needs root / CAP_NET_RAW).
+    #[staticmethod]
+    fn open_interface(py: Python<'_>, ifname: String) -> PyResult<PyEngine> {
+        let engine = py
+            .detach(|| Engine::open_interface(&ifname))
+            .map_err(|e| to_py(py, e))?;
+        Ok(PyEngine {
+            inner: track(engine),
+        })
+    }
+
+    /// Talk to an in-process simulator: a `SimNetwork` (frames go straight to the Rust
+    /// network, no GIL), or any object with `process_frame(bytes) -> bytes | None` (called
+    /// with the GIL, for tests).
+    #[staticmethod]
+    fn open_sim(net: Bound<'_, PyAny>) -> PyResult<PyEngine> {
+        let link = if let Ok(sim) = net.cast::<SimNetwork>() {
+            InProcessLink::new("SimNetwork", sim_responder(sim.borrow().shared()))
+        } else if net.hasattr("process_frame")? {
+            let name = net
+                .get_type()
+                .name()
+                .map(|n| n.to_string())
+                .unwrap_or_default();
+            InProcessLink::new(&name, python_responder(net.unbind()))
+        } else {
+            return Err(PyValueError::new_err(
+                "open_sim needs a SimNetwork or an object with a process_frame(bytes) method",
+            ));
+        };
+        Ok(PyEngine {
+            inner: track(Engine::with_link(Box::new(link))),
+        })
+    }
+
+    /// Send the datagrams `[(cmd, address, data or length), ...]` in one frame; returns
+    /// `[(data, wkc), ...]`. `cmd` is a code or a name ('FPRD').
+    #[pyo3(signature = (datagrams, timeout_us = 2000, retries = 3))]
+    fn transact<'py>(
+        &self,
+        py: Python<'py>,
+        datagrams: Bound<'py, PyAny>,
+        timeout_us: u64,
+        retries: u32,
+    ) -> PyResult<Bound<'py, PyList>> {
+        let requests = parse_requests(&datagrams)?;
+        let engine = self.inner.clone();
+        let timeout_ns = (timeout_us as i64).saturating_mul(1000);
+        let replies = py
+            .detach(move || engine.transact(&requests, timeout_ns, retries))
+            .map_err(|e| to_py(py, e))?;
+        let items: Vec<Bound<'py, PyTuple>> = replies
+            .into_iter()
+            .map(|(data, wkc)| {
+                PyTuple::new(
+                    py,
+                    [
+                        PyBytes::new(py, &data).into_any(),
+                        wkc.into_pyobject(py)?.into_any(),
+                    ],
+                )
+            })
+            .collect::<PyResult<_>>()?;
+        PyList::new(py, items)
+    }
+
+    /// Start the cyclic RT thread with `plan` (see docs/engine.md).
+    fn start_cyclic(&self, py: Python<'_>, plan: Bound<'_, PyDict>) -> PyResult<()> {
+        let plan = parse_plan(&plan)?;
+        let engine = self.inner.clone();
+        py.detach(move || engine.start_cyclic(plan))
+            .map_err(|e| to_py(py, e))
+    }
+
+    /// Stop and join the RT thread (no-op when it is not running).
+    fn stop_cyclic(&self, py: Python<'_>) {
+        let engine = self.inner.clone();
+        py.detach(move || engine.stop_cyclic());
+    }
+
+    /// Write output bytes at image `offset` (inside the plan's output ranges); feeds the
+    /// watchdog.
+    fn write_outputs(&self, py: Python<'_>, offset: usize, data: Vec<u8>) -> PyResult<()> {
+        self.inner
+            .write_outputs(offset, &data)
+            .map_err(|e| to_py(py, e))
+    }
+
+    /// The latest process image: inputs as last received, outputs as last sent.
+    fn read_inputs<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyBytes>> {
+        let image = self.inner.read_inputs().map_err(|e| to_py(py, e))?;
+        Ok(PyBytes::new(py, &image))
+    }
+
+    /// The output buffer as written (what goes on the wire unless panic or watchdog).
+    fn outputs<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyBytes>> {
+        let out = self.inner.outputs().map_err(|e| to_py(py, e))?;
+        Ok(PyBytes::new(py, &out))
+    }
+
+    /// Up to `max` samples: (records, images) as bytes; decode with
+    /// `ether_ros.master.samples.decode_samples`.
+    #[pyo3(signature = (max = 1 << 20))]
+    fn drain_samples<'py>(
+        &self,
+        py: Python<'py>,
+        max: usize,
+    ) -> (Bound<'py, PyBytes>, Bound<'py, PyBytes>) {
+        let (records, images, _) = self.inner.drain_samples(max);
+        (PyBytes::new(py, &records), PyBytes::new(py, &images))
+    }
+
+    /// Counters plus, per histogram (wake_latency, exec, period, rtt), a dict
+    /// {count, min, max, mean, p50, p99, p999} in ns.
+    fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let snap = self.inner.stats();
+        let out = PyDict::new(py);
+        for (name, v) in snap.counters {
+            out.set_item(name, v)?;
+        }
+        for (name, s) in snap.histograms {
+            let h = PyDict::new(py);
+            h.set_item("count", s.count)?;
+            h.set_item("min", s.min)?;
+            h.set_item("max", s.max)?;
+            h.set_item("mean", s.mean)?;
+            h.set_item("p50", s.p50)?;
+            h.set_item("p99", s.p99)?;
+            h.set_item("p999", s.p999)?;
+            out.set_item(name, h)?;
+        }
+        Ok(out)
+    }
+
+    fn reset_stats(&self, py: Python<'_>) {
+        let engine = self.inner.clone();
+        py.detach(move || engine.reset_stats());
+    }
+
+    /// Put the safe image on the wire from the next cyclic frame on, until `clear_panic()`.
+    fn panic(&self) {
+        self.inner.panic();
+    }
+
+    /// Back to the output buffer (rewrite it first).
+    fn clear_panic(&self) {
+        self.inner.clear_panic();
+    }
+
+    /// Count as a fresh command for the watchdog without writing outputs.
+    fn feed_watchdog(&self) {
+        self.inner.feed_watchdog();
+    }
+
+    #[getter]
+    fn is_running(&self) -> bool {
+        self.inner.is_running()
+    }
+
+    #[getter]
+    fn is_panicked(&self) -> bool {
+        self.inner.is_panicked()
+    }
+
+    #[getter]
+    fn is_closed(&self) -> bool {
+        self.inner.is_closed()
+    }
+
+    /// What the engine is attached to ("interface 'veth0'", "in-process SimNetwork").
+    #[getter]
+    fn link(&self) -> String {
+        self.inner.describe().to_string()
+    }
+
+    /// Stop the RT thread and close the link.
+    fn close(&self, py: Python<'_>) {
+        let engine = self.inner.clone();
+        py.detach(move || engine.close());
+    }
+
+    /// CLOCK_MONOTONIC in ns (the engine's time base).
+    #[staticmethod]
+    fn now_ns() -> i64 {
+        ether_ros_engine::now_ns()
+    }
+
+    fn __enter__(slf: Py<Self>) -> Py<Self> {
+        slf
+    }
+
+    fn __exit__(
+        &self,
+        py: Python<'_>,
+        _t: Option<Bound<'_, PyAny>>,
+        _v: Option<Bound<'_, PyAny>>,
+        _tb: Option<Bound<'_, PyAny>>,
+    ) {
+        self.close(py);
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "<Engine on {}{}>",
+            self.inner.describe(),
+            if self.inner.is_running() {
+                ", cyclic"
+            } else {
+                ""
+            }
+        )
+    }
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    let py = m.py();
+    m.add_class::<PyEngine>()?;
+    let close_all = wrap_pyfunction!(_close_all_engines, m)?;
+    py.import("atexit")?
+        .call_method1("register", (close_all,))?;
+    m.add("EngineError", engine_error(py))?;
+    m.add("EngineTimeout", engine_timeout(py))?;
+    m.add("SAMPLE_RECORD_LEN", RECORD_LEN)?;
+    let f = PyDict::new(py);
+    for (name, bit) in [
+        ("lost", flags::LOST),
+        ("late", flags::LATE),
+        ("wkc_error", flags::WKC_ERROR),
+        ("panic", flags::PANIC),
+        ("watchdog", flags::WATCHDOG),
+        ("unmatched", flags::UNMATCHED),
+        ("dc_adjusted", flags::DC_ADJUSTED),
+        ("acyclic", flags::ACYCLIC),
+        ("overrun", flags::OVERRUN),
+        ("send_error", flags::SEND_ERROR),
+    ] {
+        f.set_item(name, bit)?;
+    }
+    m.add("SAMPLE_FLAGS", f)?;
     Ok(())
 }

@@ -1,7 +1,623 @@
-//! Python bindings for the sim.
+//! Python bindings for the simulator: `ether_ros._native.SimNetwork`.
+//!
+//! # Slave spec (the dict passed to `SimNetwork.add_slave`)
+//!
+//! Built by `python/ether_ros/sim/spec.py` from the bus config and the ESI. Keys (all optional
+//! except `sii`; a wrong type is a `ValueError` naming the key):
+//!
+//! | key | type | meaning |
+//! |---|---|---|
+//! | `name` | str | slave name, for messages |
+//! | `vendor_id`, `product_code`, `revision`, `serial` | int | identity (informational: the master reads them from the SII) |
+//! | `alias` | int | station alias; used only when `sii` is shorter than 5 words (the ESC loads 0x0012 from SII word 4) |
+//! | `sii` | bytes | the SII EEPROM image (even length) |
+//! | `objects` | list[(index, name, object_code)] | CoE objects |
+//! | `entries` | list[(index, subindex, name, data_type, bit_length, access, pdo_mappable, default)] | CoE entries; `access` is 'ro', 'rw' or 'wo'; `default` is little-endian bytes |
+//! | `device` | str | firmware model for `devices::create` ("none", "laelaps_leg", "generic_io", ...) |
+//! | `params` | dict[str, float] | device parameters |
+//! | `drift_ppm` | float | clock drift of the slave's local clock |
+//! | `delay_ns` | int | propagation delay from the previous slave (or the master) to this one |
+//! | `dc_supported` | bool | ESC has distributed clocks (feature bit 2/3 in 0x0008) |
+//! | `dc_required` | bool | PREOP->SAFEOP refuses (0x0030) unless SYNC0 is active with a cycle time |
+//! | `mailbox` | dict{rx_offset, rx_size, tx_offset, tx_size} or None | standard mailbox (SM0 = rx, master->slave; SM1 = tx) |
+//! | `pdram_kib` | int | process-data RAM size in KiB (register 0x0006), default 8 |
 
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Duration;
+
+use pyo3::exceptions::{PyIndexError, PyOSError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
+use pyo3::types::{PyBytes, PyDict, PyList};
 
-pub fn register(_m: &Bound<'_, PyModule>) -> PyResult<()> {
+use ether_ros_sim::esc::Esc;
+use ether_ros_sim::faults::Rng;
+use ether_ros_sim::od::{Access, Entry, Object};
+use ether_ros_sim::runner::Runner;
+use ether_ros_sim::{MailboxSpec, Network, SlaveSpec};
+use ether_ros_wire::{reg, Command};
+
+fn bad_key(key: &str, expected: &str) -> PyErr {
+    PyValueError::new_err(format!("slave spec key '{key}': expected {expected}"))
+}
+
+fn get<'py, T>(spec: &Bound<'py, PyDict>, key: &str, expected: &str) -> PyResult<Option<T>>
+where
+    T: for<'a> FromPyObject<'a, 'py>,
+{
+    match spec.get_item(key)? {
+        None => Ok(None),
+        Some(v) if v.is_none() => Ok(None),
+        Some(v) => v
+            .extract::<T>()
+            .map(Some)
+            .map_err(|_| bad_key(key, expected)),
+    }
+}
+
+fn bytes_of(v: &Bound<'_, PyAny>, key: &str) -> PyResult<Vec<u8>> {
+    if v.is_none() {
+        return Ok(Vec::new());
+    }
+    if let Ok(b) = v.cast::<PyBytes>() {
+        return Ok(b.as_bytes().to_vec());
+    }
+    v.extract::<Vec<u8>>().map_err(|_| bad_key(key, "bytes"))
+}
+
+/// Convert the Python spec dict into a `SlaveSpec` (see the module documentation).
+fn parse_spec(spec: &Bound<'_, PyDict>) -> PyResult<SlaveSpec> {
+    let mut s = SlaveSpec::default();
+    const KNOWN: &[&str] = &[
+        "name",
+        "vendor_id",
+        "product_code",
+        "revision",
+        "serial",
+        "alias",
+        "sii",
+        "objects",
+        "entries",
+        "device",
+        "params",
+        "drift_ppm",
+        "delay_ns",
+        "dc_supported",
+        "dc_required",
+        "mailbox",
+        "pdram_kib",
+    ];
+    for k in spec.keys() {
+        let k: String = k
+            .extract()
+            .map_err(|_| PyValueError::new_err("slave spec keys must be strings"))?;
+        if !KNOWN.contains(&k.as_str()) {
+            return Err(PyValueError::new_err(format!(
+                "slave spec: unknown key '{k}'"
+            )));
+        }
+    }
+    if let Some(v) = get::<String>(spec, "name", "str")? {
+        s.name = v;
+    }
+    s.vendor_id = get::<u32>(spec, "vendor_id", "int (u32)")?.unwrap_or(0);
+    s.product_code = get::<u32>(spec, "product_code", "int (u32)")?.unwrap_or(0);
+    s.revision = get::<u32>(spec, "revision", "int (u32)")?.unwrap_or(0);
+    s.serial = get::<u32>(spec, "serial", "int (u32)")?.unwrap_or(0);
+    s.alias = get::<u16>(spec, "alias", "int (u16)")?.unwrap_or(0);
+    match spec.get_item("sii")? {
+        Some(v) => s.sii = bytes_of(&v, "sii")?,
+        None => {
+            return Err(PyValueError::new_err(
+                "slave spec: missing key 'sii' (the EEPROM image)",
+            ))
+        }
+    }
+    if let Some(list) = spec.get_item("objects")? {
+        for item in list
+            .try_iter()
+            .map_err(|_| bad_key("objects", "a list of (index, name, object_code)"))?
+        {
+            let (index, name, object_code): (u16, String, u8) = item?
+                .extract()
+                .map_err(|_| bad_key("objects", "a list of (index, name, object_code)"))?;
+            s.objects.push(Object {
+                index,
+                name,
+                object_code,
+            });
+        }
+    }
+    if let Some(list) = spec.get_item("entries")? {
+        let what = "a list of (index, subindex, name, data_type, bit_length, access, pdo_mappable, default)";
+        for item in list.try_iter().map_err(|_| bad_key("entries", what))? {
+            let item = item?;
+            let (index, subindex, name, data_type, bit_length, access, pdo_mappable, default): (
+                u16,
+                u8,
+                String,
+                u16,
+                u16,
+                String,
+                bool,
+                Bound<'_, PyAny>,
+            ) = item.extract().map_err(|_| bad_key("entries", what))?;
+            let access = match access.as_str() {
+                "ro" => Access::ReadOnly,
+                "rw" => Access::ReadWrite,
+                "wo" => Access::WriteOnly,
+                other => {
+                    return Err(PyValueError::new_err(format!(
+                        "slave spec key 'entries': entry 0x{index:04X}:{subindex} has access '{other}', expected 'ro', 'rw' or 'wo'"
+                    )))
+                }
+            };
+            let value = bytes_of(&default, "entries")?;
+            s.entries.push(Entry {
+                index,
+                subindex,
+                name,
+                data_type,
+                bit_length,
+                access,
+                pdo_mappable,
+                value,
+            });
+        }
+    }
+    if let Some(v) = get::<String>(spec, "device", "str")? {
+        s.device = v;
+    }
+    if let Some(p) = spec.get_item("params")? {
+        if !p.is_none() {
+            let d = p
+                .cast::<PyDict>()
+                .map_err(|_| bad_key("params", "dict[str, float]"))?;
+            for (k, v) in d.iter() {
+                let k: String = k
+                    .extract()
+                    .map_err(|_| bad_key("params", "dict[str, float]"))?;
+                let v: f64 = v
+                    .extract()
+                    .map_err(|_| bad_key("params", "dict[str, float]"))?;
+                s.params.push((k, v));
+            }
+            s.params.sort_by(|a, b| a.0.cmp(&b.0));
+        }
+    }
+    s.drift_ppm = get::<f64>(spec, "drift_ppm", "float")?.unwrap_or(0.0);
+    if let Some(d) = get::<u64>(spec, "delay_ns", "int >= 0")? {
+        s.delay_ns = d;
+    }
+    if let Some(v) = get::<bool>(spec, "dc_supported", "bool")? {
+        s.dc_supported = v;
+    }
+    s.dc_required = get::<bool>(spec, "dc_required", "bool")?.unwrap_or(false);
+    if let Some(m) = spec.get_item("mailbox")? {
+        if !m.is_none() {
+            let what = "None or dict {rx_offset, rx_size, tx_offset, tx_size}";
+            let d = m.cast::<PyDict>().map_err(|_| bad_key("mailbox", what))?;
+            let field = |k: &str| -> PyResult<u16> {
+                get::<u16>(d, k, "int (u16)")?.ok_or_else(|| bad_key("mailbox", what))
+            };
+            s.mailbox = Some(MailboxSpec {
+                rx_offset: field("rx_offset")?,
+                rx_size: field("rx_size")?,
+                tx_offset: field("tx_offset")?,
+                tx_size: field("tx_size")?,
+            });
+        }
+    }
+    if let Some(k) = get::<u8>(spec, "pdram_kib", "int 1..=60")? {
+        if !(1..=60).contains(&k) {
+            return Err(bad_key("pdram_kib", "int 1..=60"));
+        }
+        s.pdram_kib = k;
+    }
+    Ok(s)
+}
+
+/// A virtual EtherCAT network (a line of virtual slaves).
+#[pyclass(name = "SimNetwork", module = "ether_ros._native")]
+pub struct SimNetwork {
+    net: Arc<Mutex<Network>>,
+    runner: Option<Runner>,
+}
+
+impl SimNetwork {
+    /// The shared network, for the engine's in-process link.
+    pub fn shared(&self) -> Arc<Mutex<Network>> {
+        self.net.clone()
+    }
+
+    fn lock(&self) -> PyResult<MutexGuard<'_, Network>> {
+        self.net
+            .lock()
+            .map_err(|_| PyRuntimeError::new_err("simulator state poisoned by a panic"))
+    }
+}
+
+fn slave(net: &mut Network, pos: usize) -> PyResult<&mut Esc> {
+    let n = net.slaves.len();
+    net.slaves.get_mut(pos).ok_or_else(|| {
+        PyIndexError::new_err(format!("no slave at position {pos} (the network has {n})"))
+    })
+}
+
+fn kw<'py, T>(kwargs: Option<&Bound<'py, PyDict>>, key: &str, kind: &str) -> PyResult<Option<T>>
+where
+    T: for<'a> FromPyObject<'a, 'py>,
+{
+    let Some(d) = kwargs else { return Ok(None) };
+    match d.get_item(key)? {
+        None => Ok(None),
+        Some(v) if v.is_none() => Ok(None),
+        Some(v) => v.extract::<T>().map(Some).map_err(|_| {
+            PyValueError::new_err(format!(
+                "fault '{kind}': argument '{key}' has the wrong type"
+            ))
+        }),
+    }
+}
+
+fn need<T>(v: Option<T>, kind: &str, key: &str) -> PyResult<T> {
+    v.ok_or_else(|| PyValueError::new_err(format!("fault '{kind}' needs the argument '{key}'")))
+}
+
+#[pymethods]
+impl SimNetwork {
+    /// `SimNetwork(seed=1, manual_clock_ns=None)`: with `manual_clock_ns` time stands still
+    /// until `advance_clock` moves it (deterministic tests); otherwise CLOCK_MONOTONIC.
+    #[new]
+    #[pyo3(signature = (seed = 1, manual_clock_ns = None))]
+    fn new(seed: u64, manual_clock_ns: Option<u64>) -> Self {
+        let mut net = match manual_clock_ns {
+            Some(t) => Network::with_manual_clock(t),
+            None => Network::new(),
+        };
+        net.rng = Rng::new(seed);
+        SimNetwork {
+            net: Arc::new(Mutex::new(net)),
+            runner: None,
+        }
+    }
+
+    /// Append a slave built from a spec dict; returns its position.
+    fn add_slave(&self, spec: &Bound<'_, PyDict>) -> PyResult<usize> {
+        let s = parse_spec(spec)?;
+        let name = s.name.clone();
+        self.lock()?
+            .add_slave(s)
+            .map_err(|e| PyValueError::new_err(format!("slave '{name}': {e}")))
+    }
+
+    fn __len__(&self) -> PyResult<usize> {
+        Ok(self.lock()?.slaves.len())
+    }
+
+    /// Process one frame; returns the answer, or None when it is dropped or not EtherCAT.
+    fn process_frame<'py>(
+        &self,
+        py: Python<'py>,
+        frame: &[u8],
+    ) -> PyResult<Option<Bound<'py, PyBytes>>> {
+        let mut buf = frame.to_vec();
+        let net = self.net.clone();
+        let answered = py.detach(move || -> Result<Option<Vec<u8>>, ()> {
+            let (ok, delay) = {
+                let mut n = net.lock().map_err(|_| ())?;
+                let ok = n.process_frame(&mut buf);
+                (ok, n.reply_delay_us())
+            };
+            if ok && delay > 0 {
+                std::thread::sleep(Duration::from_micros(delay));
+            }
+            Ok(if ok { Some(buf) } else { None })
+        });
+        match answered {
+            Ok(Some(b)) => Ok(Some(PyBytes::new(py, &b))),
+            Ok(None) => Ok(None),
+            Err(()) => Err(PyRuntimeError::new_err(
+                "simulator state poisoned by a panic",
+            )),
+        }
+    }
+
+    /// Advance device models, SYNC0 and watchdogs to now without a frame.
+    fn poll(&self, py: Python<'_>) -> PyResult<()> {
+        let net = self.net.clone();
+        py.detach(move || net.lock().map(|mut n| n.poll()).map_err(|_| ()))
+            .map_err(|_| PyRuntimeError::new_err("simulator state poisoned by a panic"))
+    }
+
+    /// Move a manual clock forward (no effect with the monotonic clock).
+    fn advance_clock(&self, ns: u64) -> PyResult<()> {
+        self.lock()?.advance_clock(ns);
+        Ok(())
+    }
+
+    /// Serve frames on a network interface from a background thread (AF_PACKET).
+    fn run_on_interface(&mut self, ifname: &str) -> PyResult<()> {
+        if self.runner.as_ref().is_some_and(|r| r.is_running()) {
+            return Err(PyRuntimeError::new_err(
+                "the simulator already runs on an interface; call stop() first",
+            ));
+        }
+        let r = Runner::start(self.net.clone(), ifname)
+            .map_err(|e| PyOSError::new_err(format!("cannot serve EtherCAT on '{ifname}': {e}")))?;
+        self.runner = Some(r);
+        Ok(())
+    }
+
+    /// Stop the interface thread (no effect when not running).
+    fn stop(&mut self, py: Python<'_>) {
+        if let Some(mut r) = self.runner.take() {
+            py.detach(move || r.stop());
+        }
+    }
+
+    #[getter]
+    fn running(&self) -> bool {
+        self.runner.as_ref().is_some_and(|r| r.is_running())
+    }
+
+    /// Inject a fault: drop(rate, burst=1), corrupt(rate, bytes=1), delay(us), reset(pos),
+    /// refuse_op(pos, enable=True), link(up, pos=None), drift_step(pos, ppm),
+    /// stall_mailbox(pos, enable=True), seed(seed), clear().
+    #[pyo3(signature = (kind, **kwargs))]
+    fn fault(&self, kind: &str, kwargs: Option<&Bound<'_, PyDict>>) -> PyResult<()> {
+        let allowed: &[&str] = match kind {
+            "drop" => &["rate", "burst"],
+            "corrupt" => &["rate", "bytes"],
+            "delay" => &["us"],
+            "reset" => &["pos"],
+            "refuse_op" | "stall_mailbox" => &["pos", "enable"],
+            "link" => &["up", "pos"],
+            "drift_step" => &["pos", "ppm"],
+            "seed" => &["seed"],
+            "clear" => &[],
+            other => {
+                return Err(PyValueError::new_err(format!(
+                    "unknown fault '{other}' (drop, corrupt, delay, reset, refuse_op, link, drift_step, stall_mailbox, seed, clear)"
+                )))
+            }
+        };
+        if let Some(d) = kwargs {
+            for k in d.keys() {
+                let k: String = k.extract()?;
+                if !allowed.contains(&k.as_str()) {
+                    return Err(PyValueError::new_err(format!(
+                        "fault '{kind}' has no argument '{k}' (expected: {})",
+                        allowed.join(", ")
+                    )));
+                }
+            }
+        }
+        let mut net = self.lock()?;
+        match kind {
+            "drop" => {
+                let rate: f64 = need(kw(kwargs, "rate", kind)?, kind, "rate")?;
+                if !(0.0..=1.0).contains(&rate) {
+                    return Err(PyValueError::new_err(format!(
+                        "fault 'drop': rate {rate} is not within 0..1"
+                    )));
+                }
+                net.faults.drop_rate = rate;
+                net.faults.drop_burst = kw::<u32>(kwargs, "burst", kind)?.unwrap_or(1).max(1);
+            }
+            "corrupt" => {
+                let rate: f64 = need(kw(kwargs, "rate", kind)?, kind, "rate")?;
+                if !(0.0..=1.0).contains(&rate) {
+                    return Err(PyValueError::new_err(format!(
+                        "fault 'corrupt': rate {rate} is not within 0..1"
+                    )));
+                }
+                net.faults.corrupt_rate = rate;
+                net.faults.corrupt_bytes = kw::<u32>(kwargs, "bytes", kind)?.unwrap_or(1).max(1);
+            }
+            "delay" => net.faults.delay_us = need(kw(kwargs, "us", kind)?, kind, "us")?,
+            "reset" => {
+                let pos: usize = need(kw(kwargs, "pos", kind)?, kind, "pos")?;
+                slave(&mut net, pos)?;
+                net.reset_slave(pos);
+            }
+            "refuse_op" | "stall_mailbox" => {
+                let pos: usize = need(kw(kwargs, "pos", kind)?, kind, "pos")?;
+                let enable = kw::<bool>(kwargs, "enable", kind)?.unwrap_or(true);
+                let s = slave(&mut net, pos)?;
+                if kind == "refuse_op" {
+                    s.refuse_op = enable;
+                } else {
+                    s.mailbox_stalled = enable;
+                }
+            }
+            "link" => {
+                let up: bool = need(kw(kwargs, "up", kind)?, kind, "up")?;
+                match kw::<usize>(kwargs, "pos", kind)? {
+                    None => net.faults.link_down = !up,
+                    Some(pos) => {
+                        slave(&mut net, pos)?;
+                        net.faults.link_break_at = if up { None } else { Some(pos) };
+                        net.update_topology();
+                    }
+                }
+            }
+            "drift_step" => {
+                let pos: usize = need(kw(kwargs, "pos", kind)?, kind, "pos")?;
+                let ppm: f64 = need(kw(kwargs, "ppm", kind)?, kind, "ppm")?;
+                let now = net.now();
+                let s = slave(&mut net, pos)?;
+                let d = s.dc.drift_ppm();
+                s.dc.set_drift(now, d + ppm);
+            }
+            "seed" => net.rng = Rng::new(need(kw(kwargs, "seed", kind)?, kind, "seed")?),
+            "clear" => {
+                net.faults = Default::default();
+                for s in net.slaves.iter_mut() {
+                    s.refuse_op = false;
+                    s.mailbox_stalled = false;
+                }
+                net.update_topology();
+            }
+            _ => unreachable!("checked above"),
+        }
+        Ok(())
+    }
+
+    /// State of one slave: AL state/code, addresses, DC, watchdog, counters.
+    fn slave_info<'py>(&self, py: Python<'py>, pos: usize) -> PyResult<Bound<'py, PyDict>> {
+        let mut net = self.lock()?;
+        let now = net.now();
+        let s = slave(&mut net, pos)?;
+        let d = PyDict::new(py);
+        let offset = s.get64(reg::DC_SYSTEM_TIME_OFFSET);
+        let local = s.dc.local(now);
+        d.set_item("name", &s.spec.name)?;
+        d.set_item("position", pos)?;
+        d.set_item("al_state", s.al_state)?;
+        d.set_item("al_state_name", reg::al::name(s.al_state))?;
+        d.set_item("al_error", s.al_error)?;
+        d.set_item("al_status_code", s.al_code)?;
+        d.set_item("station_address", s.station_address())?;
+        d.set_item("alias", s.alias())?;
+        d.set_item("dc_local_time", local)?;
+        d.set_item("dc_system_time", local.wrapping_add(offset))?;
+        d.set_item("dc_system_time_offset", offset)?;
+        d.set_item("dc_system_time_delay", s.get32(reg::DC_SYSTEM_TIME_DELAY))?;
+        let diff = s.get32(reg::DC_SYSTEM_TIME_DIFF);
+        let diff_ns = if diff & 0x8000_0000 != 0 {
+            -((diff & 0x7fff_ffff) as i64)
+        } else {
+            diff as i64
+        };
+        d.set_item("dc_system_time_difference", diff_ns)?;
+        d.set_item("dc_drift_ppm", s.dc.drift_ppm())?;
+        d.set_item("dc_correction_ppm", s.dc.correction_ppm())?;
+        d.set_item("sync0_active", s.sync0_active())?;
+        d.set_item("watchdog_expired", s.watchdog_expired)?;
+        d.set_item("refuse_op", s.refuse_op)?;
+        d.set_item("mailbox_stalled", s.mailbox_stalled)?;
+        d.set_item("mailbox_queue", s.mailbox_queue_len())?;
+        d.set_item("outputs_bytes", s.out_map.bytes())?;
+        d.set_item("inputs_bytes", s.in_map.bytes())?;
+        let c = &s.counters;
+        d.set_item("frames", c.frames)?;
+        d.set_item("device_steps", c.device_steps)?;
+        d.set_item("device_steps_skipped", c.device_steps_skipped)?;
+        d.set_item("sync0_events", c.sync0_events)?;
+        d.set_item("sync0_late_starts", c.sync0_late_starts)?;
+        d.set_item("watchdog_expirations", c.watchdog_expirations)?;
+        d.set_item("mailbox_received", c.mailbox_received)?;
+        d.set_item("mailbox_sent", c.mailbox_sent)?;
+        d.set_item("mailbox_errors", c.mailbox_errors)?;
+        d.set_item("al_errors", c.al_errors)?;
+        Ok(d)
+    }
+
+    /// Device physics of one slave (SI units), empty without a device model.
+    fn probe<'py>(&self, py: Python<'py>, pos: usize) -> PyResult<Bound<'py, PyDict>> {
+        let mut net = self.lock()?;
+        let s = slave(&mut net, pos)?;
+        let d = PyDict::new(py);
+        for (k, v) in s.probe() {
+            d.set_item(k, v)?;
+        }
+        Ok(d)
+    }
+
+    /// Raw value of an object-dictionary entry (little endian).
+    fn od_read<'py>(
+        &self,
+        py: Python<'py>,
+        pos: usize,
+        index: u16,
+        subindex: u8,
+    ) -> PyResult<Bound<'py, PyBytes>> {
+        let mut net = self.lock()?;
+        let s = slave(&mut net, pos)?;
+        match s.od.get_bytes(index, subindex) {
+            Some(b) => Ok(PyBytes::new(py, b)),
+            None => Err(PyValueError::new_err(format!(
+                "slave {pos} has no object entry 0x{index:04X}:{subindex}"
+            ))),
+        }
+    }
+
+    /// Set an object-dictionary entry from raw bytes (padded/truncated to its size).
+    fn od_write(&self, pos: usize, index: u16, subindex: u8, data: &[u8]) -> PyResult<()> {
+        let mut net = self.lock()?;
+        let s = slave(&mut net, pos)?;
+        if s.od.set_bytes(index, subindex, data) {
+            Ok(())
+        } else {
+            Err(PyValueError::new_err(format!(
+                "slave {pos} has no object entry 0x{index:04X}:{subindex}"
+            )))
+        }
+    }
+
+    /// Raw ESC memory (registers and process RAM as stored, without access side effects).
+    fn memory<'py>(
+        &self,
+        py: Python<'py>,
+        pos: usize,
+        address: usize,
+        length: usize,
+    ) -> PyResult<Bound<'py, PyBytes>> {
+        let mut net = self.lock()?;
+        let s = slave(&mut net, pos)?;
+        let m = s.memory();
+        let end = address.saturating_add(length).min(m.len());
+        let start = address.min(end);
+        Ok(PyBytes::new(py, &m[start..end]))
+    }
+
+    /// Network counters: frames seen/answered/dropped/corrupted/malformed, per-command counts.
+    fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let net = self.lock()?;
+        let st = &net.stats;
+        let d = PyDict::new(py);
+        d.set_item("slaves", net.slaves.len())?;
+        d.set_item("frames_seen", st.frames_seen)?;
+        d.set_item("frames_answered", st.frames_answered)?;
+        d.set_item("frames_dropped", st.frames_dropped)?;
+        d.set_item("frames_corrupted", st.frames_corrupted)?;
+        d.set_item("frames_malformed", st.frames_malformed)?;
+        d.set_item("frames_not_ethercat", st.frames_not_ethercat)?;
+        d.set_item("datagrams", st.datagrams)?;
+        d.set_item("unknown_commands", st.unknown_commands)?;
+        d.set_item("polls", st.polls)?;
+        d.set_item("send_errors", st.send_errors)?;
+        let cmds = PyDict::new(py);
+        for c in 0..15u8 {
+            if let Some(cmd) = Command::from_u8(c) {
+                cmds.set_item(cmd.name(), st.per_command[c as usize])?;
+            }
+        }
+        d.set_item("commands", cmds)?;
+        d.set_item(
+            "running",
+            self.runner.as_ref().is_some_and(|r| r.is_running()),
+        )?;
+        let faults = PyList::empty(py);
+        let f = &net.faults;
+        if f.drop_rate > 0.0 {
+            faults.append("drop")?;
+        }
+        if f.corrupt_rate > 0.0 {
+            faults.append("corrupt")?;
+        }
+        if f.delay_us > 0 {
+            faults.append("delay")?;
+        }
+        if f.link_down || f.link_break_at.is_some() {
+            faults.append("link")?;
+        }
+        d.set_item("active_faults", faults)?;
+        Ok(d)
+    }
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<SimNetwork>()?;
     Ok(())
 }

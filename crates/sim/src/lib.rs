@@ -1,6 +1,20 @@
 //! The virtual EtherCAT network: a line of virtual slave controllers (ESCs) that process real
 //! frames, with device applications (firmware models) and fault injection.
 
+pub mod coe;
+pub mod dc;
 pub mod device;
 pub mod devices;
+pub mod esc;
+pub mod faults;
+pub mod fmmu;
+pub mod network;
 pub mod od;
+pub mod pdo;
+pub mod runner;
+pub mod sii;
+pub mod sm;
+pub mod spec;
+
+pub use network::Network;
+pub use spec::{MailboxSpec, SlaveSpec};

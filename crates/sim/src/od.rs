@@ -75,7 +75,9 @@ impl ObjectDictionary {
 
     /// Add or replace an entry. Its value is padded/truncated to the bit length.
     pub fn add_entry(&mut self, mut entry: Entry) {
-        entry.value.resize((entry.bit_length as usize).div_ceil(8), 0);
+        entry
+            .value
+            .resize((entry.bit_length as usize).div_ceil(8), 0);
         let key = (entry.index, entry.subindex);
         match self.by_key.get(&key) {
             Some(&i) => self.entries[i] = entry,
@@ -95,11 +97,15 @@ impl ObjectDictionary {
     }
 
     pub fn entry(&self, index: u16, subindex: u8) -> Option<&Entry> {
-        self.by_key.get(&(index, subindex)).map(|&i| &self.entries[i])
+        self.by_key
+            .get(&(index, subindex))
+            .map(|&i| &self.entries[i])
     }
 
     pub fn entry_mut(&mut self, index: u16, subindex: u8) -> Option<&mut Entry> {
-        self.by_key.get(&(index, subindex)).map(|&i| &mut self.entries[i])
+        self.by_key
+            .get(&(index, subindex))
+            .map(|&i| &mut self.entries[i])
     }
 
     /// Entries of one object, in subindex order.
@@ -120,7 +126,11 @@ impl ObjectDictionary {
             Some(e) => {
                 let n = e.value.len();
                 for (i, b) in e.value.iter_mut().enumerate() {
-                    *b = if i < bytes.len() && i < n { bytes[i] } else { 0 };
+                    *b = if i < bytes.len() && i < n {
+                        bytes[i]
+                    } else {
+                        0
+                    };
                 }
                 true
             }
@@ -130,7 +140,9 @@ impl ObjectDictionary {
 
     /// Read an integer or bool entry as i64 (sign-extended for signed types). Missing: 0.
     pub fn get_int(&self, index: u16, subindex: u8) -> i64 {
-        let Some(e) = self.entry(index, subindex) else { return 0 };
+        let Some(e) = self.entry(index, subindex) else {
+            return 0;
+        };
         let mut raw = [0u8; 8];
         let n = e.value.len().min(8);
         raw[..n].copy_from_slice(&e.value[..n]);
@@ -153,7 +165,7 @@ impl ObjectDictionary {
             let n = e.value.len().min(8);
             e.value[..n].copy_from_slice(&bytes[..n]);
             let bits = e.bit_length as usize;
-            if bits % 8 != 0 && n > 0 {
+            if !bits.is_multiple_of(8) && n > 0 {
                 e.value[n - 1] &= (1u8 << (bits % 8)) - 1;
             }
         }
@@ -165,6 +177,22 @@ impl ObjectDictionary {
 
     pub fn entries(&self) -> &[Entry] {
         &self.entries
+    }
+
+    /// Position of an entry in `entries()`, stable until the dictionary is rebuilt: lets the
+    /// process-data copy skip the hash lookup every cycle.
+    pub fn position(&self, index: u16, subindex: u8) -> Option<usize> {
+        self.by_key.get(&(index, subindex)).copied()
+    }
+
+    /// Entry at a position from `position()`. Panics on a position not from this dictionary.
+    pub fn entry_at(&self, position: usize) -> &Entry {
+        &self.entries[position]
+    }
+
+    /// Mutable entry at a position from `position()`.
+    pub fn entry_at_mut(&mut self, position: usize) -> &mut Entry {
+        &mut self.entries[position]
     }
 }
 

@@ -1,12 +1,36 @@
 //! Device applications (firmware models) the simulator can run behind a virtual ESC.
 
+pub mod generic_io;
+pub mod laelaps_leg;
+pub mod leg_kinematics;
+pub mod leg_physics;
+pub mod trajectory;
+
 use crate::device::DeviceApp;
+
+/// Device kinds `create` knows, for error messages and documentation.
+pub const KINDS: &[&str] = &["laelaps_leg", "generic_io", "none"];
 
 /// Create a device application by its config name. `params` come from the bus config
 /// (`sim.params` of a slave); unknown names are an error naming the kind.
-pub fn create(kind: &str, _params: &[(String, f64)]) -> Result<Option<Box<dyn DeviceApp>>, String> {
+pub fn create(kind: &str, params: &[(String, f64)]) -> Result<Option<Box<dyn DeviceApp>>, String> {
     match kind {
-        "none" | "" => Ok(None),
-        other => Err(format!("unknown simulated device kind '{other}'")),
+        "none" | "" => {
+            if let Some((name, _)) = params.first() {
+                return Err(format!(
+                    "simulated device kind 'none' takes no parameters, got '{name}'"
+                ));
+            }
+            Ok(None)
+        }
+        "laelaps_leg" => {
+            let config = laelaps_leg::LaelapsLegConfig::from_params(params)?;
+            Ok(Some(Box::new(laelaps_leg::LaelapsLeg::new(config))))
+        }
+        "generic_io" => Ok(Some(Box::new(generic_io::GenericIo::from_params(params)?))),
+        other => Err(format!(
+            "unknown simulated device kind '{other}' (known: {})",
+            KINDS.join(", ")
+        )),
     }
 }

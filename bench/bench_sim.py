@@ -1,0 +1,232 @@
+"""The simulator's frame path over real Ethernet (veth): how many cyclic frames it answers, the
+CPU it needs for them, and the round trip it adds over a minimal C echo measured in the same run.
+
+Per bus (4 and 16 Laelaps II legs), with the simulator process (`ether-ros sim`) in its own
+network namespace on the far end of a veth pair:
+1. baseline: the C echo on the same kind of veth pair, ping-pong round trips of the cyclic LRW
+   frame (60 bytes of process data per leg);
+2. the master (`ether_ros.master.Bus`) brings the simulated bus to OP and keeps its own cycle
+   running (bus.cycle_us, 2.5 kHz); if that fails the simulator is measured in its power-on
+   state and the report says so;
+3. ping-pong round trips through the simulator → added median round trip (simulator − echo);
+4. the C load generator sends the LRW paced at 20 kHz for a while and counts answers, while the
+   simulator process's CPU time (all threads, and its busiest thread) is read from /proc.
+
+Targets (docs/architecture.md): 4 legs at 20 kHz answered with < 25 % of one core; ≤ 10 µs
+added median round trip.
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+from baseline import (
+    CpuSample,
+    RttResult,
+    ToolError,
+    echo_responder,
+    netns_prefix,
+    rtt_probe,
+)
+from ether_ros.testing.netns import VethPair
+from report import BenchSkipped, Report, us
+
+REPO = Path(__file__).resolve().parent.parent
+BUSES = (("laelaps.yaml", 4), ("laelaps16.yaml", 16))
+BYTES_PER_LEG = 38 + 22  # Table 4.1 outputs + Table 4.2 inputs
+RATE_HZ = 20_000
+# The simulator's frame thread runs SCHED_FIFO 70 (crates/sim/src/runner.rs): the C echo gets the
+# same priority, and the probe/load generator a higher one so it paces and timestamps reliably.
+RESPONDER_PRIORITY = 70
+PROBE_PRIORITY = 75
+CPU_TARGET = 0.25
+ADDED_RTT_TARGET_NS = 10_000
+
+
+def _ether_ros_exe() -> str:
+    exe = Path(sys.executable).parent / "ether-ros"
+    if exe.exists():
+        return str(exe)
+    found = shutil.which("ether-ros")
+    if found is None:
+        raise BenchSkipped("the ether-ros command is not installed (make build)")
+    return found
+
+
+@contextmanager
+def simulator(config: Path, interface: str, netns: str | None) -> Iterator[subprocess.Popen[str]]:
+    """Run `ether-ros sim CONFIG` on ``interface`` until the block ends."""
+    cmd = [
+        *netns_prefix(netns), _ether_ros_exe(), "sim", str(config),
+        "--interface", interface, "--no-control",
+    ]  # fmt: skip
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        ready = threading.Event()
+        first: list[str] = []
+
+        def wait_ready() -> None:
+            assert proc.stdout is not None
+            line = proc.stdout.readline()
+            first.append(line)
+            ready.set()
+
+        threading.Thread(target=wait_ready, daemon=True).start()
+        if not ready.wait(60) or "ready" not in first[0]:
+            proc.kill()
+            err = proc.stderr.read() if proc.stderr else ""
+            raise ToolError(f"the simulator did not start: {first[:1]} {err.strip()[-800:]}")
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.terminate()
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+
+@contextmanager
+def master_in_op(config: Path, interface: str) -> Iterator[str]:
+    """Bring the simulated bus to OP with the real master and keep it cycling; yields the state
+    reached ("OP, master cycling at N µs" or why not)."""
+    try:
+        from ether_ros.master import Bus
+
+        bus: Any = Bus.open(config, interface=interface)
+    except Exception as e:  # the master is optional for this benchmark
+        yield f"power-on state (master bring-up failed: {type(e).__name__}: {e})"
+        return
+    try:
+        try:
+            bus.start()
+            state = f"OP, master cycling every {bus.config.bus.cycle_us} µs"
+        except Exception as e:
+            state = f"power-on state (master start failed: {type(e).__name__}: {e})"
+        yield state
+    finally:
+        bus.close()
+
+
+def _measure_bus(config: Path, legs: int, report: Report) -> dict[str, Any]:
+    quick = report.quick
+    frames = 2_000 if quick else 20_000
+    seconds = 2.0 if quick else 10.0
+    size = legs * BYTES_PER_LEG
+    with VethPair.create(netns=True) as veth, echo_responder(veth.slave, netns=veth.netns):
+        echo = rtt_probe(veth.master, frames=frames, lrw_bytes=size, priority=PROBE_PRIORITY)
+    with (
+        VethPair.create(netns=True) as veth,
+        simulator(config, veth.slave, veth.netns) as sim,
+        master_in_op(config, veth.master) as state,
+    ):
+        sim_pp = rtt_probe(veth.master, frames=frames, lrw_bytes=size, priority=PROBE_PRIORITY)
+        before = CpuSample.take(sim.pid)
+        paced = rtt_probe(
+            veth.master, rate_hz=RATE_HZ, seconds=seconds, lrw_bytes=size, priority=PROBE_PRIORITY
+        )
+        after = CpuSample.take(sim.pid)
+        cpu_total, busiest, cpu_thread = after.share_since(before)
+        if sim.poll() is not None:
+            raise ToolError(f"the simulator exited ({sim.returncode}) during the measurement")
+    return {
+        "legs": legs,
+        "lrw_bytes": size,
+        "state": state,
+        "echo": echo,
+        "sim_pingpong": sim_pp,
+        "sim_paced": paced,
+        "cpu_process": cpu_total,
+        "cpu_busiest_thread": cpu_thread,
+        "busiest_thread": busiest,
+    }
+
+
+def _as_json(r: RttResult) -> dict[str, Any]:
+    return {"sent": r.sent, "answered": r.answered, "rate_hz": r.rate_hz, "rtt_ns": r.rtt_ns}
+
+
+def run(report: Report) -> None:
+    try:
+        from ether_ros._native import SimNetwork  # noqa: F401
+    except ImportError as e:
+        raise BenchSkipped(
+            f"ether_ros._native.SimNetwork is not available yet ({e}); the C baselines are in "
+            "the `baseline` section"
+        ) from None
+    results = []
+    for name, legs in BUSES:
+        results.append(_measure_bus(REPO / "config" / name, legs, report))
+
+    rows = []
+    for r in results:
+        echo, pp, paced = r["echo"], r["sim_pingpong"], r["sim_paced"]
+        added = pp.rtt_ns["p50"] - echo.rtt_ns["p50"]
+        answered_share = paced.answered / max(paced.sent, 1)
+        rows.append(
+            [
+                r["legs"],
+                r["lrw_bytes"],
+                f"{paced.answered / paced.elapsed_s:.0f}",
+                f"{100 * answered_share:.2f} %",
+                f"{100 * r['cpu_process']:.1f} % ({100 * r['cpu_busiest_thread']:.1f} %)",
+                us(echo.rtt_ns["p50"]),
+                us(pp.rtt_ns["p50"]),
+                us(added),
+                f"{pp.rtt_ns['p50'] / max(echo.rtt_ns['p50'], 1):.2f}",
+                us(pp.rtt_ns["p99"]),
+                us(paced.rtt_ns["p50"]),
+                us(paced.rtt_ns["p99"]),
+            ]
+        )
+        report.value(
+            f"legs_{r['legs']}",
+            {
+                "state": r["state"],
+                "answered_hz": paced.answered / paced.elapsed_s,
+                "answered_share": answered_share,
+                "cpu_process": r["cpu_process"],
+                "cpu_busiest_thread": r["cpu_busiest_thread"],
+                "busiest_thread": r["busiest_thread"],
+                "added_rtt_p50_ns": added,
+                "echo": _as_json(echo),
+                "sim_pingpong": _as_json(pp),
+                "sim_paced": _as_json(paced),
+            },
+        )
+    states = "; ".join(f"{r['legs']} legs: {r['state']}" for r in results)
+    report.text(
+        f"LRW frame of 60 bytes per leg through a veth pair to `ether-ros sim` in its own "
+        f"network namespace; C load generator paced at {RATE_HZ // 1000} kHz "
+        f"({'2' if report.quick else '10'} s), ping-pong for round trips; probe SCHED_FIFO "
+        f"{PROBE_PRIORITY}, simulator frame thread and C echo SCHED_FIFO {RESPONDER_PRIORITY}. "
+        f"Slaves: {states}. "
+        "CPU: simulator process, all threads (its busiest thread), share of one core. Round "
+        "trips in µs; 'added' = simulator p50 − C echo p50 (ping-pong, same run)."
+    )
+    report.table(
+        [
+            "legs", "bytes", "answered/s", "answered", "CPU", "echo p50", "sim p50",
+            "added p50", "ratio", "sim p99", "paced p50", "paced p99",
+        ],
+        rows,
+    )  # fmt: skip
+    four = results[0]
+    added4 = four["sim_pingpong"].rtt_ns["p50"] - four["echo"].rtt_ns["p50"]
+    ok_rate = four["sim_paced"].answered >= 0.999 * four["sim_paced"].sent
+    ok_cpu = four["cpu_process"] < CPU_TARGET
+    ok_rtt = added4 <= ADDED_RTT_TARGET_NS
+    report.text(
+        f"Targets (4 legs): 20 kHz answered {'met' if ok_rate else 'NOT met'}; CPU < 25 % of "
+        f"one core {'met' if ok_cpu else 'NOT met'} ({100 * four['cpu_process']:.1f} %); added "
+        f"median round trip ≤ 10 µs {'met' if ok_rtt else 'NOT met'} ({us(added4)} µs)."
+    )
+    report.value("targets_met", {"rate": ok_rate, "cpu": ok_cpu, "added_rtt": ok_rtt})

@@ -1,0 +1,542 @@
+//! The cyclic real-time loop. Everything it touches is allocated before the loop starts; per
+//! cycle it makes only the cycle's own syscalls (clock_nanosleep, send, recvmsg/ppoll) and hands
+//! data to Python through the lock-free structures of `handover`.
+
+use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU8, Ordering};
+use std::sync::Arc;
+
+use ether_ros_wire::{self as wire, MAX_FRAME_LEN};
+
+use crate::clock::{now_ns, sleep_until};
+use crate::frames::{frame_index, reply_matches};
+use crate::handover::{flags, Mailbox, SampleRecord, SampleRing, SeqBuffer};
+use crate::link::{Link, Received};
+use crate::plan::{DcMode, FrameLayout, Order, Plan};
+use crate::stats::Stats;
+
+/// Cyclic frames carry indices 0x80..=0xFF (rotating), acyclic ones 0x00..=0x7F, so a reply
+/// tells at a glance which path it belongs to.
+pub const CYCLIC_INDEX_BIT: u8 = 0x80;
+/// At most this many frames are read per cycle, so a flood cannot hold the loop.
+const MAX_FRAMES_PER_CYCLE: usize = 32;
+
+/// State shared by the engine and its RT thread for the engine's whole life.
+#[derive(Default)]
+pub struct Shared {
+    pub stats: Stats,
+    pub mailbox: Mailbox,
+    pub panic: AtomicBool,
+    pub stop: AtomicBool,
+    /// True while the RT loop runs.
+    pub alive: AtomicBool,
+    pub reset_requested: AtomicBool,
+    /// Last write_outputs / feed_watchdog, CLOCK_MONOTONIC ns.
+    pub last_command_ns: AtomicI64,
+    pub acyclic_index: AtomicU8,
+    /// Cycle time of the running plan (for waiters), ns.
+    pub cycle_ns: AtomicI64,
+}
+
+/// The buffers of one cyclic run, shared with Python.
+pub struct Exchange {
+    pub plan: Plan,
+    /// Output ranges merged into runs (what `write_outputs` may touch).
+    pub output_runs: Vec<(usize, usize)>,
+    /// Written by Python (one writer at a time), read by the RT thread.
+    pub outputs: SeqBuffer,
+    /// The latest process image, written by the RT thread after every cycle.
+    pub image: SeqBuffer,
+    pub ring: SampleRing,
+}
+
+impl Exchange {
+    pub fn new(plan: Plan, layout: &FrameLayout) -> Exchange {
+        Exchange {
+            output_runs: layout.outputs.clone(),
+            outputs: SeqBuffer::new(&plan.initial_image),
+            image: SeqBuffer::new(&plan.initial_image),
+            ring: SampleRing::new(plan.ring_capacity, plan.image_len),
+            plan,
+        }
+    }
+}
+
+/// PI controller that moves the master's wake-up so it falls on the reference clock's cycle
+/// boundary (master_follows_ref).
+struct DcFollower {
+    locked: bool,
+    integral: f64,
+}
+
+const DC_KP: f64 = 0.2;
+const DC_KI: f64 = 0.02;
+
+impl DcFollower {
+    /// Correction (ns, added to the next wake-up) for a phase error `e` (ns, positive = the
+    /// master is late with respect to the boundary).
+    fn correct(&mut self, e: i64, cycle: i64) -> i64 {
+        if !self.locked {
+            // First measurement: jump straight onto the boundary, then track.
+            self.locked = true;
+            return -e;
+        }
+        let max_step = (cycle / 100).max(1_000);
+        self.integral =
+            (self.integral + e as f64).clamp(-(cycle as f64) * 50.0, cycle as f64 * 50.0);
+        let c = -(DC_KP * e as f64 + DC_KI * self.integral);
+        (c as i64).clamp(-max_step, max_step)
+    }
+}
+
+/// A cyclic frame on the wire.
+#[derive(Clone, Copy, Debug)]
+struct Pending {
+    cycle: u64,
+    index: u8,
+    /// When it was handed to the link, CLOCK_MONOTONIC ns.
+    tx_ns: i64,
+}
+
+/// `v` modulo `cycle`, folded into (-cycle/2, cycle/2].
+fn fold_phase(v: u64, cycle: i64) -> i64 {
+    let p = (v % cycle as u64) as i64;
+    if p > cycle / 2 {
+        p - cycle
+    } else {
+        p
+    }
+}
+
+pub struct Cyclic {
+    pub link: Box<dyn Link>,
+    shared: Arc<Shared>,
+    ex: Arc<Exchange>,
+    layout: FrameLayout,
+    frame: Vec<u8>,
+    rx: Vec<u8>,
+    image: Vec<u8>,
+    live_out: Vec<u8>,
+    scratch: Vec<u8>,
+    out_version: u64,
+    /// Cyclic frames whose reply is awaited, in slot `cycle % 2`: in send_at_wake the frame
+    /// just sent and the previous one can both be in flight.
+    pending: [Option<Pending>; 2],
+    /// Cycle of the newest reply processed: an older reply arriving later is only counted.
+    last_processed: Option<u64>,
+    cycle: u64,
+    watchdog_tripped: bool,
+    dc: DcFollower,
+    /// (reference clock time, our send time of that frame), from this cycle's reply.
+    ref_sample: Option<(u64, i64)>,
+    // Results of the current cycle.
+    flags: u16,
+    rtt_ns: u32,
+    wkc: u16,
+    dc_diff_ns: i32,
+}
+
+impl Cyclic {
+    pub fn new(
+        link: Box<dyn Link>,
+        shared: Arc<Shared>,
+        ex: Arc<Exchange>,
+        layout: FrameLayout,
+    ) -> Cyclic {
+        let image = ex.plan.initial_image.clone();
+        Cyclic {
+            link,
+            frame: layout.template.clone(),
+            rx: vec![0u8; MAX_FRAME_LEN],
+            live_out: image.clone(),
+            scratch: image.clone(),
+            image,
+            out_version: u64::MAX,
+            layout,
+            shared,
+            ex,
+            pending: [None, None],
+            last_processed: None,
+            cycle: 0,
+            watchdog_tripped: false,
+            dc: DcFollower {
+                locked: false,
+                integral: 0.0,
+            },
+            ref_sample: None,
+            flags: 0,
+            rtt_ns: 0,
+            wkc: 0,
+            dc_diff_ns: 0,
+        }
+    }
+
+    /// First wake-up: a little ahead, on a cycle boundary of DC system time.
+    fn first_wake(&self) -> i64 {
+        let plan = &self.ex.plan;
+        let cycle = plan.cycle_ns as i64;
+        let start = now_ns() + 2 * cycle;
+        let sys = start + plan.dc.time_offset_ns;
+        start + (cycle - sys.rem_euclid(cycle)) % cycle
+    }
+
+    /// The loop. Returns when `shared.stop` is set.
+    pub fn run(&mut self) {
+        let plan_cycle = self.ex.plan.cycle_ns as i64;
+        let order = self.ex.plan.order;
+        let window = plan_cycle * 3 / 4;
+        let mut planned = self.first_wake();
+        let mut last_wake: Option<i64> = None;
+        let mut carry_flags = 0u16;
+        while !self.shared.stop.load(Ordering::Acquire) {
+            sleep_until(planned);
+            let t_wake = now_ns();
+            if self.shared.reset_requested.load(Ordering::Acquire) {
+                self.shared.stats.reset();
+                self.shared.reset_requested.store(false, Ordering::Release);
+            }
+            self.flags = std::mem::take(&mut carry_flags);
+            self.rtt_ns = 0;
+            self.wkc = 0;
+            self.dc_diff_ns = 0;
+            self.ref_sample = None;
+            if self.shared.mailbox.expire(t_wake) {
+                self.shared
+                    .stats
+                    .counters
+                    .acyclic_timeouts
+                    .fetch_add(1, Ordering::Relaxed);
+            }
+            let t_sent = match order {
+                Order::SendAtWake => {
+                    // Nothing in the frame depends on the previous reply, so the frame goes
+                    // first and the reply is read after: the earliest, steadiest send instant.
+                    let t = self.build_and_send(planned, t_wake);
+                    self.send_mailbox();
+                    self.receive(0, false);
+                    if let Some(prev) = self.cycle.checked_sub(1) {
+                        self.check_lost(prev);
+                    }
+                    t
+                }
+                Order::SendThenWait => {
+                    let t = self.build_and_send(planned, t_wake);
+                    self.send_mailbox();
+                    self.receive(planned + window, true);
+                    self.receive(0, false);
+                    self.check_lost(self.cycle);
+                    t
+                }
+            };
+            // DC: the reply tells where the reference clock stands.
+            let mut next = planned + plan_cycle;
+            self.dc_update(&mut next, plan_cycle);
+            self.ex.image.write(0, &self.image);
+            let latency = t_wake - planned;
+            let period = last_wake.map_or(0, |w| t_wake - w);
+            last_wake = Some(t_wake);
+            let record = SampleRecord {
+                cycle: self.cycle,
+                t_wake_ns: t_wake as u64,
+                wake_latency_ns: latency,
+                exec_ns: (t_sent - t_wake).clamp(0, u32::MAX as i64) as u32,
+                period_ns: period.clamp(0, u32::MAX as i64) as u32,
+                rtt_ns: self.rtt_ns,
+                wkc: self.wkc,
+                flags: self.flags,
+                dc_diff_ns: self.dc_diff_ns,
+            };
+            self.account(&record);
+            if !self.ex.ring.push(&record, &self.image) {
+                self.shared
+                    .stats
+                    .counters
+                    .samples_dropped
+                    .fetch_add(1, Ordering::Relaxed);
+            }
+            self.cycle += 1;
+            // Woke so late that the next wake-up is already past: skip whole cycles rather than
+            // sending a burst of frames to catch up.
+            let now = now_ns();
+            if next <= now {
+                let missed = (now - next) / plan_cycle + 1;
+                next += missed * plan_cycle;
+                self.shared
+                    .stats
+                    .counters
+                    .overruns
+                    .fetch_add(missed as u64, Ordering::Relaxed);
+                carry_flags |= flags::OVERRUN;
+            }
+            planned = next;
+        }
+        self.shared.alive.store(false, Ordering::Release);
+    }
+
+    fn account(&self, r: &SampleRecord) {
+        let s = &self.shared.stats;
+        s.counters.cycles.fetch_add(1, Ordering::Relaxed);
+        s.wake_latency.record(r.wake_latency_ns.max(0) as u64);
+        s.exec.record(r.exec_ns as u64);
+        if r.period_ns > 0 {
+            s.period.record(r.period_ns as u64);
+        }
+        if r.rtt_ns > 0 {
+            s.rtt.record(r.rtt_ns as u64);
+        }
+    }
+
+    /// The frame of cycle `cycle` had its chance: no reply means lost.
+    fn check_lost(&mut self, cycle: u64) {
+        let slot = &mut self.pending[(cycle % 2) as usize];
+        if slot.is_some_and(|p| p.cycle == cycle) {
+            *slot = None;
+            self.flags |= flags::LOST;
+            self.shared
+                .stats
+                .counters
+                .lost_frames
+                .fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    fn awaiting(&self, cycle: u64) -> bool {
+        self.pending[(cycle % 2) as usize].is_some_and(|p| p.cycle == cycle)
+    }
+
+    /// Read frames until the cyclic reply is in (when `until_cyclic`) or nothing more arrives
+    /// before `deadline_ns`.
+    fn receive(&mut self, deadline_ns: i64, until_cyclic: bool) {
+        for _ in 0..MAX_FRAMES_PER_CYCLE {
+            if until_cyclic && !self.awaiting(self.cycle) {
+                return;
+            }
+            let got = self.link.recv(&mut self.rx, deadline_ns);
+            match got {
+                Ok(Some(r)) => self.handle(r),
+                Ok(None) | Err(_) => return,
+            }
+        }
+    }
+
+    fn handle(&mut self, r: Received) {
+        let rx = &self.rx[..r.len];
+        let tx = &self.frame[..self.layout.len];
+        let index = frame_index(rx);
+        let counters = &self.shared.stats.counters;
+        let slot = index.map(|i| (i & 1) as usize);
+        let pending = slot
+            .and_then(|s| self.pending[s])
+            .filter(|p| Some(p.index) == index);
+        match index {
+            Some(_) if pending.is_some() && reply_matches(tx, rx, true) => {
+                let p = pending.unwrap();
+                self.pending[(p.cycle % 2) as usize] = None;
+                if self.last_processed.is_none_or(|c| p.cycle > c) {
+                    self.last_processed = Some(p.cycle);
+                    self.process_reply(r, p.tx_ns);
+                }
+            }
+            Some(i) if i & CYCLIC_INDEX_BIT != 0 && reply_matches(tx, rx, true) => {
+                self.flags |= flags::LATE;
+                counters.late_frames.fetch_add(1, Ordering::Relaxed);
+            }
+            Some(_)
+                if self
+                    .shared
+                    .mailbox
+                    .sent_request()
+                    .is_some_and(|req| reply_matches(req, rx, false)) =>
+            {
+                self.shared.mailbox.deliver(rx);
+            }
+            _ => {
+                self.flags |= flags::UNMATCHED;
+                counters.unmatched_frames.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+    }
+
+    /// The reply to our cyclic frame: inputs into the image, working counters, DC time.
+    fn process_reply(&mut self, r: Received, tx_ns: i64) {
+        let rx = &self.rx[..r.len];
+        self.rtt_ns = (r.rx_ns - tx_ns).clamp(0, u32::MAX as i64) as u32;
+        let mut total = 0u16;
+        let mut bad = false;
+        for (slot, expected) in &self.layout.lrw_wkc {
+            let w = wire::read_wkc(rx, slot);
+            total = total.wrapping_add(w);
+            bad |= w != *expected;
+        }
+        self.wkc = total;
+        if bad {
+            self.flags |= flags::WKC_ERROR;
+            self.shared
+                .stats
+                .counters
+                .wkc_errors
+                .fetch_add(1, Ordering::Relaxed);
+        }
+        for &(f, i, len) in &self.layout.inputs {
+            self.image[i..i + len].copy_from_slice(&rx[f..f + len]);
+        }
+        if let Some(slot) = self.layout.dc_sync {
+            if wire::read_wkc(rx, &slot) > 0 {
+                let t = u64::from_le_bytes(rx[slot.data..slot.data + 8].try_into().unwrap());
+                self.ref_sample = Some((t, tx_ns));
+            }
+        }
+    }
+
+    /// Fill the cyclic frame (outputs or the safe image, DC time, fresh index) and send it.
+    /// Returns the time the frame was handed to the link.
+    fn build_and_send(&mut self, planned: i64, t_wake: i64) -> i64 {
+        let plan = &self.ex.plan;
+        let panic = self.shared.panic.load(Ordering::Acquire);
+        let stale = plan.watchdog_ns > 0
+            && t_wake - self.shared.last_command_ns.load(Ordering::Acquire)
+                > plan.watchdog_ns as i64;
+        if stale && !self.watchdog_tripped {
+            self.shared
+                .stats
+                .counters
+                .watchdog_trips
+                .fetch_add(1, Ordering::Relaxed);
+        }
+        self.watchdog_tripped = stale;
+        if panic {
+            self.flags |= flags::PANIC;
+        }
+        if stale {
+            self.flags |= flags::WATCHDOG;
+        }
+        if !panic && !stale {
+            let v = self.ex.outputs.version();
+            if v != self.out_version {
+                // A write in progress leaves the previous complete version in place.
+                if let Some(v) = self.ex.outputs.try_read(&mut self.scratch) {
+                    std::mem::swap(&mut self.live_out, &mut self.scratch);
+                    self.out_version = v;
+                }
+            }
+        }
+        let source = if panic || stale {
+            &plan.safe_image
+        } else {
+            &self.live_out
+        };
+        for &(o, l) in &self.layout.outputs {
+            self.image[o..o + l].copy_from_slice(&source[o..o + l]);
+        }
+        for &(f, i, l) in &self.layout.lrw {
+            self.frame[f..f + l].copy_from_slice(&self.image[i..i + l]);
+        }
+        let index = CYCLIC_INDEX_BIT | (self.cycle as u8 & 0x7f);
+        for slot in &self.layout.slots {
+            self.frame[slot.header + 1] = index;
+            self.frame[slot.wkc..slot.wkc + 2].fill(0);
+        }
+        if let Some(slot) = self.layout.dc_sync {
+            self.frame[slot.data..slot.data + 8].fill(0);
+        }
+        if let Some(d) = self.layout.dc_write {
+            // The master's system time at the planned send instant.
+            let t = (planned + plan.dc.time_offset_ns) as u64;
+            self.frame[d..d + 8].copy_from_slice(&t.to_le_bytes());
+        }
+        // The round trip starts as the frame is handed to the link (a synchronous in-process
+        // link answers before `send` returns); execution time ends when `send` returned.
+        let t_handed = now_ns();
+        let sent = self.link.send(&self.frame[..self.layout.len]);
+        let t_sent = now_ns();
+        match sent {
+            Ok(()) => {
+                let cycle = self.cycle;
+                self.pending[(cycle % 2) as usize] = Some(Pending {
+                    cycle,
+                    index,
+                    tx_ns: t_handed,
+                });
+            }
+            Err(_) => {
+                self.pending[(self.cycle % 2) as usize] = None;
+                self.flags |= flags::SEND_ERROR;
+                self.shared
+                    .stats
+                    .counters
+                    .send_errors
+                    .fetch_add(1, Ordering::Relaxed);
+            }
+        }
+        t_sent
+    }
+
+    /// Send a pending acyclic request in its own frame, right after the cyclic one.
+    fn send_mailbox(&mut self) {
+        let mailbox = &self.shared.mailbox;
+        if let Some(req) = mailbox.take() {
+            // A failed send is not retried here: the request times out and `transact` retries.
+            let _ = self.link.send(req);
+            mailbox.mark_sent(now_ns());
+            self.flags |= flags::ACYCLIC;
+            self.shared
+                .stats
+                .counters
+                .acyclic_frames
+                .fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// Distributed clocks after this cycle's reply: record the difference and, when the master
+    /// follows the reference clock, move the next wake-up `next` onto its cycle boundary.
+    fn dc_update(&mut self, next: &mut i64, cycle: i64) {
+        let dc = self.ex.plan.dc;
+        let Some((ref_time, tx_ns)) = self.ref_sample else {
+            return;
+        };
+        // Offset of the reference clock against CLOCK_MONOTONIC, measured at our send instant
+        // (the frame passes the reference a few µs later: a constant the boundary absorbs).
+        let offset = ref_time.wrapping_sub(tx_ns as u64);
+        match dc.mode {
+            DcMode::Off => {}
+            DcMode::RefFollowsMaster => {
+                let master_sys = (tx_ns + dc.time_offset_ns) as u64;
+                let diff = ref_time.wrapping_sub(master_sys) as i64;
+                self.dc_diff_ns = diff.clamp(i32::MIN as i64, i32::MAX as i64) as i32;
+            }
+            DcMode::MasterFollowsRef => {
+                let phase = fold_phase((*next as u64).wrapping_add(offset), cycle);
+                self.dc_diff_ns = phase as i32;
+                let c = self.dc.correct(phase, cycle);
+                if c != 0 {
+                    *next += c;
+                    self.flags |= flags::DC_ADJUSTED;
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn phase_folds_around_the_boundary() {
+        assert_eq!(fold_phase(1_000_100, 1_000), 100);
+        assert_eq!(fold_phase(1_000_900, 1_000), -100);
+        assert_eq!(fold_phase(1_000_500, 1_000), 500);
+    }
+
+    #[test]
+    fn follower_jumps_once_then_steps_within_bounds() {
+        let mut f = DcFollower {
+            locked: false,
+            integral: 0.0,
+        };
+        assert_eq!(f.correct(300_000, 1_000_000), -300_000);
+        let c = f.correct(300_000, 1_000_000);
+        assert_eq!(c, -10_000);
+        let c = f.correct(100, 1_000_000);
+        assert!(c < 0 && c > -10_000);
+    }
+}

@@ -1,0 +1,315 @@
+//! The link carries whole Ethernet frames between the engine and the slaves: an AF_PACKET raw
+//! socket on a network interface, or a direct call into an in-process simulator.
+//!
+//! A link is owned by exactly one thread at a time (the caller of `transact` while the bus is
+//! not cyclic, the real-time thread while it is), so its methods take `&mut self` and need no
+//! locking.
+
+use std::ffi::CString;
+use std::io;
+
+use crate::clock::{now_ns, realtime_ns, timespec};
+use ether_ros_wire::{ETHERTYPE, MAX_FRAME_LEN};
+
+/// A frame that arrived: its length in the caller's buffer and when it arrived
+/// (CLOCK_MONOTONIC ns; the kernel's receive timestamp when the link has one).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Received {
+    pub len: usize,
+    pub rx_ns: i64,
+}
+
+/// Moves EtherCAT frames to the slaves and back.
+pub trait Link: Send {
+    /// Send one complete Ethernet frame.
+    fn send(&mut self, frame: &[u8]) -> io::Result<()>;
+
+    /// Receive one frame into `buf`, waiting at most until the absolute CLOCK_MONOTONIC time
+    /// `deadline_ns` (a deadline in the past means: only what is already there). `Ok(None)`
+    /// when nothing arrived in time. Frames this host sent itself are never returned.
+    fn recv(&mut self, buf: &mut [u8], deadline_ns: i64) -> io::Result<Option<Received>>;
+
+    /// What the link is attached to, for messages.
+    fn describe(&self) -> String;
+}
+
+/// An AF_PACKET raw socket bound to one interface and to the EtherCAT EtherType.
+pub struct RawSocketLink {
+    fd: libc::c_int,
+    ifname: String,
+}
+
+fn os_error(what: &str, ifname: &str) -> io::Error {
+    let e = io::Error::last_os_error();
+    io::Error::new(e.kind(), format!("{what} on interface '{ifname}': {e}"))
+}
+
+fn set_int_option(
+    fd: libc::c_int,
+    level: libc::c_int,
+    name: libc::c_int,
+    value: libc::c_int,
+) -> bool {
+    // SAFETY: `value` lives for the call and its size is passed.
+    unsafe {
+        libc::setsockopt(
+            fd,
+            level,
+            name,
+            &value as *const libc::c_int as *const libc::c_void,
+            std::mem::size_of::<libc::c_int>() as libc::socklen_t,
+        ) == 0
+    }
+}
+
+impl RawSocketLink {
+    /// Open a raw socket on `ifname`. Needs CAP_NET_RAW (root).
+    pub fn open(ifname: &str) -> io::Result<RawSocketLink> {
+        let cname = CString::new(ifname).map_err(|_| {
+            io::Error::new(
+                io::ErrorKind::InvalidInput,
+                format!("bad interface name {ifname:?}"),
+            )
+        })?;
+        // SAFETY: plain libc calls with valid arguments; the fd is closed on every error path.
+        unsafe {
+            let ifindex = libc::if_nametoindex(cname.as_ptr());
+            if ifindex == 0 {
+                return Err(io::Error::new(
+                    io::ErrorKind::NotFound,
+                    format!("no network interface named '{ifname}'"),
+                ));
+            }
+            let proto = (ETHERTYPE).to_be() as libc::c_int;
+            let fd = libc::socket(
+                libc::AF_PACKET,
+                libc::SOCK_RAW | libc::SOCK_NONBLOCK | libc::SOCK_CLOEXEC,
+                proto,
+            );
+            if fd < 0 {
+                return Err(os_error(
+                    "cannot open a raw socket (needs root or CAP_NET_RAW)",
+                    ifname,
+                ));
+            }
+            let link = RawSocketLink {
+                fd,
+                ifname: ifname.to_string(),
+            };
+            let mut sll: libc::sockaddr_ll = std::mem::zeroed();
+            sll.sll_family = libc::AF_PACKET as u16;
+            sll.sll_protocol = ETHERTYPE.to_be();
+            sll.sll_ifindex = ifindex as i32;
+            if libc::bind(
+                fd,
+                &sll as *const libc::sockaddr_ll as *const libc::sockaddr,
+                std::mem::size_of::<libc::sockaddr_ll>() as libc::socklen_t,
+            ) != 0
+            {
+                return Err(os_error("cannot bind the raw socket", ifname));
+            }
+            // Frames go straight to the driver: no queueing discipline between us and the wire.
+            // Optional (older kernels lack it), so failure is ignored.
+            set_int_option(fd, libc::SOL_PACKET, libc::PACKET_QDISC_BYPASS, 1);
+            // Kernel receive timestamps make the round trip exact even when the reply is read
+            // a cycle later (send_at_wake). Optional as well.
+            set_int_option(fd, libc::SOL_SOCKET, libc::SO_TIMESTAMPNS, 1);
+            set_int_option(fd, libc::SOL_SOCKET, libc::SO_RCVBUF, 1 << 20);
+            let mut link = link;
+            link.drain();
+            Ok(link)
+        }
+    }
+
+    /// Throw away frames queued before we were interested (e.g. from other interfaces before
+    /// bind, or a previous user of the bus).
+    pub fn drain(&mut self) {
+        let mut buf = [0u8; MAX_FRAME_LEN];
+        while let Ok(Some(_)) = self.recv(&mut buf, 0) {}
+    }
+}
+
+impl Drop for RawSocketLink {
+    fn drop(&mut self) {
+        // SAFETY: we own the fd.
+        unsafe { libc::close(self.fd) };
+    }
+}
+
+impl Link for RawSocketLink {
+    fn send(&mut self, frame: &[u8]) -> io::Result<()> {
+        // SAFETY: the buffer is valid for its length; the socket is bound to the interface.
+        let n = unsafe {
+            libc::send(
+                self.fd,
+                frame.as_ptr() as *const libc::c_void,
+                frame.len(),
+                0,
+            )
+        };
+        if n < 0 {
+            return Err(io::Error::last_os_error());
+        }
+        Ok(())
+    }
+
+    fn recv(&mut self, buf: &mut [u8], deadline_ns: i64) -> io::Result<Option<Received>> {
+        loop {
+            // SAFETY: every pointer handed to recvmsg points to a live local of the stated size.
+            let (n, pkt_type, stamp) = unsafe {
+                let mut addr: libc::sockaddr_ll = std::mem::zeroed();
+                let mut iov = libc::iovec {
+                    iov_base: buf.as_mut_ptr() as *mut libc::c_void,
+                    iov_len: buf.len(),
+                };
+                let mut control = [0u64; 16];
+                let mut msg: libc::msghdr = std::mem::zeroed();
+                msg.msg_name = &mut addr as *mut libc::sockaddr_ll as *mut libc::c_void;
+                msg.msg_namelen = std::mem::size_of::<libc::sockaddr_ll>() as libc::socklen_t;
+                msg.msg_iov = &mut iov;
+                msg.msg_iovlen = 1;
+                msg.msg_control = control.as_mut_ptr() as *mut libc::c_void;
+                msg.msg_controllen = std::mem::size_of_val(&control) as _;
+                let n = libc::recvmsg(self.fd, &mut msg, libc::MSG_DONTWAIT);
+                let mut stamp = None;
+                if n >= 0 {
+                    let mut cmsg = libc::CMSG_FIRSTHDR(&msg);
+                    while !cmsg.is_null() {
+                        if (*cmsg).cmsg_level == libc::SOL_SOCKET
+                            && (*cmsg).cmsg_type == libc::SCM_TIMESTAMPNS
+                        {
+                            let ts = std::ptr::read_unaligned(
+                                libc::CMSG_DATA(cmsg) as *const libc::timespec
+                            );
+                            stamp = Some(ts.tv_sec as i64 * 1_000_000_000 + ts.tv_nsec as i64);
+                        }
+                        cmsg = libc::CMSG_NXTHDR(&msg, cmsg);
+                    }
+                }
+                (n, addr.sll_pkttype, stamp)
+            };
+            if n >= 0 {
+                if pkt_type == libc::PACKET_OUTGOING {
+                    continue; // our own frame, looped back to packet sockets by the kernel
+                }
+                let now = now_ns();
+                let rx_ns = match stamp {
+                    // Move the wall-clock stamp onto the monotonic clock; never into the future.
+                    Some(real) => (now - (realtime_ns() - real)).min(now),
+                    None => now,
+                };
+                return Ok(Some(Received {
+                    len: (n as usize).min(buf.len()),
+                    rx_ns,
+                }));
+            }
+            let err = io::Error::last_os_error();
+            match err.raw_os_error() {
+                Some(libc::EAGAIN) => {}
+                Some(libc::EINTR) => continue,
+                _ => return Err(err),
+            }
+            let remaining = deadline_ns - now_ns();
+            if remaining <= 0 {
+                return Ok(None);
+            }
+            let mut pfd = libc::pollfd {
+                fd: self.fd,
+                events: libc::POLLIN,
+                revents: 0,
+            };
+            let ts = timespec(remaining);
+            // SAFETY: one valid pollfd; timeout timespec is valid; no signal mask change.
+            let r = unsafe { libc::ppoll(&mut pfd, 1, &ts, std::ptr::null()) };
+            if r < 0 {
+                let err = io::Error::last_os_error();
+                if err.raw_os_error() != Some(libc::EINTR) {
+                    return Err(err);
+                }
+            }
+        }
+    }
+
+    fn describe(&self) -> String {
+        format!("interface '{}'", self.ifname)
+    }
+}
+
+/// Answers a frame in place: gets a buffer of `MAX_FRAME_LEN` bytes holding the frame in
+/// `[..len]`, returns the reply's length (the reply is left in the buffer), or `None` when the
+/// frame is lost. The Python binding builds one around the simulator; the engine never depends on
+/// the simulator crate.
+pub type Responder = Box<dyn FnMut(&mut [u8], usize) -> Option<usize> + Send>;
+
+const IN_PROCESS_QUEUE: usize = 8;
+
+/// Hands frames straight to an in-process responder (the simulator). Replies wait in a small
+/// preallocated queue until `recv` picks them up, like frames in a socket's receive queue.
+pub struct InProcessLink {
+    responder: Responder,
+    queue: Box<[[u8; MAX_FRAME_LEN]; IN_PROCESS_QUEUE]>,
+    lens: [usize; IN_PROCESS_QUEUE],
+    stamps: [i64; IN_PROCESS_QUEUE],
+    head: usize,
+    count: usize,
+    name: String,
+}
+
+impl InProcessLink {
+    pub fn new(name: &str, responder: Responder) -> InProcessLink {
+        InProcessLink {
+            responder,
+            queue: Box::new([[0u8; MAX_FRAME_LEN]; IN_PROCESS_QUEUE]),
+            lens: [0; IN_PROCESS_QUEUE],
+            stamps: [0; IN_PROCESS_QUEUE],
+            head: 0,
+            count: 0,
+            name: name.to_string(),
+        }
+    }
+}
+
+impl Link for InProcessLink {
+    fn send(&mut self, frame: &[u8]) -> io::Result<()> {
+        if frame.len() > MAX_FRAME_LEN {
+            return Err(io::Error::new(
+                io::ErrorKind::InvalidInput,
+                "frame longer than the MTU",
+            ));
+        }
+        if self.count == IN_PROCESS_QUEUE {
+            // Receive queue full: the reply is lost, as with an overflowing socket buffer.
+            self.head = (self.head + 1) % IN_PROCESS_QUEUE;
+            self.count -= 1;
+        }
+        let slot = (self.head + self.count) % IN_PROCESS_QUEUE;
+        let buf = &mut self.queue[slot];
+        buf[..frame.len()].copy_from_slice(frame);
+        if let Some(len) = (self.responder)(&mut buf[..], frame.len()) {
+            self.lens[slot] = len.min(MAX_FRAME_LEN);
+            self.stamps[slot] = now_ns();
+            self.count += 1;
+        }
+        Ok(())
+    }
+
+    fn recv(&mut self, buf: &mut [u8], _deadline_ns: i64) -> io::Result<Option<Received>> {
+        // Replies are produced synchronously by `send`: waiting longer cannot bring more.
+        if self.count == 0 {
+            return Ok(None);
+        }
+        let slot = self.head;
+        self.head = (self.head + 1) % IN_PROCESS_QUEUE;
+        self.count -= 1;
+        let len = self.lens[slot].min(buf.len());
+        buf[..len].copy_from_slice(&self.queue[slot][..len]);
+        Ok(Some(Received {
+            len,
+            rx_ns: self.stamps[slot],
+        }))
+    }
+
+    fn describe(&self) -> String {
+        format!("in-process {}", self.name)
+    }
+}

@@ -1,0 +1,239 @@
+//! Counters and histograms the RT thread updates every cycle and Python reads at any time.
+//!
+//! Histograms are log-linear: values below 32 ns have a bucket each; above, every power of two is
+//! split into 32 equal buckets, so a bucket's width is at most 1/32 (3 %) of its value and the
+//! whole range of u64 fits in 1920 fixed counters. Updating one is a handful of relaxed atomic
+//! adds: no allocation, no lock.
+
+use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
+
+const SUB_BITS: u32 = 5;
+const SUB: usize = 1 << SUB_BITS;
+/// Number of buckets covering all of u64.
+pub const BUCKETS: usize = (64 - SUB_BITS as usize + 1) * SUB;
+
+/// Bucket holding `v`.
+pub fn bucket_of(v: u64) -> usize {
+    if v < SUB as u64 {
+        return v as usize;
+    }
+    let msb = 63 - v.leading_zeros();
+    let shift = msb - SUB_BITS;
+    let sub = ((v >> shift) as usize) & (SUB - 1);
+    (shift as usize + 1) * SUB + sub
+}
+
+/// Smallest value that falls in bucket `i`.
+pub fn bucket_low(i: usize) -> u64 {
+    if i < SUB {
+        return i as u64;
+    }
+    let shift = (i / SUB - 1) as u32;
+    ((SUB + i % SUB) as u64) << shift
+}
+
+/// Width of bucket `i`.
+fn bucket_width(i: usize) -> u64 {
+    if i < SUB {
+        1
+    } else {
+        1u64 << (i / SUB - 1)
+    }
+}
+
+pub struct Histogram {
+    buckets: Box<[AtomicU64]>,
+    count: AtomicU64,
+    sum: AtomicU64,
+    min: AtomicU64,
+    max: AtomicU64,
+}
+
+/// A histogram's summary in ns.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Summary {
+    pub count: u64,
+    pub min: u64,
+    pub max: u64,
+    pub mean: f64,
+    pub p50: u64,
+    pub p99: u64,
+    pub p999: u64,
+}
+
+impl Default for Histogram {
+    fn default() -> Self {
+        Histogram {
+            buckets: (0..BUCKETS).map(|_| AtomicU64::new(0)).collect(),
+            count: AtomicU64::new(0),
+            sum: AtomicU64::new(0),
+            min: AtomicU64::new(u64::MAX),
+            max: AtomicU64::new(0),
+        }
+    }
+}
+
+impl Histogram {
+    /// Record one value (RT thread: the only writer).
+    pub fn record(&self, v: u64) {
+        self.buckets[bucket_of(v)].fetch_add(1, Relaxed);
+        self.count.fetch_add(1, Relaxed);
+        self.sum.fetch_add(v, Relaxed);
+        if v < self.min.load(Relaxed) {
+            self.min.store(v, Relaxed);
+        }
+        if v > self.max.load(Relaxed) {
+            self.max.store(v, Relaxed);
+        }
+    }
+
+    pub fn reset(&self) {
+        for b in self.buckets.iter() {
+            b.store(0, Relaxed);
+        }
+        self.count.store(0, Relaxed);
+        self.sum.store(0, Relaxed);
+        self.min.store(u64::MAX, Relaxed);
+        self.max.store(0, Relaxed);
+    }
+
+    /// Summary with percentiles at bucket midpoints, clamped to the observed min/max.
+    pub fn summary(&self) -> Summary {
+        let counts: Vec<u64> = self.buckets.iter().map(|b| b.load(Relaxed)).collect();
+        let total: u64 = counts.iter().sum();
+        if total == 0 {
+            return Summary::default();
+        }
+        let min = self.min.load(Relaxed);
+        let max = self.max.load(Relaxed);
+        let quantile = |q: f64| -> u64 {
+            let rank = ((q * total as f64).ceil() as u64).clamp(1, total);
+            let mut seen = 0;
+            for (i, &c) in counts.iter().enumerate() {
+                seen += c;
+                if seen >= rank {
+                    let mid = bucket_low(i) + bucket_width(i) / 2;
+                    return mid.clamp(min.min(max), max);
+                }
+            }
+            max
+        };
+        Summary {
+            count: total,
+            min: min.min(max),
+            max,
+            mean: self.sum.load(Relaxed) as f64 / total as f64,
+            p50: quantile(0.5),
+            p99: quantile(0.99),
+            p999: quantile(0.999),
+        }
+    }
+}
+
+/// Event counters of the cyclic exchange (monotonic until `reset`).
+#[derive(Default)]
+pub struct Counters {
+    pub cycles: AtomicU64,
+    pub lost_frames: AtomicU64,
+    pub late_frames: AtomicU64,
+    pub unmatched_frames: AtomicU64,
+    pub wkc_errors: AtomicU64,
+    pub watchdog_trips: AtomicU64,
+    pub panics: AtomicU64,
+    pub overruns: AtomicU64,
+    pub send_errors: AtomicU64,
+    pub acyclic_frames: AtomicU64,
+    pub acyclic_timeouts: AtomicU64,
+    pub samples_dropped: AtomicU64,
+}
+
+impl Counters {
+    /// (name, counter) pairs, in the order `stats()` reports them.
+    pub fn named(&self) -> [(&'static str, &AtomicU64); 12] {
+        [
+            ("cycles", &self.cycles),
+            ("lost_frames", &self.lost_frames),
+            ("late_frames", &self.late_frames),
+            ("unmatched_frames", &self.unmatched_frames),
+            ("wkc_errors", &self.wkc_errors),
+            ("watchdog_trips", &self.watchdog_trips),
+            ("panics", &self.panics),
+            ("overruns", &self.overruns),
+            ("send_errors", &self.send_errors),
+            ("acyclic_frames", &self.acyclic_frames),
+            ("acyclic_timeouts", &self.acyclic_timeouts),
+            ("samples_dropped", &self.samples_dropped),
+        ]
+    }
+
+    pub fn reset(&self) {
+        for (_, c) in self.named() {
+            c.store(0, Relaxed);
+        }
+    }
+}
+
+/// Everything `stats()` reports.
+#[derive(Default)]
+pub struct Stats {
+    pub counters: Counters,
+    pub wake_latency: Histogram,
+    pub exec: Histogram,
+    pub period: Histogram,
+    pub rtt: Histogram,
+}
+
+impl Stats {
+    pub fn histograms(&self) -> [(&'static str, &Histogram); 4] {
+        [
+            ("wake_latency", &self.wake_latency),
+            ("exec", &self.exec),
+            ("period", &self.period),
+            ("rtt", &self.rtt),
+        ]
+    }
+
+    pub fn reset(&self) {
+        self.counters.reset();
+        for (_, h) in self.histograms() {
+            h.reset();
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn buckets_cover_values_in_order() {
+        let mut last = 0;
+        for v in (0..100_000u64).chain([u64::MAX / 3, u64::MAX]) {
+            let b = bucket_of(v);
+            assert!(b < BUCKETS);
+            assert!(b >= last, "bucket order breaks at {v}");
+            last = b;
+            assert!(bucket_low(b) <= v);
+            assert!(v - bucket_low(b) < bucket_width(b));
+        }
+    }
+
+    #[test]
+    fn percentiles_are_within_a_bucket() {
+        let h = Histogram::default();
+        for v in 1..=10_000u64 {
+            h.record(v * 100);
+        }
+        let s = h.summary();
+        assert_eq!(s.count, 10_000);
+        assert_eq!(s.min, 100);
+        assert_eq!(s.max, 1_000_000);
+        let close = |got: u64, want: f64| ((got as f64 - want) / want).abs() < 0.04;
+        assert!(close(s.p50, 500_000.0), "p50 {}", s.p50);
+        assert!(close(s.p99, 990_000.0), "p99 {}", s.p99);
+        assert!(close(s.p999, 999_000.0), "p999 {}", s.p999);
+        assert!((s.mean - 500_050.0).abs() < 1.0);
+        h.reset();
+        assert_eq!(h.summary(), Summary::default());
+    }
+}

@@ -1,0 +1,459 @@
+//! The engine against a tiny ESC-like responder behind a test link: acyclic transactions,
+//! the cyclic exchange, panic, watchdog, lost and foreign frames, DC follow mode.
+
+use std::collections::VecDeque;
+use std::io;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use ether_ros_engine::plan::{CyclicDatagram, DcMode, DcPlan, Order, Policy, RtPlan};
+use ether_ros_engine::{
+    flags, now_ns, Engine, Error, Link, Plan, Received, Request, SampleRecord, RECORD_LEN,
+};
+use ether_ros_wire::{self as wire, reg, Command};
+
+/// What the fake bus does and saw.
+#[derive(Default)]
+struct Bus {
+    /// Outputs (image bytes 0..4 and 6..10) of every LRW frame seen, in order.
+    outputs_seen: Vec<[u8; 8]>,
+    /// Drop every frame while set.
+    drop_all: bool,
+    /// Add a foreign frame and a malformed one after every n-th reply (0 = never).
+    junk_every: usize,
+    frames: usize,
+    /// Reference clock = monotonic + this offset (ns).
+    ref_offset: i64,
+    /// The last time written with FPWR 0x0910.
+    written_time: Option<u64>,
+}
+
+struct FakeLink {
+    bus: Arc<Mutex<Bus>>,
+    queue: VecDeque<Vec<u8>>,
+}
+
+const INPUTS: [u8; 4] = [0x11, 0x22, 0x33, 0x44];
+
+fn answer(bus: &mut Bus, frame: &mut [u8]) {
+    let dgs: Vec<_> = wire::datagrams(frame)
+        .unwrap()
+        .map(|d| d.unwrap())
+        .collect();
+    for d in dgs {
+        let s = d.slot;
+        match d.command().unwrap() {
+            Command::Lrw => {
+                let data = &mut frame[s.data..s.data + s.len];
+                let mut out = [0u8; 8];
+                out[..4].copy_from_slice(&data[0..4]);
+                out[4..].copy_from_slice(&data[6..10]);
+                bus.outputs_seen.push(out);
+                data[4..6].copy_from_slice(&INPUTS[..2]);
+                data[10..12].copy_from_slice(&INPUTS[2..]);
+                wire::write_wkc(frame, &s, 6);
+            }
+            Command::Frmw => {
+                let t = (now_ns() + bus.ref_offset) as u64;
+                frame[s.data..s.data + 8].copy_from_slice(&t.to_le_bytes());
+                wire::write_wkc(frame, &s, 2);
+            }
+            Command::Fpwr => {
+                if wire::split_address(d.address).1 == reg::DC_SYSTEM_TIME {
+                    let t = u64::from_le_bytes(frame[s.data..s.data + 8].try_into().unwrap());
+                    bus.written_time = Some(t);
+                }
+                wire::write_wkc(frame, &s, 1);
+            }
+            _ => {
+                frame[s.data..s.data + s.len].fill(0xAB);
+                wire::write_wkc(frame, &s, 1);
+            }
+        }
+    }
+}
+
+impl Link for FakeLink {
+    fn send(&mut self, frame: &[u8]) -> io::Result<()> {
+        let mut bus = self.bus.lock().unwrap();
+        bus.frames += 1;
+        if bus.drop_all {
+            return Ok(());
+        }
+        let mut reply = frame.to_vec();
+        answer(&mut bus, &mut reply);
+        self.queue.push_back(reply);
+        if bus.junk_every > 0 && bus.frames.is_multiple_of(bus.junk_every) {
+            // A frame of another EtherType, one with a lying length, one with a foreign index.
+            let mut foreign = frame.to_vec();
+            foreign[12] = 0x08;
+            self.queue.push_back(foreign);
+            let mut bad = frame.to_vec();
+            bad[14] = 0xff;
+            bad[15] = 0x17;
+            self.queue.push_back(bad);
+            let mut other = frame.to_vec();
+            other[17] = 0x7e;
+            self.queue.push_back(other);
+            self.queue.push_back(vec![1, 2, 3]);
+        }
+        Ok(())
+    }
+
+    fn recv(&mut self, buf: &mut [u8], _deadline_ns: i64) -> io::Result<Option<Received>> {
+        Ok(self.queue.pop_front().map(|f| {
+            buf[..f.len()].copy_from_slice(&f);
+            Received {
+                len: f.len(),
+                rx_ns: now_ns(),
+            }
+        }))
+    }
+
+    fn describe(&self) -> String {
+        "fake bus".into()
+    }
+}
+
+fn engine() -> (Engine, Arc<Mutex<Bus>>) {
+    let bus = Arc::new(Mutex::new(Bus::default()));
+    let link = FakeLink {
+        bus: bus.clone(),
+        queue: VecDeque::new(),
+    };
+    (Engine::with_link(Box::new(link)), bus)
+}
+
+fn plan(order: Order, mode: DcMode) -> Plan {
+    let mut datagrams = vec![];
+    if mode == DcMode::RefFollowsMaster {
+        datagrams.push(CyclicDatagram::DcWriteRef { station: 0x1001 });
+    }
+    if mode != DcMode::Off {
+        datagrams.push(CyclicDatagram::DcSync { station: 0x1001 });
+    }
+    datagrams.push(CyclicDatagram::Lrw {
+        address: 0x1_0000,
+        length: 12,
+        image_offset: 0,
+        expected_wkc: 6,
+    });
+    Plan {
+        cycle_ns: 1_000_000,
+        order,
+        datagrams,
+        image_len: 12,
+        output_ranges: vec![(0, 4), (6, 4)],
+        initial_image: vec![1; 12],
+        safe_image: vec![0xEE; 12],
+        dc: DcPlan {
+            mode,
+            time_offset_ns: 0,
+            sync0_shift_ns: 0,
+        },
+        rt: RtPlan {
+            policy: Policy::Other,
+            priority: 0,
+            cpu: None,
+            runtime_ns: 0,
+            lock_memory: false,
+        },
+        watchdog_ns: 0,
+        ring_capacity: 100_000,
+    }
+}
+
+/// Poll `cond` for up to 10 s (generous: this is about behaviour, not speed).
+fn wait_for(mut cond: impl FnMut() -> bool, what: &str) {
+    let start = Instant::now();
+    while !cond() {
+        assert!(
+            start.elapsed() < Duration::from_secs(10),
+            "timed out waiting for {what}"
+        );
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}
+
+fn records(e: &Engine) -> Vec<SampleRecord> {
+    let (r, _, _) = e.drain_samples(usize::MAX);
+    r.chunks(RECORD_LEN).map(SampleRecord::decode).collect()
+}
+
+fn counter(e: &Engine, name: &str) -> u64 {
+    e.stats()
+        .counters
+        .iter()
+        .find(|(n, _)| *n == name)
+        .unwrap()
+        .1
+}
+
+#[test]
+fn transact_returns_data_and_wkc_per_datagram() {
+    let (e, _bus) = engine();
+    let got = e
+        .transact(
+            &[
+                Request {
+                    cmd: Command::Brd,
+                    address: 0,
+                    data: None,
+                    len: 2,
+                },
+                Request {
+                    cmd: Command::Fpwr,
+                    address: wire::fixed_address(0x1001, 0x120),
+                    data: Some(vec![2, 0]),
+                    len: 0,
+                },
+            ],
+            1_000_000,
+            0,
+        )
+        .unwrap();
+    assert_eq!(got, vec![(vec![0xAB, 0xAB], 1), (vec![2, 0], 1)]);
+}
+
+#[test]
+fn transact_retries_then_reports_timeout() {
+    let (e, bus) = engine();
+    bus.lock().unwrap().drop_all = true;
+    let err = e
+        .transact(
+            &[Request {
+                cmd: Command::Brd,
+                address: 0,
+                data: None,
+                len: 2,
+            }],
+            1000,
+            2,
+        )
+        .unwrap_err();
+    assert!(
+        matches!(err, Error::Timeout(ref m) if m.contains("3 attempt(s)") && m.contains("BRD")),
+        "{err:?}"
+    );
+    assert_eq!(bus.lock().unwrap().frames, 3);
+}
+
+#[test]
+fn cyclic_exchanges_outputs_inputs_and_samples() {
+    for order in [Order::SendAtWake, Order::SendThenWait] {
+        let (e, bus) = engine();
+        e.start_cyclic(plan(order, DcMode::RefFollowsMaster))
+            .unwrap();
+        assert!(e.is_running());
+        e.write_outputs(0, &[9, 8, 7, 6]).unwrap();
+        e.write_outputs(6, &[5, 4, 3, 2]).unwrap();
+        wait_for(
+            || bus.lock().unwrap().outputs_seen.last() == Some(&[9, 8, 7, 6, 5, 4, 3, 2]),
+            "outputs on the wire",
+        );
+        wait_for(
+            || e.read_inputs().unwrap() == vec![9, 8, 7, 6, 0x11, 0x22, 5, 4, 3, 2, 0x33, 0x44],
+            "inputs",
+        );
+        // Writes outside the output ranges are refused, naming the ranges.
+        let err = e.write_outputs(3, &[0, 0]).unwrap_err();
+        assert!(
+            matches!(err, Error::Invalid(ref m) if m.contains("[(0, 4), (6, 4)]")),
+            "{err:?}"
+        );
+        // Acyclic traffic goes through the mailbox while cyclic.
+        let got = e
+            .transact(
+                &[Request {
+                    cmd: Command::Fprd,
+                    address: 0,
+                    data: None,
+                    len: 3,
+                }],
+                50_000_000,
+                3,
+            )
+            .unwrap();
+        assert_eq!(got, vec![(vec![0xAB; 3], 1)]);
+        assert!(counter(&e, "acyclic_frames") >= 1);
+        wait_for(
+            || bus.lock().unwrap().written_time.is_some(),
+            "DC time written",
+        );
+        e.stop_cyclic();
+        assert!(!e.is_running());
+        let recs = records(&e);
+        assert!(recs.len() >= 3);
+        for w in recs.windows(2) {
+            assert_eq!(w[1].cycle, w[0].cycle + 1);
+            assert!(w[1].t_wake_ns > w[0].t_wake_ns);
+        }
+        assert!(recs.iter().any(|r| r.flags & flags::ACYCLIC != 0));
+        let answered: Vec<_> = recs
+            .iter()
+            .filter(|r| r.flags & flags::LOST == 0 && r.rtt_ns > 0)
+            .collect();
+        assert!(!answered.is_empty());
+        assert!(answered
+            .iter()
+            .all(|r| r.wkc == 6 && r.flags & flags::WKC_ERROR == 0));
+        assert_eq!(counter(&e, "cycles"), recs.len() as u64);
+        // After stopping, the link is back: direct transactions work again.
+        assert!(e
+            .transact(
+                &[Request {
+                    cmd: Command::Brd,
+                    address: 0,
+                    data: None,
+                    len: 1
+                }],
+                1_000_000,
+                0
+            )
+            .is_ok());
+    }
+}
+
+#[test]
+fn panic_puts_the_safe_image_on_the_wire_within_two_frames() {
+    let (e, bus) = engine();
+    e.start_cyclic(plan(Order::SendAtWake, DcMode::Off))
+        .unwrap();
+    e.write_outputs(0, &[1, 2, 3, 4]).unwrap();
+    wait_for(
+        || bus.lock().unwrap().outputs_seen.last().map(|o| o[0]) == Some(1),
+        "live outputs",
+    );
+    let before = bus.lock().unwrap().outputs_seen.len();
+    e.panic();
+    wait_for(
+        || bus.lock().unwrap().outputs_seen.len() >= before + 3,
+        "three more frames",
+    );
+    let seen = bus.lock().unwrap().outputs_seen.clone();
+    let first_safe = seen[before..]
+        .iter()
+        .position(|o| *o == [0xEE; 8])
+        .expect("safe image sent");
+    assert!(
+        first_safe <= 1,
+        "safe outputs only {} frames after panic()",
+        first_safe + 1
+    );
+    assert!(seen[before + first_safe..].iter().all(|o| *o == [0xEE; 8]));
+    assert_eq!(counter(&e, "panics"), 1);
+    e.write_outputs(0, &[5, 5, 5, 5]).unwrap();
+    e.clear_panic();
+    wait_for(
+        || bus.lock().unwrap().outputs_seen.last().map(|o| o[0]) == Some(5),
+        "live outputs again",
+    );
+    e.stop_cyclic();
+    assert!(records(&e).iter().any(|r| r.flags & flags::PANIC != 0));
+}
+
+#[test]
+fn watchdog_switches_to_safe_outputs_when_commands_stop() {
+    let (e, bus) = engine();
+    let mut p = plan(Order::SendThenWait, DcMode::Off);
+    p.watchdog_ns = 20_000_000;
+    e.start_cyclic(p).unwrap();
+    e.write_outputs(0, &[1, 2, 3, 4]).unwrap();
+    wait_for(
+        || bus.lock().unwrap().outputs_seen.last() == Some(&[0xEE; 8]),
+        "watchdog safe image",
+    );
+    assert!(counter(&e, "watchdog_trips") >= 1);
+    e.write_outputs(0, &[7, 7, 7, 7]).unwrap();
+    wait_for(
+        || bus.lock().unwrap().outputs_seen.last().map(|o| o[0]) == Some(7),
+        "outputs after feeding",
+    );
+    e.stop_cyclic();
+    assert!(records(&e).iter().any(|r| r.flags & flags::WATCHDOG != 0));
+}
+
+#[test]
+fn lost_and_foreign_frames_are_counted_and_do_not_disturb_the_loop() {
+    let (e, bus) = engine();
+    bus.lock().unwrap().junk_every = 2;
+    e.start_cyclic(plan(Order::SendAtWake, DcMode::Off))
+        .unwrap();
+    wait_for(|| counter(&e, "unmatched_frames") >= 20, "junk counted");
+    bus.lock().unwrap().drop_all = true;
+    wait_for(|| counter(&e, "lost_frames") >= 3, "lost frames counted");
+    {
+        let mut b = bus.lock().unwrap();
+        b.drop_all = false;
+        b.junk_every = 0;
+    }
+    e.write_outputs(0, &[3, 3, 3, 3]).unwrap();
+    wait_for(|| e.read_inputs().unwrap()[4] == 0x11, "exchange continues");
+    e.stop_cyclic();
+    let recs = records(&e);
+    assert!(recs.iter().any(|r| r.flags & flags::LOST != 0));
+    assert!(recs.iter().any(|r| r.flags & flags::UNMATCHED != 0));
+}
+
+#[test]
+fn master_follows_the_reference_clock_phase() {
+    let (e, bus) = engine();
+    // The reference clock sits at an odd phase against CLOCK_MONOTONIC.
+    bus.lock().unwrap().ref_offset = 123_456_789_000 + 370_000;
+    e.start_cyclic(plan(Order::SendThenWait, DcMode::MasterFollowsRef))
+        .unwrap();
+    wait_for(|| counter(&e, "cycles") >= 60, "cycles");
+    e.stop_cyclic();
+    let recs = records(&e);
+    let mut tail: Vec<i64> = recs[recs.len() - 30..]
+        .iter()
+        .map(|r| (r.dc_diff_ns as i64).abs())
+        .collect();
+    tail.sort();
+    // Without following, the phase error would stay at 370 µs of the 1 ms cycle.
+    assert!(
+        tail[tail.len() / 2] < 100_000,
+        "median phase error {} ns",
+        tail[tail.len() / 2]
+    );
+    assert!(recs.iter().any(|r| r.flags & flags::DC_ADJUSTED != 0));
+}
+
+#[test]
+fn lifecycle_errors_are_clear() {
+    let (e, _bus) = engine();
+    assert!(matches!(e.write_outputs(0, &[1]), Err(Error::State(_))));
+    e.start_cyclic(plan(Order::SendAtWake, DcMode::Off))
+        .unwrap();
+    assert!(matches!(
+        e.start_cyclic(plan(Order::SendAtWake, DcMode::Off)),
+        Err(Error::State(_))
+    ));
+    for _ in 0..5 {
+        e.stop_cyclic();
+        e.start_cyclic(plan(Order::SendAtWake, DcMode::Off))
+            .unwrap();
+    }
+    e.reset_stats();
+    e.close();
+    assert!(!e.is_running());
+    assert!(matches!(
+        e.transact(
+            &[Request {
+                cmd: Command::Brd,
+                address: 0,
+                data: None,
+                len: 1
+            }],
+            1000,
+            0
+        ),
+        Err(Error::State(_))
+    ));
+    let mut bad = plan(Order::SendAtWake, DcMode::Off);
+    bad.image_len = 3;
+    assert!(
+        matches!(e.start_cyclic(bad), Err(Error::Invalid(ref m)) if m.contains("initial_image"))
+    );
+    let _ = now_ns();
+}

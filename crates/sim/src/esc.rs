@@ -1,0 +1,1263 @@
+//! One virtual EtherCAT slave controller: 64 KiB of memory with the register file, SII,
+//! SyncManagers, FMMUs, distributed clock, watchdog, and the slave application behind it
+//! (AL state machine, mailbox/CoE, process-data copy, the device model).
+//!
+//! Every master access goes through `ecat_read`/`ecat_write`, which split it into register,
+//! SyncManager and plain-memory segments and report whether the ESC accepted it (a refused
+//! SyncManager access leaves the working counter alone, as on hardware).
+
+use std::collections::VecDeque;
+
+use ether_ros_wire::reg;
+
+use crate::coe::CoeServer;
+use crate::dc::{encode_time_difference, DcClock};
+use crate::device::DeviceApp;
+use crate::fmmu::Fmmu;
+use crate::od::ObjectDictionary;
+use crate::pdo::PdoMap;
+use crate::sii::{self, Sii};
+use crate::sm::{SyncManager, ACT_ENABLE, ACT_REPEAT, WATCHDOG_TRIGGER};
+use crate::spec::{MailboxSpec, SlaveSpec};
+
+pub const MEM_SIZE: usize = 0x1_0000;
+pub const REGISTER_END: usize = 0x1000;
+pub const N_FMMU: usize = 8;
+pub const N_SM: usize = 8;
+/// ESC type reported in 0x0000 (ET1100 family) and revision/build.
+const ESC_TYPE: u8 = 0x11;
+const ESC_REVISION: u8 = 0x00;
+const ESC_BUILD: u16 = 0x0002;
+/// Default watchdog divider (100 µs units) and process-data watchdog time (100 ms).
+const DEFAULT_WD_DIVIDER: u16 = 0x09C2;
+const DEFAULT_WD_TIME: u16 = 0x03E8;
+/// Catch-up bound for device steps: beyond this the device skips ahead.
+pub const MAX_CATCH_UP_NS: u64 = 100_000_000;
+/// Mailbox messages queued at most for the master (older ones are kept, new ones dropped).
+const MAILBOX_QUEUE_LIMIT: usize = 32;
+
+/// Per-slave counters for `slave_info`.
+#[derive(Clone, Debug, Default)]
+pub struct SlaveCounters {
+    pub frames: u64,
+    pub device_steps: u64,
+    pub device_steps_skipped: u64,
+    pub sync0_events: u64,
+    pub sync0_late_starts: u64,
+    pub watchdog_expirations: u64,
+    pub mailbox_received: u64,
+    pub mailbox_sent: u64,
+    pub mailbox_errors: u64,
+    pub al_errors: u64,
+}
+
+/// Is a register byte writable by the master? (Special registers are handled by hooks.)
+fn reg_writable(a: usize) -> bool {
+    matches!(a,
+        0x0010..=0x0011
+        | 0x0100..=0x0103
+        | 0x0120..=0x0121
+        | 0x0200..=0x0203
+        | 0x0400..=0x0401
+        | 0x0410..=0x0411
+        | 0x0420..=0x0421
+        | 0x0500..=0x0501
+        | 0x0504..=0x050F
+        | 0x0510..=0x0517
+        | 0x0600..=0x067F
+        | 0x0920..=0x092B
+        | 0x0930..=0x0931
+        | 0x0934..=0x0935
+        | 0x0980..=0x0981
+        | 0x0990..=0x0997
+        | 0x09A0..=0x09A9)
+}
+
+fn overlaps(a: usize, len: usize, lo: usize, hi: usize) -> bool {
+    a < hi && a + len > lo
+}
+
+pub struct Esc {
+    pub spec: SlaveSpec,
+    pub position: usize,
+    mem: Box<[u8]>,
+    pub sm: [SyncManager; N_SM],
+    fmmus: Vec<Fmmu>,
+    sii: Sii,
+    pub dc: DcClock,
+    pdram_end: usize,
+    pub od: ObjectDictionary,
+    coe: CoeServer,
+    pub device: Option<Box<dyn DeviceApp>>,
+    pub mailbox: Option<MailboxSpec>,
+    boot_mailbox: Option<MailboxSpec>,
+    mbx_queue: VecDeque<Vec<u8>>,
+    mbx_last_rx_counter: u8,
+    mbx_tx_counter: u8,
+    mbx_last_sent: Vec<u8>,
+    mbx_rx_pending: bool,
+    pub out_sm: usize,
+    pub in_sm: usize,
+    pub out_map: PdoMap,
+    pub in_map: PdoMap,
+    pub al_state: u8,
+    pub al_error: bool,
+    pub al_code: u16,
+    /// Host time of the current frame at this slave (frame time + propagation delay).
+    pub now: u64,
+    /// Sum of propagation delays downstream of this slave, set per frame by the network.
+    pub downstream_delay_ns: u64,
+    /// Port 1 has a link to a next slave.
+    pub port1_open: bool,
+    pub sync0_next: Option<u64>,
+    sync0_cycle: u64,
+    app_next_step: u64,
+    wd_last_trigger: u64,
+    pub watchdog_expired: bool,
+    outputs_since_safeop: bool,
+    outputs_received: bool,
+    pub refuse_op: bool,
+    pub mailbox_stalled: bool,
+    pub counters: SlaveCounters,
+}
+
+impl Esc {
+    /// Power on a slave at host time `now`. The device model is created by the caller.
+    pub fn new(spec: SlaveSpec, position: usize, now: u64) -> Esc {
+        let mut od = ObjectDictionary::new();
+        for o in &spec.objects {
+            od.add_object(o.clone());
+        }
+        for e in &spec.entries {
+            od.add_entry(e.clone());
+        }
+        let sii = Sii::new(spec.sii.clone());
+        let w = |n: usize| sii::word(&sii.image, n);
+        let mailbox = if w(0x19) != 0 && w(0x1B) != 0 {
+            Some(MailboxSpec {
+                rx_offset: w(0x18),
+                rx_size: w(0x19),
+                tx_offset: w(0x1A),
+                tx_size: w(0x1B),
+            })
+        } else {
+            spec.mailbox
+        };
+        let boot_mailbox = if w(0x15) != 0 && w(0x17) != 0 {
+            Some(MailboxSpec {
+                rx_offset: w(0x14),
+                rx_size: w(0x15),
+                tx_offset: w(0x16),
+                tx_size: w(0x17),
+            })
+        } else {
+            None
+        };
+        // Process-data SyncManagers: from the SII SyncM category, else the usual layout.
+        let sms = sii::sync_managers(&sii.image);
+        let find = |kind: u8| sms.iter().position(|s| s.kind == kind);
+        let (def_out, def_in) = if mailbox.is_some() { (2, 3) } else { (0, 1) };
+        let out_sm = find(3).unwrap_or(def_out).min(N_SM - 1);
+        let in_sm = find(4).unwrap_or(def_in).min(N_SM - 1);
+        let pdram_kib = spec.pdram_kib.clamp(1, 60);
+        let dc = DcClock::new(now, 0, spec.drift_ppm);
+        let mut esc = Esc {
+            position,
+            mem: vec![0u8; MEM_SIZE].into_boxed_slice(),
+            sm: Default::default(),
+            fmmus: Vec::with_capacity(N_FMMU),
+            sii,
+            dc,
+            pdram_end: REGISTER_END + pdram_kib as usize * 1024,
+            od,
+            coe: CoeServer::new(),
+            device: None,
+            mailbox,
+            boot_mailbox,
+            mbx_queue: VecDeque::new(),
+            mbx_last_rx_counter: 0,
+            mbx_tx_counter: 0,
+            mbx_last_sent: Vec::new(),
+            mbx_rx_pending: false,
+            out_sm,
+            in_sm,
+            out_map: PdoMap::default(),
+            in_map: PdoMap::default(),
+            al_state: reg::al::INIT,
+            al_error: false,
+            al_code: 0,
+            now,
+            downstream_delay_ns: 0,
+            port1_open: false,
+            sync0_next: None,
+            sync0_cycle: 0,
+            app_next_step: 0,
+            wd_last_trigger: now,
+            watchdog_expired: false,
+            outputs_since_safeop: false,
+            outputs_received: false,
+            refuse_op: false,
+            mailbox_stalled: false,
+            counters: SlaveCounters::default(),
+            spec,
+        };
+        esc.power_on_registers();
+        esc.apply_sm_enables();
+        esc
+    }
+
+    fn put16(&mut self, a: u16, v: u16) {
+        let a = a as usize;
+        self.mem[a..a + 2].copy_from_slice(&v.to_le_bytes());
+    }
+
+    fn put32(&mut self, a: u16, v: u32) {
+        let a = a as usize;
+        self.mem[a..a + 4].copy_from_slice(&v.to_le_bytes());
+    }
+
+    fn put64(&mut self, a: u16, v: u64) {
+        let a = a as usize;
+        self.mem[a..a + 8].copy_from_slice(&v.to_le_bytes());
+    }
+
+    pub fn get16(&self, a: u16) -> u16 {
+        let a = a as usize;
+        u16::from_le_bytes([self.mem[a], self.mem[a + 1]])
+    }
+
+    pub fn get32(&self, a: u16) -> u32 {
+        let a = a as usize;
+        u32::from_le_bytes([
+            self.mem[a],
+            self.mem[a + 1],
+            self.mem[a + 2],
+            self.mem[a + 3],
+        ])
+    }
+
+    pub fn get64(&self, a: u16) -> u64 {
+        let a = a as usize;
+        let mut b = [0u8; 8];
+        b.copy_from_slice(&self.mem[a..a + 8]);
+        u64::from_le_bytes(b)
+    }
+
+    fn power_on_registers(&mut self) {
+        self.mem[0] = ESC_TYPE;
+        self.mem[1] = ESC_REVISION;
+        self.put16(0x0002, ESC_BUILD);
+        self.mem[reg::FMMU_COUNT as usize] = N_FMMU as u8;
+        self.mem[reg::SM_COUNT as usize] = N_SM as u8;
+        self.mem[reg::RAM_SIZE as usize] = ((self.pdram_end - REGISTER_END) / 1024) as u8;
+        // Ports 0 and 1 MII, ports 2 and 3 not implemented.
+        self.mem[reg::PORT_DESC as usize] = 0x0F;
+        let features: u16 = if self.spec.dc_supported { 0x000C } else { 0 };
+        self.put16(reg::FEATURES, features);
+        self.put16(reg::WATCHDOG_DIVIDER, DEFAULT_WD_DIVIDER);
+        self.put16(reg::WATCHDOG_TIME_PDI, DEFAULT_WD_TIME);
+        self.put16(reg::WATCHDOG_TIME_PD, DEFAULT_WD_TIME);
+        self.put16(reg::WATCHDOG_STATUS_PD, 1);
+        self.load_eeprom();
+        self.update_al_registers();
+        self.update_dl_status();
+    }
+
+    /// Load the ESC configuration area from the EEPROM (power-on and reload command).
+    fn load_eeprom(&mut self) {
+        let mut status = self.sii.static_status();
+        if self.sii.image.len() >= 16 && !self.sii.checksum_ok() {
+            status |= sii::ERR_CHECKSUM | sii::ERR_NOT_LOADED;
+            self.put16(reg::SII_CONTROL, status);
+            return;
+        }
+        let alias = if self.sii.image.len() >= 10 {
+            sii::word(&self.sii.image, 4)
+        } else {
+            self.spec.alias
+        };
+        self.put16(reg::STATION_ALIAS, alias);
+        let w0 = sii::word(&self.sii.image, 0);
+        self.mem[reg::PDI_CONTROL as usize] = w0 as u8;
+        self.mem[reg::ESC_CONFIG as usize] = (w0 >> 8) as u8;
+        self.put16(reg::SII_CONTROL, status);
+    }
+
+    pub fn eeprom_loaded(&self) -> bool {
+        self.get16(reg::SII_CONTROL) & sii::ERR_NOT_LOADED == 0
+    }
+
+    /// DL status (0x0110) from the line position and link state.
+    pub fn update_dl_status(&mut self) {
+        let mut s: u16 = 0x0002 | 0x0010 | 0x0200 | 0x1000 | 0x4000;
+        if self.eeprom_loaded() {
+            s |= 0x0001;
+        }
+        if self.port1_open {
+            s |= 0x0020 | 0x0800;
+        } else {
+            s |= 0x0400;
+        }
+        self.put16(reg::DL_STATUS, s);
+    }
+
+    pub fn update_al_registers(&mut self) {
+        let status = self.al_state as u16 | if self.al_error { 0x10 } else { 0 };
+        self.put16(reg::AL_STATUS, status);
+        self.put16(reg::AL_STATUS_CODE, self.al_code);
+    }
+
+    pub fn station_address(&self) -> u16 {
+        self.get16(reg::STATION_ADDRESS)
+    }
+
+    pub fn alias(&self) -> u16 {
+        self.get16(reg::STATION_ALIAS)
+    }
+
+    /// DL control bit 24: the alias may be used for configured-address commands.
+    pub fn alias_enabled(&self) -> bool {
+        self.mem[0x0103] & 1 != 0
+    }
+
+    /// Does a configured-address datagram with ADP `adp` address this slave?
+    pub fn matches_fixed(&self, adp: u16) -> bool {
+        adp == self.station_address() || (self.alias_enabled() && adp == self.alias())
+    }
+
+    pub fn sii_image(&self) -> &[u8] {
+        &self.sii.image
+    }
+
+    pub fn set_sii_busy_ns(&mut self, ns: u64) {
+        self.sii.busy_ns = ns;
+    }
+
+    pub fn local_time(&self) -> u64 {
+        self.dc.local(self.now)
+    }
+
+    pub fn system_time(&self) -> u64 {
+        self.dc
+            .local(self.now)
+            .wrapping_add(self.get64(reg::DC_SYSTEM_TIME_OFFSET))
+    }
+
+    /// Raw memory, for diagnostics and tests (no side effects).
+    pub fn memory(&self) -> &[u8] {
+        &self.mem
+    }
+
+    // ------------------------------------------------------------------ master accesses
+
+    /// Find the segment starting at `a`: its length (at most `len`) and the SyncManager
+    /// guarding it, if any.
+    fn segment(&self, a: usize, len: usize) -> (usize, Option<usize>) {
+        let mut end = (a + len).min(MEM_SIZE);
+        for (n, s) in self.sm.iter().enumerate() {
+            if !s.configured() {
+                continue;
+            }
+            let (ss, se) = (s.start as usize, s.start as usize + s.len as usize);
+            if a >= ss && a < se {
+                return (se.min(end) - a, Some(n));
+            }
+            if ss > a && ss < end {
+                end = ss;
+            }
+        }
+        if a < REGISTER_END && end > REGISTER_END {
+            end = REGISTER_END;
+        }
+        (end - a, None)
+    }
+
+    /// Master read of `out.len()` bytes at `addr` (OR-ed into `out` when `or`). Returns false
+    /// when a SyncManager refused the access.
+    pub fn ecat_read(&mut self, addr: usize, out: &mut [u8], or: bool) -> bool {
+        let mut ok = true;
+        let mut cur = 0;
+        while cur < out.len() {
+            let a = addr + cur;
+            if a >= MEM_SIZE {
+                break;
+            }
+            let (n, sm) = self.segment(a, out.len() - cur);
+            let seg = &mut out[cur..cur + n];
+            match sm {
+                Some(k) => ok &= self.sm_read(k, a, seg, or),
+                None if a < REGISTER_END => self.register_read(a, seg, or),
+                None => {
+                    for (i, o) in seg.iter_mut().enumerate() {
+                        let v = if a + i < self.pdram_end {
+                            self.mem[a + i]
+                        } else {
+                            0
+                        };
+                        *o = if or { *o | v } else { v };
+                    }
+                }
+            }
+            cur += n;
+        }
+        ok
+    }
+
+    /// Master write of `data` at `addr`. Returns false when a SyncManager refused it.
+    pub fn ecat_write(&mut self, addr: usize, data: &[u8]) -> bool {
+        let mut ok = true;
+        let mut cur = 0;
+        while cur < data.len() {
+            let a = addr + cur;
+            if a >= MEM_SIZE {
+                break;
+            }
+            let (n, sm) = self.segment(a, data.len() - cur);
+            let seg = &data[cur..cur + n];
+            match sm {
+                Some(k) => ok &= self.sm_write(k, a, seg),
+                None if a < REGISTER_END => self.register_write(a, seg),
+                None => {
+                    let end = (a + n).min(self.pdram_end);
+                    if a < end {
+                        self.mem[a..end].copy_from_slice(&seg[..end - a]);
+                    }
+                }
+            }
+            cur += n;
+        }
+        ok
+    }
+
+    /// The byte the master would read at `addr`, without side effects (bit-level writes
+    /// read-modify-write through this).
+    pub fn peek(&self, addr: usize) -> u8 {
+        if addr >= MEM_SIZE {
+            return 0;
+        }
+        for s in &self.sm {
+            if s.configured() && s.contains(addr) && !s.is_mailbox() {
+                return s.buffered_peek(addr - s.start as usize);
+            }
+        }
+        if addr >= REGISTER_END && addr >= self.pdram_end {
+            return 0;
+        }
+        self.mem[addr]
+    }
+
+    fn sm_read(&mut self, k: usize, a: usize, seg: &mut [u8], or: bool) -> bool {
+        let s = &mut self.sm[k];
+        if s.pdi_disabled {
+            return false;
+        }
+        let off = a - s.start as usize;
+        let last = off + seg.len() >= s.len as usize;
+        if s.is_mailbox() {
+            if s.ecat_writes() || !s.full {
+                return false;
+            }
+            for (i, o) in seg.iter_mut().enumerate() {
+                let v = self.mem[a + i];
+                *o = if or { *o | v } else { v };
+            }
+            if last {
+                s.full = false;
+            }
+        } else {
+            s.buffered_read(off, seg, or);
+        }
+        true
+    }
+
+    fn sm_write(&mut self, k: usize, a: usize, seg: &[u8]) -> bool {
+        let s = &mut self.sm[k];
+        if s.pdi_disabled || !s.ecat_writes() {
+            return false;
+        }
+        let off = a - s.start as usize;
+        if s.is_mailbox() {
+            if s.full {
+                return false;
+            }
+            self.mem[a..a + seg.len()].copy_from_slice(seg);
+            if off + seg.len() >= s.len as usize {
+                s.full = true;
+                self.mbx_rx_pending = true;
+            }
+        } else if s.buffered_write(off, seg) {
+            let wd = s.control & WATCHDOG_TRIGGER != 0;
+            if k == self.out_sm {
+                self.outputs_since_safeop = true;
+                self.outputs_received = true;
+            }
+            if wd {
+                self.wd_last_trigger = self.now;
+                self.watchdog_expired = false;
+                self.put16(reg::WATCHDOG_STATUS_PD, 1);
+            }
+        }
+        true
+    }
+
+    fn refresh_registers(&mut self, a: usize, len: usize) {
+        if overlaps(a, len, 0x0800, 0x0800 + N_SM * 8) {
+            for k in 0..N_SM {
+                let base = 0x0800 + k * 8;
+                self.mem[base + 5] = self.sm[k].status();
+                self.mem[base + 7] = self.sm[k].pdi_control();
+            }
+        }
+        if overlaps(a, len, 0x0910, 0x0918) {
+            let t = self.system_time();
+            self.put64(reg::DC_SYSTEM_TIME, t);
+        }
+        if overlaps(a, len, 0x0502, 0x0504) && !self.sii.busy(self.now) {
+            let v = self.get16(reg::SII_CONTROL) & !sii::BUSY;
+            self.put16(reg::SII_CONTROL, v);
+        }
+    }
+
+    fn register_read(&mut self, a: usize, seg: &mut [u8], or: bool) {
+        self.refresh_registers(a, seg.len());
+        for (i, o) in seg.iter_mut().enumerate() {
+            let v = self.mem[a + i];
+            *o = if or { *o | v } else { v };
+        }
+        // SYNC0 status clears on read.
+        if overlaps(a, seg.len(), 0x098E, 0x098F) {
+            self.mem[0x098E] = 0;
+        }
+    }
+
+    fn register_write(&mut self, a: usize, seg: &[u8]) {
+        let len = seg.len();
+        // SyncManager configuration bytes are locked while the SM is enabled, unless the same
+        // write disables it.
+        let mut sm_config_ok = [true; N_SM];
+        if overlaps(a, len, 0x0800, 0x0800 + N_SM * 8) {
+            for (k, ok) in sm_config_ok.iter_mut().enumerate() {
+                let act_addr = 0x0800 + k * 8 + 6;
+                let new_act = if act_addr >= a && act_addr < a + len {
+                    seg[act_addr - a]
+                } else {
+                    self.sm[k].activate
+                };
+                *ok = !self.sm[k].configured() || new_act & ACT_ENABLE == 0;
+            }
+        }
+        let mut sii_cmd: Option<u16> = None;
+        for (i, &v) in seg.iter().enumerate() {
+            let r = a + i;
+            match r {
+                0x0300..=0x0313 | 0x0442..=0x0443 => self.mem[r] = 0,
+                0x0502 => {
+                    let c = self.get16(reg::SII_CONTROL);
+                    sii_cmd = Some((c & 0xff00) | v as u16);
+                }
+                0x0503 => {
+                    let lo = sii_cmd.unwrap_or(0) & 0x00ff;
+                    sii_cmd = Some(lo | ((v as u16) << 8));
+                }
+                0x0800..=0x083F => {
+                    let k = (r - 0x0800) / 8;
+                    match (r - 0x0800) % 8 {
+                        0..=4 if sm_config_ok[k] => self.mem[r] = v,
+                        6 => self.mem[r] = v,
+                        _ => {}
+                    }
+                }
+                _ if reg_writable(r) => self.mem[r] = v,
+                _ => {}
+            }
+        }
+        // Hooks, in register order.
+        if overlaps(a, len, 0x0120, 0x0122) {
+            let ctl = self.get16(reg::AL_CONTROL);
+            self.request_state(ctl);
+        }
+        if let Some(ctl) = sii_cmd {
+            self.sii_command(ctl);
+        }
+        if overlaps(a, len, 0x0600, 0x0600 + N_FMMU * 16) {
+            self.fmmus.clear();
+            for k in 0..N_FMMU {
+                let base = 0x0600 + k * 16;
+                if let Some(f) = Fmmu::decode(&self.mem[base..base + 16]) {
+                    self.fmmus.push(f);
+                }
+            }
+        }
+        if overlaps(a, len, 0x0800, 0x0800 + N_SM * 8) {
+            for k in 0..N_SM {
+                let base = 0x0800 + k * 8;
+                if overlaps(a, len, base, base + 8) {
+                    self.sm_configured(k);
+                }
+            }
+        }
+        if overlaps(a, len, 0x0900, 0x0904) {
+            self.latch_receive_times();
+        }
+        if overlaps(a, len, 0x0910, 0x0918) {
+            self.system_time_compare(a, seg);
+        }
+        if overlaps(a, len, 0x0930, 0x0932) {
+            self.dc.reset_loop(self.now);
+        }
+        if overlaps(a, len, 0x0981, 0x0982) {
+            self.dc_activation();
+        }
+    }
+
+    fn sii_command(&mut self, ctl: u16) {
+        let cur = self.get16(reg::SII_CONTROL);
+        if self.sii.busy(self.now) {
+            return;
+        }
+        if ctl & sii::CMD_MASK == 0 {
+            // Writing no command clears the error bits.
+            self.put16(reg::SII_CONTROL, cur & !(0x7800 | sii::CMD_MASK));
+            return;
+        }
+        let address = self.get32(reg::SII_ADDRESS);
+        let mut data = [0u8; 8];
+        data.copy_from_slice(&self.mem[0x0508..0x0510]);
+        let mut status = self.sii.execute(ctl, address, &mut data, self.now);
+        if ctl & sii::CMD_MASK == sii::CMD_READ {
+            self.mem[0x0508..0x0510].copy_from_slice(&data);
+        }
+        if ctl & sii::CMD_MASK == sii::CMD_RELOAD && status & sii::ERR_CHECKSUM == 0 {
+            self.load_eeprom();
+        }
+        status &= !sii::CMD_MASK;
+        if self.sii.busy(self.now) {
+            status |= sii::BUSY | (ctl & sii::CMD_MASK);
+        }
+        self.put16(reg::SII_CONTROL, status);
+    }
+
+    fn sm_configured(&mut self, k: usize) {
+        let base = 0x0800 + k * 8;
+        let start = u16::from_le_bytes([self.mem[base], self.mem[base + 1]]);
+        let len = u16::from_le_bytes([self.mem[base + 2], self.mem[base + 3]]);
+        let control = self.mem[base + 4];
+        let activate = self.mem[base + 6];
+        let s = &mut self.sm[k];
+        let changed = s.start != start || s.len != len || s.control != control;
+        let enabling = activate & ACT_ENABLE != 0 && s.activate & ACT_ENABLE == 0;
+        let repeat_toggled = (activate ^ s.activate) & ACT_REPEAT != 0;
+        s.start = start;
+        s.len = len;
+        s.control = control;
+        s.activate = activate;
+        if changed || enabling || activate & ACT_ENABLE == 0 {
+            s.reset_buffers();
+        }
+        if repeat_toggled && s.is_mailbox() && !s.ecat_writes() {
+            self.mailbox_repeat(k);
+        }
+    }
+
+    // ------------------------------------------------------------------ distributed clock
+
+    fn latch_receive_times(&mut self) {
+        if !self.spec.dc_supported {
+            return;
+        }
+        let t0 = self.dc.local(self.now);
+        self.put32(reg::DC_RECEIVE_TIME_PORT0, t0 as u32);
+        if self.port1_open {
+            let t1 = self.dc.local(self.now + 2 * self.downstream_delay_ns);
+            self.put32(reg::DC_RECEIVE_TIME_PORT0 + 4, t1 as u32);
+        }
+        self.put64(reg::DC_RECEIVE_TIME_PU, t0);
+    }
+
+    fn system_time_compare(&mut self, a: usize, seg: &[u8]) {
+        if !self.spec.dc_supported {
+            return;
+        }
+        // Rebuild the written value from the bytes that landed on 0x0910..0x0918.
+        let mut v = [0u8; 8];
+        let mut n = 0;
+        for (i, &b) in seg.iter().enumerate() {
+            let r = a + i;
+            if (0x0910..0x0918).contains(&r) {
+                v[r - 0x0910] = b;
+                n = n.max(r - 0x0910 + 1);
+            }
+        }
+        let received = u64::from_le_bytes(v);
+        let delay = self.get32(reg::DC_SYSTEM_TIME_DELAY) as u64;
+        let local_sys = self.system_time();
+        let diff: i64 = if n <= 4 {
+            (local_sys as u32).wrapping_sub((received.wrapping_add(delay)) as u32) as i32 as i64
+        } else {
+            local_sys.wrapping_sub(received.wrapping_add(delay)) as i64
+        };
+        self.put32(reg::DC_SYSTEM_TIME_DIFF, encode_time_difference(diff));
+        self.dc.compare(self.now, diff);
+    }
+
+    fn dc_activation(&mut self) {
+        let act = self.mem[reg::DC_ACTIVATION as usize];
+        let cycle = self.get32(reg::DC_SYNC0_CYCLE) as u64;
+        if !self.spec.dc_supported || act & 0x03 != 0x03 || cycle == 0 {
+            self.sync0_next = None;
+            self.sync0_cycle = 0;
+            return;
+        }
+        let start = self.get64(reg::DC_START_TIME);
+        let now = self.system_time();
+        let next = if start >= now {
+            start
+        } else {
+            // A start time in the past: a real ESC would wait for the 32-bit wrap; we start at
+            // the next cycle boundary instead and count it.
+            self.counters.sync0_late_starts += 1;
+            start + (now - start).div_ceil(cycle) * cycle
+        };
+        self.sync0_cycle = cycle;
+        self.sync0_next = Some(next);
+    }
+
+    pub fn sync0_active(&self) -> bool {
+        self.sync0_next.is_some()
+    }
+
+    // ------------------------------------------------------------------ logical addressing
+
+    /// Process a logical datagram (`data` covers logical bytes from `laddr`). `incoming` holds
+    /// the data as it arrived when the command both reads and writes. Returns the working
+    /// counter increment (+1 read, +2 write).
+    pub fn logical(
+        &mut self,
+        laddr: u32,
+        data: &mut [u8],
+        reads: bool,
+        writes: bool,
+        incoming: &mut Vec<u8>,
+    ) -> u16 {
+        if self.fmmus.is_empty() || data.is_empty() {
+            return 0;
+        }
+        let d0 = laddr as u64 * 8;
+        let d1 = d0 + data.len() as u64 * 8;
+        let mut any = false;
+        for f in &self.fmmus {
+            if f.first_bit() < d1 && f.end_bit() > d0 && ((f.read && reads) || (f.write && writes))
+            {
+                any = true;
+                break;
+            }
+        }
+        if !any {
+            return 0;
+        }
+        let rw = reads && writes;
+        if rw {
+            incoming.clear();
+            incoming.extend_from_slice(data);
+        }
+        let (mut read_ok, mut write_ok) = (false, false);
+        // Reads first, then writes from the incoming data: a byte read and written through
+        // the same logical address is exchanged, as the ESC does on the fly.
+        for i in 0..self.fmmus.len() {
+            let f = self.fmmus[i];
+            if f.read && reads {
+                read_ok |= self.fmmu_read(&f, d0, d1, data);
+            }
+        }
+        for i in 0..self.fmmus.len() {
+            let f = self.fmmus[i];
+            if f.write && writes {
+                let src: &[u8] = if rw { incoming } else { data };
+                write_ok |= self.fmmu_write(&f, d0, d1, src);
+            }
+        }
+        read_ok as u16 + 2 * write_ok as u16
+    }
+
+    fn fmmu_read(&mut self, f: &Fmmu, d0: u64, d1: u64, data: &mut [u8]) -> bool {
+        let lo = f.first_bit().max(d0);
+        let hi = f.end_bit().min(d1);
+        if lo >= hi {
+            return false;
+        }
+        if f.byte_aligned() {
+            let phys = f.physical_bit(lo) / 8;
+            let off = ((lo - d0) / 8) as usize;
+            let n = ((hi - lo) / 8) as usize;
+            return self.ecat_read(phys as usize, &mut data[off..off + n], false);
+        }
+        let mut ok = true;
+        let mut lb = lo;
+        while lb < hi {
+            let pb = f.physical_bit(lb);
+            let pbit = pb % 8;
+            let n = (8 - pbit).min(hi - lb);
+            let mut b = [0u8; 1];
+            ok &= self.ecat_read((pb / 8) as usize, &mut b, false);
+            for k in 0..n {
+                let bit = (b[0] >> (pbit + k)) & 1;
+                let fb = (lb + k - d0) as usize;
+                let d = &mut data[fb / 8];
+                *d = (*d & !(1 << (fb % 8))) | (bit << (fb % 8));
+            }
+            lb += n;
+        }
+        ok
+    }
+
+    fn fmmu_write(&mut self, f: &Fmmu, d0: u64, d1: u64, src: &[u8]) -> bool {
+        let lo = f.first_bit().max(d0);
+        let hi = f.end_bit().min(d1);
+        if lo >= hi {
+            return false;
+        }
+        if f.byte_aligned() {
+            let phys = f.physical_bit(lo) / 8;
+            let off = ((lo - d0) / 8) as usize;
+            let n = ((hi - lo) / 8) as usize;
+            return self.ecat_write(phys as usize, &src[off..off + n]);
+        }
+        let mut ok = true;
+        let mut lb = lo;
+        while lb < hi {
+            let pb = f.physical_bit(lb);
+            let pbit = pb % 8;
+            let n = (8 - pbit).min(hi - lb);
+            let addr = (pb / 8) as usize;
+            let mut v = self.peek(addr);
+            for k in 0..n {
+                let fb = (lb + k - d0) as usize;
+                let bit = (src[fb / 8] >> (fb % 8)) & 1;
+                let p = pbit + k;
+                v = (v & !(1 << p)) | (bit << p);
+            }
+            ok &= self.ecat_write(addr, &[v]);
+            lb += n;
+        }
+        ok
+    }
+
+    // ------------------------------------------------------------------ AL state machine
+
+    /// The master wrote AL control.
+    pub fn request_state(&mut self, ctl: u16) {
+        use reg::al::*;
+        use reg::al_code::*;
+        let requested = (ctl & 0x0f) as u8;
+        let ack = ctl & 0x10 != 0;
+        if self.al_error {
+            if !ack {
+                // An error must be acknowledged before the slave follows a new request.
+                return;
+            }
+            self.al_error = false;
+            self.al_code = NO_ERROR;
+        }
+        if !matches!(requested, INIT | PREOP | BOOT | SAFEOP | OP) {
+            self.fail(UNKNOWN_REQUESTED_STATE);
+            return;
+        }
+        let cur = self.al_state;
+        if requested == cur {
+            self.update_al_registers();
+            return;
+        }
+        let result = match (cur, requested) {
+            (_, INIT) => Ok(()),
+            (INIT, PREOP) => self.check_mailbox(self.mailbox, false),
+            (INIT, BOOT) => self.check_mailbox(self.boot_mailbox, true),
+            (PREOP, SAFEOP) => self.check_process_data(),
+            (SAFEOP, OP) => self.check_op(),
+            (OP, SAFEOP) | (OP, PREOP) | (SAFEOP, PREOP) => Ok(()),
+            _ => Err(INVALID_REQUESTED_STATE),
+        };
+        match result {
+            Ok(()) => self.enter_state(requested),
+            Err(code) => self.fail(code),
+        }
+    }
+
+    /// Set the error indication with `code`, staying in the current state.
+    pub fn fail(&mut self, code: u16) {
+        self.al_error = true;
+        self.al_code = code;
+        self.counters.al_errors += 1;
+        self.update_al_registers();
+        if self.mailbox.is_some() && self.al_state != reg::al::INIT {
+            // CoE emergency "state machine transition error" carrying the AL status code.
+            let c = code.to_le_bytes();
+            let msg = CoeServer::emergency(0xA000, 0x01, [c[0], c[1], 0, 0, 0]);
+            self.queue_mailbox(reg::mbx::TYPE_COE, msg);
+        }
+    }
+
+    fn enter_state(&mut self, state: u8) {
+        use reg::al::*;
+        let prev = self.al_state;
+        self.al_state = state;
+        self.apply_sm_enables();
+        if state == INIT {
+            self.mbx_queue.clear();
+            self.mbx_rx_pending = false;
+            self.mbx_last_rx_counter = 0;
+            self.coe = CoeServer::new();
+            for k in 0..N_SM {
+                if self.sm[k].is_mailbox() {
+                    self.sm[k].full = false;
+                }
+            }
+        }
+        if state == SAFEOP && prev == PREOP {
+            self.outputs_since_safeop = false;
+            self.outputs_received = false;
+        }
+        if state == OP {
+            self.wd_last_trigger = self.now;
+            self.watchdog_expired = false;
+            self.put16(reg::WATCHDOG_STATUS_PD, 1);
+        }
+        self.update_al_registers();
+    }
+
+    /// The slave application enables the mailbox SyncManagers from PREOP on and the
+    /// process-data ones in SAFEOP and OP (PDI control bit 0), as SOES-style stacks do.
+    fn apply_sm_enables(&mut self) {
+        use reg::al::*;
+        let state = self.al_state;
+        let mbx_on = state != INIT;
+        let pd_on = matches!(state, SAFEOP | OP);
+        let mbx_sms: &[usize] = if self.mailbox.is_some() || self.boot_mailbox.is_some() {
+            &[0, 1]
+        } else {
+            &[]
+        };
+        for &k in mbx_sms {
+            self.sm[k].pdi_disabled = !mbx_on;
+        }
+        for k in [self.out_sm, self.in_sm] {
+            if !mbx_sms.contains(&k) {
+                self.sm[k].pdi_disabled = !pd_on;
+            }
+        }
+    }
+
+    fn check_mailbox(&self, mbx: Option<MailboxSpec>, boot: bool) -> Result<(), u16> {
+        use reg::al_code::*;
+        let Some(m) = mbx else {
+            return if boot {
+                Err(BOOTSTRAP_NOT_SUPPORTED)
+            } else {
+                Ok(())
+            };
+        };
+        let (s0, s1) = (&self.sm[0], &self.sm[1]);
+        let ok0 = s0.configured()
+            && s0.start == m.rx_offset
+            && s0.len == m.rx_size
+            && s0.control & 0x0f == 0x06;
+        let ok1 = s1.configured()
+            && s1.start == m.tx_offset
+            && s1.len == m.tx_size
+            && s1.control & 0x0f == 0x02;
+        if ok0 && ok1 {
+            Ok(())
+        } else {
+            Err(INVALID_MAILBOX_CONFIG)
+        }
+    }
+
+    /// Recompute the process-data maps from the dictionary (or the SII).
+    fn build_maps(&mut self) -> Result<(), u16> {
+        use reg::al_code::*;
+        let out = match crate::pdo::from_od(&self.od, 0x1C12) {
+            Some(Ok(m)) => m,
+            Some(Err(_)) => return Err(INVALID_OUTPUT_MAPPING),
+            None => self.sii_map(51, self.out_sm),
+        };
+        let inp = match crate::pdo::from_od(&self.od, 0x1C13) {
+            Some(Ok(m)) => m,
+            Some(Err(_)) => return Err(INVALID_INPUT_MAPPING),
+            None => self.sii_map(50, self.in_sm),
+        };
+        self.out_map = out;
+        self.in_map = inp;
+        Ok(())
+    }
+
+    fn sii_map(&self, category: u16, sm: usize) -> PdoMap {
+        let mut entries = Vec::new();
+        for p in sii::pdos(&self.sii.image, category) {
+            if p.sync_manager as usize == sm {
+                entries.extend(p.entries.iter().copied());
+            }
+        }
+        crate::pdo::from_entries(&self.od, &entries)
+    }
+
+    fn check_process_data(&mut self) -> Result<(), u16> {
+        use reg::al_code::*;
+        self.build_maps()?;
+        let check = |s: &SyncManager, bytes: usize, control: u8| {
+            if bytes == 0 {
+                !s.configured()
+            } else {
+                s.configured() && s.len as usize == bytes && s.control & 0x0f == control
+            }
+        };
+        if !check(&self.sm[self.out_sm], self.out_map.bytes(), 0x04) {
+            return Err(INVALID_OUTPUT_CONFIG);
+        }
+        if !check(&self.sm[self.in_sm], self.in_map.bytes(), 0x00) {
+            return Err(INVALID_INPUT_CONFIG);
+        }
+        if self.spec.dc_required && !self.sync0_active() {
+            return Err(INVALID_DC_SYNC_CONFIG);
+        }
+        Ok(())
+    }
+
+    fn check_op(&self) -> Result<(), u16> {
+        use reg::al_code::*;
+        if self.refuse_op {
+            return Err(SYNCHRONIZATION_ERROR);
+        }
+        if self.out_map.bytes() > 0 && !self.outputs_since_safeop {
+            return Err(NO_VALID_OUTPUTS);
+        }
+        Ok(())
+    }
+
+    // ------------------------------------------------------------------ mailbox
+
+    fn queue_mailbox(&mut self, kind: u8, payload: Vec<u8>) {
+        if self.mbx_queue.len() < MAILBOX_QUEUE_LIMIT {
+            let mut msg = Vec::with_capacity(reg::mbx::HEADER_LEN + payload.len());
+            msg.extend_from_slice(&(payload.len() as u16).to_le_bytes());
+            msg.extend_from_slice(&[0, 0, 0, kind & 0x0f]);
+            msg.extend_from_slice(&payload);
+            self.mbx_queue.push_back(msg);
+        }
+    }
+
+    fn mailbox_error(&mut self, detail: u16) {
+        self.counters.mailbox_errors += 1;
+        let mut p = Vec::with_capacity(4);
+        p.extend_from_slice(&1u16.to_le_bytes());
+        p.extend_from_slice(&detail.to_le_bytes());
+        self.queue_mailbox(reg::mbx::TYPE_ERR, p);
+    }
+
+    /// The slave application's mailbox work: consume a full write mailbox, fill an empty read
+    /// mailbox from the queue.
+    pub fn service_mailbox(&mut self) {
+        if self.mailbox_stalled || self.mailbox.is_none() && self.boot_mailbox.is_none() {
+            return;
+        }
+        if self.mbx_rx_pending && self.sm[0].full {
+            self.mbx_rx_pending = false;
+            let (start, len) = (self.sm[0].start as usize, self.sm[0].len as usize);
+            let msg_len = u16::from_le_bytes([self.mem[start], self.mem[start + 1]]) as usize;
+            let kind = self.mem[start + 5] & 0x0f;
+            let counter = (self.mem[start + 5] >> 4) & 0x07;
+            self.sm[0].full = false;
+            self.counters.mailbox_received += 1;
+            let repeated = counter != 0 && counter == self.mbx_last_rx_counter;
+            self.mbx_last_rx_counter = counter;
+            if len < reg::mbx::HEADER_LEN || msg_len + reg::mbx::HEADER_LEN > len {
+                self.mailbox_error(0x0008); // invalid size
+            } else if msg_len < 2 && kind == reg::mbx::TYPE_COE {
+                self.mailbox_error(0x0006); // size too short
+            } else if repeated {
+                // A retry of the message already handled: ignore it.
+            } else if kind == reg::mbx::TYPE_COE {
+                let mut out = Vec::new();
+                let max_payload = (self.sm[1].len as usize).saturating_sub(reg::mbx::HEADER_LEN);
+                let data_start = start + reg::mbx::HEADER_LEN;
+                let request = self.mem[data_start..data_start + msg_len].to_vec();
+                self.coe
+                    .handle(&request, &mut self.od, self.al_state, max_payload, &mut out);
+                for p in out {
+                    self.queue_mailbox(reg::mbx::TYPE_COE, p);
+                }
+            } else {
+                self.mailbox_error(0x0002); // unsupported protocol
+            }
+        }
+        let s1 = &self.sm[1];
+        if !self.mbx_queue.is_empty() && s1.enabled() && s1.is_mailbox() && !s1.full {
+            if let Some(mut msg) = self.mbx_queue.pop_front() {
+                self.mbx_tx_counter = self.mbx_tx_counter % 7 + 1;
+                if let Some(b) = msg.get_mut(5) {
+                    *b = (*b & 0x8f) | (self.mbx_tx_counter << 4);
+                }
+                self.place_in_read_mailbox(&msg);
+                self.mbx_last_sent = msg;
+                self.counters.mailbox_sent += 1;
+            }
+        }
+    }
+
+    fn place_in_read_mailbox(&mut self, msg: &[u8]) {
+        let (start, len) = (self.sm[1].start as usize, self.sm[1].len as usize);
+        let end = (start + len).min(MEM_SIZE);
+        let area = &mut self.mem[start..end];
+        area.fill(0);
+        let n = msg.len().min(area.len());
+        area[..n].copy_from_slice(&msg[..n]);
+        self.sm[1].full = true;
+    }
+
+    /// The master toggled the repeat request of the read mailbox: put the last message back
+    /// and acknowledge.
+    fn mailbox_repeat(&mut self, k: usize) {
+        if self.mailbox_stalled {
+            return;
+        }
+        if !self.mbx_last_sent.is_empty() {
+            let msg = std::mem::take(&mut self.mbx_last_sent);
+            self.place_in_read_mailbox(&msg);
+            self.mbx_last_sent = msg;
+        }
+        self.sm[k].repeat_ack = self.sm[k].activate & ACT_REPEAT != 0;
+    }
+
+    pub fn mailbox_queue_len(&self) -> usize {
+        self.mbx_queue.len()
+    }
+
+    // ------------------------------------------------------------------ application side
+
+    fn outputs_valid(&self) -> bool {
+        self.al_state == reg::al::OP && !self.watchdog_expired && self.outputs_received
+    }
+
+    /// SM buffer of outputs → dictionary (only in OP: SAFEOP keeps outputs safe).
+    pub fn latch_outputs(&mut self) {
+        if self.al_state != reg::al::OP {
+            return;
+        }
+        let k = self.out_sm;
+        if let Some(buf) = self.sm[k].pdi_take() {
+            crate::pdo::buffer_to_od(&self.out_map, buf, &mut self.od);
+        }
+    }
+
+    /// Dictionary → SM buffer of inputs (SAFEOP and OP).
+    pub fn latch_inputs(&mut self) {
+        if !matches!(self.al_state, reg::al::SAFEOP | reg::al::OP) {
+            return;
+        }
+        let k = self.in_sm;
+        if !self.sm[k].enabled() || self.in_map.bits == 0 {
+            return;
+        }
+        let (map, od) = (&self.in_map, &self.od);
+        self.sm[k].pdi_publish(|buf| crate::pdo::od_to_buffer(map, od, buf));
+    }
+
+    /// Advance the application to host time `host`: device steps at the device period and
+    /// SYNC0 events in order, bounded catch-up, and the process-data watchdog.
+    pub fn advance(&mut self, host: u64) {
+        self.now = host;
+        let local_now = self.dc.local(host);
+        let period = self.device.as_ref().map(|d| d.period_ns().max(1_000));
+        if self.app_next_step == 0 {
+            self.app_next_step = local_now;
+        }
+        // Bound the catch-up.
+        let horizon = local_now.saturating_sub(MAX_CATCH_UP_NS);
+        if let Some(p) = period {
+            if self.app_next_step < horizon {
+                let skipped = (horizon - self.app_next_step).div_ceil(p);
+                self.counters.device_steps_skipped += skipped;
+                self.app_next_step += skipped * p;
+            }
+        }
+        let offset = self.get64(reg::DC_SYSTEM_TIME_OFFSET);
+        if let Some(next) = self.sync0_next {
+            let horizon_sys = horizon.wrapping_add(offset);
+            if next < horizon_sys && self.sync0_cycle > 0 {
+                let skip = (horizon_sys - next).div_ceil(self.sync0_cycle);
+                self.sync0_next = Some(next + skip * self.sync0_cycle);
+            }
+        }
+        loop {
+            let next_dev = if period.is_some() {
+                self.app_next_step
+            } else {
+                u64::MAX
+            };
+            let next_sync = self.sync0_next.map_or(u64::MAX, |s| s.wrapping_sub(offset));
+            let t = next_dev.min(next_sync);
+            if t > local_now {
+                break;
+            }
+            if next_sync <= next_dev {
+                self.latch_outputs();
+                self.latch_inputs();
+                self.mem[reg::DC_SYNC0_STATUS as usize] = 1;
+                self.counters.sync0_events += 1;
+                self.sync0_next = self.sync0_next.map(|s| s + self.sync0_cycle.max(1));
+            } else {
+                let valid = self.outputs_valid();
+                if let Some(d) = self.device.as_mut() {
+                    d.step(&mut self.od, t, valid);
+                }
+                self.counters.device_steps += 1;
+                self.app_next_step += period.unwrap_or(u64::MAX / 2);
+            }
+        }
+        self.check_watchdog();
+    }
+
+    fn watchdog_ns(&self) -> u64 {
+        let divider = self.get16(reg::WATCHDOG_DIVIDER) as u64;
+        let time = self.get16(reg::WATCHDOG_TIME_PD) as u64;
+        (divider + 2) * 40 * time
+    }
+
+    fn check_watchdog(&mut self) {
+        let s = &self.sm[self.out_sm];
+        let armed = s.enabled() && s.control & WATCHDOG_TRIGGER != 0 && !s.is_mailbox();
+        let wd = self.watchdog_ns();
+        if !armed || wd == 0 || self.watchdog_expired {
+            return;
+        }
+        if self.now.saturating_sub(self.wd_last_trigger) > wd {
+            self.watchdog_expired = true;
+            self.counters.watchdog_expirations += 1;
+            self.put16(reg::WATCHDOG_STATUS_PD, 0);
+            let c = self.mem[reg::WATCHDOG_COUNTER_PD as usize];
+            self.mem[reg::WATCHDOG_COUNTER_PD as usize] = c.saturating_add(1);
+            if self.al_state == reg::al::OP {
+                self.enter_state(reg::al::SAFEOP);
+                self.fail(reg::al_code::SM_WATCHDOG);
+            }
+        }
+    }
+
+    /// Per-frame work before the datagrams: free-run input latch.
+    pub fn before_frame(&mut self) {
+        self.counters.frames += 1;
+        if !self.sync0_active() {
+            self.latch_inputs();
+        }
+    }
+
+    /// Per-frame work after the datagrams: free-run output latch and the mailbox.
+    pub fn after_frame(&mut self) {
+        if !self.sync0_active() {
+            self.latch_outputs();
+        }
+        self.service_mailbox();
+    }
+
+    pub fn probe(&self) -> Vec<(&'static str, f64)> {
+        self.device.as_ref().map(|d| d.probe()).unwrap_or_default()
+    }
+}

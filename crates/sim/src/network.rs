@@ -1,0 +1,331 @@
+//! A line of virtual ESCs processing EtherCAT frames as the hardware does: the frame passes
+//! slave 0, 1, …, n−1 and comes back through the same slaves; every datagram is handled at each
+//! slave on the way out (the processing direction), with the working-counter rules of
+//! ETG.1000.4 / the ESC datasheet.
+
+use ether_ros_wire::{self as wire, Command};
+
+use crate::esc::Esc;
+use crate::faults::{Faults, Rng};
+use crate::spec::SlaveSpec;
+
+/// Most datagrams a frame can carry (each takes at least 12 bytes of a 1500-byte payload).
+const MAX_DATAGRAMS: usize = 128;
+
+/// Where time comes from: the host's monotonic clock, or a value tests set.
+#[derive(Clone, Copy, Debug)]
+pub enum Clock {
+    Monotonic,
+    Manual(u64),
+}
+
+/// Network-wide counters.
+#[derive(Clone, Debug, Default)]
+pub struct NetStats {
+    pub frames_seen: u64,
+    pub frames_answered: u64,
+    pub frames_dropped: u64,
+    pub frames_corrupted: u64,
+    pub frames_malformed: u64,
+    pub frames_not_ethercat: u64,
+    pub datagrams: u64,
+    pub unknown_commands: u64,
+    pub per_command: [u64; 15],
+    pub polls: u64,
+    pub send_errors: u64,
+}
+
+#[derive(Clone, Copy, Default)]
+struct Slot {
+    header: usize,
+    data: usize,
+    len: usize,
+}
+
+pub struct Network {
+    pub slaves: Vec<Esc>,
+    pub clock: Clock,
+    pub faults: Faults,
+    pub rng: Rng,
+    pub stats: NetStats,
+    scratch: Vec<u8>,
+}
+
+impl Default for Network {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+fn monotonic_ns() -> u64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: clock_gettime writes into the timespec we own.
+    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
+    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
+}
+
+impl Network {
+    pub fn new() -> Self {
+        Network {
+            slaves: Vec::new(),
+            clock: Clock::Monotonic,
+            faults: Faults::default(),
+            rng: Rng::new(1),
+            stats: NetStats::default(),
+            scratch: Vec::with_capacity(wire::MAX_FRAME_LEN),
+        }
+    }
+
+    /// A network whose time only moves when the caller sets it (tests).
+    pub fn with_manual_clock(start_ns: u64) -> Self {
+        let mut n = Self::new();
+        n.clock = Clock::Manual(start_ns);
+        n
+    }
+
+    pub fn now(&self) -> u64 {
+        match self.clock {
+            Clock::Monotonic => monotonic_ns(),
+            Clock::Manual(t) => t,
+        }
+    }
+
+    /// Move a manual clock forward (no effect on a monotonic one).
+    pub fn advance_clock(&mut self, ns: u64) {
+        if let Clock::Manual(t) = self.clock {
+            self.clock = Clock::Manual(t + ns);
+        }
+    }
+
+    /// Append a slave at the end of the line; returns its position. The device model is
+    /// created from the spec's `device` and `params`.
+    pub fn add_slave(&mut self, spec: SlaveSpec) -> Result<usize, String> {
+        let device = crate::devices::create(&spec.device, &spec.params)?;
+        let pos = self.slaves.len();
+        let now = self.now();
+        let mut esc = Esc::new(spec, pos, now);
+        esc.device = device;
+        if let Some(d) = esc.device.as_mut() {
+            d.reset(&mut esc.od);
+        }
+        self.slaves.push(esc);
+        self.update_topology();
+        Ok(pos)
+    }
+
+    /// Power-cycle one slave: registers back to their defaults, device reset.
+    pub fn reset_slave(&mut self, pos: usize) -> bool {
+        let now = self.now();
+        let Some(old) = self.slaves.get_mut(pos) else {
+            return false;
+        };
+        let spec = old.spec.clone();
+        let device = old.device.take();
+        let mut esc = Esc::new(spec, pos, now);
+        esc.device = device;
+        if let Some(d) = esc.device.as_mut() {
+            d.reset(&mut esc.od);
+        }
+        self.slaves[pos] = esc;
+        self.update_topology();
+        true
+    }
+
+    /// Number of slaves a frame reaches (a broken link hides the rest of the line).
+    fn reach(&self) -> usize {
+        self.faults
+            .link_break_at
+            .map_or(self.slaves.len(), |k| k.min(self.slaves.len()))
+    }
+
+    /// Recompute port states from the line and the link faults.
+    pub fn update_topology(&mut self) {
+        let reach = self.reach();
+        for (i, s) in self.slaves.iter_mut().enumerate() {
+            s.port1_open = i + 1 < reach;
+            s.update_dl_status();
+        }
+    }
+
+    /// Advance every slave's application to now (device steps, SYNC0, watchdog, mailbox) —
+    /// called by the runner when no frame arrives.
+    pub fn poll(&mut self) {
+        let now = self.now();
+        self.poll_at(now);
+    }
+
+    pub fn poll_at(&mut self, now: u64) {
+        self.stats.polls += 1;
+        let mut cum = 0u64;
+        for s in self.slaves.iter_mut() {
+            cum += s.spec.delay_ns;
+            s.advance(now + cum);
+            s.service_mailbox();
+        }
+    }
+
+    /// Process one frame in place at the current time. Returns true when an answer goes back
+    /// (the frame then holds it), false when the frame is dropped or not ours.
+    pub fn process_frame(&mut self, frame: &mut [u8]) -> bool {
+        let now = self.now();
+        self.process_frame_at(frame, now)
+    }
+
+    pub fn process_frame_at(&mut self, frame: &mut [u8], now: u64) -> bool {
+        self.stats.frames_seen += 1;
+        let end = match wire::check_frame(frame) {
+            Ok(e) => e,
+            Err(wire::WireError::NotEthercat) => {
+                self.stats.frames_not_ethercat += 1;
+                return false;
+            }
+            Err(_) => {
+                self.stats.frames_malformed += 1;
+                return false;
+            }
+        };
+        let mut slots = [Slot::default(); MAX_DATAGRAMS];
+        let Some(n) = parse_datagrams(frame, end, &mut slots) else {
+            self.stats.frames_malformed += 1;
+            return false;
+        };
+        if self.faults.should_drop(&mut self.rng) {
+            self.stats.frames_dropped += 1;
+            return false;
+        }
+        for s in &slots[..n] {
+            self.stats.datagrams += 1;
+            match Command::from_u8(frame[s.header]) {
+                Some(c) => self.stats.per_command[c as usize] += 1,
+                None => self.stats.unknown_commands += 1,
+            }
+        }
+        let reach = self.reach();
+        let delays: u64 = self.slaves[..reach].iter().map(|s| s.spec.delay_ns).sum();
+        let mut cum = 0u64;
+        for k in 0..reach {
+            let esc = &mut self.slaves[k];
+            cum += esc.spec.delay_ns;
+            esc.downstream_delay_ns = delays - cum;
+            esc.advance(now + cum);
+            esc.before_frame();
+            for s in &slots[..n] {
+                process_datagram(esc, frame, s, &mut self.scratch);
+            }
+            esc.after_frame();
+        }
+        if self.faults.maybe_corrupt(&mut self.rng, frame) {
+            self.stats.frames_corrupted += 1;
+        }
+        // The return path marks the frame: flip the locally administered bit of the source.
+        frame[6] ^= 0x02;
+        self.stats.frames_answered += 1;
+        true
+    }
+
+    /// Delay to apply before sending an answer (µs), from the fault settings.
+    pub fn reply_delay_us(&self) -> u64 {
+        self.faults.delay_us
+    }
+}
+
+/// Locate every datagram; None when one runs past the frame (the frame is then not answered,
+/// as a real ESC invalidates a frame whose length fields are inconsistent).
+fn parse_datagrams(frame: &[u8], end: usize, slots: &mut [Slot; MAX_DATAGRAMS]) -> Option<usize> {
+    let mut pos = wire::ETH_HEADER_LEN + wire::ECAT_HEADER_LEN;
+    let mut n = 0;
+    while pos < end {
+        if n == MAX_DATAGRAMS || pos + wire::DATAGRAM_HEADER_LEN > end {
+            return None;
+        }
+        let lenword = u16::from_le_bytes([frame[pos + 6], frame[pos + 7]]);
+        let len = (lenword & 0x07ff) as usize;
+        let data = pos + wire::DATAGRAM_HEADER_LEN;
+        if data + len + wire::WKC_LEN > end {
+            return None;
+        }
+        slots[n] = Slot {
+            header: pos,
+            data,
+            len,
+        };
+        n += 1;
+        pos = data + len + wire::WKC_LEN;
+        if lenword & 0x8000 == 0 {
+            break;
+        }
+    }
+    Some(n)
+}
+
+/// One datagram at one slave.
+fn process_datagram(esc: &mut Esc, frame: &mut [u8], s: &Slot, scratch: &mut Vec<u8>) {
+    let Some(cmd) = Command::from_u8(frame[s.header]) else {
+        return;
+    };
+    let h = s.header;
+    let address = u32::from_le_bytes([frame[h + 2], frame[h + 3], frame[h + 4], frame[h + 5]]);
+    let (adp, ado) = wire::split_address(address);
+    let wkc_at = s.data + s.len;
+    let mut wkc = u16::from_le_bytes([frame[wkc_at], frame[wkc_at + 1]]);
+    let data = &mut frame[s.data..s.data + s.len];
+    let ado = ado as usize;
+    use Command::*;
+    match cmd {
+        Nop => return,
+        Aprd | Apwr | Aprw | Armw | Brd | Bwr | Brw => {
+            let addressed = matches!(cmd, Brd | Bwr | Brw) || adp == 0;
+            // Auto-increment and broadcast: every slave increments ADP.
+            let next = (adp.wrapping_add(1) as u32) | ((ado as u32) << 16);
+            wkc = wkc.wrapping_add(physical(esc, cmd, addressed, ado, data, scratch));
+            frame[h + 2..h + 6].copy_from_slice(&next.to_le_bytes());
+        }
+        Fprd | Fpwr | Fprw | Frmw => {
+            let addressed = esc.matches_fixed(adp);
+            wkc = wkc.wrapping_add(physical(esc, cmd, addressed, ado, data, scratch));
+        }
+        Lrd | Lwr | Lrw => {
+            let reads = cmd != Lwr;
+            let writes = cmd != Lrd;
+            wkc = wkc.wrapping_add(esc.logical(address, data, reads, writes, scratch));
+        }
+    }
+    frame[wkc_at..wkc_at + 2].copy_from_slice(&wkc.to_le_bytes());
+}
+
+/// Physical access of a position/station/broadcast command; returns the WKC increment.
+fn physical(
+    esc: &mut Esc,
+    cmd: Command,
+    addressed: bool,
+    ado: usize,
+    data: &mut [u8],
+    scratch: &mut Vec<u8>,
+) -> u16 {
+    use Command::*;
+    match cmd {
+        Armw | Frmw => {
+            // Read at the addressed slave, write at all others.
+            if addressed {
+                esc.ecat_read(ado, data, false) as u16
+            } else {
+                esc.ecat_write(ado, data) as u16
+            }
+        }
+        _ if !addressed => 0,
+        Aprd | Fprd => esc.ecat_read(ado, data, false) as u16,
+        Brd => esc.ecat_read(ado, data, true) as u16,
+        Apwr | Fpwr | Bwr => esc.ecat_write(ado, data) as u16,
+        Aprw | Fprw | Brw => {
+            scratch.clear();
+            scratch.extend_from_slice(data);
+            let r = esc.ecat_read(ado, data, cmd == Brw);
+            let w = esc.ecat_write(ado, scratch);
+            r as u16 + 2 * w as u16
+        }
+        Nop | Lrd | Lwr | Lrw => 0,
+    }
+}

@@ -1,0 +1,199 @@
+//! Runs a `Network` on a network interface: an `AF_PACKET` raw socket bound to EtherType
+//! 0x88A4, a background thread that receives a frame, processes it through the line of slaves
+//! and sends the answer back, and polls the slaves every millisecond when no frame arrives so
+//! device models and watchdogs keep running without traffic.
+
+use std::ffi::CString;
+use std::io;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use ether_ros_wire as wire;
+
+use crate::network::Network;
+
+/// Receive timeout when the line is idle (µs).
+const IDLE_POLL_US: libc::suseconds_t = 1_000;
+/// Real-time priority the frame thread asks for (ignored when not permitted).
+const RT_PRIORITY: i32 = 70;
+
+struct Socket(libc::c_int);
+
+impl Drop for Socket {
+    fn drop(&mut self) {
+        // SAFETY: we own the descriptor.
+        unsafe { libc::close(self.0) };
+    }
+}
+
+fn open_socket(ifname: &str) -> io::Result<Socket> {
+    let name = CString::new(ifname)
+        .map_err(|_| io::Error::new(io::ErrorKind::InvalidInput, "interface name contains NUL"))?;
+    // SAFETY: plain libc calls with valid arguments; every result is checked.
+    unsafe {
+        let ifindex = libc::if_nametoindex(name.as_ptr());
+        if ifindex == 0 {
+            return Err(io::Error::new(
+                io::ErrorKind::NotFound,
+                format!("no network interface named '{ifname}'"),
+            ));
+        }
+        let proto = (wire::ETHERTYPE).to_be() as libc::c_int;
+        let fd = libc::socket(libc::AF_PACKET, libc::SOCK_RAW, proto);
+        if fd < 0 {
+            return Err(io::Error::last_os_error());
+        }
+        let sock = Socket(fd);
+        let mut sll: libc::sockaddr_ll = std::mem::zeroed();
+        sll.sll_family = libc::AF_PACKET as u16;
+        sll.sll_protocol = wire::ETHERTYPE.to_be();
+        sll.sll_ifindex = ifindex as i32;
+        let r = libc::bind(
+            fd,
+            &sll as *const libc::sockaddr_ll as *const libc::sockaddr,
+            std::mem::size_of::<libc::sockaddr_ll>() as u32,
+        );
+        if r < 0 {
+            return Err(io::Error::last_os_error());
+        }
+        // Promiscuous, so frames addressed to any MAC reach us (masters use broadcast anyway).
+        let mut mreq: libc::packet_mreq = std::mem::zeroed();
+        mreq.mr_ifindex = ifindex as i32;
+        mreq.mr_type = libc::PACKET_MR_PROMISC as u16;
+        libc::setsockopt(
+            fd,
+            libc::SOL_PACKET,
+            libc::PACKET_ADD_MEMBERSHIP,
+            &mreq as *const libc::packet_mreq as *const libc::c_void,
+            std::mem::size_of::<libc::packet_mreq>() as u32,
+        );
+        Ok(sock)
+    }
+}
+
+fn try_realtime() {
+    // SAFETY: best-effort scheduling and memory locking; failures are ignored on purpose.
+    unsafe {
+        let param = libc::sched_param {
+            sched_priority: RT_PRIORITY,
+        };
+        libc::sched_setscheduler(0, libc::SCHED_FIFO, &param);
+        libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE);
+    }
+}
+
+/// A running frame thread.
+pub struct Runner {
+    stop: Arc<AtomicBool>,
+    handle: Option<JoinHandle<()>>,
+    pub interface: String,
+}
+
+impl Runner {
+    /// Open the socket (errors are reported here) and start the thread.
+    pub fn start(net: Arc<Mutex<Network>>, ifname: &str) -> io::Result<Runner> {
+        let sock = open_socket(ifname)?;
+        let stop = Arc::new(AtomicBool::new(false));
+        let stop2 = stop.clone();
+        let handle = std::thread::Builder::new()
+            .name("ether-ros-sim".into())
+            .spawn(move || frame_loop(sock, net, stop2))?;
+        Ok(Runner {
+            stop,
+            handle: Some(handle),
+            interface: ifname.to_string(),
+        })
+    }
+
+    pub fn stop(&mut self) {
+        self.stop.store(true, Ordering::SeqCst);
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
+        }
+    }
+
+    pub fn is_running(&self) -> bool {
+        self.handle.as_ref().is_some_and(|h| !h.is_finished())
+    }
+}
+
+impl Drop for Runner {
+    fn drop(&mut self) {
+        self.stop();
+    }
+}
+
+fn frame_loop(sock: Socket, net: Arc<Mutex<Network>>, stop: Arc<AtomicBool>) {
+    try_realtime();
+    let fd = sock.0;
+    // A blocking receive with a 1 ms timeout: one syscall per frame, and a poll of the
+    // slaves whenever the line is idle.
+    let tv = libc::timeval { tv_sec: 0, tv_usec: IDLE_POLL_US };
+    // SAFETY: setting a socket option from a valid timeval.
+    unsafe {
+        libc::setsockopt(
+            fd,
+            libc::SOL_SOCKET,
+            libc::SO_RCVTIMEO,
+            &tv as *const libc::timeval as *const libc::c_void,
+            std::mem::size_of::<libc::timeval>() as u32,
+        );
+    }
+    let mut buf = [0u8; 2048];
+    let mut last_poll = 0u64;
+    while !stop.load(Ordering::Relaxed) {
+        // SAFETY: recvfrom into our buffer and address struct, sizes passed correctly.
+        let mut sll: libc::sockaddr_ll = unsafe { std::mem::zeroed() };
+        let mut alen = std::mem::size_of::<libc::sockaddr_ll>() as libc::socklen_t;
+        let n = unsafe {
+            libc::recvfrom(
+                fd,
+                buf.as_mut_ptr() as *mut libc::c_void,
+                buf.len(),
+                0,
+                &mut sll as *mut libc::sockaddr_ll as *mut libc::sockaddr,
+                &mut alen,
+            )
+        };
+        if n <= 0 {
+            if let Ok(mut net) = net.lock() {
+                net.poll();
+                last_poll = net.now();
+            }
+            continue;
+        }
+        if sll.sll_pkttype == libc::PACKET_OUTGOING {
+            continue;
+        }
+        let len = n as usize;
+        let (answer, delay_us) = match net.lock() {
+            Ok(mut net) => {
+                let a = net.process_frame(&mut buf[..len]);
+                // Frames advance the slaves they reach; a poll now and then keeps a slave
+                // behind a broken link (or a dropped-frame burst) running too.
+                let now = net.now();
+                if now.saturating_sub(last_poll) > 1_000_000 {
+                    net.poll();
+                    last_poll = now;
+                }
+                (a, net.reply_delay_us())
+            }
+            Err(_) => return,
+        };
+        if !answer {
+            continue;
+        }
+        if delay_us > 0 {
+            std::thread::sleep(Duration::from_micros(delay_us));
+        }
+        // SAFETY: send our buffer on the bound socket.
+        let sent = unsafe { libc::send(fd, buf.as_ptr() as *const libc::c_void, len, 0) };
+        if sent < 0 {
+            if let Ok(mut net) = net.lock() {
+                net.stats.send_errors += 1;
+            }
+        }
+    }
+}

@@ -1,0 +1,88 @@
+"""``ether-ros experiment trot|frequency``: the thesis's experiments (Tables 6.1 and 6.5)."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+
+def register(subparsers: Any) -> None:
+    parser = subparsers.add_parser(
+        "experiment",
+        help="run the trot or the loop-frequency "
+        "experiment of the thesis on a bus (simulated or real)",
+    )
+    sub = parser.add_subparsers(dest="experiment", metavar="EXPERIMENT", required=True)
+
+    trot = sub.add_parser("trot", help="Table 6.1: ramp b to 4 cm and a to 5 cm, trot, stop")
+    trot.add_argument("config", help="bus configuration (YAML) with Laelaps II legs")
+    trot.add_argument("--interface", help="network interface (overrides bus.interface)")
+    trot.add_argument("--record", metavar="FILE", help="record the run to this MCAP file")
+    trot.add_argument(
+        "--transition", type=int, default=3, help="Transition_time in seconds (Table 6.1: 3)"
+    )
+    trot.add_argument(
+        "--hold",
+        type=float,
+        default=10.0,
+        help="seconds of steady trot between the ramps (default 10)",
+    )
+    trot.set_defaults(func=run_trot)
+
+    freq = sub.add_parser(
+        "frequency", help="Table 6.5: lost frames per loop time, a round per step"
+    )
+    freq.add_argument("config", help="bus configuration (YAML)")
+    freq.add_argument("--interface", help="network interface (overrides bus.interface)")
+    freq.add_argument("--from-us", type=int, default=400, help="first loop time (default 400)")
+    freq.add_argument("--step-us", type=int, default=50, help="decrement per round (default 50)")
+    freq.add_argument("--to-us", type=int, default=100, help="last loop time (default 100)")
+    freq.add_argument(
+        "--round-seconds",
+        type=float,
+        default=600.0,
+        help="length of each round (Table 6.3: 10 minutes)",
+    )
+    freq.add_argument(
+        "--record",
+        metavar="FILE",
+        help="record each round to FILE with _<loop>us before the suffix",
+    )
+    freq.set_defaults(func=run_frequency)
+
+
+def run_trot(args: argparse.Namespace) -> int:
+    from ether_ros.tools.experiments import TrotPlan, trot
+    from ether_ros.tools.session import load_config, running_bus
+
+    config = load_config(args.config, args.interface)
+    with running_bus(config, args.interface) as bus:
+        result = trot(
+            bus, TrotPlan(transition_s=args.transition, hold_s=args.hold), record=args.record
+        )
+    legs = ", ".join(f"{name}={leg}" for name, leg in result.legs.items())
+    print(f"trot done: legs {legs}; {result.lost_frames} lost frames")
+    if result.recording is not None:
+        print(
+            f"{result.recording}: {result.cycles_recorded} cycles "
+            f"(plot with: ether-ros plot {result.recording})"
+        )
+    return 0
+
+
+def run_frequency(args: argparse.Namespace) -> int:
+    from ether_ros.master.bus import Bus
+    from ether_ros.tools.experiments import frequency, frequency_table, loop_times
+    from ether_ros.tools.session import load_config
+
+    steps = loop_times(args.from_us, args.step_us, args.to_us)
+    load_config(args.config, args.interface)  # a bad configuration fails before round one
+
+    def open_bus(cycle_us: int) -> Any:
+        config = load_config(args.config, args.interface)
+        config.bus.cycle_us = cycle_us
+        return Bus.open(config, interface=args.interface)
+
+    rounds = frequency(open_bus, steps, args.round_seconds, record=args.record)
+    print(frequency_table(rounds))
+    return 0

@@ -1,0 +1,74 @@
+"""``ether-ros run CONFIG``: the ROS 2 node on a bus, configured and active unless --inactive."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+from typing import Any
+
+
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "run",
+        help="run the ROS 2 lifecycle node on a bus",
+        description="Start the ether_ros lifecycle node (name: ros.node_name of the config). "
+        "By default it configures (opens and scans the bus) and activates (OP, cyclic "
+        "exchange, publishing); with --inactive it waits for lifecycle transitions.",
+    )
+    p.add_argument("config", help="bus configuration (YAML)")
+    p.add_argument("--interface", "-i", help="network interface (overrides bus.interface)")
+    p.add_argument(
+        "--inactive",
+        action="store_true",
+        help="leave the node unconfigured; the caller drives the lifecycle transitions",
+    )
+    p.add_argument("--node-name", help="override ros.node_name")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+    from rclpy.signals import SignalHandlerOptions
+
+    from ether_ros.errors import EtherRosError
+    from ether_ros.ros.node import EtherRosNode, spin
+
+    # Signals end the spin with KeyboardInterrupt while the ROS context is still valid, so the
+    # node can still deactivate cleanly (safe outputs, SAFEOP) and say so on its topics.
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    signal.signal(signal.SIGTERM, _interrupt)
+    node: EtherRosNode | None = None
+    try:
+        node = EtherRosNode(args.config, args.interface, node_name=args.node_name)
+        if not args.inactive:
+            ok, message = node.run_command("start")
+            if not ok:
+                raise EtherRosError(message)
+            print(f"ether-ros run: {node.get_fully_qualified_name()} {message}", flush=True)
+        else:
+            print(f"ether-ros run: {node.get_fully_qualified_name()} unconfigured", flush=True)
+        spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            _shutdown(node)
+        if rclpy.ok():
+            rclpy.try_shutdown()
+    return 0
+
+
+def _interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt
+
+
+def _shutdown(node: Any) -> None:
+    """Leave the bus safe: deactivate (safe outputs, SAFEOP) and release the interface."""
+    try:
+        if node.lifecycle_state() == "active":
+            node.trigger_deactivate()
+    except Exception as exc:  # shutting down anyway; say what went wrong
+        print(f"ether-ros run: deactivating: {exc}", file=sys.stderr)
+    node.destroy_node()

@@ -1,0 +1,160 @@
+"""``ether-ros sim``: run the simulated bus of a config on a network interface, and
+``ether-ros sim-fault``: inject faults into (or query) a running simulator."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import threading
+from pathlib import Path
+from typing import Any
+
+from ether_ros.errors import ConfigError
+
+_FAULT_HELP = {
+    "drop": "drop frames: each frame starts a burst of BURST lost frames with probability RATE",
+    "corrupt": "flip bytes in answered frames with probability RATE",
+    "delay": "answer every frame US microseconds late",
+    "reset": "power-cycle a slave (it falls back to INIT)",
+    "refuse-op": "make a slave refuse SAFEOP->OP (--off to stop)",
+    "link": "pull (down) or plug (up) the cable; --at SLAVE breaks the link before that slave",
+    "drift-step": "change a slave's clock drift by PPM",
+    "stall-mailbox": "a slave stops answering mailbox requests (--off to stop)",
+    "clear": "remove all faults",
+    "stats": "print the simulator's frame counters (JSON)",
+    "slave-info": "print a slave's ESC state (JSON)",
+    "probe": "print a slave's device physics (JSON)",
+}
+
+
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "sim",
+        help="run a simulated EtherCAT bus on a network interface",
+        description="Run the slaves of CONFIG as virtual EtherCAT slaves answering frames on"
+        " INTERFACE until SIGINT/SIGTERM. Prints one line when ready.",
+    )
+    p.add_argument("config", type=Path, help="bus configuration (YAML)")
+    p.add_argument("--interface", "-i", help="network interface (default: bus.interface)")
+    p.add_argument("--control", type=Path, help="control socket path (default:"
+                   " /run/ether_ros/sim-INTERFACE.sock)")  # fmt: skip
+    p.add_argument("--no-control", action="store_true", help="no control socket")
+    p.set_defaults(func=run_sim)
+
+    f = subparsers.add_parser(
+        "sim-fault",
+        help="inject a fault into a running simulator (or query it)",
+        description="Talk to the control socket of a running 'ether-ros sim'.",
+    )
+    f.add_argument("--interface", "-i", help="interface the simulator runs on")
+    f.add_argument("--control", type=Path, help="control socket path")
+    kinds = f.add_subparsers(dest="fault", metavar="FAULT", required=True)
+    k = kinds.add_parser("drop", help=_FAULT_HELP["drop"])
+    k.add_argument("--rate", type=float, required=True)
+    k.add_argument("--burst", type=int, default=1)
+    k = kinds.add_parser("corrupt", help=_FAULT_HELP["corrupt"])
+    k.add_argument("--rate", type=float, required=True)
+    k.add_argument("--bytes", type=int, default=1)
+    k = kinds.add_parser("delay", help=_FAULT_HELP["delay"])
+    k.add_argument("--us", type=int, required=True)
+    for name in ("reset", "refuse-op", "stall-mailbox", "slave-info", "probe"):
+        k = kinds.add_parser(name, help=_FAULT_HELP[name])
+        k.add_argument("slave", help="slave name or position")
+        if name in ("refuse-op", "stall-mailbox"):
+            k.add_argument("--off", action="store_true", help="end this fault")
+    k = kinds.add_parser("link", help=_FAULT_HELP["link"])
+    k.add_argument("state", choices=["up", "down"])
+    k.add_argument("--at", help="slave name or position: break the link in front of it")
+    k = kinds.add_parser("drift-step", help=_FAULT_HELP["drift-step"])
+    k.add_argument("slave", help="slave name or position")
+    k.add_argument("ppm", type=float)
+    kinds.add_parser("clear", help=_FAULT_HELP["clear"])
+    kinds.add_parser("stats", help=_FAULT_HELP["stats"])
+    f.set_defaults(func=run_fault)
+
+
+def run_sim(args: argparse.Namespace) -> int:
+    from ether_ros.config import load_bus_config
+    from ether_ros.sim.control import ControlServer, socket_path
+    from ether_ros.sim.network import build_network, handle_request, slave_names
+
+    cfg = load_bus_config(args.config, interface=args.interface)
+    iface = cfg.bus.interface
+    if not iface:
+        raise ConfigError(f"{args.config}: no interface: give --interface or bus.interface")
+    net = build_network(cfg)
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: Any) -> None:
+        stop.set()
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    server = None
+    try:
+        if not args.no_control:
+            path = args.control or socket_path(iface)
+            server = ControlServer(
+                path, slave_names(cfg), lambda op, kind, a: handle_request(net, op, kind, a)
+            )
+        net.run_on_interface(iface)
+        if server is not None:
+            server.start()
+        print(f"ether-ros sim: {len(cfg.slaves)} slaves on {iface} ready", flush=True)
+        while not stop.wait(0.5):
+            if not _running(net):
+                print("ether-ros sim: the frame loop stopped", file=sys.stderr)
+                return 1
+    finally:
+        if server is not None:
+            server.close()
+        net.stop()
+        for s, h in old.items():
+            signal.signal(s, h)
+    return 0
+
+
+def _running(net: Any) -> bool:
+    running = getattr(net, "is_running", None)
+    return bool(running()) if callable(running) else True
+
+
+def fault_request(args: argparse.Namespace) -> dict[str, Any]:
+    """The control request for parsed ``sim-fault`` arguments."""
+    name = args.fault
+    if name == "stats":
+        return {"op": "stats"}
+    if name in ("slave-info", "probe"):
+        return {"op": name.replace("-", "_"), "slave": args.slave}
+    kind = name.replace("-", "_")
+    req: dict[str, Any] = {"op": "fault", "kind": kind}
+    if name == "drop":
+        req.update(rate=args.rate, burst=args.burst)
+    elif name == "corrupt":
+        req.update(rate=args.rate, bytes=args.bytes)
+    elif name == "delay":
+        req.update(us=args.us)
+    elif name in ("reset",):
+        req.update(slave=args.slave)
+    elif name in ("refuse-op", "stall-mailbox"):
+        req.update(slave=args.slave, on=not args.off)
+    elif name == "link":
+        req.update(up=args.state == "up")
+        if args.at is not None:
+            req.update(at=args.at)
+    elif name == "drift-step":
+        req.update(slave=args.slave, ppm=args.ppm)
+    return req
+
+
+def run_fault(args: argparse.Namespace) -> int:
+    from ether_ros.sim.control import ControlError, request, socket_path
+
+    if args.control is None and not args.interface:
+        raise ControlError("give --interface (or --control PATH) of the running simulator")
+    path = args.control or socket_path(args.interface)
+    result = request(path, fault_request(args))
+    if result is not None:
+        print(json.dumps(result, indent=2, sort_keys=True))
+    return 0

@@ -1,0 +1,134 @@
+"""``ether-ros slaves``: list the slaves on a link, one line each (like IgH's ``ethercat
+slaves``): position, station address, AL state, vendor, product, name.
+
+The listing does not change AL states or reset the bus; it (re)assigns the station addresses
+0x1001+position, which a running ether_ros master uses too.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any
+
+from ether_ros.errors import LinkError
+
+
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "slaves",
+        help="list the slaves on a network interface",
+        description="Scan the bus on INTERFACE and print one line per slave.",
+    )
+    p.add_argument("--interface", "-i", required=True, help="network interface (e.g. eth1)")
+    p.add_argument("--config", "-c", help="bus configuration: check identities, show names")
+    p.add_argument("-v", "--verbose", action="store_true", help="details of every slave")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.set_defaults(func=run)
+
+
+def describe(found: Any, status: Any, configured: str | None) -> dict[str, Any]:
+    """One slave's listing entry (also the JSON object)."""
+    h = found.header
+    rx_off, rx_size, tx_off, tx_size = h.mailbox
+    return {
+        "position": found.position,
+        "station": found.station,
+        "alias": found.alias,
+        "state": status.name,
+        "error": bool(status.error),
+        "al_code": status.code,
+        "vendor_id": h.vendor_id,
+        "product_code": h.product_code,
+        "revision": h.revision,
+        "serial": h.serial,
+        "name": h.name,
+        "configured_name": configured,
+        "esc_type": found.esc_type,
+        "dc": found.dc_supported,
+        "mailbox": {
+            "rx": [rx_off, rx_size],
+            "tx": [tx_off, tx_size],
+            "protocols": h.mailbox_protocols,
+        },
+        "rx_pdos": [f"0x{p.index:04X}" for p in h.rx_pdos],
+        "tx_pdos": [f"0x{p.index:04X}" for p in h.tx_pdos],
+    }
+
+
+def line(entry: dict[str, Any]) -> str:
+    state = entry["state"] + ("+E" if entry["error"] else "")
+    name = entry["name"] or "?"
+    if entry["configured_name"]:
+        name += f" ({entry['configured_name']})"
+    return (
+        f"{entry['position']:>3}  0x{entry['station']:04X}  {state:<8}  "
+        f"0x{entry['vendor_id']:08X}  0x{entry['product_code']:08X}  {name}"
+    )
+
+
+def details(entry: dict[str, Any]) -> list[str]:
+    from ether_ros.master.al import al_code_text
+
+    mb = entry["mailbox"]
+    out = [
+        f"     alias {entry['alias']}  revision 0x{entry['revision']:08X}  "
+        f"serial 0x{entry['serial']:08X}  ESC type 0x{entry['esc_type']:02X}  "
+        f"DC {'yes' if entry['dc'] else 'no'}",
+        f"     mailbox out 0x{mb['rx'][0]:04X}/{mb['rx'][1]}  in 0x{mb['tx'][0]:04X}/{mb['tx'][1]}"
+        f"  protocols 0x{mb['protocols']:02X}",
+        f"     RxPDOs {' '.join(entry['rx_pdos']) or '-'}  "
+        f"TxPDOs {' '.join(entry['tx_pdos']) or '-'}",
+    ]
+    if entry["error"]:
+        out.append(
+            f"     AL status code 0x{entry['al_code']:04X}: {al_code_text(entry['al_code'])}"
+        )
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    from ether_ros import _native  # type: ignore[attr-defined]
+    from ether_ros.master.al import AlStateMachine, SlaveRef
+    from ether_ros.master.datagrams import DatagramService
+    from ether_ros.master.scan import Expected, match_configuration, scan
+
+    names: dict[int, str] = {}
+    expected: list[Expected] = []
+    if args.config:
+        from ether_ros.config import load_bus_config
+        from ether_ros.master.bus import _expected
+
+        cfg = load_bus_config(args.config)
+        expected = [_expected(s, i) for i, s in enumerate(cfg.slaves)]
+    try:
+        engine = _native.Engine.open_interface(args.interface)
+    except OSError as exc:
+        raise LinkError(f"cannot open interface {args.interface}: {exc}") from None
+    try:
+        dg = DatagramService(engine)
+        found = scan(dg, reset=False)
+        if expected:
+            positions = match_configuration(found, expected)
+            names = {pos: exp.name for pos, exp in zip(positions, expected, strict=True)}
+        refs = [SlaveRef(f.position, f.station, names.get(f.position, "")) for f in found]
+        statuses = AlStateMachine(dg).read(refs)
+    finally:
+        engine.close()
+    entries = [
+        describe(f, st, names.get(f.position)) for f, st in zip(found, statuses, strict=True)
+    ]
+    if args.json:
+        json.dump(entries, sys.stdout, indent=2)
+        print()
+        return 0
+    if not entries:
+        print(f"no slaves on {args.interface}")
+        return 0
+    for e in entries:
+        print(line(e))
+        if args.verbose:
+            for text in details(e):
+                print(text)
+    return 0

@@ -1,0 +1,49 @@
+"""``ether-ros top``: live view of the slaves, loop timing, lost frames and DC sync error."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+
+def register(subparsers: Any) -> None:
+    parser = subparsers.add_parser(
+        "top", help="live view of a bus (standalone with --config, else the running node)"
+    )
+    parser.add_argument("--config", help="bus configuration: open the bus in this process")
+    parser.add_argument("--interface", help="network interface (with --config)")
+    parser.add_argument(
+        "--topic",
+        default="/diagnostics",
+        help="diagnostics topic of the running node (default /diagnostics)",
+    )
+    parser.add_argument(
+        "--interval", type=float, default=0.5, help="refresh period in seconds (default 0.5)"
+    )
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ether_ros.errors import EtherRosError
+    from ether_ros.tools.live import BusLiveSource, DiagnosticsLiveSource, LiveSource, TopApp
+
+    if args.interval <= 0:
+        raise EtherRosError(f"--interval must be positive, got {args.interval}")
+    source: LiveSource
+    if args.config:
+        from ether_ros.master.bus import Bus
+        from ether_ros.tools.session import load_config
+
+        bus = Bus.open(load_config(args.config, args.interface), interface=args.interface)
+        try:
+            bus.start()
+        except BaseException:
+            bus.close()
+            raise
+        source = BusLiveSource(bus)
+    else:
+        if args.interface:
+            raise EtherRosError("--interface needs --config (a standalone bus)")
+        source = DiagnosticsLiveSource(args.topic)
+    TopApp(source, interval=args.interval).run()
+    return 0

@@ -1,0 +1,477 @@
+"""The bus configuration (YAML): models and the loader that checks it against the ESI files.
+
+``load_bus_config(path)`` validates in two passes. The first is the schema (pydantic: unknown
+keys, types, ranges); the second checks what needs the device descriptions: that every slave's
+ESI device exists, that its PDO assignment, safe outputs, SDO init values and joint variables
+name things the device has and that the values fit their types. Every error is a
+:class:`ConfigError` ``FILE:LINE: key.path: what is wrong (got VALUE)``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    PrivateAttr,
+    ValidationError,
+    model_validator,
+)
+
+from ether_ros.config import types as dt
+from ether_ros.config.esi import EsiDevice, load_esi
+from ether_ros.config.process import ProcessLayout, ProcessValueError
+from ether_ros.config.yamlsrc import KeyPath, SourceMap, load_yaml
+from ether_ros.errors import ConfigError
+
+# Device models the simulator knows (crates/sim/src/devices), and the default per ESI type.
+SIM_DEVICES = ("laelaps_leg", "generic_io", "none")
+SIM_DEVICE_FOR_ESI = {"LaelapsII_Leg": "laelaps_leg", "GenericIO": "generic_io"}
+
+
+def _parse_int(value: Any) -> Any:
+    """Integers may be written as YAML ints (``0x0A12`` is an int in YAML 1.1) or strings
+    ``"0x0A12"`` / ``"#x0A12"`` / ``"2578"``. Anything else is left for pydantic to reject."""
+    if isinstance(value, bool):
+        raise ValueError("expected an integer, not true/false")
+    if isinstance(value, str):
+        text = value.strip().replace("_", "")
+        try:
+            if text[:2].lower() in ("0x", "#x"):
+                return int(text[2:], 16)
+            return int(text, 10)
+        except ValueError:
+            raise ValueError(f"not an integer: {value!r}") from None
+    return value
+
+
+HexInt = Annotated[int, BeforeValidator(_parse_int)]
+Identifier = Annotated[str, Field(pattern=r"^[a-z_][a-z0-9_]*$", max_length=63)]
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=False)
+
+
+class DcConfig(_Model):
+    enabled: bool = True
+    mode: Literal["ref_follows_master", "master_follows_ref"] = "ref_follows_master"
+    reference: int | None = Field(default=None, ge=0, le=65535)
+    sync0_shift_us: float = Field(default=0.0, ge=0)
+
+
+class RealtimeConfig(_Model):
+    policy: Literal["fifo", "deadline", "other"] = "fifo"
+    priority: int = Field(default=80, ge=1, le=99)
+    cpu: int | None = Field(default=None, ge=0, le=1023)
+    deadline_runtime_us: int = Field(default=100, ge=1)
+    lock_memory: bool = True
+
+
+class BusSection(_Model):
+    name: Identifier = "ethercat"
+    interface: str | None = Field(default=None, min_length=1, max_length=15)
+    cycle_us: int = Field(default=1000, ge=20, le=1_000_000)
+    cycle_order: Literal["send_at_wake", "send_then_wait"] = "send_at_wake"
+    watchdog_ms: int = Field(default=100, ge=0, le=60_000)
+    dc: DcConfig = Field(default_factory=DcConfig)
+    realtime: RealtimeConfig = Field(default_factory=RealtimeConfig)
+
+    @model_validator(mode="after")
+    def _shift_inside_cycle(self) -> BusSection:
+        if self.dc.sync0_shift_us >= self.cycle_us:
+            raise ValueError(
+                f"dc.sync0_shift_us ({self.dc.sync0_shift_us}) must be less than cycle_us"
+                f" ({self.cycle_us})"
+            )
+        if (
+            self.realtime.policy == "deadline"
+            and self.realtime.deadline_runtime_us >= self.cycle_us
+        ):
+            raise ValueError(
+                f"realtime.deadline_runtime_us ({self.realtime.deadline_runtime_us}) must be"
+                f" less than cycle_us ({self.cycle_us})"
+            )
+        return self
+
+
+class RosConfig(_Model):
+    node_name: Identifier = "ether_comm"
+    namespace: str = ""
+    raw_decimation: int = Field(default=1, ge=1)
+    decoded_decimation: int = Field(default=10, ge=1)
+    snapshot_period_ms: int = Field(default=100, ge=0)
+
+
+class PdoAssign(_Model):
+    rx: list[HexInt] | None = None
+    tx: list[HexInt] | None = None
+
+
+class SdoInit(_Model):
+    index: HexInt = Field(ge=0x0001, le=0xFFFF)
+    subindex: HexInt = Field(default=0, ge=0, le=255)
+    value: int | float | bool | str
+    type: str | None = None  # uint8, int16, ... (default: the dictionary's type)
+    _data: bytes = PrivateAttr(default=b"")
+
+    @property
+    def data(self) -> bytes:
+        """The value encoded as it goes into the SDO download (little endian)."""
+        return self._data
+
+
+class Joint(_Model):
+    """One joint of ROS ``joint_states``: SI value = raw * scale + offset."""
+
+    name: Identifier
+    position: str
+    position_scale: float = 1.0
+    position_offset: float = 0.0
+    velocity: str | None = None
+    velocity_scale: float = 1.0
+    effort: str | None = None
+    effort_scale: float = 1.0
+
+
+class SimConfig(_Model):
+    device: Literal["laelaps_leg", "generic_io", "none"] | None = None
+    params: dict[str, float] = Field(default_factory=dict)
+    drift_ppm: float = Field(default=0.0, ge=-1000.0, le=1000.0)
+    delay_ns: int = Field(default=0, ge=0, le=1_000_000)
+    serial: HexInt | None = Field(default=None, ge=0, le=0xFFFFFFFF)
+
+
+class SlaveConfig(_Model):
+    name: Identifier
+    position: int | None = Field(default=None, ge=0, le=65534)
+    alias: HexInt | None = Field(default=None, ge=1, le=65535)
+    vendor_id: HexInt | None = Field(default=None, ge=0, le=0xFFFFFFFF)
+    product_code: HexInt | None = Field(default=None, ge=0, le=0xFFFFFFFF)
+    revision: HexInt | None = Field(default=None, ge=0, le=0xFFFFFFFF)
+    device: str | None = None
+    pdo_assign: PdoAssign | None = None
+    sdo_init: list[SdoInit] = Field(default_factory=list)
+    safe_outputs: dict[str, int | float | bool] = Field(default_factory=dict)
+    joints: list[Joint] = Field(default_factory=list)
+    sim: SimConfig = Field(default_factory=SimConfig)
+    _esi: EsiDevice | None = PrivateAttr(default=None)
+    _layout: ProcessLayout | None = PrivateAttr(default=None)
+    _safe_image: bytes = PrivateAttr(default=b"")
+
+    @model_validator(mode="after")
+    def _identified(self) -> SlaveConfig:
+        if self.position is not None and self.alias is not None:
+            raise ValueError("give either position or alias, not both")
+        if self.device is None and (self.vendor_id is None or self.product_code is None):
+            raise ValueError("give device, or vendor_id and product_code")
+        return self
+
+    @property
+    def esi(self) -> EsiDevice:
+        """The ESI device this slave was matched to."""
+        assert self._esi is not None, "only configs from load_bus_config are resolved"
+        return self._esi
+
+    @property
+    def layout(self) -> ProcessLayout:
+        """Process variables for this slave's PDO assignment."""
+        assert self._layout is not None, "only configs from load_bus_config are resolved"
+        return self._layout
+
+    @property
+    def safe_output_image(self) -> bytes:
+        """The slave's output area with ``safe_outputs`` applied (other variables 0)."""
+        return self._safe_image
+
+    @property
+    def sim_device(self) -> str:
+        """The simulator device model: ``sim.device`` or the default for the ESI type."""
+        if self.sim.device is not None:
+            return self.sim.device
+        return SIM_DEVICE_FOR_ESI.get(self.esi.type_name, "none")
+
+
+class BusConfig(_Model):
+    bus: BusSection = Field(default_factory=BusSection)
+    esi: list[str] = Field(default_factory=list)
+    ros: RosConfig = Field(default_factory=RosConfig)
+    slaves: list[SlaveConfig] = Field(min_length=1)
+    _source: Path | None = PrivateAttr(default=None)
+    _devices: list[EsiDevice] = PrivateAttr(default_factory=list)
+
+    @property
+    def source(self) -> Path | None:
+        """The YAML file this configuration was loaded from."""
+        return self._source
+
+    @property
+    def esi_devices(self) -> list[EsiDevice]:
+        return list(self._devices)
+
+    def slave(self, name: str) -> SlaveConfig:
+        for s in self.slaves:
+            if s.name == name:
+                return s
+        known = ", ".join(s.name for s in self.slaves)
+        raise ConfigError(f"no slave named {name!r} (slaves: {known})")
+
+
+# --------------------------------------------------------------------------------------------
+# Loader
+
+
+def load_bus_config(path: str | Path, interface: str | None = None) -> BusConfig:
+    """Load and fully validate a bus configuration; ``interface`` overrides ``bus.interface``."""
+    file = Path(path)
+    data, smap = load_yaml(file)
+    if not isinstance(data, dict):
+        raise ConfigError(f"{file}: a bus configuration is a mapping with 'bus' and 'slaves'")
+    try:
+        cfg = BusConfig.model_validate(data)
+    except ValidationError as exc:
+        raise _schema_error(exc, data, smap) from None
+    if interface is not None:
+        if not 1 <= len(interface) <= 15:
+            raise ConfigError(f"interface name must be 1..15 characters, got {interface!r}")
+        cfg.bus.interface = interface
+    cfg._source = file.resolve()
+    _resolve(cfg, file, smap)
+    return cfg
+
+
+def _schema_error(exc: ValidationError, data: Any, smap: SourceMap) -> ConfigError:
+    errors = exc.errors()
+    first = errors[0]
+    path: list[str | int] = []
+    node: Any = data
+    loc = list(first["loc"])
+    for i, part in enumerate(loc):
+        in_dict = isinstance(node, dict) and part in node
+        in_list = isinstance(node, list) and isinstance(part, int) and part < len(node)
+        if in_dict or in_list:
+            path.append(part)
+            node = node[part]
+        elif i == len(loc) - 1 and first["type"] in ("missing", "extra_forbidden"):
+            path.append(part)
+        # else: a union member tag such as 'int' or 'function-after[...]': not a key
+    msg = first["msg"]
+    if first["type"] == "extra_forbidden":
+        msg = "unknown key"
+    elif msg.startswith("Value error, "):
+        msg = msg[len("Value error, ") :]
+    show = first["type"] != "missing"
+    err = smap.error(tuple(path), msg, first.get("input"), show_value=show)
+    if len(errors) > 1:
+        return ConfigError(f"{err} [and {len(errors) - 1} more error(s)]")
+    return err
+
+
+def _resolve(cfg: BusConfig, file: Path, smap: SourceMap) -> None:
+    base = file.parent
+    devices: list[EsiDevice] = []
+    for i, item in enumerate(cfg.esi):
+        p = (base / item).resolve() if not Path(item).is_absolute() else Path(item)
+        if p.is_dir():
+            files = sorted(p.glob("*.xml"))
+            if not files:
+                raise smap.error(("esi", i), "directory holds no *.xml ESI files", item)
+        elif p.is_file():
+            files = [p]
+        else:
+            raise smap.error(("esi", i), f"ESI file or directory not found ({p})", item)
+        for f in files:
+            devices.extend(load_esi(f))
+    cfg._devices = devices
+
+    def err(path: KeyPath, msg: str, value: Any = None, show: bool = True) -> ConfigError:
+        return smap.error(path, msg, value, show_value=show)
+
+    names: dict[str, int] = {}
+    positions: dict[int, int] = {}
+    aliases: dict[int, int] = {}
+    joints: dict[str, str] = {}
+    for i, s in enumerate(cfg.slaves):
+        at = ("slaves", i)
+        if s.name in names:
+            raise err((*at, "name"), f"duplicate slave name (also slaves[{names[s.name]}])", s.name)
+        names[s.name] = i
+        if s.position is not None:
+            if s.position in positions:
+                raise err(
+                    (*at, "position"),
+                    f"duplicate position (also slaves[{positions[s.position]}])",
+                    s.position,
+                )
+            positions[s.position] = i
+        if s.alias is not None:
+            if s.alias in aliases:
+                raise err(
+                    (*at, "alias"), f"duplicate alias (also slaves[{aliases[s.alias]}])", s.alias
+                )
+            aliases[s.alias] = i
+        dev = _match_device(s, devices, at, err)
+        s._esi = dev
+        if s.vendor_id is None:
+            s.vendor_id = dev.vendor_id
+        if s.product_code is None:
+            s.product_code = dev.product_code
+        _resolve_slave(s, dev, at, err, joints)
+    if all(s.position is None and s.alias is None for s in cfg.slaves):
+        for i, s in enumerate(cfg.slaves):
+            s.position = i
+    elif any(s.position is None and s.alias is None for s in cfg.slaves):
+        i = next(i for i, s in enumerate(cfg.slaves) if s.position is None and s.alias is None)
+        raise err(("slaves", i), "give position (or alias) for every slave, or for none", None,
+                  show=False)  # fmt: skip
+    ref = cfg.bus.dc.reference
+    if ref is not None and cfg.bus.dc.enabled:
+        slave = next((s for s in cfg.slaves if s.position == ref), None)
+        if slave is None:
+            raise err(("bus", "dc", "reference"), "no slave at this position", ref)
+        if not slave.esi.dc_supported:
+            raise err(
+                ("bus", "dc", "reference"),
+                f"slave {slave.name} ({slave.esi.type_name}) has no distributed clock",
+                ref,
+            )
+    for i, s in enumerate(cfg.slaves):
+        if s.esi.dc_required and not cfg.bus.dc.enabled:
+            raise err(
+                ("bus", "dc", "enabled"),
+                f"slave {s.name} ({s.esi.type_name}) requires distributed clocks (slaves[{i}])",
+                False,
+            )
+
+
+def _match_device(s: SlaveConfig, devices: list[EsiDevice], at: KeyPath, err: Any) -> EsiDevice:
+    if not devices:
+        raise err(("esi",), "no ESI devices loaded; list ESI files or directories under 'esi'", [])
+    if s.device is not None:
+        cands = [d for d in devices if d.type_name == s.device]
+        if not cands:
+            known = ", ".join(sorted({d.type_name for d in devices}))
+            raise err((*at, "device"), f"no such ESI device (known: {known})", s.device)
+        for key, have in (("vendor_id", s.vendor_id), ("product_code", s.product_code)):
+            if have is not None and all(getattr(d, key) != have for d in cands):
+                actual = getattr(cands[0], key)
+                raise err(
+                    (*at, key),
+                    f"does not match ESI device {s.device} ({key} {actual:#010x})",
+                    f"{have:#010x}",
+                )
+    else:
+        cands = [
+            d for d in devices if d.vendor_id == s.vendor_id and d.product_code == s.product_code
+        ]
+        if not cands:
+            raise err(
+                (*at, "product_code"),
+                f"no ESI device with vendor {s.vendor_id:#010x} and this product code",
+                f"{s.product_code:#010x}",
+            )
+    if s.revision is not None:
+        exact = [d for d in cands if d.revision == s.revision]
+        if not exact:
+            revs = ", ".join(f"{d.revision:#010x}" for d in cands)
+            raise err((*at, "revision"), f"no ESI device with this revision (have: {revs})",
+                      f"{s.revision:#010x}")  # fmt: skip
+        cands = exact
+    return max(cands, key=lambda d: d.revision)
+
+
+def _resolve_slave(
+    s: SlaveConfig, dev: EsiDevice, at: KeyPath, err: Any, joints: dict[str, str]
+) -> None:
+    rx = s.pdo_assign.rx if s.pdo_assign is not None else None
+    tx = s.pdo_assign.tx if s.pdo_assign is not None else None
+    for kind, chosen, pdos in (("rx", rx, dev.rx_pdos), ("tx", tx, dev.tx_pdos)):
+        if chosen is None:
+            continue
+        have = {p.index for p in pdos}
+        for j, index in enumerate(chosen):
+            if index not in have:
+                listed = ", ".join(f"{x:#06x}" for x in sorted(have)) or "none"
+                raise err((*at, "pdo_assign", kind, j),
+                          f"{dev.type_name} has no {kind.upper()}PDO with this index"
+                          f" (it has: {listed})", f"{index:#06x}")  # fmt: skip
+        if len(set(chosen)) != len(chosen):
+            raise err((*at, "pdo_assign", kind), "PDO assigned twice", chosen)
+        for p in pdos:
+            if p.mandatory and p.index not in chosen and p.sm is not None:
+                raise err((*at, "pdo_assign", kind), f"PDO {p.index:#06x} is mandatory",
+                          [f"{x:#06x}" for x in chosen])  # fmt: skip
+    try:
+        layout = ProcessLayout.for_device(dev, rx, tx)
+    except ConfigError as exc:
+        raise err((*at, "pdo_assign"), str(exc), None, False) from None
+    s._layout = layout
+
+    safe = bytearray(layout.output_bytes)
+    for var_name, value in s.safe_outputs.items():
+        path = (*at, "safe_outputs", var_name)
+        try:
+            var = layout.variable(var_name)
+        except ProcessValueError as exc:
+            names = ", ".join(v.name for v in layout.outputs)
+            raise err(path, f"{exc}; output variables of {dev.type_name}: {names}", var_name,
+                      False) from None  # fmt: skip
+        if var.direction != "output":
+            raise err(path, "is an input variable; safe_outputs take output variables", var_name)
+        try:
+            layout.write(safe, var, value)
+        except ProcessValueError as exc:
+            raise err(path, str(exc), value) from None
+    s._safe_image = bytes(safe)
+
+    for j, init in enumerate(s.sdo_init):
+        path = (*at, "sdo_init", j)
+        entry = dev.od_entry(init.index, init.subindex)
+        if init.type is not None:
+            t = dt.config_type(init.type)
+            if t is None:
+                known = ", ".join(x.name for x in dt.ALL_TYPES)
+                raise err((*path, "type"), f"unknown data type (known: {known})", init.type)
+            bits = t.bit_length or (entry.bit_length if entry is not None else 0)
+        elif entry is not None:
+            t = dt.BY_CODE.get(entry.data_type) or dt.OCTET_STRING
+            bits = entry.bit_length
+        else:
+            raise err((*path, "index"),
+                      f"object {init.index:#06x}:{init.subindex:02x} is not in the {dev.type_name}"
+                      " dictionary; give its type", f"{init.index:#06x}")  # fmt: skip
+        if entry is not None and entry.access == "ro":
+            raise err((*path, "index"),
+                      f"object {init.index:#06x}:{init.subindex:02x} ({entry.name}) is read-only",
+                      f"{init.index:#06x}")  # fmt: skip
+        if dev.objects and entry is None and dev.od_object(init.index) is None:
+            raise err((*path, "index"), f"no object {init.index:#06x} in the {dev.type_name}"
+                      " dictionary", f"{init.index:#06x}")  # fmt: skip
+        try:
+            init._data = dt.encode_value(t, init.value, bits)
+        except ValueError as exc:
+            raise err((*path, "value"), str(exc), init.value) from None
+        init.type = t.name
+
+    for j, joint in enumerate(s.joints):
+        path = (*at, "joints", j)
+        if joint.name in joints:
+            raise err((*path, "name"), f"duplicate joint name (also in slave {joints[joint.name]})",
+                      joint.name)  # fmt: skip
+        joints[joint.name] = s.name
+        for key in ("position", "velocity", "effort"):
+            var_name = getattr(joint, key)
+            if var_name is None:
+                continue
+            try:
+                var = layout.variable(var_name)
+            except ProcessValueError as exc:
+                names = ", ".join(v.name for v in layout.inputs)
+                raise err((*path, key), f"{exc}; input variables of {dev.type_name}: {names}",
+                          var_name, False) from None  # fmt: skip
+            if var.dtype.kind not in ("int", "uint", "real", "bool"):
+                raise err((*path, key), "joint variables must be numeric", var_name)

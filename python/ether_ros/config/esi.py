@@ -1,0 +1,759 @@
+"""ESI device descriptions (ETG.2000 ``EtherCATInfo`` XML) parsed into typed models.
+
+Only what a master and the simulator need is kept: identity, SyncManagers, FMMUs, mailbox
+protocols, DC operation modes, the PDOs with their entries, the CoE object dictionary (with record
+and array types expanded into one :class:`OdEntry` per subindex), and the EEPROM settings.
+Every error names the file, the line, the element and the offending value.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from lxml import etree
+
+from ether_ros.config import types as dt
+from ether_ros.errors import ConfigError
+
+# --------------------------------------------------------------------------------------------
+# Models
+
+
+@dataclass(frozen=True)
+class SyncManagerDesc:
+    """One ``<Sm>``: its number is its position among the device's ``<Sm>`` elements."""
+
+    number: int
+    role: str  # 'MBoxOut' | 'MBoxIn' | 'Outputs' | 'Inputs' | '' (unused)
+    start: int
+    default_size: int  # 0 when the ESI gives none (process data SMs are sized by their PDOs)
+    control: int
+    enable: bool
+    min_size: int | None = None
+    max_size: int | None = None
+
+
+@dataclass(frozen=True)
+class DcOpMode:
+    name: str
+    description: str
+    assign_activate: int
+    cycle_time_sync0: int = 0
+    cycle_time_sync0_factor: int = 1
+    shift_time_sync0: int = 0
+    cycle_time_sync1: int = 0
+    cycle_time_sync1_factor: int = 0
+    shift_time_sync1: int = 0
+
+
+@dataclass(frozen=True)
+class MailboxDesc:
+    coe: bool = False
+    sdo_info: bool = False
+    pdo_assign: bool = False
+    pdo_config: bool = False
+    complete_access: bool = False
+    segmented_sdo: bool = True
+    foe: bool = False
+    eoe: bool = False
+    soe: bool = False
+    aoe: bool = False
+    voe: bool = False
+
+    @property
+    def protocols(self) -> int:
+        """SII word 0x1C bit mask: AoE 0x01, EoE 0x02, CoE 0x04, FoE 0x08, SoE 0x10, VoE 0x20."""
+        bits = (self.aoe, self.eoe, self.coe, self.foe, self.soe, self.voe)
+        return sum(1 << i for i, on in enumerate(bits) if on)
+
+
+@dataclass(frozen=True)
+class PdoEntry:
+    """One mapped entry; ``index == 0`` is padding (``bit_length`` gap, no name/type needed)."""
+
+    index: int
+    subindex: int
+    bit_length: int
+    name: str
+    data_type: int  # ETG.1000.6 code, 0 for padding
+    type_name: str = ""
+
+    @property
+    def is_padding(self) -> bool:
+        return self.index == 0
+
+    @property
+    def mapping_value(self) -> int:
+        """The 32-bit value of this entry in a PDO mapping object (index<<16 | sub<<8 | bits)."""
+        return (self.index << 16) | (self.subindex << 8) | self.bit_length
+
+
+@dataclass(frozen=True)
+class Pdo:
+    index: int
+    name: str
+    direction: str  # 'rx' (outputs, master → slave) | 'tx' (inputs, slave → master)
+    entries: tuple[PdoEntry, ...]
+    sm: int | None = None
+    fixed: bool = False
+    mandatory: bool = False
+    excludes: tuple[int, ...] = ()
+
+    @property
+    def bit_length(self) -> int:
+        return sum(e.bit_length for e in self.entries)
+
+
+@dataclass(frozen=True)
+class OdEntry:
+    """One subindex of the object dictionary."""
+
+    index: int
+    subindex: int
+    name: str
+    data_type: int  # ETG.1000.6 code; 0 when the ESI type is not a basic type
+    type_name: str
+    bit_length: int
+    access: str = "ro"  # 'ro' | 'rw' | 'wo'
+    pdo_mapping: str = ""  # '', 'R', 'T' or 'RT'
+    default: bytes = b""
+
+    @property
+    def pdo_mappable(self) -> bool:
+        return bool(self.pdo_mapping)
+
+
+@dataclass(frozen=True)
+class OdObject:
+    index: int
+    name: str
+    object_code: int  # 7 VAR, 8 ARRAY, 9 RECORD
+    type_name: str
+    bit_size: int
+    entries: tuple[OdEntry, ...]
+
+    def entry(self, subindex: int) -> OdEntry | None:
+        for e in self.entries:
+            if e.subindex == subindex:
+                return e
+        return None
+
+
+@dataclass(frozen=True)
+class EepromDesc:
+    byte_size: int = 2048
+    config_data: bytes = b""
+
+
+@dataclass(frozen=True)
+class EsiDevice:
+    """One ``<Device>`` of an ESI file."""
+
+    vendor_id: int
+    vendor_name: str
+    product_code: int
+    revision: int
+    type_name: str  # the ``<Type>`` text: the name configs use in ``device:``
+    name: str  # the ``<Name>`` text (human readable)
+    group_type: str
+    group_name: str
+    physics: str
+    sync_managers: tuple[SyncManagerDesc, ...]
+    fmmus: tuple[str, ...]
+    mailbox: MailboxDesc | None
+    dc_opmodes: tuple[DcOpMode, ...]
+    rx_pdos: tuple[Pdo, ...]
+    tx_pdos: tuple[Pdo, ...]
+    objects: tuple[OdObject, ...]
+    eeprom: EepromDesc
+    source: str = ""  # file the device came from
+    line: int = 0
+    _od: dict[tuple[int, int], OdEntry] = field(default_factory=dict, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        for obj in self.objects:
+            for e in obj.entries:
+                self._od[(e.index, e.subindex)] = e
+
+    def od_entry(self, index: int, subindex: int) -> OdEntry | None:
+        return self._od.get((index, subindex))
+
+    def od_object(self, index: int) -> OdObject | None:
+        for obj in self.objects:
+            if obj.index == index:
+                return obj
+        return None
+
+    def pdo(self, index: int) -> Pdo | None:
+        for p in (*self.rx_pdos, *self.tx_pdos):
+            if p.index == index:
+                return p
+        return None
+
+    def sm(self, role: str) -> SyncManagerDesc | None:
+        for sm in self.sync_managers:
+            if sm.role == role:
+                return sm
+        return None
+
+    @property
+    def dc_supported(self) -> bool:
+        return bool(self.dc_opmodes)
+
+    @property
+    def dc_required(self) -> bool:
+        """True when every operation mode needs SYNC0 (no free-run mode with AssignActivate 0)."""
+        return bool(self.dc_opmodes) and all(m.assign_activate & 0x0100 for m in self.dc_opmodes)
+
+    @property
+    def assign_activate(self) -> int:
+        """AssignActivate of the first DC mode that uses SYNC (0 if none)."""
+        for m in self.dc_opmodes:
+            if m.assign_activate:
+                return m.assign_activate
+        return 0
+
+    def default_rx_pdos(self) -> tuple[int, ...]:
+        """The RxPDOs assigned by default: those with an ``Sm`` attribute (ETG.2000)."""
+        return tuple(p.index for p in self.rx_pdos if p.sm is not None)
+
+    def default_tx_pdos(self) -> tuple[int, ...]:
+        return tuple(p.index for p in self.tx_pdos if p.sm is not None)
+
+    def describe(self) -> str:
+        return (
+            f"{self.type_name} (vendor {self.vendor_id:#010x}, product {self.product_code:#010x},"
+            f" revision {self.revision:#010x})"
+        )
+
+
+# --------------------------------------------------------------------------------------------
+# Parser
+
+
+class _Ctx:
+    """Where we are in which file, to name both in errors."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def error(self, el: etree._Element, msg: str, value: object = None) -> ConfigError:
+        where = f"{self.path}:{el.sourceline}: <{_local(el)}>"
+        tail = "" if value is None else f": {value!r}"
+        return ConfigError(f"{where}: {msg}{tail}")
+
+
+def _local(el: etree._Element) -> str:
+    tag = el.tag
+    if not isinstance(tag, str):
+        return "?"
+    return tag.rsplit("}", 1)[-1]
+
+
+def _line(el: etree._Element) -> int:
+    line = getattr(el, "sourceline", None)
+    return line if isinstance(line, int) else 0
+
+
+def _children(el: etree._Element, name: str) -> Iterator[etree._Element]:
+    for c in el:
+        if isinstance(c.tag, str) and _local(c) == name:
+            yield c
+
+
+def _child(el: etree._Element, name: str) -> etree._Element | None:
+    return next(_children(el, name), None)
+
+
+def _text(el: etree._Element | None) -> str:
+    return "" if el is None or el.text is None else el.text.strip()
+
+
+def parse_esi_int(text: str) -> int:
+    """ESI numbers: ``#x1A00`` (hex), ``0x1A00``, or decimal."""
+    t = text.strip()
+    if t[:2].lower() in ("#x", "0x"):
+        return int(t[2:], 16)
+    return int(t, 10)
+
+
+def _int(ctx: _Ctx, el: etree._Element, *, name: str | None = None) -> int:
+    """The integer text of child ``name`` of ``el`` (or of ``el`` itself)."""
+    node = el if name is None else _child(el, name)
+    if node is None:
+        raise ctx.error(el, f"missing <{name}>")
+    try:
+        return parse_esi_int(_text(node))
+    except ValueError:
+        raise ctx.error(node, "not a number", _text(node)) from None
+
+
+def _opt_int(ctx: _Ctx, el: etree._Element, name: str, default: int) -> int:
+    node = _child(el, name)
+    return default if node is None else _int(ctx, node)
+
+
+def _attr_int(ctx: _Ctx, el: etree._Element, attr: str, default: int | None) -> int | None:
+    raw = el.get(attr)
+    if raw is None:
+        return default
+    try:
+        return parse_esi_int(raw)
+    except ValueError:
+        raise ctx.error(el, f"attribute {attr} is not a number", raw) from None
+
+
+def _attr_bool(el: etree._Element, attr: str, default: bool = False) -> bool:
+    raw = el.get(attr)
+    if raw is None:
+        return default
+    return raw.strip().lower() in ("1", "true", "yes")
+
+
+@dataclass
+class _TypeDef:
+    """A ``<DataType>`` of the dictionary."""
+
+    name: str
+    bit_size: int
+    base_type: str
+    subitems: list[etree._Element]
+    array: tuple[int, int] | None  # (lower bound, elements)
+    el: etree._Element
+
+
+def load_esi(path: str | Path) -> list[EsiDevice]:
+    """Parse an ESI file. Raises :class:`ConfigError` naming file, line, element and value."""
+    p = Path(path)
+    ctx = _Ctx(p)
+    if not p.is_file():
+        raise ConfigError(f"{p}: ESI file not found")
+    try:
+        tree = etree.parse(str(p), etree.XMLParser(remove_comments=True, resolve_entities=False))
+    except etree.XMLSyntaxError as exc:
+        raise ConfigError(f"{p}:{exc.lineno}: not well-formed XML: {exc.msg}") from None
+    root = tree.getroot()
+    if _local(root) != "EtherCATInfo":
+        raise ctx.error(root, "root element must be <EtherCATInfo>", _local(root))
+    vendor = _child(root, "Vendor")
+    if vendor is None:
+        raise ctx.error(root, "missing <Vendor>")
+    vendor_id = _int(ctx, vendor, name="Id")
+    vendor_name = _text(_child(vendor, "Name"))
+    desc = _child(root, "Descriptions")
+    if desc is None:
+        raise ctx.error(root, "missing <Descriptions>")
+    groups: dict[str, str] = {}
+    groups_el = _child(desc, "Groups")
+    if groups_el is not None:
+        for g in _children(groups_el, "Group"):
+            groups[_text(_child(g, "Type"))] = _text(_child(g, "Name"))
+    devices_el = _child(desc, "Devices")
+    if devices_el is None:
+        raise ctx.error(desc, "missing <Devices>")
+    devices = [
+        _parse_device(ctx, d, vendor_id, vendor_name, groups)
+        for d in _children(devices_el, "Device")
+    ]
+    if not devices:
+        raise ctx.error(devices_el, "no <Device> in <Devices>")
+    return devices
+
+
+def load_esi_paths(paths: Iterable[str | Path]) -> list[EsiDevice]:
+    """All devices of the given ESI files and directories (``*.xml`` in them, sorted)."""
+    out: list[EsiDevice] = []
+    for item in paths:
+        p = Path(item)
+        if p.is_dir():
+            for f in sorted(p.glob("*.xml")):
+                out.extend(load_esi(f))
+        elif p.is_file():
+            out.extend(load_esi(p))
+        else:
+            raise ConfigError(f"{p}: ESI file or directory not found")
+    return out
+
+
+def _parse_device(
+    ctx: _Ctx,
+    dev: etree._Element,
+    vendor_id: int,
+    vendor_name: str,
+    groups: dict[str, str],
+) -> EsiDevice:
+    type_el = _child(dev, "Type")
+    if type_el is None:
+        raise ctx.error(dev, "missing <Type>")
+    product = _attr_int(ctx, type_el, "ProductCode", None)
+    if product is None:
+        raise ctx.error(type_el, "missing attribute ProductCode")
+    revision = _attr_int(ctx, type_el, "RevisionNo", 0) or 0
+    type_name = _text(type_el)
+    if not type_name:
+        raise ctx.error(type_el, "empty device type name")
+    names = list(_children(dev, "Name"))
+    name = type_name
+    for n in names:
+        if n.get("LcId", "1033") == "1033":
+            name = _text(n)
+            break
+    else:
+        if names:
+            name = _text(names[0])
+    group_type = _text(_child(dev, "GroupType"))
+
+    sms: list[SyncManagerDesc] = []
+    for i, sm in enumerate(_children(dev, "Sm")):
+        role = _text(sm)
+        if role not in ("MBoxOut", "MBoxIn", "Outputs", "Inputs", ""):
+            raise ctx.error(sm, "unknown SyncManager role", role)
+        start = _attr_int(ctx, sm, "StartAddress", None)
+        if start is None:
+            raise ctx.error(sm, "missing attribute StartAddress")
+        sms.append(
+            SyncManagerDesc(
+                number=i,
+                role=role,
+                start=start,
+                default_size=_attr_int(ctx, sm, "DefaultSize", 0) or 0,
+                control=_attr_int(ctx, sm, "ControlByte", 0) or 0,
+                enable=_attr_bool(sm, "Enable", True),
+                min_size=_attr_int(ctx, sm, "MinSize", None),
+                max_size=_attr_int(ctx, sm, "MaxSize", None),
+            )
+        )
+    fmmus: list[str] = []
+    for f in _children(dev, "Fmmu"):
+        role = _text(f)
+        if role not in ("Outputs", "Inputs", "MBoxState", ""):
+            raise ctx.error(f, "unknown FMMU role", role)
+        fmmus.append(role)
+
+    mailbox = _parse_mailbox(dev)
+    for role in ("MBoxOut", "MBoxIn"):
+        if mailbox is not None and not any(s.role == role for s in sms):
+            raise ctx.error(dev, f"device has a <Mailbox> but no {role} SyncManager", type_name)
+
+    dc_modes: list[DcOpMode] = []
+    dc_el = _child(dev, "Dc")
+    if dc_el is not None:
+        for om in _children(dc_el, "OpMode"):
+            c0 = _child(om, "CycleTimeSync0")
+            c1 = _child(om, "CycleTimeSync1")
+            dc_modes.append(
+                DcOpMode(
+                    name=_text(_child(om, "Name")),
+                    description=_text(_child(om, "Desc")),
+                    assign_activate=_int(ctx, om, name="AssignActivate"),
+                    cycle_time_sync0=0 if c0 is None else _int(ctx, c0),
+                    cycle_time_sync0_factor=1
+                    if c0 is None
+                    else (_attr_int(ctx, c0, "Factor", 1) or 0),
+                    shift_time_sync0=_opt_int(ctx, om, "ShiftTimeSync0", 0),
+                    cycle_time_sync1=0 if c1 is None else _int(ctx, c1),
+                    cycle_time_sync1_factor=0
+                    if c1 is None
+                    else (_attr_int(ctx, c1, "Factor", 0) or 0),
+                    shift_time_sync1=_opt_int(ctx, om, "ShiftTimeSync1", 0),
+                )
+            )
+
+    objects = _parse_dictionary(ctx, dev)
+    od = {(e.index, e.subindex): e for o in objects for e in o.entries}
+    rx = [_parse_pdo(ctx, p, "rx", od) for p in _children(dev, "RxPdo")]
+    tx = [_parse_pdo(ctx, p, "tx", od) for p in _children(dev, "TxPdo")]
+    seen: dict[int, Pdo] = {}
+    for pdo, el in zip(
+        (*rx, *tx), (*_children(dev, "RxPdo"), *_children(dev, "TxPdo")), strict=True
+    ):
+        if pdo.index in seen:
+            raise ctx.error(el, "duplicate PDO index", f"{pdo.index:#06x}")
+        seen[pdo.index] = pdo
+        if pdo.sm is not None and not 0 <= pdo.sm < len(sms):
+            raise ctx.error(el, "PDO names a SyncManager the device does not have", pdo.sm)
+
+    eeprom = EepromDesc()
+    ee = _child(dev, "Eeprom")
+    if ee is not None:
+        size = _opt_int(ctx, ee, "ByteSize", 2048)
+        cd_el = _child(ee, "ConfigData")
+        cd = b""
+        if cd_el is not None:
+            try:
+                cd = bytes.fromhex(_text(cd_el))
+            except ValueError:
+                raise ctx.error(cd_el, "not hex bytes", _text(cd_el)) from None
+            if len(cd) > 16:
+                raise ctx.error(cd_el, "ConfigData longer than 16 bytes", _text(cd_el))
+        if size < 128 or size % 128:
+            raise ctx.error(ee, "ByteSize must be a multiple of 128 (at least 128)", size)
+        eeprom = EepromDesc(byte_size=size, config_data=cd)
+
+    return EsiDevice(
+        vendor_id=vendor_id,
+        vendor_name=vendor_name,
+        product_code=product,
+        revision=revision,
+        type_name=type_name,
+        name=name,
+        group_type=group_type,
+        group_name=groups.get(group_type, group_type),
+        physics=dev.get("Physics", ""),
+        sync_managers=tuple(sms),
+        fmmus=tuple(fmmus),
+        mailbox=mailbox,
+        dc_opmodes=tuple(dc_modes),
+        rx_pdos=tuple(rx),
+        tx_pdos=tuple(tx),
+        objects=tuple(objects),
+        eeprom=eeprom,
+        source=str(ctx.path),
+        line=_line(dev),
+    )
+
+
+def _parse_mailbox(dev: etree._Element) -> MailboxDesc | None:
+    mb = _child(dev, "Mailbox")
+    if mb is None:
+        return None
+    coe = _child(mb, "CoE")
+    return MailboxDesc(
+        coe=coe is not None,
+        sdo_info=coe is not None and _attr_bool(coe, "SdoInfo"),
+        pdo_assign=coe is not None and _attr_bool(coe, "PdoAssign"),
+        pdo_config=coe is not None and _attr_bool(coe, "PdoConfig"),
+        complete_access=coe is not None and _attr_bool(coe, "CompleteAccess"),
+        segmented_sdo=coe is None or _attr_bool(coe, "SegmentedSdo", True),
+        foe=_child(mb, "FoE") is not None,
+        eoe=_child(mb, "EoE") is not None,
+        soe=_child(mb, "SoE") is not None,
+        aoe=_child(mb, "AoE") is not None,
+        voe=_child(mb, "VoE") is not None,
+    )
+
+
+def _parse_pdo(
+    ctx: _Ctx, el: etree._Element, direction: str, od: dict[tuple[int, int], OdEntry]
+) -> Pdo:
+    index = _int(ctx, el, name="Index")
+    entries: list[PdoEntry] = []
+    for e in _children(el, "Entry"):
+        idx = _int(ctx, e, name="Index")
+        bits = _int(ctx, e, name="BitLen")
+        if not 1 <= bits <= 64 and idx != 0:
+            raise ctx.error(e, "BitLen must be 1..64", bits)
+        if idx == 0:
+            entries.append(PdoEntry(0, 0, bits, "", 0, ""))
+            continue
+        sub = _opt_int(ctx, e, "SubIndex", 0)
+        type_el = _child(e, "DataType")
+        type_name = _text(type_el)
+        code = 0
+        if type_el is not None:
+            t = dt.esi_type(type_name)
+            if t is None:
+                raise ctx.error(type_el, "unknown data type", type_name)
+            if t.bit_length and t.bit_length != bits:
+                raise ctx.error(e, f"BitLen {bits} does not match data type {type_name}", bits)
+            code = t.code
+        elif (odent := od.get((idx, sub))) is not None:
+            code, type_name = odent.data_type, odent.type_name
+        else:
+            raise ctx.error(e, "entry has no <DataType> and no object in the dictionary", idx)
+        name = _text(_child(e, "Name")) or f"{idx:#06x}:{sub:02x}"
+        entries.append(PdoEntry(idx, sub, bits, name, code, type_name))
+    sm = _attr_int(ctx, el, "Sm", None)
+    return Pdo(
+        index=index,
+        name=_text(_child(el, "Name")),
+        direction=direction,
+        entries=tuple(entries),
+        sm=sm,
+        fixed=_attr_bool(el, "Fixed"),
+        mandatory=_attr_bool(el, "Mandatory"),
+        excludes=tuple(parse_esi_int(_text(x)) for x in _children(el, "Exclude")),
+    )
+
+
+def _parse_dictionary(ctx: _Ctx, dev: etree._Element) -> list[OdObject]:
+    dictionary = None
+    for prof in _children(dev, "Profile"):
+        dictionary = _child(prof, "Dictionary")
+        if dictionary is not None:
+            break
+    if dictionary is None:
+        return []
+    typedefs: dict[str, _TypeDef] = {}
+    dts = _child(dictionary, "DataTypes")
+    if dts is not None:
+        for d in _children(dts, "DataType"):
+            name = _text(_child(d, "Name"))
+            if not name:
+                raise ctx.error(d, "data type without <Name>")
+            ai = _child(d, "ArrayInfo")
+            array = None
+            if ai is not None:
+                array = (_opt_int(ctx, ai, "LBound", 0), _int(ctx, ai, name="Elements"))
+            typedefs[name] = _TypeDef(
+                name=name,
+                bit_size=_opt_int(ctx, d, "BitSize", 0),
+                base_type=_text(_child(d, "BaseType")),
+                subitems=list(_children(d, "SubItem")),
+                array=array,
+                el=d,
+            )
+    objects: list[OdObject] = []
+    objs = _child(dictionary, "Objects")
+    if objs is None:
+        return objects
+    seen: set[int] = set()
+    for o in _children(objs, "Object"):
+        obj = _parse_object(ctx, o, typedefs)
+        if obj.index in seen:
+            raise ctx.error(o, "duplicate object index", f"{obj.index:#06x}")
+        seen.add(obj.index)
+        objects.append(obj)
+    return objects
+
+
+def _flags(el: etree._Element | None, access: str, mapping: str) -> tuple[str, str]:
+    if el is None:
+        return access, mapping
+    fl = _child(el, "Flags")
+    if fl is None:
+        return access, mapping
+    a = _text(_child(fl, "Access")) or access
+    m = _text(_child(fl, "PdoMapping")).upper()
+    if m == "TR":
+        m = "RT"
+    return a.lower(), m or mapping
+
+
+def _default(ctx: _Ctx, info: etree._Element | None, bits: int, code: int) -> bytes:
+    """Default value bytes from an ``<Info>`` (DefaultData hex, DefaultValue number, or
+    DefaultString)."""
+    nbytes = (bits + 7) // 8
+    if info is None:
+        return bytes(nbytes)
+    dd = _child(info, "DefaultData")
+    if dd is not None:
+        try:
+            data = bytes.fromhex(_text(dd))
+        except ValueError:
+            raise ctx.error(dd, "DefaultData is not hex bytes", _text(dd)) from None
+        return data[:nbytes].ljust(nbytes, b"\0") if nbytes else data
+    dv = _child(info, "DefaultValue")
+    if dv is not None:
+        t = dt.BY_CODE.get(code)
+        try:
+            value = parse_esi_int(_text(dv))
+        except ValueError:
+            raise ctx.error(dv, "DefaultValue is not a number", _text(dv)) from None
+        if t is not None and t.kind in ("int", "uint", "bool"):
+            try:
+                return dt.encode_value(t, value, bits)
+            except ValueError as exc:
+                raise ctx.error(dv, str(exc), _text(dv)) from None
+        return (value & ((1 << max(bits, 1)) - 1)).to_bytes(max(nbytes, 1), "little")[:nbytes]
+    ds = _child(info, "DefaultString")
+    if ds is not None:
+        data = _text(ds).encode()
+        return data[:nbytes].ljust(nbytes, b"\0") if nbytes else data
+    return bytes(nbytes)
+
+
+def _parse_object(ctx: _Ctx, o: etree._Element, typedefs: dict[str, _TypeDef]) -> OdObject:
+    index = _int(ctx, o, name="Index")
+    name = _text(_child(o, "Name"))
+    type_el = _child(o, "Type")
+    type_name = _text(type_el)
+    if type_el is None or not type_name:
+        raise ctx.error(o, "object without <Type>", f"{index:#06x}")
+    bit_size = _opt_int(ctx, o, "BitSize", 0)
+    access, mapping = _flags(o, "ro", "")
+    info = _child(o, "Info")
+    td = typedefs.get(type_name)
+    if td is None or (not td.subitems and td.array is None):
+        # A plain variable (VAR) of a basic type, possibly declared as a <DataType> too.
+        t = dt.esi_type(type_name) or (dt.esi_type(td.base_type) if td is not None else None)
+        if t is None:
+            raise ctx.error(type_el, "unknown data type", type_name)
+        bits = bit_size or t.bit_length or (td.bit_size if td is not None else 0)
+        entry = OdEntry(
+            index=index,
+            subindex=0,
+            name=name,
+            data_type=t.code,
+            type_name=type_name,
+            bit_length=bits,
+            access=access,
+            pdo_mapping=mapping,
+            default=_default(ctx, info, bits, t.code),
+        )
+        return OdObject(index, name, 7, type_name, bits, (entry,))
+    info_subs = [] if info is None else list(_children(info, "SubItem"))
+    info_by_name = {_text(_child(s, "Name")): s for s in info_subs}
+    entries: list[OdEntry] = []
+    object_code = 9
+
+    def add(sub: int, ename: str, tname: str, bits: int, el: etree._Element, pos: int) -> None:
+        t = dt.esi_type(tname)
+        if t is None:
+            inner = typedefs.get(tname)
+            t = dt.esi_type(inner.base_type) if inner is not None else None
+            if t is None:
+                raise ctx.error(el, "unknown data type", tname)
+        if not bits:
+            bits = t.bit_length
+        a, m = _flags(el, access, mapping)
+        sub_info_el = info_by_name.get(ename)
+        if sub_info_el is None and pos < len(info_subs):
+            sub_info_el = info_subs[pos]
+        sub_info = None if sub_info_el is None else _child(sub_info_el, "Info")
+        entries.append(
+            OdEntry(
+                index, sub, ename, t.code, tname, bits, a, m, _default(ctx, sub_info, bits, t.code)
+            )
+        )
+
+    if td.array is not None and not td.subitems:
+        # An array type used directly: subindex 0 holds the count, elements follow.
+        object_code = 8
+        lb, n = td.array
+        entries.append(
+            OdEntry(index, 0, "SubIndex 000", dt.UINT8.code, "USINT", 8, "ro", "", bytes([n]))
+        )
+        elem = dt.esi_type(td.base_type)
+        if elem is None:
+            raise ctx.error(td.el, "unknown array base type", td.base_type)
+        for k in range(n):
+            sub = lb + k
+            add(sub, f"SubIndex {sub:03d}", td.base_type, elem.bit_length, td.el, k + 1)
+    else:
+        pos = 0
+        for si in td.subitems:
+            sname = _text(_child(si, "Name"))
+            stype = _text(_child(si, "Type"))
+            sbits = _opt_int(ctx, si, "BitSize", 0)
+            inner = typedefs.get(stype)
+            if inner is not None and inner.array is not None:
+                # "Elements" of an array: one subindex per element.
+                object_code = 8
+                lb, n = inner.array
+                ebits = sbits // n if sbits and n else 0
+                for k in range(n):
+                    sub = lb + k
+                    add(sub, f"SubIndex {sub:03d}", inner.base_type, ebits, si, pos)
+                    pos += 1
+                continue
+            sub_el = _child(si, "SubIdx")
+            sub = pos if sub_el is None else _int(ctx, sub_el)
+            add(sub, sname, stype, sbits, si, pos)
+            pos += 1
+    subs = [e.subindex for e in entries]
+    if len(set(subs)) != len(subs):
+        raise ctx.error(o, "duplicate subindex in object", f"{index:#06x}")
+    return OdObject(index, name, object_code, type_name, bit_size or td.bit_size, tuple(entries))

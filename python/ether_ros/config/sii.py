@@ -1,0 +1,454 @@
+"""Slave Information Interface (SII) EEPROM images, ETG.2010.
+
+:func:`build_sii` turns an ESI device into the EEPROM content a real slave would carry (the
+simulator serves it through the ESC's EEPROM interface); :func:`parse_sii` decodes such an image
+(the master reads it during bring-up, ``ether-ros sii-read`` prints it).
+
+Layout: 64 header words (configuration area with its CRC, identity, mailbox, protocols, size,
+version), then categories from word 0x40: ``type:u16, size_in_words:u16, data``, ending with
+0xFFFF. All values little endian.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass, field
+
+from ether_ros.config.esi import EsiDevice, Pdo
+from ether_ros.errors import ConfigError
+
+CAT_STRINGS = 10
+CAT_DATATYPES = 20
+CAT_GENERAL = 30
+CAT_FMMU = 40
+CAT_SYNCM = 41
+CAT_TXPDO = 50
+CAT_RXPDO = 51
+CAT_DC = 60
+CAT_END = 0xFFFF
+
+SM_TYPE = {"": 0, "MBoxOut": 1, "MBoxIn": 2, "Outputs": 3, "Inputs": 4}
+SM_ROLE = {v: k for k, v in SM_TYPE.items()}
+FMMU_TYPE = {"": 0, "Outputs": 1, "Inputs": 2, "MBoxState": 3}
+FMMU_ROLE = {v: k for k, v in FMMU_TYPE.items()}
+
+
+def crc8(data: bytes) -> int:
+    """CRC-8 of the SII configuration area: polynomial x^8+x^2+x+1 (0x07), initial 0xFF."""
+    crc = 0xFF
+    for byte in data:
+        crc ^= byte
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x07) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
+    return crc
+
+
+# --------------------------------------------------------------------------------------------
+# Decoded image
+
+
+@dataclass(frozen=True)
+class SiiGeneral:
+    group: str
+    image: str
+    order: str
+    name: str
+    coe_details: int  # bit0 SDO, bit1 SDO info, bit2 PDO assign, bit3 PDO config,
+    # bit4 upload at startup, bit5 SDO complete access
+    foe_details: int
+    eoe_details: int
+    flags: int
+    current_on_ebus_ma: int
+    physical_ports: int  # 4 bits per port: 0 none, 1 MII, 3 EBUS
+
+
+@dataclass(frozen=True)
+class SiiSyncManager:
+    start: int
+    length: int
+    control: int
+    enable: int
+    role: str  # 'MBoxOut' | 'MBoxIn' | 'Outputs' | 'Inputs' | ''
+
+
+@dataclass(frozen=True)
+class SiiPdoEntry:
+    index: int
+    subindex: int
+    name: str
+    data_type: int
+    bit_length: int
+
+
+@dataclass(frozen=True)
+class SiiPdo:
+    index: int
+    sm: int
+    name: str
+    flags: int
+    entries: tuple[SiiPdoEntry, ...]
+
+    @property
+    def bit_length(self) -> int:
+        return sum(e.bit_length for e in self.entries)
+
+
+@dataclass(frozen=True)
+class SiiDc:
+    cycle_time_sync0: int
+    shift_time_sync0: int
+    shift_time_sync1: int
+    sync1_cycle_factor: int
+    assign_activate: int
+    sync0_cycle_factor: int
+    name: str
+    description: str
+
+
+@dataclass(frozen=True)
+class SiiInfo:
+    pdi_control: int
+    pdi_config: int
+    alias: int
+    checksum: int
+    checksum_ok: bool
+    vendor_id: int
+    product_code: int
+    revision: int
+    serial: int
+    bootstrap_mailbox: tuple[int, int, int, int]  # rx offset, rx size, tx offset, tx size
+    mailbox: tuple[int, int, int, int]  # standard mailbox: rx offset, rx size, tx offset, tx size
+    mailbox_protocols: int  # AoE 0x01, EoE 0x02, CoE 0x04, FoE 0x08, SoE 0x10, VoE 0x20
+    eeprom_bytes: int
+    version: int
+    strings: tuple[str, ...] = ()
+    general: SiiGeneral | None = None
+    fmmus: tuple[str, ...] = ()
+    sync_managers: tuple[SiiSyncManager, ...] = ()
+    tx_pdos: tuple[SiiPdo, ...] = ()
+    rx_pdos: tuple[SiiPdo, ...] = ()
+    dc: tuple[SiiDc, ...] = ()
+    categories: tuple[int, ...] = field(default=())  # category types in image order
+
+    @property
+    def name(self) -> str:
+        return self.general.name if self.general else ""
+
+    @property
+    def has_coe(self) -> bool:
+        return bool(self.mailbox_protocols & 0x04)
+
+
+# --------------------------------------------------------------------------------------------
+# Builder
+
+
+class _Strings:
+    def __init__(self) -> None:
+        self.items: list[str] = []
+
+    def index(self, text: str) -> int:
+        """1-based string index; 0 means 'no string'."""
+        if not text:
+            return 0
+        if text in self.items:
+            return self.items.index(text) + 1
+        if len(self.items) >= 255:
+            raise ConfigError("SII: more than 255 strings")
+        self.items.append(text)
+        return len(self.items)
+
+    def encode(self) -> bytes:
+        out = bytearray([len(self.items)])
+        for s in self.items:
+            b = s.encode("latin-1", "replace")[:255]
+            out += bytes([len(b)]) + b
+        return bytes(out)
+
+
+def _category(ctype: int, data: bytes) -> bytes:
+    if len(data) % 2:
+        data += b"\0"
+    return struct.pack("<HH", ctype, len(data) // 2) + data
+
+
+def _pdo_category(pdos: tuple[Pdo, ...], strings: _Strings) -> bytes:
+    out = bytearray()
+    for p in pdos:
+        flags = (
+            (0x0001 if p.mandatory else 0)
+            | (0x0002 if p.sm is not None else 0)
+            | (0x0010 if p.fixed else 0)
+        )
+        out += struct.pack(
+            "<HBBBBH",
+            p.index,
+            len(p.entries),
+            0xFF if p.sm is None else p.sm,
+            0,
+            strings.index(p.name),
+            flags,
+        )
+        for e in p.entries:
+            out += struct.pack(
+                "<HBBBBH",
+                e.index,
+                e.subindex,
+                strings.index(e.name),
+                e.data_type & 0xFF,
+                e.bit_length,
+                0,
+            )
+    return bytes(out)
+
+
+def build_sii(device: EsiDevice, alias: int = 0, serial: int = 0) -> bytes:
+    """The SII EEPROM image of ``device`` (``device.eeprom.byte_size`` bytes, 0xFF filled)."""
+    if not 0 <= alias <= 0xFFFF:
+        raise ConfigError(f"SII alias must be 0..65535, got {alias}")
+    if not 0 <= serial <= 0xFFFFFFFF:
+        raise ConfigError(f"SII serial must be 0..0xFFFFFFFF, got {serial}")
+    strings = _Strings()
+    head = bytearray(128)
+    config = device.eeprom.config_data[:14].ljust(14, b"\0")
+    head[0:14] = config
+    struct.pack_into("<H", head, 8, alias)
+    head[14] = crc8(bytes(head[0:14]))
+    head[15] = 0
+    struct.pack_into(
+        "<IIII", head, 0x10, device.vendor_id, device.product_code, device.revision, serial
+    )
+    mbx_out, mbx_in = device.sm("MBoxOut"), device.sm("MBoxIn")
+    if device.mailbox is not None and mbx_out is not None and mbx_in is not None:
+        mbx = (mbx_out.start, mbx_out.default_size, mbx_in.start, mbx_in.default_size)
+        struct.pack_into("<HHHH", head, 0x28, *mbx)  # bootstrap mailbox: same as standard
+        struct.pack_into("<HHHH", head, 0x30, *mbx)
+        struct.pack_into("<H", head, 0x38, device.mailbox.protocols)
+    size_kbit = device.eeprom.byte_size * 8 // 1024
+    struct.pack_into("<HH", head, 0x7C, max(size_kbit - 1, 0), 1)
+
+    # Categories. Strings first: the others reference them, so build them before encoding.
+    mb = device.mailbox
+    coe = 0
+    if mb is not None and mb.coe:
+        coe = (
+            0x01
+            | (0x02 if mb.sdo_info else 0)
+            | (0x04 if mb.pdo_assign else 0)
+            | (0x08 if mb.pdo_config else 0)
+            | (0x20 if mb.complete_access else 0)
+        )
+    ports = 0
+    for i, ch in enumerate(device.physics[:4]):
+        ports |= {"Y": 0x1, "K": 0x3, "H": 0x4}.get(ch, 0) << (4 * i)
+    general = bytearray(32)
+    general[0] = strings.index(device.group_type)
+    general[1] = 0
+    general[2] = strings.index(device.type_name)
+    general[3] = strings.index(device.name)
+    general[5] = coe
+    general[6] = 1 if mb is not None and mb.foe else 0
+    general[7] = 1 if mb is not None and mb.eoe else 0
+    general[11] = 0x01  # enable SAFEOP
+    struct.pack_into("<h", general, 12, 0)
+    general[14] = general[0]
+    struct.pack_into("<H", general, 16, ports)
+    fmmu = bytes(FMMU_TYPE[r] for r in device.fmmus)
+    if len(fmmu) % 2:
+        fmmu += b"\xff"  # category padding: 0xFF marks an unused FMMU
+    syncm = bytearray()
+    for sm in device.sync_managers:
+        size = sm.default_size
+        if sm.role in ("Outputs", "Inputs") and not size:
+            kind = "rx" if sm.role == "Outputs" else "tx"
+            pdos = device.rx_pdos if kind == "rx" else device.tx_pdos
+            size = (sum(p.bit_length for p in pdos if p.sm == sm.number) + 7) // 8
+        syncm += struct.pack(
+            "<HHBBBB", sm.start, size, sm.control, 0, 0x01 if sm.enable else 0, SM_TYPE[sm.role]
+        )
+    tx = _pdo_category(device.tx_pdos, strings)
+    rx = _pdo_category(device.rx_pdos, strings)
+    dc = bytearray()
+    for m in device.dc_opmodes:
+        dc += struct.pack(
+            "<IiiHHHBB4x",
+            m.cycle_time_sync0,
+            m.shift_time_sync0,
+            m.shift_time_sync1,
+            m.cycle_time_sync1_factor & 0xFFFF,
+            m.assign_activate,
+            m.cycle_time_sync0_factor & 0xFFFF,
+            strings.index(m.name),
+            strings.index(m.description),
+        )
+    body = bytearray()
+    body += _category(CAT_STRINGS, strings.encode())
+    body += _category(CAT_GENERAL, bytes(general))
+    if fmmu:
+        body += _category(CAT_FMMU, fmmu)
+    if syncm:
+        body += _category(CAT_SYNCM, bytes(syncm))
+    if tx:
+        body += _category(CAT_TXPDO, tx)
+    if rx:
+        body += _category(CAT_RXPDO, rx)
+    if dc:
+        body += _category(CAT_DC, bytes(dc))
+    body += struct.pack("<H", CAT_END)
+    image = bytes(head) + bytes(body)
+    if len(image) > device.eeprom.byte_size:
+        raise ConfigError(
+            f"{device.source}: SII image of {device.type_name} needs {len(image)} bytes but the"
+            f" EEPROM has {device.eeprom.byte_size} (<Eeprom><ByteSize>)"
+        )
+    return image.ljust(device.eeprom.byte_size, b"\xff")
+
+
+# --------------------------------------------------------------------------------------------
+# Decoder
+
+
+class SiiFormatError(ConfigError):
+    """The bytes are not a valid SII image; says where (byte offset) and why."""
+
+
+def parse_sii(data: bytes) -> SiiInfo:
+    """Decode an SII image (at least the 128-byte header; categories as far as present).
+
+    A category list that runs past the data ends the decoding (a master may read only the
+    first part of the EEPROM); malformed categories raise :class:`SiiFormatError`.
+    """
+    if len(data) < 128:
+        raise SiiFormatError(f"SII image too short: {len(data)} bytes, the header alone is 128")
+    w = struct.unpack_from("<8H", data, 0)
+    vendor, product, revision, serial = struct.unpack_from("<IIII", data, 0x10)
+    boot = struct.unpack_from("<HHHH", data, 0x28)
+    std = struct.unpack_from("<HHHH", data, 0x30)
+    (protocols,) = struct.unpack_from("<H", data, 0x38)
+    size_word, version = struct.unpack_from("<HH", data, 0x7C)
+    checksum = w[7] & 0xFF
+    strings: list[str] = []
+    general_raw: bytes | None = None
+    fmmus: tuple[str, ...] = ()
+    sms: list[SiiSyncManager] = []
+    tx: list[SiiPdo] = []
+    rx: list[SiiPdo] = []
+    dcs: list[SiiDc] = []
+    cats: list[int] = []
+    pdo_raw: list[tuple[int, bytes]] = []
+    dc_raw = b""
+    pos = 128
+    while pos + 2 <= len(data):
+        (ctype,) = struct.unpack_from("<H", data, pos)
+        if ctype == CAT_END:
+            break
+        if pos + 4 > len(data):
+            break
+        (nwords,) = struct.unpack_from("<H", data, pos + 2)
+        start, end = pos + 4, pos + 4 + 2 * nwords
+        if end > len(data):
+            break
+        body = data[start:end]
+        cats.append(ctype)
+        if ctype == CAT_STRINGS:
+            strings = _parse_strings(body, pos)
+        elif ctype == CAT_GENERAL:
+            if len(body) < 18:
+                raise SiiFormatError(f"SII GENERAL category at byte {pos} is {len(body)} bytes")
+            general_raw = body
+        elif ctype == CAT_FMMU:
+            fmmus = tuple(FMMU_ROLE.get(b, "") for b in body if b != 0xFF)
+        elif ctype == CAT_SYNCM:
+            for off in range(0, len(body) - 7, 8):
+                start_addr, length, ctrl, _status, enable, smtype = struct.unpack_from(
+                    "<HHBBBB", body, off
+                )
+                sms.append(
+                    SiiSyncManager(start_addr, length, ctrl, enable, SM_ROLE.get(smtype, ""))
+                )
+        elif ctype in (CAT_TXPDO, CAT_RXPDO):
+            pdo_raw.append((ctype, body))
+        elif ctype == CAT_DC:
+            dc_raw = body
+        pos = end
+
+    def s(i: int) -> str:
+        return strings[i - 1] if 1 <= i <= len(strings) else ""
+
+    for ctype, body in pdo_raw:
+        (tx if ctype == CAT_TXPDO else rx).extend(_parse_pdos(body, s))
+    for off in range(0, len(dc_raw) - 23, 24):
+        c0, sh0, sh1, f1, aa, f0, ni, di = struct.unpack_from("<IiiHHHBB", dc_raw, off)
+        dcs.append(SiiDc(c0, sh0, sh1, f1, aa, f0, s(ni), s(di)))
+    general = None
+    if general_raw is not None:
+        g = general_raw
+        general = SiiGeneral(
+            group=s(g[0]),
+            image=s(g[1]),
+            order=s(g[2]),
+            name=s(g[3]),
+            coe_details=g[5],
+            foe_details=g[6],
+            eoe_details=g[7],
+            flags=g[11],
+            current_on_ebus_ma=struct.unpack_from("<h", g, 12)[0],
+            physical_ports=struct.unpack_from("<H", g, 16)[0],
+        )
+    return SiiInfo(
+        pdi_control=w[0],
+        pdi_config=w[1],
+        alias=w[4],
+        checksum=checksum,
+        checksum_ok=crc8(data[0:14]) == checksum,
+        vendor_id=vendor,
+        product_code=product,
+        revision=revision,
+        serial=serial,
+        bootstrap_mailbox=boot,
+        mailbox=std,
+        mailbox_protocols=protocols,
+        eeprom_bytes=(size_word + 1) * 128,
+        version=version,
+        strings=tuple(strings),
+        general=general,
+        fmmus=fmmus,
+        sync_managers=tuple(sms),
+        tx_pdos=tuple(tx),
+        rx_pdos=tuple(rx),
+        dc=tuple(dcs),
+        categories=tuple(cats),
+    )
+
+
+def _parse_strings(body: bytes, pos: int) -> list[str]:
+    if not body:
+        return []
+    count, off, out = body[0], 1, []
+    for i in range(count):
+        if off >= len(body):
+            raise SiiFormatError(f"SII STRINGS category at byte {pos}: string {i + 1} missing")
+        n = body[off]
+        if off + 1 + n > len(body):
+            raise SiiFormatError(f"SII STRINGS category at byte {pos}: string {i + 1} truncated")
+        out.append(body[off + 1 : off + 1 + n].decode("latin-1"))
+        off += 1 + n
+    return out
+
+
+def _parse_pdos(body: bytes, s: object) -> list[SiiPdo]:
+    assert callable(s)
+    out: list[SiiPdo] = []
+    off = 0
+    while off + 8 <= len(body):
+        index, n, sm, _sync, name_idx, flags = struct.unpack_from("<HBBBBH", body, off)
+        off += 8
+        entries = []
+        for _ in range(n):
+            if off + 8 > len(body):
+                raise SiiFormatError(f"SII PDO {index:#06x}: entry list truncated")
+            ei, es, en, edt, ebits, _ef = struct.unpack_from("<HBBBBH", body, off)
+            off += 8
+            entries.append(SiiPdoEntry(ei, es, s(en), edt, ebits))
+        out.append(SiiPdo(index, sm, s(name_idx), flags, tuple(entries)))
+    return out

@@ -1,0 +1,374 @@
+"""The console's command language: a pure parser from one line of text to a checked command.
+
+Nothing here talks to ROS or to the bus. :func:`parse_command` gets the line and a
+:class:`ConsoleContext` (the bus layout the node published and the output values last seen) and
+returns a command object, or raises :class:`CommandError` with a message saying what is wrong —
+in which case nothing is sent. Writes are validated against the ESI type and range of every
+variable and, for a Laelaps II leg, against the leg workspace, so a command the firmware would
+silently disregard is refused with its reason.
+
+Grammar (words separated by blanks; quotes group words, nothing is ever run by a shell)::
+
+    start | stop | restart | panic | clear
+    set TARGET VAR=VALUE [VAR=VALUE ...]     TARGET: slave name, position, or "all"
+    set TARGET VAR VALUE                     VAR: name or index:subindex ("0x7030:04")
+    get SLAVE [VAR]
+    states | stats | layout [SLAVE]
+    sdo read SLAVE INDEX:SUB TYPE
+    sdo write SLAVE INDEX:SUB TYPE VALUE
+    run FILE [step]                          a sequence file (see ether_ros.console.sequence)
+    wait SECONDS
+    help [COMMAND] | quit | exit
+"""
+
+from __future__ import annotations
+
+import math
+import shlex
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+
+from ether_ros.console.workspace import (
+    TRAJECTORY_FIELDS,
+    TRAJECTORY_INDEX,
+    Ellipse,
+    invalid_reason,
+)
+from ether_ros.errors import EtherRosError
+from ether_ros.ros.layout import BusSpec, LayoutError, SlaveSpec, VariableSpec, parse_address
+from ether_ros.ros.values import InvalidValue, format_value, parse_text, type_range
+
+
+class CommandError(EtherRosError):
+    """An invalid console command: the message says why; nothing was sent."""
+
+
+CONTROL_COMMANDS = {
+    "start": "start",
+    "stop": "stop",
+    "restart": "restart",
+    "panic": "panic",
+    "clear": "clear_panic",
+    "clear_panic": "clear_panic",
+}
+
+HELP: dict[str, str] = {
+    "start": "start                      bring the bus to OP and start the cyclic exchange",
+    "stop": "stop                       safe outputs, bus to SAFEOP",
+    "restart": "restart                    stop, then start",
+    "panic": "panic                      safe outputs on the wire now (also: Ctrl-P or F1)",
+    "clear": "clear                      clear a panic (outputs resume the commanded values)",
+    "set": "set TARGET VAR=VALUE ...   write outputs; TARGET is a slave, a position or 'all'",
+    "get": "get SLAVE [VAR]            latest input and output values",
+    "states": "states                     lifecycle state and each slave's AL state",
+    "stats": "stats                      loop timing, lost frames, DC error",
+    "layout": "layout [SLAVE]             variables, types and ranges",
+    "sdo": "sdo read|write SLAVE INDEX:SUB TYPE [VALUE]   CoE object access",
+    "run": "run FILE [step]            run a sequence file (step: confirm each step)",
+    "wait": "wait SECONDS               pause (in sequences)",
+    "help": "help [COMMAND]             this text",
+    "quit": "quit                       leave the console (the node keeps running)",
+}
+
+
+@dataclass(frozen=True)
+class Control:
+    """start / stop / restart / panic / clear_panic."""
+
+    command: str
+
+
+@dataclass(frozen=True)
+class WriteOp:
+    slave: str
+    variable: str
+    value: float
+
+
+@dataclass(frozen=True)
+class Write:
+    ops: tuple[WriteOp, ...]
+
+
+@dataclass(frozen=True)
+class Get:
+    slave: str
+    variable: str | None = None
+
+
+@dataclass(frozen=True)
+class Show:
+    what: str  # states | stats | layout
+    slave: str | None = None
+
+
+@dataclass(frozen=True)
+class SdoRead:
+    slave: str
+    index: int
+    subindex: int
+    type: str
+
+
+@dataclass(frozen=True)
+class SdoWrite:
+    slave: str
+    index: int
+    subindex: int
+    type: str
+    value: str
+
+
+@dataclass(frozen=True)
+class RunSequence:
+    path: str
+    step: bool = False
+
+
+@dataclass(frozen=True)
+class Wait:
+    seconds: float
+
+
+@dataclass(frozen=True)
+class Help:
+    topic: str | None = None
+
+
+@dataclass(frozen=True)
+class Quit:
+    pass
+
+
+Command = Control | Write | Get | Show | SdoRead | SdoWrite | RunSequence | Wait | Help | Quit
+
+
+@dataclass
+class ConsoleContext:
+    """What the parser knows about the bus: the layout and the output values last seen (raw
+    values by slave and variable name), to check a write against the rest of a leg's
+    trajectory."""
+
+    layout: BusSpec | None
+    outputs: dict[str, dict[str, float]] = field(default_factory=dict)
+
+    def after(self, write: Write) -> ConsoleContext:
+        """The context as it will be once ``write`` is applied (for checking sequences)."""
+        outputs = {slave: dict(values) for slave, values in self.outputs.items()}
+        for op in write.ops:
+            outputs.setdefault(op.slave, {})[op.variable] = op.value
+        return replace(self, outputs=outputs)
+
+
+def parse_command(line: str, ctx: ConsoleContext) -> Command | None:
+    """Parse one line. Blank lines and ``#`` comments give None. Raises :class:`CommandError`."""
+    try:
+        words = shlex.split(line, comments=True)
+    except ValueError as exc:
+        raise CommandError(f"cannot split the line into words: {exc}") from None
+    if not words:
+        return None
+    head, args = words[0].lower(), words[1:]
+    if head in CONTROL_COMMANDS:
+        _no_args(head, args)
+        return Control(CONTROL_COMMANDS[head])
+    if head == "set":
+        return _parse_set(args, ctx)
+    if head == "get":
+        if not 1 <= len(args) <= 2:
+            raise CommandError("usage: get SLAVE [VAR]")
+        slave = _slave(ctx, args[0])
+        variable = None
+        if len(args) == 2:
+            variable = _any_variable(slave, args[1]).name
+        return Get(slave.name, variable)
+    if head in ("states", "stats"):
+        _no_args(head, args)
+        return Show(head)
+    if head == "layout":
+        if len(args) > 1:
+            raise CommandError("usage: layout [SLAVE]")
+        return Show("layout", _slave(ctx, args[0]).name if args else None)
+    if head == "sdo":
+        return _parse_sdo(args, ctx)
+    if head == "run":
+        if not args or len(args) > 2 or (len(args) == 2 and args[1] != "step"):
+            raise CommandError("usage: run FILE [step]")
+        return RunSequence(args[0], step=len(args) == 2)
+    if head == "wait":
+        if len(args) != 1:
+            raise CommandError("usage: wait SECONDS")
+        return Wait(_seconds(args[0]))
+    if head in ("help", "?"):
+        if len(args) > 1:
+            raise CommandError("usage: help [COMMAND]")
+        if args and args[0] not in HELP:
+            raise CommandError(f"no command '{args[0]}'; try 'help'")
+        return Help(args[0] if args else None)
+    if head in ("quit", "exit"):
+        _no_args(head, args)
+        return Quit()
+    raise CommandError(f"unknown command '{words[0]}'; try 'help'")
+
+
+def help_text(topic: str | None = None) -> str:
+    if topic is not None:
+        return HELP[topic]
+    return "\n".join(HELP.values())
+
+
+def _no_args(head: str, args: list[str]) -> None:
+    if args:
+        raise CommandError(f"'{head}' takes no arguments (got '{' '.join(args)}')")
+
+
+def _seconds(text: str) -> float:
+    try:
+        seconds = float(text)
+    except ValueError:
+        raise CommandError(f"'{text}' is not a number of seconds") from None
+    if not math.isfinite(seconds) or seconds < 0:
+        raise CommandError(f"wait needs a non-negative number of seconds, not '{text}'")
+    return seconds
+
+
+def _layout(ctx: ConsoleContext) -> BusSpec:
+    if ctx.layout is None:
+        raise CommandError("the bus layout is not known yet (is the node configured?)")
+    return ctx.layout
+
+
+def _slave(ctx: ConsoleContext, ref: str) -> SlaveSpec:
+    try:
+        return _layout(ctx).slave(ref)
+    except LayoutError as exc:
+        raise CommandError(str(exc)) from None
+
+
+def _any_variable(slave: SlaveSpec, ref: str) -> VariableSpec:
+    for find in (slave.output, slave.input):
+        try:
+            return find(ref)
+        except LayoutError:
+            continue
+    raise CommandError(f"slave '{slave.name}' has no variable '{ref}'")
+
+
+def _parse_set(args: list[str], ctx: ConsoleContext) -> Write:
+    usage = "usage: set TARGET VAR=VALUE [VAR=VALUE ...]  or  set TARGET VAR VALUE"
+    if len(args) < 2:
+        raise CommandError(usage)
+    target, rest = args[0], args[1:]
+    if len(rest) == 2 and "=" not in rest[0] and "=" not in rest[1]:
+        pairs = [(rest[0], rest[1])]
+    else:
+        pairs = []
+        for word in rest:
+            name, sep, text = word.partition("=")
+            if not sep or not name or not text:
+                raise CommandError(f"'{word}' is not VAR=VALUE; {usage}")
+            pairs.append((name, text))
+    layout = _layout(ctx)
+    if target.lower() == "all":
+        slaves = [s for s in layout.slaves if all(s.has_output(name) for name, _ in pairs)]
+        if not slaves:
+            names = ", ".join(name for name, _ in pairs)
+            raise CommandError(f"no slave has the output variable(s) {names}")
+    else:
+        slaves = [_slave(ctx, target)]
+    ops: list[WriteOp] = []
+    for slave in slaves:
+        assigned: dict[str, float] = {}
+        for name, text in pairs:
+            try:
+                var = slave.output(name)
+            except LayoutError as exc:
+                if _is_input(slave, name):
+                    raise CommandError(
+                        f"'{name}' is an input of slave '{slave.name}'; only outputs can be set"
+                    ) from None
+                raise CommandError(str(exc)) from None
+            try:
+                value = parse_text(text, var)
+            except InvalidValue as exc:
+                raise CommandError(f"slave '{slave.name}': {exc}") from None
+            if var.name in assigned:
+                raise CommandError(f"{var.name} is assigned twice")
+            assigned[var.name] = value
+            ops.append(WriteOp(slave.name, var.name, value))
+        _check_leg_workspace(slave, assigned, ctx)
+    return Write(tuple(ops))
+
+
+def _is_input(slave: SlaveSpec, ref: str) -> bool:
+    try:
+        slave.input(ref)
+    except LayoutError:
+        return False
+    return True
+
+
+def is_laelaps_leg(slave: SlaveSpec) -> bool:
+    """A Laelaps II leg: its device says so and it maps the trajectory record 0x7030."""
+    return "laelaps" in slave.device.lower() and any(
+        v.index == TRAJECTORY_INDEX for v in slave.outputs
+    )
+
+
+def _check_leg_workspace(
+    slave: SlaveSpec, assigned: Mapping[str, float], ctx: ConsoleContext
+) -> None:
+    if not is_laelaps_leg(slave):
+        return
+    trajectory = {
+        v.name: TRAJECTORY_FIELDS[v.subindex]
+        for v in slave.outputs
+        if v.index == TRAJECTORY_INDEX and v.subindex in TRAJECTORY_FIELDS
+    }
+    if not any(name in trajectory for name in assigned):
+        return
+    current = ctx.outputs.get(slave.name, {})
+    raw: dict[str, float] = {}
+    for name, field_name in trajectory.items():
+        if name in assigned:
+            raw[field_name] = assigned[name]
+        elif name in current:
+            raw[field_name] = current[name]
+        else:
+            raise CommandError(
+                f"slave '{slave.name}': cannot check the leg workspace, the current value of "
+                f"{name} is not known yet (no outputs received from the node)"
+            )
+    reason = invalid_reason(Ellipse.from_raw(raw))
+    if reason is not None:
+        shown = ", ".join(
+            f"{name}={format_value(value, slave.output(name))}" for name, value in assigned.items()
+        )
+        raise CommandError(f"slave '{slave.name}': {shown} makes an invalid ellipse: {reason}")
+
+
+def _parse_sdo(args: list[str], ctx: ConsoleContext) -> SdoRead | SdoWrite:
+    usage = "usage: sdo read SLAVE INDEX:SUB TYPE  |  sdo write SLAVE INDEX:SUB TYPE VALUE"
+    if not args or args[0] not in ("read", "write"):
+        raise CommandError(usage)
+    op = args[0]
+    if (op == "read" and len(args) != 4) or (op == "write" and len(args) != 5):
+        raise CommandError(usage)
+    slave = _slave(ctx, args[1])
+    address = parse_address(args[2])
+    if address is None:
+        raise CommandError(f"'{args[2]}' is not an object address INDEX:SUB (e.g. 0x8000:01)")
+    type_name = args[3].upper()
+    try:
+        type_range(type_name)
+    except InvalidValue as exc:
+        raise CommandError(str(exc)) from None
+    if op == "read":
+        return SdoRead(slave.name, address[0], address[1], type_name)
+    lo, hi = type_range(type_name)
+    probe = VariableSpec(f"0x{address[0]:04x}:{address[1]:02x}", type_name, *address, 0, lo, hi)
+    try:
+        parse_text(args[4], probe)
+    except InvalidValue as exc:
+        raise CommandError(str(exc)) from None
+    return SdoWrite(slave.name, address[0], address[1], type_name, args[4])

@@ -1,0 +1,124 @@
+"""The per-state configuration steps of bring-up, shared by ``Bus.start`` (all slaves) and the
+supervisor (one slave that dropped out and came back).
+
+INIT   : mailbox SyncManagers (SM0/SM1)                           → request PREOP
+PREOP  : sdo_init list, PDO assignment/mapping over CoE (if the configuration overrides it),
+         process-data SyncManagers (SM2/SM3) and FMMUs, DC SYNC0    → request SAFEOP
+SAFEOP : (the cyclic frame runs, so outputs are valid)             → request OP
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from typing import Any
+
+from ether_ros.config import types as dt
+from ether_ros.errors import BusError, EtherRosError
+from ether_ros.master.configure import (
+    mailbox_sync_managers,
+    process_fmmus,
+    process_sync_managers,
+    write_fmmus,
+    write_sync_managers,
+)
+from ether_ros.master.datagrams import DatagramService
+from ether_ros.master.pdo import assignment_writes
+from ether_ros.master.plan import LOGICAL_BASE
+from ether_ros.master.slave import Slave
+
+log = logging.getLogger(__name__)
+
+
+def setup_mailbox(dg: DatagramService, slave: Slave) -> None:
+    """INIT: SM0/SM1 and the Mailbox/SdoClient objects (if the slave has a mailbox)."""
+    sms = mailbox_sync_managers(str(slave), slave.found.header, slave.device)
+    if not sms:
+        slave.mailbox = slave.sdo = None
+        return
+    write_sync_managers(dg, slave.station, str(slave), sms)
+    from ether_ros.master.mailbox import Mailbox
+
+    out_sm, in_sm = sms
+    slave.mailbox = Mailbox(
+        dg, slave.station, slave.name, out_sm.start, out_sm.length, in_sm.start, in_sm.length
+    )
+    slave.sdo = None
+    if slave.has_coe:
+        slave.sdo = make_sdo_client(slave)
+
+
+def make_sdo_client(slave: Slave) -> Any:
+    from ether_ros.master import coe
+
+    return coe.SdoClient(slave.mailbox, slave.name)
+
+
+def sdo_download(slave: Slave, index: int, subindex: int, data: bytes, why: str) -> None:
+    if slave.sdo is None:
+        raise BusError(
+            f"{slave}: has no CoE mailbox, cannot write 0x{index:04X}:{subindex} ({why})"
+        )
+    try:
+        slave.sdo.download(index, subindex, data)
+    except EtherRosError as exc:
+        raise BusError(f"{slave}: {why} failed: {exc}") from None
+
+
+def encode_sdo_value(slave: Slave, index: int, subindex: int, value: object,
+                     type_name: str | None = None) -> bytes:  # fmt: skip
+    """Bytes for an SDO value: typed by ``type_name`` or the ESI dictionary entry."""
+    if isinstance(value, bytes | bytearray):
+        return bytes(value)
+    dtype: dt.DataType | None = None
+    bits = 0
+    if type_name:
+        dtype = dt.config_type(type_name)
+        if dtype is None:
+            raise BusError(f"{slave}: unknown data type {type_name!r} for 0x{index:04X}:{subindex}")
+        bits = dtype.bit_length
+    elif slave.device is not None:
+        entry = slave.device.od_entry(index, subindex)
+        if entry is not None:
+            dtype = dt.BY_CODE.get(entry.data_type)
+            bits = entry.bit_length
+    if dtype is None:
+        raise BusError(
+            f"{slave}: the type of 0x{index:04X}:{subindex} is unknown (not in the ESI "
+            "dictionary); give its type"
+        )
+    if not bits:
+        bits = 8 * len(str(value).encode()) if dtype.kind == "string" else bits
+    try:
+        return dt.encode_value(dtype, value, bits)
+    except ValueError as exc:
+        raise BusError(f"{slave}: value for 0x{index:04X}:{subindex}: {exc}") from None
+
+
+def configure_preop(dg: DatagramService, slave: Slave) -> None:
+    """PREOP: sdo_init, PDO assignment, process SMs and FMMUs."""
+    cfg = slave.config
+    for item in getattr(cfg, "sdo_init", None) or []:
+        index, sub = int(item.index), int(item.subindex)
+        # The configuration loader encodes the value against the ESI dictionary already.
+        data = getattr(item, "data", b"") or encode_sdo_value(
+            slave, index, sub, item.value, getattr(item, "type", None)
+        )
+        sdo_download(slave, index, sub, data, f"sdo_init 0x{index:04X}:{sub}")
+    if slave.selection.source == "config" and slave.has_coe:
+        pdo_config = slave.device is not None and (
+            slave.device.mailbox is not None and slave.device.mailbox.pdo_config
+        )
+        for w in assignment_writes(slave.selection, write_mapping=pdo_config):
+            sdo_download(slave, w.index, w.subindex, w.data, w.why)
+    area = slave.area
+    if area is None:
+        return
+    sms = process_sync_managers(slave.device, area.output_bytes, area.input_bytes)
+    write_sync_managers(dg, slave.station, str(slave), sms)
+    write_fmmus(dg, slave.station, str(slave), process_fmmus(area, sms, LOGICAL_BASE))
+
+
+def configure_all_preop(dg: DatagramService, slaves: Sequence[Slave]) -> None:
+    for s in slaves:
+        configure_preop(dg, s)

@@ -1,0 +1,653 @@
+"""The master's public face: open a bus from its configuration, bring it to OP, exchange process
+data by variable name, and supervise it.
+
+    bus = Bus.open("config/laelaps.yaml", interface="eth1")
+    bus.start()                                   # INIT → PREOP → SAFEOP → OP, cyclic running
+    bus.write("front_left_leg", "State_Machine", 1)
+    bus.read("front_left_leg", "hip_angle")
+    bus.stop(); bus.close()
+
+Threads: the engine's real-time thread runs the cyclic frame; ``Bus`` methods run in the
+caller's thread; a supervisor thread (plain Python) watches the slaves during OP. Everything
+that talks to the wire acyclically holds ``_acyclic`` so the supervisor and API calls never
+interleave mailbox exchanges with each other.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+from ether_ros.config import types as dt
+from ether_ros.config.esi import EsiDevice
+from ether_ros.config.process import ProcessLayout, ProcessValueError, ProcessVariable, Value
+from ether_ros.errors import BusError, ConfigError, EtherRosError, LinkError
+from ether_ros.master import bringup
+from ether_ros.master.al import AlState, AlStateMachine, AlStatus, al_code_text
+from ether_ros.master.datagrams import DatagramService
+from ether_ros.master.dc import EPOCH_2000_S, DcSlave, DistributedClocks
+from ether_ros.master.pdo import select_pdos
+from ether_ros.master.plan import DcPlan, ImageLayout, RtPlan, build_plan, layout_image
+from ether_ros.master.samples import Samples, decode_samples
+from ether_ros.master.scan import Expected, FoundSlave, match_configuration, scan
+from ether_ros.master.slave import Slave
+from ether_ros.master.supervisor import BusEvent, Supervisor
+
+log = logging.getLogger(__name__)
+
+__all__ = ["Bus", "BusEvent"]
+
+
+def _now_monotonic_ns() -> int:
+    return time.clock_gettime_ns(time.CLOCK_MONOTONIC)
+
+
+@dataclass(frozen=True)
+class SlaveState:
+    name: str
+    position: int
+    station: int
+    state: str
+    error: bool
+    code: int
+    text: str
+
+    def as_dict(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+
+class Bus:
+    """An EtherCAT bus driven by the engine; see the module doc."""
+
+    def __init__(self, config: Any, engine: Any, drift_frames: int | None = None) -> None:
+        self.config = config
+        self.engine = engine
+        self.dg = DatagramService(engine)
+        self.al = AlStateMachine(self.dg)
+        self.slaves: list[Slave] = []
+        self.layout: ImageLayout | None = None
+        self.plan: dict[str, Any] | None = None
+        self.cycle_ns = int(config.bus.cycle_us * 1000)
+        # DC system time = CLOCK_MONOTONIC + this: nanoseconds since 2000-01-01 (wall clock at
+        # open time), so DC timestamps read like dates.
+        self.time_offset_ns = time.time_ns() - _now_monotonic_ns() - EPOCH_2000_S * 1_000_000_000
+        self.dc = DistributedClocks(
+            self.dg, self.master_time, drift_frames=3000 if drift_frames is None else drift_frames
+        )
+        self.dc_reference: Slave | None = None
+        self._acyclic = threading.RLock()
+        self._outputs = bytearray()
+        self._safe = b""
+        self._running = False
+        self._closed = False
+        self._listeners: list[Callable[[BusEvent], None]] = []
+        self.supervisor: Supervisor | None = None
+
+    # ---------------------------------------------------------------------------- opening
+    @classmethod
+    def open(
+        cls,
+        config: Any,
+        interface: str | None = None,
+        link: Any = None,
+        drift_frames: int | None = None,
+    ) -> Bus:
+        """Open the link (``interface``, or ``link``: an in-process ``SimNetwork``), scan the
+        bus and check it against the configuration. The slaves stay in INIT until ``start``."""
+        cfg = _load_config(config)
+        from ether_ros import _native  # type: ignore[attr-defined]
+
+        if link is not None:
+            engine = _native.Engine.open_sim(link)
+        else:
+            ifname = interface or getattr(cfg.bus, "interface", None)
+            if not ifname:
+                raise LinkError("no network interface: give --interface or bus.interface")
+            try:
+                engine = _native.Engine.open_interface(ifname)
+            except EtherRosError:
+                raise
+            except OSError as exc:
+                raise LinkError(f"cannot open interface {ifname}: {exc}") from None
+        bus = cls(cfg, engine, drift_frames=drift_frames)
+        try:
+            bus._discover()
+        except BaseException:
+            engine.close()
+            raise
+        return bus
+
+    def master_time(self) -> int:
+        """The master's DC system time now (ns since 2000)."""
+        now = getattr(self.engine, "now_ns", None)
+        return (now() if now is not None else _now_monotonic_ns()) + self.time_offset_ns
+
+    def _discover(self) -> None:
+        with self._acyclic:
+            found = scan(self.dg)
+            expected = [_expected(s, i) for i, s in enumerate(self.config.slaves)]
+            positions = match_configuration(found, expected)
+            slaves = [
+                self._make_slave(cfg, found[pos])
+                for cfg, pos in zip(self.config.slaves, positions, strict=True)
+            ]
+            slaves.sort(key=lambda s: s.position)
+            self.layout = layout_image(
+                [
+                    (
+                        s.position,
+                        s.station,
+                        s.name,
+                        s.layout.output_bytes if s.layout else 0,
+                        s.layout.input_bytes if s.layout else 0,
+                    )
+                    for s in slaves
+                ]
+            )
+            for s, area in zip(slaves, self.layout.slaves, strict=True):
+                s.area = area
+            self.slaves = slaves
+            self._safe = self._safe_image()
+            self._outputs = bytearray(self._safe)
+            self._setup_dc_roles()
+
+    def _make_slave(self, cfg: Any, found: FoundSlave) -> Slave:
+        who = f"slave {found.position} ({cfg.name})"
+        device = _device_for(self.config, cfg)
+        assign = getattr(cfg, "pdo_assign", None)
+        rx = list(assign.rx) if assign is not None and assign.rx is not None else None
+        tx = list(assign.tx) if assign is not None and assign.tx is not None else None
+        selection = select_pdos(who, device, rx, tx)
+        layout = None
+        if device is not None:
+            try:
+                layout = ProcessLayout.for_device(
+                    device, [p.index for p in selection.rx], [p.index for p in selection.tx]
+                )
+            except ConfigError as exc:
+                raise BusError(f"{who}: {exc}") from None
+        return Slave(
+            name=cfg.name,
+            position=found.position,
+            station=found.station,
+            found=found,
+            config=cfg,
+            device=device,
+            selection=selection,
+            layout=layout,
+        )
+
+    def _setup_dc_roles(self) -> None:
+        dc_cfg = getattr(self.config.bus, "dc", None)
+        self.dc_reference = None
+        if dc_cfg is None or not dc_cfg.enabled:
+            return
+        capable = [s for s in self.slaves if s.found.dc_supported]
+        if not capable:
+            raise BusError("distributed clocks are enabled but no slave supports them")
+        ref_pos = getattr(dc_cfg, "reference", None)
+        reference = capable[0]
+        if ref_pos is not None and ref_pos != reference.position:
+            raise BusError(
+                f"DC reference clock must be the first DC-capable slave "
+                f"(slave {reference.position}, {reference.name}); configured: {ref_pos}"
+            )
+        self.dc_reference = reference
+        for s in capable:
+            aa = s.device.assign_activate if s.device is not None else 0
+            if s.device is None and s.found.header.dc:
+                aa = next((m.assign_activate for m in s.found.header.dc if m.assign_activate), 0)
+            s.dc = DcSlave(s.position, s.station, s.name, assign_activate=aa)
+
+    def _safe_image(self) -> bytes:
+        assert self.layout is not None
+        image = bytearray(self.layout.output_bytes)
+        for s in self.slaves:
+            if s.layout is None or s.area is None or not s.area.output_bytes:
+                continue
+            values = dict(getattr(s.config, "safe_outputs", None) or {})
+            try:
+                area = s.layout.pack_outputs(values)
+            except ProcessValueError as exc:
+                raise ConfigError(f"slaves.{s.name}.safe_outputs: {exc}") from None
+            image[s.area.output_offset : s.area.output_offset + s.area.output_bytes] = area
+        return bytes(image)
+
+    # ---------------------------------------------------------------------------- start/stop
+    @property
+    def running(self) -> bool:
+        return self._running
+
+    def start(self) -> None:
+        """INIT → PREOP → SAFEOP → OP with checks at each step, then supervise."""
+        if self._closed:
+            raise BusError("the bus is closed")
+        if self._running:
+            return
+        with self._acyclic:
+            self._reset_and_verify()
+            refs = [s.ref for s in self.slaves]
+            self.al.transition(refs, AlState.INIT)
+            for s in self.slaves:
+                bringup.setup_mailbox(self.dg, s)
+            self.al.transition(refs, AlState.PREOP)
+            bringup.configure_all_preop(self.dg, self.slaves)
+            dc_slaves = [s.dc for s in self.slaves if s.dc is not None]
+            sync0_start = 0
+            if self.dc_reference is not None and self.dc_reference.dc is not None:
+                ref = self.dc_reference.dc
+                self.dc.measure(dc_slaves, len(self.slaves))
+                self.dc.compensate_drift(ref, self._ref_follows)
+                sync0_start = self.dc.activate_sync0(
+                    dc_slaves, self.cycle_ns, self._sync0_shift_ns, ref
+                )
+            self.al.transition(refs, AlState.SAFEOP)
+            # The cyclic frame starts with the safe outputs; writes before start are dropped.
+            self._outputs = bytearray(self._safe)
+            self.plan = self._build_plan()
+            self.engine.start_cyclic(self.plan)
+            self._running = True
+            try:
+                # Slaves check for valid outputs (and running SYNC0) before they accept OP.
+                time.sleep(max(5 * self.cycle_ns / 1e9, 0.01))
+                while sync0_start and self.master_time() < sync0_start + 2 * self.cycle_ns:
+                    time.sleep(0.005)
+                self.al.transition(refs, AlState.OP)
+            except BaseException:
+                self._shutdown_cyclic()
+                raise
+        self.supervisor = Supervisor(self)
+        self.supervisor.start()
+
+    @property
+    def _ref_follows(self) -> bool:
+        return self._dc_mode == "ref_follows_master"
+
+    @property
+    def _dc_mode(self) -> str:
+        if self.dc_reference is None:
+            return "off"
+        return str(getattr(self.config.bus.dc, "mode", "ref_follows_master"))
+
+    @property
+    def _sync0_shift_ns(self) -> int:
+        dc_cfg = getattr(self.config.bus, "dc", None)
+        return round(float(getattr(dc_cfg, "sync0_shift_us", 0) or 0) * 1000)
+
+    def _reset_and_verify(self) -> None:
+        """Scan again (slaves may have been power-cycled since ``open``) and check identity."""
+        found = scan(self.dg)
+        expected = [_expected(s, i) for i, s in enumerate(self.config.slaves)]
+        positions = match_configuration(found, expected)
+        by_name = {s.name: s for s in self.slaves}
+        for cfg, pos in zip(self.config.slaves, positions, strict=True):
+            s = by_name[cfg.name]
+            s.found = found[pos]
+            s.lost = False
+
+    def _build_plan(self) -> dict[str, Any]:
+        assert self.layout is not None
+        bus_cfg = self.config.bus
+        rt = getattr(bus_cfg, "realtime", None)
+        rt_plan = RtPlan()
+        if rt is not None:
+            rt_plan = RtPlan(
+                policy=str(rt.policy),
+                priority=int(rt.priority),
+                cpu=rt.cpu,
+                runtime_ns=int(getattr(rt, "deadline_runtime_us", 100) * 1000),
+                lock_memory=bool(rt.lock_memory),
+            )
+        dc = DcPlan()
+        if self.dc_reference is not None:
+            dc = DcPlan(
+                mode=self._dc_mode,
+                reference_station=self.dc_reference.station,
+                time_offset_ns=self.time_offset_ns,
+                sync0_shift_ns=self._sync0_shift_ns,
+            )
+        watchdog_ms = float(getattr(bus_cfg, "watchdog_ms", 0) or 0)
+        return build_plan(
+            self.layout,
+            cycle_ns=self.cycle_ns,
+            order=str(getattr(bus_cfg, "cycle_order", "send_at_wake")),
+            safe_outputs=self._safe,
+            initial_outputs=bytes(self._outputs),
+            dc=dc,
+            rt=rt_plan,
+            watchdog_ns=int(watchdog_ms * 1_000_000),
+        )
+
+    def stop(self) -> None:
+        """Safe outputs on the wire, slaves to SAFEOP then INIT, cyclic exchange stopped."""
+        if not self._running:
+            return
+        if self.supervisor is not None:
+            self.supervisor.stop()
+            self.supervisor = None
+        with self._acyclic:
+            self._outputs = bytearray(self._safe)
+            if self._safe:
+                self.engine.write_outputs(0, bytes(self._safe))
+            time.sleep(max(3 * self.cycle_ns / 1e9, 0.005))
+            refs = [s.ref for s in self.slaves]
+            try:
+                self.al.transition(refs, AlState.SAFEOP)
+            except EtherRosError as exc:
+                log.warning("stop: not every slave went to SAFEOP: %s", exc)
+            self._shutdown_cyclic()
+            try:
+                dc_slaves = [s.dc for s in self.slaves if s.dc is not None]
+                self.dc.deactivate(dc_slaves)
+                self.al.transition(refs, AlState.INIT)
+            except EtherRosError as exc:
+                log.warning("stop: not every slave went to INIT: %s", exc)
+
+    def _shutdown_cyclic(self) -> None:
+        try:
+            self.engine.stop_cyclic()
+        finally:
+            self._running = False
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        try:
+            self.stop()
+        finally:
+            self._closed = True
+            self.engine.close()
+
+    def __enter__(self) -> Bus:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    # ---------------------------------------------------------------------------- slaves
+    def slave(self, which: str | int) -> Slave:
+        """A slave by configured name or bus position."""
+        for s in self.slaves:
+            if s.name == which or (isinstance(which, int) and s.position == which):
+                return s
+        names = ", ".join(s.name for s in self.slaves)
+        raise BusError(f"no slave {which!r} on this bus (slaves: {names})")
+
+    def _variable(self, slave: Slave, name: str) -> ProcessVariable:
+        if slave.layout is None:
+            raise BusError(f"{slave}: has no process data")
+        try:
+            return slave.layout.variable(name)
+        except ProcessValueError as exc:
+            raise ProcessValueError(f"{slave}: {exc}") from None
+
+    # ---------------------------------------------------------------------------- process data
+    def write(self, slave: str | int, variable: str, value: object) -> None:
+        """Set one output variable. Unknown variables, inputs, wrong types and out-of-range
+        values are refused with :class:`ProcessValueError` before anything reaches the wire."""
+        self.write_many(slave, {variable: value})
+
+    def write_many(self, slave: str | int, values: Mapping[str, object]) -> None:
+        """Set several outputs of one slave at once (they reach the wire in the same cycle)."""
+        s = self.slave(slave)
+        area = s.area
+        if s.layout is None or area is None or not area.output_bytes:
+            raise BusError(f"{s}: has no outputs")
+        begin, end = area.output_offset, area.output_offset + area.output_bytes
+        current = bytes(self._outputs[begin:end])
+        for name in values:
+            var = self._variable(s, name)
+            if var.direction != "output":
+                raise ProcessValueError(f"{s}: variable {name!r} is an input, not an output")
+        try:
+            new = s.layout.pack_outputs(values, base=current)
+        except ProcessValueError as exc:
+            raise ProcessValueError(f"{s}: {exc}") from None
+        self._outputs[begin:end] = new
+        if self._running:
+            self.engine.write_outputs(begin, bytes(new))
+
+    def write_all(self, variable: str, value: object) -> int:
+        """Set ``variable`` on every slave that has it as an output; returns how many."""
+        targets = [
+            s
+            for s in self.slaves
+            if s.layout is not None
+            and s.layout.has(variable)
+            and s.layout.variable(variable).direction == "output"
+        ]
+        if not targets:
+            raise ProcessValueError(f"no slave has an output variable {variable!r}")
+        # Validate everything first so a bad value changes nothing.
+        for s in targets:
+            s.layout.variable(variable).encode(value)  # type: ignore[union-attr]
+        for s in targets:
+            self.write(s.name, variable, value)
+        return len(targets)
+
+    def _input_area(self, s: Slave) -> bytes:
+        assert self.layout is not None
+        area = s.area
+        if area is None:
+            return b""
+        image = bytes(self.engine.read_inputs()) if self._running else b""
+        if len(image) == self.layout.image_len:
+            return image[area.input_offset : area.input_offset + area.input_bytes]
+        if len(image) == self.layout.input_bytes:
+            offset = area.input_offset - self.layout.output_bytes
+            return image[offset : offset + area.input_bytes]
+        return bytes(area.input_bytes)
+
+    def read(self, slave: str | int, variable: str) -> Value:
+        """The latest value of an input (as received) or an output (as commanded)."""
+        s = self.slave(slave)
+        var = self._variable(s, variable)
+        assert s.layout is not None and s.area is not None
+        if var.direction == "output":
+            begin = s.area.output_offset
+            return s.layout.read(self._outputs[begin : begin + s.area.output_bytes], var)
+        return s.layout.read(self._input_area(s), var)
+
+    def inputs(self, slave: str | int) -> dict[str, Value]:
+        s = self.slave(slave)
+        if s.layout is None:
+            return {}
+        return s.layout.unpack(self._input_area(s), "input")
+
+    def outputs(self, slave: str | int) -> dict[str, Value]:
+        s = self.slave(slave)
+        if s.layout is None or s.area is None:
+            return {}
+        begin = s.area.output_offset
+        return s.layout.unpack(self._outputs[begin : begin + s.area.output_bytes], "output")
+
+    def samples(self, max_samples: int = 65536) -> Samples:
+        """Drain the engine's per-cycle sample ring: ``records`` (the structured array of
+        ``master/samples.py``: cycle, wake-up latency, round trip, WKC, flags, ...) and
+        ``images`` (the process image of each of those cycles, one row each)."""
+        records, images = self.engine.drain_samples(max_samples)
+        image_len = self.layout.image_len if self.layout is not None else None
+        return decode_samples(bytes(records), bytes(images), image_len)
+
+    def decode_image(self, image: bytes | Any, slave: str | int) -> dict[str, Value]:
+        """Inputs of one slave from a process image (e.g. a row of ``samples().images``)."""
+        s = self.slave(slave)
+        if s.layout is None or s.area is None:
+            return {}
+        a = s.area
+        data = bytes(image[a.input_offset : a.input_offset + a.input_bytes])
+        return s.layout.unpack(data, "input")
+
+    def stats(self) -> dict[str, Any]:
+        out: dict[str, Any] = dict(self.engine.stats())
+        if self.supervisor is not None:
+            out["supervisor"] = self.supervisor.counters()
+        return out
+
+    # ---------------------------------------------------------------------------- safety
+    def panic(self) -> None:
+        """Safe outputs on the wire within two cycles, until ``clear_panic``."""
+        self.engine.panic()
+
+    def clear_panic(self) -> None:
+        self.engine.clear_panic()
+
+    def feed_watchdog(self) -> None:
+        self.engine.feed_watchdog()
+
+    # ---------------------------------------------------------------------------- acyclic
+    def states(self) -> list[SlaveState]:
+        """Each slave's AL state and status code (read now, over the acyclic path)."""
+        with self._acyclic:
+            statuses = self.al.read([s.ref for s in self.slaves])
+        return [_slave_state(s, st) for s, st in zip(self.slaves, statuses, strict=True)]
+
+    def sdo_read(
+        self, slave: str | int, index: int, subindex: int, dtype: str | None = None
+    ) -> object:
+        """Upload an object; typed by ``dtype`` (a type name) or the ESI dictionary, raw bytes
+        when neither knows the type."""
+        s = self.slave(slave)
+        if s.sdo is None:
+            raise BusError(f"{s}: has no CoE mailbox (start the bus first)")
+        with self._acyclic:
+            data: bytes = s.sdo.upload(index, subindex)
+        t, bits = self._sdo_type(s, index, subindex, dtype)
+        if t is None:
+            return data
+        if not bits or t.kind in ("string", "bytes"):
+            bits = 8 * len(data)
+        return dt.decode_value(t, data[: (bits + 7) // 8], bits)
+
+    def sdo_write(
+        self, slave: str | int, index: int, subindex: int, value: object, dtype: str | None = None
+    ) -> None:
+        s = self.slave(slave)
+        if s.sdo is None:
+            raise BusError(f"{s}: has no CoE mailbox (start the bus first)")
+        data = bringup.encode_sdo_value(s, index, subindex, value, dtype)
+        with self._acyclic:
+            s.sdo.download(index, subindex, data)
+
+    @staticmethod
+    def _sdo_type(
+        s: Slave, index: int, subindex: int, dtype: str | None
+    ) -> tuple[dt.DataType | None, int]:
+        if dtype:
+            t = dt.config_type(dtype)
+            if t is None:
+                raise BusError(f"unknown data type {dtype!r}")
+            return t, t.bit_length
+        if s.device is not None:
+            e = s.device.od_entry(index, subindex)
+            if e is not None:
+                return dt.BY_CODE.get(e.data_type), e.bit_length
+        return None, 0
+
+    # ---------------------------------------------------------------------------- events
+    def on_event(self, callback: Callable[[BusEvent], None]) -> None:
+        """Call ``callback`` (from the supervisor thread) for every supervision event."""
+        self._listeners.append(callback)
+
+    def emit(self, event: BusEvent) -> None:
+        level = logging.WARNING if event.kind in ("slave_lost", "wkc_error") else logging.INFO
+        log.log(level, "%s", event.message)
+        for cb in list(self._listeners):
+            try:
+                cb(event)
+            except Exception:  # a listener's bug must not stop supervision
+                log.exception("bus event listener failed")
+
+    def recover_slave(self, s: Slave) -> None:
+        """Bring one slave back to OP after it dropped out (called by the supervisor)."""
+        with self._acyclic:
+            status = self.al.read([s.ref])[0]
+            if not status.answered:
+                self._readdress(s)
+                status = self.al.read([s.ref])[0]
+                if not status.answered:
+                    raise BusError(f"{s}: does not answer")
+            if status.error:
+                self.al.acknowledge(s.ref, status)
+            self.al.transition([s.ref], AlState.INIT)
+            bringup.setup_mailbox(self.dg, s)
+            self.al.transition([s.ref], AlState.PREOP)
+            bringup.configure_preop(self.dg, s)
+            if s.dc is not None and self.dc_reference is not None and self.dc_reference.dc:
+                ref = self.dc_reference.dc
+                if s.dc is not ref:
+                    self.dc.resync_slave(ref, s.dc)
+                self.dc.activate_sync0([s.dc], self.cycle_ns, self._sync0_shift_ns, ref)
+            self.al.transition([s.ref], AlState.SAFEOP)
+            time.sleep(max(3 * self.cycle_ns / 1e9, 0.005))
+            self.al.transition([s.ref], AlState.OP)
+
+    def _readdress(self, s: Slave) -> None:
+        """A slave that lost its station address (power cycle) gets it again by position."""
+        from ether_ros.master.scan import count_slaves, station_address
+
+        count = count_slaves(self.dg)
+        if count <= s.position:
+            raise BusError(f"{s}: not on the bus ({count} slaves answer)")
+        wkc = self.dg.apwr(s.position, 0x0010, station_address(s.position).to_bytes(2, "little"))
+        if wkc != 1:
+            raise BusError(f"{s}: re-assigning its station address failed")
+
+
+def _slave_state(s: Slave, st: AlStatus) -> SlaveState:
+    return SlaveState(
+        name=s.name,
+        position=s.position,
+        station=s.station,
+        state=st.name,
+        error=st.error,
+        code=st.code,
+        text=al_code_text(st.code) if st.error else "",
+    )
+
+
+def _load_config(config: Any) -> Any:
+    if isinstance(config, str | Path):
+        from ether_ros.config import load_bus_config
+
+        return load_bus_config(config)
+    return config
+
+
+def _expected(cfg: Any, index: int) -> Expected:
+    device = _device_for(None, cfg)
+    vendor = cfg.vendor_id if cfg.vendor_id is not None else getattr(device, "vendor_id", None)
+    product = cfg.product_code
+    if product is None:
+        product = getattr(device, "product_code", None)
+    if vendor is None or product is None:
+        raise ConfigError(f"slaves.{cfg.name}: no vendor_id/product_code and no ESI device")
+    return Expected(
+        name=cfg.name,
+        vendor_id=int(vendor),
+        product_code=int(product),
+        revision=getattr(cfg, "revision", None),
+        position=getattr(cfg, "position", None),
+        alias=getattr(cfg, "alias", None),
+    )
+
+
+def _device_for(config: Any, slave_cfg: Any) -> EsiDevice | None:
+    """The ESI device of a configured slave, as resolved by ``load_bus_config``."""
+    dev = getattr(slave_cfg, "_esi", None)
+    return dev if isinstance(dev, EsiDevice) else None
+
+
+def iter_names(slaves: Iterable[Slave]) -> list[str]:
+    return [s.name for s in slaves]

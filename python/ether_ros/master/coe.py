@@ -1,0 +1,379 @@
+"""CoE SDO client (ETG.1000.6): read and write object dictionary entries of one slave through its
+mailbox, collect emergency messages, and browse the dictionary with the SDO Information service.
+
+The transfer type is chosen from the data size: up to 4 bytes expedited, otherwise normal, and
+segmented when the data does not fit into one mailbox message. A slave's abort is raised as a
+``MailboxError`` naming the slave, the object and the abort code with its meaning.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import struct
+from collections import deque
+from dataclasses import dataclass
+
+from ether_ros.errors import MailboxError
+from ether_ros.master.abort_codes import emergency_text, sdo_abort_text
+from ether_ros.master.mailbox import Mailbox, MailboxType
+
+# CoE services (upper 4 bits of the 2-byte CoE header).
+SERVICE_EMERGENCY = 1
+SERVICE_SDO_REQUEST = 2
+SERVICE_SDO_RESPONSE = 3
+SERVICE_SDO_INFORMATION = 8
+
+# Command specifiers (upper 3 bits of the SDO command byte).
+CCS_DOWNLOAD_SEGMENT = 0
+CCS_DOWNLOAD_INITIATE = 1
+CCS_UPLOAD_INITIATE = 2
+CCS_UPLOAD_SEGMENT = 3
+CS_ABORT = 4
+SCS_UPLOAD_SEGMENT = 0
+SCS_DOWNLOAD_SEGMENT = 1
+SCS_UPLOAD_INITIATE = 2
+SCS_DOWNLOAD_INITIATE = 3
+
+COMPLETE_ACCESS = 0x10
+TOGGLE = 0x10
+
+# SDO header: CoE header (2), command (1), index (2), subindex (1), 4 data bytes.
+SDO_HEADER_LEN = 10
+# A segment: CoE header (2), command (1), then at least 7 data bytes.
+SEGMENT_HEADER_LEN = 3
+MIN_SEGMENT_DATA = 7
+
+# Abort codes the client itself sends when the slave breaks the protocol.
+ABORT_TOGGLE = 0x05030000
+ABORT_INVALID_COMMAND = 0x05040001
+
+# SDO Information opcodes (lower 7 bits; bit 7 = more fragments follow).
+INFO_OD_LIST_REQ = 1
+INFO_OD_LIST_RESP = 2
+INFO_OBJECT_DESC_REQ = 3
+INFO_OBJECT_DESC_RESP = 4
+INFO_ENTRY_DESC_REQ = 5
+INFO_ENTRY_DESC_RESP = 6
+INFO_ERROR = 7
+INFO_INCOMPLETE = 0x80
+INFO_HEADER_LEN = 6
+
+OD_LIST_ALL = 1
+
+OBJECT_CODE_NAMES = {7: "VAR", 8: "ARRAY", 9: "RECORD"}
+
+
+@dataclass(frozen=True)
+class Emergency:
+    """One CoE emergency message from a slave."""
+
+    slave: str
+    error_code: int
+    error_register: int
+    data: bytes
+
+    @property
+    def text(self) -> str:
+        return (
+            f"slave '{self.slave}': emergency 0x{self.error_code:04X} "
+            f"{emergency_text(self.error_code)} (error register 0x{self.error_register:02X}, "
+            f"data {self.data.hex(' ')})"
+        )
+
+
+@dataclass(frozen=True)
+class ObjectDescription:
+    index: int
+    data_type: int
+    max_subindex: int
+    object_code: int
+    name: str
+
+    @property
+    def object_code_name(self) -> str:
+        return OBJECT_CODE_NAMES.get(self.object_code, f"code {self.object_code}")
+
+
+@dataclass(frozen=True)
+class EntryDescription:
+    index: int
+    subindex: int
+    value_info: int
+    data_type: int
+    bit_length: int
+    access: int
+    name: str
+    # Whatever the slave appended because value_info asked for unit, default, minimum, maximum.
+    extra: bytes = b""
+
+    @property
+    def readable(self) -> bool:
+        return bool(self.access & 0x07)
+
+    @property
+    def writable(self) -> bool:
+        return bool(self.access & 0x38)
+
+    @property
+    def rx_mappable(self) -> bool:
+        return bool(self.access & 0x40)
+
+    @property
+    def tx_mappable(self) -> bool:
+        return bool(self.access & 0x80)
+
+    @property
+    def access_text(self) -> str:
+        """ESI-style access: ro, rw, wo, or per state like ``rw(PREOP) ro``."""
+        read, write = self.access & 0x07, (self.access >> 3) & 0x07
+        if write == 0:
+            return "ro" if read else "none"
+        if write == 0x07:
+            return "rw" if read == 0x07 else "wo"
+        states = "/".join(n for bit, n in ((1, "PREOP"), (2, "SAFEOP"), (4, "OP")) if write & bit)
+        return f"rw({states}) ro" if read else f"wo({states})"
+
+
+def _coe_header(service: int) -> bytes:
+    return struct.pack("<H", service << 12)
+
+
+def _sdo(command: int, index: int, subindex: int, data: bytes = b"\x00\x00\x00\x00") -> bytes:
+    return _coe_header(SERVICE_SDO_REQUEST) + struct.pack("<BHB", command, index, subindex) + data
+
+
+def _service(payload: bytes) -> int:
+    return payload[1] >> 4 if len(payload) >= 2 else -1
+
+
+class SdoClient:
+    """SDO transfers with one slave. Not thread safe: one transfer at a time per slave."""
+
+    def __init__(self, mailbox: Mailbox, slave_name: str, timeout_s: float = 1.0) -> None:
+        self.mailbox = mailbox
+        self.slave_name = slave_name
+        self.timeout_s = timeout_s
+        self.emergencies: deque[Emergency] = deque(maxlen=1000)
+        mailbox.emergency_handler = self._on_emergency
+
+    # ---- emergencies ----------------------------------------------------------------------
+
+    def _on_emergency(self, payload: bytes) -> None:
+        if len(payload) < 5:
+            return
+        code, register = struct.unpack_from("<HB", payload, 2)
+        self.emergencies.append(Emergency(self.slave_name, code, register, payload[5:10]))
+
+    def poll_emergencies(self) -> list[Emergency]:
+        """Read pending mailbox messages, then return and forget the collected emergencies."""
+        self.mailbox.poll_emergencies()
+        out = list(self.emergencies)
+        self.emergencies.clear()
+        return out
+
+    # ---- helpers ----------------------------------------------------------------------------
+
+    def _what(self, action: str, index: int, subindex: int, complete_access: bool) -> str:
+        ca = " (complete access)" if complete_access else ""
+        return f"slave '{self.slave_name}': SDO {action} 0x{index:04X}:{subindex:02X}{ca}"
+
+    def _fail(self, what: str, reason: str) -> MailboxError:
+        return MailboxError(f"{what} {reason}")
+
+    def _exchange(self, request: bytes, what: str) -> bytes:
+        try:
+            self.mailbox.send(MailboxType.COE, request, self.timeout_s)
+        except MailboxError as e:
+            raise MailboxError(f"{what} failed: {_after_slave(e)}") from None
+        return self._receive_sdo(what)
+
+    def _receive_sdo(self, what: str) -> bytes:
+        try:
+            reply = self.mailbox.receive(MailboxType.COE, self.timeout_s)
+        except MailboxError as e:
+            raise MailboxError(f"{what} failed: {_after_slave(e)}") from None
+        if len(reply) >= SDO_HEADER_LEN and reply[2] >> 5 == CS_ABORT:
+            code = struct.unpack_from("<I", reply, 6)[0]
+            raise self._fail(what, f"aborted: {sdo_abort_text(code)}")
+        if _service(reply) != SERVICE_SDO_RESPONSE or len(reply) < SDO_HEADER_LEN:
+            raise self._fail(what, f"failed: unexpected CoE reply {reply[:10].hex(' ')}")
+        return reply
+
+    def _abort(self, index: int, subindex: int, code: int) -> None:
+        """Tell the slave the transfer is over; best effort, the caller raises anyway."""
+        with contextlib.suppress(MailboxError):
+            self.mailbox.send(
+                MailboxType.COE, _sdo(CS_ABORT << 5, index, subindex, struct.pack("<I", code)), 0.1
+            )
+
+    def _check_echo(self, reply: bytes, scs: int, index: int, subindex: int, what: str) -> None:
+        got_index, got_sub = struct.unpack_from("<HB", reply, 3)
+        if reply[2] >> 5 != scs or (got_index, got_sub) != (index, subindex):
+            self._abort(index, subindex, ABORT_INVALID_COMMAND)
+            raise self._fail(
+                what,
+                f"failed: slave answered command 0x{reply[2]:02X} for "
+                f"0x{got_index:04X}:{got_sub:02X}",
+            )
+
+    # ---- upload -----------------------------------------------------------------------------
+
+    def upload(self, index: int, subindex: int, complete_access: bool = False) -> bytes:
+        """Read an entry (or, with complete access, the whole object from ``subindex`` 0 or 1)."""
+        what = self._what("upload", index, subindex, complete_access)
+        command = CCS_UPLOAD_INITIATE << 5 | (COMPLETE_ACCESS if complete_access else 0)
+        reply = self._exchange(_sdo(command, index, subindex), what)
+        self._check_echo(reply, SCS_UPLOAD_INITIATE, index, subindex, what)
+        flags = reply[2]
+        if flags & 0x02:  # expedited: the data is in the 4 data bytes
+            size = 4 - ((flags >> 2) & 0x03) if flags & 0x01 else 4
+            return reply[6 : 6 + size]
+        size = struct.unpack_from("<I", reply, 6)[0]
+        data = bytearray(reply[SDO_HEADER_LEN : SDO_HEADER_LEN + size])
+        toggle = 0
+        while len(data) < size:
+            segment = self._exchange(_segment_request(toggle), what)
+            if segment[2] >> 5 != SCS_UPLOAD_SEGMENT:
+                self._abort(index, subindex, ABORT_INVALID_COMMAND)
+                raise self._fail(
+                    what, f"failed: expected an upload segment, got 0x{segment[2]:02X}"
+                )
+            if segment[2] & TOGGLE != toggle:
+                self._abort(index, subindex, ABORT_TOGGLE)
+                raise self._fail(what, "failed: slave did not alternate the toggle bit")
+            body = segment[SEGMENT_HEADER_LEN:]
+            if len(body) <= MIN_SEGMENT_DATA:
+                body = body[: MIN_SEGMENT_DATA - ((segment[2] >> 1) & 0x07)]
+            data += body
+            last = bool(segment[2] & 0x01)
+            if last or not body:
+                break
+            toggle ^= TOGGLE
+        if len(data) != size:
+            raise self._fail(what, f"failed: slave announced {size} bytes but sent {len(data)}")
+        return bytes(data)
+
+    # ---- download ---------------------------------------------------------------------------
+
+    def download(
+        self, index: int, subindex: int, data: bytes, complete_access: bool = False
+    ) -> None:
+        """Write an entry (or, with complete access, the object from ``subindex`` 0 or 1)."""
+        what = self._what("download", index, subindex, complete_access)
+        ca = COMPLETE_ACCESS if complete_access else 0
+        if 0 < len(data) <= 4:
+            command = CCS_DOWNLOAD_INITIATE << 5 | ca | (4 - len(data)) << 2 | 0x03
+            reply = self._exchange(_sdo(command, index, subindex, data.ljust(4, b"\x00")), what)
+            self._check_echo(reply, SCS_DOWNLOAD_INITIATE, index, subindex, what)
+            return
+        room = self.mailbox.max_send_payload - SDO_HEADER_LEN
+        first = data[:room]
+        command = CCS_DOWNLOAD_INITIATE << 5 | ca | 0x01
+        request = _sdo(command, index, subindex, struct.pack("<I", len(data))) + first
+        reply = self._exchange(request, what)
+        self._check_echo(reply, SCS_DOWNLOAD_INITIATE, index, subindex, what)
+        sent = len(first)
+        toggle = 0
+        segment_room = self.mailbox.max_send_payload - SEGMENT_HEADER_LEN
+        while sent < len(data):
+            chunk = data[sent : sent + segment_room]
+            sent += len(chunk)
+            last = 0x01 if sent == len(data) else 0
+            unused = MIN_SEGMENT_DATA - len(chunk) if len(chunk) < MIN_SEGMENT_DATA else 0
+            command = CCS_DOWNLOAD_SEGMENT << 5 | toggle | unused << 1 | last
+            segment = _coe_header(SERVICE_SDO_REQUEST) + bytes([command])
+            segment += chunk.ljust(MIN_SEGMENT_DATA, b"\x00")
+            reply = self._exchange(segment, what)
+            if reply[2] >> 5 != SCS_DOWNLOAD_SEGMENT:
+                self._abort(index, subindex, ABORT_INVALID_COMMAND)
+                raise self._fail(what, f"failed: expected a segment answer, got 0x{reply[2]:02X}")
+            if reply[2] & TOGGLE != toggle:
+                self._abort(index, subindex, ABORT_TOGGLE)
+                raise self._fail(what, "failed: slave did not alternate the toggle bit")
+            toggle ^= TOGGLE
+
+    # ---- SDO Information --------------------------------------------------------------------
+
+    def _info(self, opcode: int, body: bytes, expect: int, what: str) -> bytes:
+        """One SDO Information exchange; the fragments of the answer put together."""
+        request = _coe_header(SERVICE_SDO_INFORMATION) + bytes([opcode, 0, 0, 0]) + body
+        try:
+            self.mailbox.send(MailboxType.COE, request, self.timeout_s)
+        except MailboxError as e:
+            raise MailboxError(f"{what} failed: {_after_slave(e)}") from None
+        data = bytearray()
+        while True:
+            try:
+                reply = self.mailbox.receive(MailboxType.COE, self.timeout_s)
+            except MailboxError as e:
+                raise MailboxError(f"{what} failed: {_after_slave(e)}") from None
+            if _service(reply) != SERVICE_SDO_INFORMATION or len(reply) < INFO_HEADER_LEN:
+                # An SDO abort in answer to an information request: the service is missing.
+                if len(reply) >= SDO_HEADER_LEN and reply[2] >> 5 == CS_ABORT:
+                    code = struct.unpack_from("<I", reply, 6)[0]
+                    raise self._fail(what, f"failed: {sdo_abort_text(code)}")
+                raise self._fail(what, f"failed: unexpected CoE reply {reply[:10].hex(' ')}")
+            got = reply[2] & 0x7F
+            if got == INFO_ERROR:
+                code = struct.unpack_from("<I", reply.ljust(10, b"\x00"), 6)[0]
+                raise self._fail(what, f"failed: {sdo_abort_text(code)}")
+            if got != expect:
+                raise self._fail(what, f"failed: unexpected SDO information opcode {got}")
+            data += reply[INFO_HEADER_LEN:]
+            fragments_left = struct.unpack_from("<H", reply, 4)[0]
+            if not reply[2] & INFO_INCOMPLETE or fragments_left == 0:
+                return bytes(data)
+
+    def object_list(self, list_type: int = OD_LIST_ALL) -> list[int]:
+        """Indices of the objects in the dictionary (list type 1: all; 2/3: RxPDO/TxPDO
+        mappable; 4: backup; 5: settings). List type 0 returns the five list lengths."""
+        what = f"slave '{self.slave_name}': SDO information object list"
+        body = self._info(INFO_OD_LIST_REQ, struct.pack("<H", list_type), INFO_OD_LIST_RESP, what)
+        if len(body) < 2 or len(body) % 2:
+            raise self._fail(what, f"failed: malformed list of {len(body)} bytes")
+        return [v for (v,) in struct.iter_unpack("<H", body[2:])]
+
+    def object_description(self, index: int) -> ObjectDescription:
+        what = f"slave '{self.slave_name}': SDO information object description 0x{index:04X}"
+        body = self._info(
+            INFO_OBJECT_DESC_REQ, struct.pack("<H", index), INFO_OBJECT_DESC_RESP, what
+        )
+        if len(body) < 6:
+            raise self._fail(what, f"failed: description of {len(body)} bytes is too short")
+        got_index, data_type, max_sub, code = struct.unpack_from("<HHBB", body)
+        return ObjectDescription(got_index, data_type, max_sub, code, _text(body[6:]))
+
+    def entry_description(self, index: int, subindex: int) -> EntryDescription:
+        what = (
+            f"slave '{self.slave_name}': SDO information entry description "
+            f"0x{index:04X}:{subindex:02X}"
+        )
+        body = self._info(
+            INFO_ENTRY_DESC_REQ,
+            struct.pack("<HBB", index, subindex, 0),
+            INFO_ENTRY_DESC_RESP,
+            what,
+        )
+        if len(body) < 10:
+            raise self._fail(what, f"failed: description of {len(body)} bytes is too short")
+        got_index, got_sub, value_info, data_type, bits, access = struct.unpack_from(
+            "<HBBHHH", body
+        )
+        # We ask for no unit/default/min/max, so everything after the header is the name.
+        return EntryDescription(
+            got_index, got_sub, value_info, data_type, bits, access, _text(body[10:])
+        )
+
+
+def _segment_request(toggle: int) -> bytes:
+    return _coe_header(SERVICE_SDO_REQUEST) + bytes([CCS_UPLOAD_SEGMENT << 5 | toggle]) + bytes(7)
+
+
+def _text(raw: bytes) -> str:
+    return raw.split(b"\x00", 1)[0].decode("utf-8", errors="replace")
+
+
+def _after_slave(e: MailboxError) -> str:
+    """The reason of a mailbox error without its "slave 'x': " prefix (we add our own)."""
+    text = str(e)
+    return text.split(": ", 1)[1] if text.startswith("slave '") and ": " in text else text

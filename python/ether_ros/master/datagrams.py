@@ -1,0 +1,198 @@
+"""Typed acyclic datagrams on top of the engine's ``transact``.
+
+The engine sends one frame per ``transact`` call and returns each datagram's data and working
+counter. This module gives the bring-up code named commands (``fprd``, ``apwr``, ...), packs a
+batch of datagrams into as few frames as fit, and checks working counters where the caller says
+how many slaves must answer. It is also the ``Datagrams`` transport the CoE mailbox runs over.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Sequence
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Protocol
+
+from ether_ros.errors import BusError, EtherRosError, LinkError
+
+# Frame budget: 1500 bytes of Ethernet payload minus the 2-byte EtherCAT header; every datagram
+# adds a 10-byte header and a 2-byte working counter to its data.
+FRAME_PAYLOAD = 1498
+DATAGRAM_OVERHEAD = 12
+MAX_DATAGRAM_DATA = FRAME_PAYLOAD - DATAGRAM_OVERHEAD
+
+
+class Cmd(IntEnum):
+    """EtherCAT datagram command codes (ETG.1000.4)."""
+
+    NOP = 0
+    APRD = 1
+    APWR = 2
+    APRW = 3
+    FPRD = 4
+    FPWR = 5
+    FPRW = 6
+    BRD = 7
+    BWR = 8
+    BRW = 9
+    LRD = 10
+    LWR = 11
+    LRW = 12
+    ARMW = 13
+    FRMW = 14
+
+
+def auto_address(position: int, offset: int) -> int:
+    """Auto-increment address: ADP is minus the position (each slave increments it)."""
+    return ((-position) & 0xFFFF) | ((offset & 0xFFFF) << 16)
+
+
+def fixed_address(station: int, offset: int) -> int:
+    """Configured-station address: ADP is the station address, ADO the register."""
+    return (station & 0xFFFF) | ((offset & 0xFFFF) << 16)
+
+
+class Transport(Protocol):
+    """What the master needs from the engine: one frame of datagrams out, replies back."""
+
+    def transact(
+        self,
+        datagrams: Sequence[tuple[int, int, bytes | int]],
+        timeout_us: int = ...,
+        retries: int = ...,
+    ) -> list[tuple[bytes, int]]: ...
+
+
+@dataclass(frozen=True)
+class Datagram:
+    """One datagram to send: ``payload`` is the data to write, or the number of bytes to read."""
+
+    cmd: Cmd
+    address: int
+    payload: bytes | int
+
+    @property
+    def length(self) -> int:
+        return self.payload if isinstance(self.payload, int) else len(self.payload)
+
+
+@dataclass(frozen=True)
+class Reply:
+    data: bytes
+    wkc: int
+
+
+def u16(value: int) -> bytes:
+    return struct.pack("<H", value & 0xFFFF)
+
+
+def u32(value: int) -> bytes:
+    return struct.pack("<I", value & 0xFFFFFFFF)
+
+
+def u64(value: int) -> bytes:
+    return struct.pack("<Q", value & 0xFFFFFFFFFFFFFFFF)
+
+
+def le(data: bytes) -> int:
+    """Little-endian unsigned integer from register bytes."""
+    return int.from_bytes(data, "little")
+
+
+class DatagramService:
+    """Named datagrams, batching and working-counter checks over a :class:`Transport`.
+
+    Reads return ``(data, wkc)``, writes return ``wkc`` — the shape the CoE mailbox expects from
+    its ``Datagrams`` transport (``fprd``/``fpwr``).
+    """
+
+    def __init__(self, transport: Transport, timeout_us: int = 20_000, retries: int = 3) -> None:
+        self.transport = transport
+        self.timeout_us = timeout_us
+        self.retries = retries
+
+    # -- frames ----------------------------------------------------------------------------
+    def batch(self, datagrams: Sequence[Datagram]) -> list[Reply]:
+        """Send datagrams in order, as few frames as they fit in; replies in the same order."""
+        replies: list[Reply] = []
+        frame: list[Datagram] = []
+        used = 0
+        for dg in datagrams:
+            size = dg.length + DATAGRAM_OVERHEAD
+            if dg.length > MAX_DATAGRAM_DATA:
+                raise BusError(f"{dg.cmd.name} of {dg.length} bytes does not fit in one frame")
+            if frame and used + size > FRAME_PAYLOAD:
+                replies.extend(self._send(frame))
+                frame, used = [], 0
+            frame.append(dg)
+            used += size
+        if frame:
+            replies.extend(self._send(frame))
+        return replies
+
+    def _send(self, frame: Sequence[Datagram]) -> list[Reply]:
+        request = [(int(d.cmd), d.address, d.payload) for d in frame]
+        try:
+            raw = self.transport.transact(request, timeout_us=self.timeout_us, retries=self.retries)
+        except EtherRosError:
+            raise
+        except TimeoutError as exc:
+            names = ", ".join(d.cmd.name for d in frame)
+            raise LinkError(f"no answer to a frame ({names}) after {self.retries} retries") from exc
+        except OSError as exc:
+            raise LinkError(f"sending a frame failed: {exc}") from exc
+        return [Reply(bytes(data), int(wkc)) for data, wkc in raw]
+
+    def one(self, cmd: Cmd, address: int, payload: bytes | int) -> Reply:
+        return self.batch([Datagram(cmd, address, payload)])[0]
+
+    # -- named commands (the ``Datagrams`` protocol of the mailbox) --------------------------
+    def fprd(self, station: int, ado: int, length: int) -> tuple[bytes, int]:
+        r = self.one(Cmd.FPRD, fixed_address(station, ado), length)
+        return r.data, r.wkc
+
+    def fpwr(self, station: int, ado: int, data: bytes) -> int:
+        return self.one(Cmd.FPWR, fixed_address(station, ado), bytes(data)).wkc
+
+    def aprd(self, position: int, ado: int, length: int) -> tuple[bytes, int]:
+        r = self.one(Cmd.APRD, auto_address(position, ado), length)
+        return r.data, r.wkc
+
+    def apwr(self, position: int, ado: int, data: bytes) -> int:
+        return self.one(Cmd.APWR, auto_address(position, ado), bytes(data)).wkc
+
+    def brd(self, ado: int, length: int) -> tuple[bytes, int]:
+        r = self.one(Cmd.BRD, fixed_address(0, ado), length)
+        return r.data, r.wkc
+
+    def bwr(self, ado: int, data: bytes) -> int:
+        return self.one(Cmd.BWR, fixed_address(0, ado), bytes(data)).wkc
+
+    def frmw(self, station: int, ado: int, length: int) -> tuple[bytes, int]:
+        r = self.one(Cmd.FRMW, fixed_address(station, ado), length)
+        return r.data, r.wkc
+
+    def lrw(self, logical: int, data: bytes) -> tuple[bytes, int]:
+        r = self.one(Cmd.LRW, logical, bytes(data))
+        return r.data, r.wkc
+
+    def lrd(self, logical: int, length: int) -> tuple[bytes, int]:
+        r = self.one(Cmd.LRD, logical, length)
+        return r.data, r.wkc
+
+    def lwr(self, logical: int, data: bytes) -> int:
+        return self.one(Cmd.LWR, logical, bytes(data)).wkc
+
+    # -- checked helpers ---------------------------------------------------------------------
+    def write_checked(self, station: int, ado: int, data: bytes, what: str, who: str) -> None:
+        """FPWR that must reach exactly one slave; ``what``/``who`` name it in the error."""
+        wkc = self.fpwr(station, ado, data)
+        if wkc != 1:
+            raise BusError(f"{who}: writing {what} (0x{ado:04X}) got no answer (wkc {wkc})")
+
+    def read_checked(self, station: int, ado: int, length: int, what: str, who: str) -> bytes:
+        data, wkc = self.fprd(station, ado, length)
+        if wkc != 1:
+            raise BusError(f"{who}: reading {what} (0x{ado:04X}) got no answer (wkc {wkc})")
+        return data

@@ -1,0 +1,274 @@
+"""Distributed clocks: propagation delays, offsets, drift compensation and SYNC0 activation.
+
+Steps (ETG.1000.4 §9 / ESC datasheet "Distributed Clocks"):
+
+1. A broadcast write to 0x0900 makes every slave latch the local time at which the frame passed
+   each port (0x0900..0x090F, 32 bit) and at its processing unit (0x0918, 64 bit).
+2. In a line, the frame enters slave *i* on port 0 and comes back through port 1; the time
+   between the two latches is how long the frame spent further down the line. Half the
+   difference of that "loop time" between neighbours is the cable + pass-through delay between
+   them, and the sum from the reference clock is each slave's propagation delay (0x0928).
+3. System time offset (0x0920) makes every slave's system time (local + offset) read the same
+   value at the same instant: the master's time when the latch frame passed the reference, plus
+   the propagation delay to that slave.
+4. Static drift compensation: many FRMW 0x0910 from the reference clock; each slave compares the
+   received time (+ its delay) with its own and trims its clock speed.
+5. SYNC0: cycle time (0x09A0), start time (0x0990) aligned to a cycle boundary of the system
+   time plus the configured shift, then the activation word from the ESI (AssignActivate, low
+   byte → cyclic unit control 0x0980, high byte → activation 0x0981).
+"""
+
+from __future__ import annotations
+
+import logging
+import struct
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+from ether_ros.errors import BusError
+from ether_ros.master.datagrams import (
+    Cmd,
+    Datagram,
+    DatagramService,
+    fixed_address,
+    u16,
+    u32,
+    u64,
+)
+
+log = logging.getLogger(__name__)
+
+RECEIVE_TIME_PORT0 = 0x0900
+SYSTEM_TIME = 0x0910
+RECEIVE_TIME_PU = 0x0918
+SYSTEM_TIME_OFFSET = 0x0920
+SYSTEM_TIME_DELAY = 0x0928
+SYSTEM_TIME_DIFF = 0x092C
+CYCLIC_UNIT_CONTROL = 0x0980
+ACTIVATION = 0x0981
+START_TIME = 0x0990
+SYNC0_CYCLE = 0x09A0
+SYNC1_CYCLE = 0x09A4
+
+MASK32 = 0xFFFFFFFF
+MASK64 = 0xFFFFFFFFFFFFFFFF
+
+# Seconds from 1970-01-01 to 2000-01-01: EtherCAT system time counts from the year 2000.
+EPOCH_2000_S = 946_684_800
+
+
+def diff32(later: int, earlier: int) -> int:
+    """``later - earlier`` for 32-bit latch times that may have wrapped in between."""
+    return (later - earlier) & MASK32
+
+
+def signed64(value: int) -> int:
+    value &= MASK64
+    return value - (1 << 64) if value & (1 << 63) else value
+
+
+def loop_times(port0: Sequence[int], port1: Sequence[int], has_next: Sequence[bool]) -> list[int]:
+    """Per slave: ns between the frame entering (port 0) and coming back (port 1); 0 for the last
+    slave of the line, whose port 1 is closed and loops the frame back internally."""
+    return [
+        diff32(p1, p0) if nxt else 0 for p0, p1, nxt in zip(port0, port1, has_next, strict=True)
+    ]
+
+
+def line_delays(loops: Sequence[int]) -> list[int]:
+    """Propagation delay from the first slave in ``loops`` to each one (a line topology).
+
+    Between neighbours the frame crosses the same cable and pass-through twice (out and back),
+    so the one-way delay is half the difference of their loop times.
+    """
+    delays = [0] * len(loops)
+    for i in range(1, len(loops)):
+        delays[i] = delays[i - 1] + max(0, loops[i - 1] - loops[i]) // 2
+    return delays
+
+
+def system_time_offsets(
+    master_time: int, local_times: Sequence[int], delays: Sequence[int]
+) -> list[int]:
+    """Offsets (0x0920, two's complement u64) so that local + offset = master's system time.
+
+    ``local_times`` are the processing-unit latches (0x0918) of one broadcast; the frame passed
+    slave *i* ``delays[i]`` ns after it passed the reference, when the master's clock read
+    ``master_time``.
+    """
+    return [(master_time + d - t) & MASK64 for t, d in zip(local_times, delays, strict=True)]
+
+
+def sync0_start_time(now: int, cycle_ns: int, shift_ns: int, margin_ns: int) -> int:
+    """First SYNC0: the first cycle boundary of the system time at least ``margin_ns`` from
+    ``now``, plus the shift (the master sends at the boundaries, slaves act ``shift`` later)."""
+    if cycle_ns <= 0:
+        raise ValueError("cycle time must be positive")
+    earliest = now + margin_ns
+    boundary = -(-earliest // cycle_ns) * cycle_ns
+    return boundary + shift_ns
+
+
+def assign_activate_bytes(assign_activate: int) -> tuple[int, int]:
+    """(0x0980 cyclic unit control, 0x0981 activation) from an ESI AssignActivate word.
+
+    E.g. 0x0300 → SYNC0 with cyclic operation; 0x0700 adds SYNC1."""
+    return assign_activate & 0xFF, (assign_activate >> 8) & 0xFF
+
+
+def decode_time_diff(raw: int) -> int:
+    """0x092C: bit 31 is the sign (1: local is ahead), bits 0..30 the magnitude in ns."""
+    magnitude = raw & 0x7FFFFFFF
+    return -magnitude if raw & 0x80000000 else magnitude
+
+
+@dataclass
+class DcSlave:
+    """A DC-capable slave as the DC setup sees it."""
+
+    position: int
+    station: int
+    name: str
+    assign_activate: int = 0  # 0: no SYNC0 for this slave (DC used as a time base only)
+    delay_ns: int = 0
+    offset: int = 0
+
+
+@dataclass
+class DcResult:
+    reference: DcSlave
+    slaves: list[DcSlave]
+    start_time: int | None = None
+    time_diffs: list[int] = field(default_factory=list)
+
+
+class DistributedClocks:
+    """Runs the DC setup over the datagram service (INIT or PREOP, before SAFEOP)."""
+
+    def __init__(
+        self,
+        dg: DatagramService,
+        master_time: Callable[[], int],
+        drift_frames: int = 3000,
+        drift_per_frame: int = 16,
+        start_margin_ns: int = 100_000_000,
+    ) -> None:
+        self.dg = dg
+        self.master_time = master_time  # master's system time now, ns since 2000
+        self.drift_frames = drift_frames
+        self.drift_per_frame = drift_per_frame
+        self.start_margin_ns = start_margin_ns
+
+    def measure(self, slaves: Sequence[DcSlave], bus_size: int) -> None:
+        """Latch receive times and set delays and offsets on every DC slave (first = reference)."""
+        send_time = self.master_time()
+        wkc = self.dg.bwr(RECEIVE_TIME_PORT0, u32(0))
+        if wkc < len(slaves):
+            raise BusError(f"DC: only {wkc} slaves latched receive times, expected {len(slaves)}")
+        ports = self.dg.batch(
+            [Datagram(Cmd.FPRD, fixed_address(s.station, RECEIVE_TIME_PORT0), 16) for s in slaves]
+        )
+        locals_ = self.dg.batch(
+            [Datagram(Cmd.FPRD, fixed_address(s.station, RECEIVE_TIME_PU), 8) for s in slaves]
+        )
+        for s, r1, r2 in zip(slaves, ports, locals_, strict=True):
+            if r1.wkc != 1 or r2.wkc != 1:
+                raise BusError(f"slave {s.position} ({s.name}): no answer reading DC receive times")
+        port0 = [struct.unpack_from("<I", r.data, 0)[0] for r in ports]
+        port1 = [struct.unpack_from("<I", r.data, 4)[0] for r in ports]
+        # In a line the last slave on the bus closes the loop; any DC slave before it has a
+        # neighbour on port 1.
+        has_next = [s.position < bus_size - 1 for s in slaves]
+        delays = line_delays(loop_times(port0, port1, has_next))
+        local_times = [struct.unpack_from("<Q", r.data)[0] for r in locals_]
+        offsets = system_time_offsets(send_time, local_times, delays)
+        writes: list[Datagram] = []
+        for s, d, o in zip(slaves, delays, offsets, strict=True):
+            s.delay_ns, s.offset = d, o
+            writes.append(Datagram(Cmd.FPWR, fixed_address(s.station, SYSTEM_TIME_OFFSET), u64(o)))
+            writes.append(Datagram(Cmd.FPWR, fixed_address(s.station, SYSTEM_TIME_DELAY), u32(d)))
+        for s, r in zip([s for s in slaves for _ in (0, 1)], self.dg.batch(writes), strict=True):
+            if r.wkc != 1:
+                raise BusError(f"slave {s.position} ({s.name}): writing DC offset/delay failed")
+        log.info("DC delays (ns): %s", {s.name: s.delay_ns for s in slaves})
+
+    def compensate_drift(self, reference: DcSlave, follow_master: bool) -> None:
+        """Static drift compensation: the reference's time, many times, to all other slaves.
+
+        In ``ref_follows_master`` mode the master's time goes to the reference first, so the
+        reference starts its own drift correction towards the master's clock."""
+        address = fixed_address(reference.station, SYSTEM_TIME)
+        remaining = self.drift_frames
+        while remaining > 0:
+            n = min(self.drift_per_frame, remaining)
+            frame: list[Datagram] = []
+            if follow_master:
+                frame.append(Datagram(Cmd.FPWR, address, u64(self.master_time())))
+            frame.extend(Datagram(Cmd.FRMW, address, 8) for _ in range(n))
+            self.dg.batch(frame)
+            remaining -= n
+
+    def read_time_diffs(self, slaves: Sequence[DcSlave]) -> list[int]:
+        replies = self.dg.batch(
+            [Datagram(Cmd.FPRD, fixed_address(s.station, SYSTEM_TIME_DIFF), 4) for s in slaves]
+        )
+        return [decode_time_diff(struct.unpack_from("<I", r.data)[0]) for r in replies]
+
+    def activate_sync0(
+        self,
+        slaves: Sequence[DcSlave],
+        cycle_ns: int,
+        shift_ns: int,
+        reference: DcSlave | None = None,
+    ) -> int:
+        """Program SYNC0 on the slaves that use it; returns the start time (system time),
+        0 when none uses SYNC0. ``reference`` (default: the first slave) tells the time."""
+        users = [s for s in slaves if s.assign_activate]
+        if not users:
+            return 0
+        clock = reference or slaves[0]
+        data, wkc = self.dg.fprd(clock.station, SYSTEM_TIME, 8)
+        if wkc != 1:
+            raise BusError(f"slave {clock.position} ({clock.name}): no DC system time")
+        now = struct.unpack("<Q", data)[0]
+        start = sync0_start_time(now, cycle_ns, shift_ns, self.start_margin_ns)
+        for s in users:
+            unit, activation = assign_activate_bytes(s.assign_activate)
+            who = f"slave {s.position} ({s.name})"
+            self.dg.write_checked(s.station, ACTIVATION, b"\0", "DC activation", who)
+            self.dg.write_checked(s.station, SYNC0_CYCLE, u32(cycle_ns), "SYNC0 cycle", who)
+            self.dg.write_checked(s.station, SYNC1_CYCLE, u32(0), "SYNC1 cycle", who)
+            self.dg.write_checked(s.station, START_TIME, u64(start), "SYNC0 start time", who)
+            self.dg.write_checked(
+                s.station, CYCLIC_UNIT_CONTROL, u16(unit | (activation << 8)), "AssignActivate", who
+            )
+        return start
+
+    def deactivate(self, slaves: Sequence[DcSlave]) -> None:
+        self.dg.batch(
+            [Datagram(Cmd.FPWR, fixed_address(s.station, ACTIVATION), b"\0") for s in slaves]
+        )
+
+    def resync_slave(self, reference: DcSlave, slave: DcSlave) -> None:
+        """Give one slave (back after a reset) the running system time again: latch receive
+        times, then offset = reference's system time at the latch + the slave's delay − the
+        slave's local latch. Its propagation delay is the one measured at bring-up."""
+        self.dg.bwr(RECEIVE_TIME_PORT0, u32(0))
+        replies = self.dg.batch(
+            [
+                Datagram(Cmd.FPRD, fixed_address(reference.station, RECEIVE_TIME_PU), 8),
+                Datagram(Cmd.FPRD, fixed_address(reference.station, SYSTEM_TIME_OFFSET), 8),
+                Datagram(Cmd.FPRD, fixed_address(slave.station, RECEIVE_TIME_PU), 8),
+            ]
+        )
+        if any(r.wkc != 1 for r in replies):
+            raise BusError(f"slave {slave.position} ({slave.name}): DC re-sync got no answer")
+        ref_local, ref_offset, local = (struct.unpack("<Q", r.data)[0] for r in replies)
+        slave.offset = (ref_local + ref_offset + slave.delay_ns - local) & MASK64
+        who = f"slave {slave.position} ({slave.name})"
+        self.dg.write_checked(
+            slave.station, SYSTEM_TIME_OFFSET, u64(slave.offset), "DC offset", who
+        )
+        self.dg.write_checked(
+            slave.station, SYSTEM_TIME_DELAY, u32(slave.delay_ns), "DC delay", who
+        )

@@ -1,0 +1,201 @@
+"""Finding the slaves: count, reset, address, identify, and check against the configuration.
+
+Order of work (all in INIT):
+1. BRD 0x0000: the working counter is the number of slaves on the line.
+2. Broadcast reset: every slave back to INIT with its error acknowledged, FMMUs, SyncManagers
+   and DC SYNC outputs cleared, ports on automatic loop control, EEPROM owned by EtherCAT.
+3. APWR 0x0010: station addresses 0x1001, 0x1002, ... by position, so later datagrams can
+   address a slave by a name that no longer depends on the datagram's path.
+4. Aliases (0x0012), ESC features (0x0008, DC support), SII images.
+5. Identity check against the configuration: vendor, product (and revision if configured),
+   missing and extra slaves — each error names the slave by position and configured name.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from ether_ros.config.sii import SiiInfo, parse_sii
+from ether_ros.errors import BusError, ConfigError
+from ether_ros.master.al import AL_CONTROL, ERROR_FLAG, AlState
+from ether_ros.master.datagrams import Cmd, Datagram, DatagramService, fixed_address, u16
+from ether_ros.master.sii import read_sii
+from ether_ros.master.sm_fmmu import FMMU_BASE, FMMU_LEN, MAX_FMMUS, MAX_SMS, SM_BASE, SM_LEN
+
+FIRST_STATION = 0x1001
+STATION_ADDRESS = 0x0010
+STATION_ALIAS = 0x0012
+ESC_TYPE = 0x0000
+ESC_FEATURES = 0x0008
+DL_CONTROL_LOOP = 0x0101  # DL control byte 1: loop control of ports 0..3 (0 = automatic)
+FEATURE_DC = 0x0004
+FEATURE_DC_64 = 0x0008
+
+
+def station_address(position: int) -> int:
+    return FIRST_STATION + position
+
+
+@dataclass
+class FoundSlave:
+    """A slave as found on the wire."""
+
+    position: int
+    station: int
+    alias: int
+    esc_type: int
+    esc_features: int
+    sii: bytes
+    header: SiiInfo
+
+    @property
+    def vendor_id(self) -> int:
+        return self.header.vendor_id
+
+    @property
+    def product_code(self) -> int:
+        return self.header.product_code
+
+    @property
+    def revision(self) -> int:
+        return self.header.revision
+
+    @property
+    def name(self) -> str:
+        """The device name from the SII (general category), or '' when it has none."""
+        return self.header.name
+
+    @property
+    def dc_supported(self) -> bool:
+        return bool(self.esc_features & FEATURE_DC)
+
+    def identity(self) -> str:
+        return (
+            f"vendor 0x{self.vendor_id:08X} product 0x{self.product_code:08X} "
+            f"revision 0x{self.revision:08X}"
+        )
+
+
+@dataclass(frozen=True)
+class Expected:
+    """What the configuration says should be found: at ``position``, or by ``alias``."""
+
+    name: str
+    vendor_id: int
+    product_code: int
+    revision: int | None = None
+    position: int | None = None
+    alias: int | None = None
+
+
+def count_slaves(dg: DatagramService) -> int:
+    _data, wkc = dg.brd(ESC_TYPE, 2)
+    return wkc
+
+
+def reset_bus(dg: DatagramService) -> None:
+    """Put every slave into a known state before addressing (broadcasts, one frame)."""
+    dg.batch(
+        [
+            Datagram(Cmd.BWR, fixed_address(0, DL_CONTROL_LOOP), b"\0"),
+            Datagram(Cmd.BWR, fixed_address(0, AL_CONTROL), u16(AlState.INIT | ERROR_FLAG)),
+            Datagram(Cmd.BWR, fixed_address(0, FMMU_BASE), bytes(FMMU_LEN * MAX_FMMUS)),
+            Datagram(Cmd.BWR, fixed_address(0, SM_BASE), bytes(SM_LEN * MAX_SMS)),
+            Datagram(Cmd.BWR, fixed_address(0, 0x0981), b"\0"),  # DC activation off
+            Datagram(Cmd.BWR, fixed_address(0, 0x0500), b"\0"),  # EEPROM to EtherCAT
+        ]
+    )
+
+
+def assign_stations(dg: DatagramService, count: int) -> list[int]:
+    stations = [station_address(p) for p in range(count)]
+    replies = dg.batch(
+        [
+            Datagram(Cmd.APWR, (-p & 0xFFFF) | (STATION_ADDRESS << 16), u16(s))
+            for p, s in enumerate(stations)
+        ]
+    )
+    for p, r in enumerate(replies):
+        if r.wkc != 1:
+            raise BusError(f"slave {p}: setting station address 0x{stations[p]:04X} failed")
+    return stations
+
+
+def scan(dg: DatagramService, reset: bool = True) -> list[FoundSlave]:
+    """Count, (reset), address and identify every slave on the line."""
+    count = count_slaves(dg)
+    if count == 0:
+        return []
+    if reset:
+        reset_bus(dg)
+    stations = assign_stations(dg, count)
+    info = dg.batch(
+        [Datagram(Cmd.FPRD, fixed_address(s, STATION_ALIAS), 2) for s in stations]
+        + [Datagram(Cmd.FPRD, fixed_address(s, ESC_TYPE), 10) for s in stations]
+    )
+    images = read_sii(dg, stations, [f"slave {p}" for p in range(count)])
+    found: list[FoundSlave] = []
+    for p, s in enumerate(stations):
+        alias_r, esc_r = info[p], info[count + p]
+        if alias_r.wkc != 1 or esc_r.wkc != 1:
+            raise BusError(f"slave {p}: no answer reading its registers")
+        try:
+            header = parse_sii(images[p])
+        except ConfigError as exc:
+            raise BusError(f"slave {p}: unreadable SII EEPROM: {exc}") from None
+        (features,) = struct.unpack_from("<H", esc_r.data, ESC_FEATURES)
+        found.append(
+            FoundSlave(
+                position=p,
+                station=s,
+                alias=struct.unpack("<H", alias_r.data)[0],
+                esc_type=esc_r.data[0],
+                esc_features=features,
+                sii=images[p],
+                header=header,
+            )
+        )
+    return found
+
+
+def match_configuration(found: Sequence[FoundSlave], expected: Sequence[Expected]) -> list[int]:
+    """For each expected slave, the position it was found at; raises :class:`BusError` for
+    missing, mismatching or unconfigured slaves."""
+    positions: list[int] = []
+    for i, exp in enumerate(expected):
+        if exp.alias is not None:
+            hits = [f for f in found if f.alias == exp.alias]
+            where = f"alias {exp.alias}"
+            if not hits:
+                raise BusError(f"slave '{exp.name}' ({where}) is missing: no slave has that alias")
+            slave = hits[0]
+        else:
+            pos = exp.position if exp.position is not None else i
+            where = f"slave {pos}"
+            if pos >= len(found):
+                raise BusError(
+                    f"slave {pos} ({exp.name}) is missing: the bus has only {len(found)} slave(s)"
+                )
+            slave = found[pos]
+        label = f"slave {slave.position} ({exp.name})"
+        mismatch = slave.vendor_id != exp.vendor_id or slave.product_code != exp.product_code
+        if exp.revision is not None and slave.revision != exp.revision:
+            mismatch = True
+        if mismatch:
+            want = f"vendor 0x{exp.vendor_id:08X} product 0x{exp.product_code:08X}"
+            if exp.revision is not None:
+                want += f" revision 0x{exp.revision:08X}"
+            raise BusError(f"{label}: expected {want}, found {slave.identity()}")
+        positions.append(slave.position)
+    if len(set(positions)) != len(positions):
+        raise BusError("two configured slaves resolve to the same slave on the bus")
+    extra = [f for f in found if f.position not in positions]
+    if extra:
+        f = extra[0]
+        raise BusError(
+            f"slave {f.position} ({f.identity()}) is on the bus but not in the configuration "
+            f"({len(found)} found, {len(expected)} configured)"
+        )
+    return positions

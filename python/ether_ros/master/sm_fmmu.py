@@ -1,0 +1,108 @@
+"""SyncManager and FMMU register contents (ETG.1000.4 / ESC datasheet).
+
+A SyncManager (8 bytes at 0x0800 + 8·n) guards a window of the slave's process RAM: the mailbox
+SMs (0 master→slave, 1 slave→master) use the one-buffer handshake, the process-data SMs (2
+outputs, 3 inputs) the three-buffer mode. An FMMU (16 bytes at 0x0600 + 16·n) maps a range of the
+logical address space the LRW datagram travels through onto such a window.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+SM_BASE = 0x0800
+SM_LEN = 8
+FMMU_BASE = 0x0600
+FMMU_LEN = 16
+MAX_SMS = 16
+MAX_FMMUS = 16
+
+# SM control byte: bits 0-1 mode (00 three-buffer, 10 mailbox), bits 2-3 direction (00 master
+# reads, 01 master writes), bit 4 ECAT event, bit 5 PDI (AL) event, bit 6 watchdog trigger.
+# The slave's SII/ESI gives the control byte it expects; these are the usual defaults.
+SM_MODE_BUFFERED = 0x00
+SM_MODE_MAILBOX = 0x02
+SM_DIR_READ = 0x00
+SM_DIR_WRITE = 0x04
+SM_ECAT_EVENT = 0x10
+SM_PDI_EVENT = 0x20
+SM_WATCHDOG = 0x40
+
+MAILBOX_OUT_CONTROL = SM_MODE_MAILBOX | SM_DIR_WRITE | SM_PDI_EVENT  # 0x26, SM0
+MAILBOX_IN_CONTROL = SM_MODE_MAILBOX | SM_DIR_READ | SM_PDI_EVENT  # 0x22, SM1
+OUTPUTS_CONTROL = SM_MODE_BUFFERED | SM_DIR_WRITE | SM_PDI_EVENT | SM_WATCHDOG  # 0x64, SM2
+INPUTS_CONTROL = SM_MODE_BUFFERED | SM_DIR_READ | SM_PDI_EVENT  # 0x20, SM3
+
+FMMU_READ = 0x01  # slave memory → frame (inputs)
+FMMU_WRITE = 0x02  # frame → slave memory (outputs)
+
+
+@dataclass(frozen=True)
+class SyncManager:
+    index: int
+    start: int
+    length: int
+    control: int
+    enable: bool = True
+
+    @property
+    def register(self) -> int:
+        return SM_BASE + SM_LEN * self.index
+
+    def encode(self) -> bytes:
+        """Start (u16), length (u16), control (u8), status (u8, read-only), activate (u8),
+        PDI control (u8, read-only)."""
+        return struct.pack(
+            "<HHBBBB", self.start, self.length, self.control, 0, 1 if self.enable else 0, 0
+        )
+
+    @classmethod
+    def decode(cls, index: int, data: bytes) -> SyncManager:
+        start, length, control, _status, activate, _pdi = struct.unpack_from("<HHBBBB", data)
+        return cls(index, start, length, control, bool(activate & 1))
+
+
+@dataclass(frozen=True)
+class Fmmu:
+    index: int
+    logical_start: int
+    length: int
+    physical_start: int
+    direction: int  # FMMU_READ or FMMU_WRITE
+    logical_start_bit: int = 0
+    logical_end_bit: int = 7
+    physical_start_bit: int = 0
+    enable: bool = True
+
+    @property
+    def register(self) -> int:
+        return FMMU_BASE + FMMU_LEN * self.index
+
+    def encode(self) -> bytes:
+        """Logical start (u32), length (u16), start bit (u8), end bit (u8), physical start
+        (u16), physical start bit (u8), type (u8), activate (u8), 3 reserved bytes."""
+        return struct.pack(
+            "<IHBBHBBB3x",
+            self.logical_start,
+            self.length,
+            self.logical_start_bit,
+            self.logical_end_bit,
+            self.physical_start,
+            self.physical_start_bit,
+            self.direction,
+            1 if self.enable else 0,
+        )
+
+    @classmethod
+    def decode(cls, index: int, data: bytes) -> Fmmu:
+        ls, length, lsb, leb, ps, psb, typ, act = struct.unpack_from("<IHBBHBBB3x", data)
+        return cls(index, ls, length, ps, typ, lsb, leb, psb, bool(act & 1))
+
+
+def mailbox_sms(rx_offset: int, rx_size: int, tx_offset: int, tx_size: int) -> list[SyncManager]:
+    """SM0 (master → slave) and SM1 (slave → master) from the SII standard mailbox words."""
+    return [
+        SyncManager(0, rx_offset, rx_size, MAILBOX_OUT_CONTROL),
+        SyncManager(1, tx_offset, tx_size, MAILBOX_IN_CONTROL),
+    ]

@@ -1,0 +1,158 @@
+"""Supervision during OP: a plain Python thread (never in the real-time path) that watches the
+cyclic working counter and every slave's AL status, reports what goes wrong, and brings slaves
+that dropped out of OP back by re-running their configuration once they answer again.
+
+What it sees and does:
+- working-counter errors counted by the engine: one ``wkc_error`` event per burst;
+- a slave not in OP, with an AL error, or not answering: ``slave_lost`` (once), then a recovery
+  attempt every ``retry_s`` (backing off to ``max_retry_s``) — INIT, mailbox, PREOP
+  configuration, DC re-sync, SAFEOP, OP — and ``slave_recovered`` when it is back in OP;
+- no answer at all (cable pulled): ``link_lost`` once, ``link_restored`` when frames return.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from ether_ros.errors import EtherRosError
+from ether_ros.master.al import AlState
+
+if TYPE_CHECKING:
+    from ether_ros.master.bus import Bus
+    from ether_ros.master.slave import Slave
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class BusEvent:
+    """Something the supervisor noticed. ``kind``: slave_lost, slave_recovered,
+    recovery_failed, wkc_error, link_lost, link_restored."""
+
+    kind: str
+    slave: str | None
+    message: str
+    time: float = field(default_factory=time.time)
+
+
+def counter(stats: dict[str, Any], name: str) -> int:
+    """A counter from the engine's stats, flat or under ``counters``."""
+    if name in stats:
+        return int(stats[name])
+    inner = stats.get("counters")
+    if isinstance(inner, dict) and name in inner:
+        return int(inner[name])
+    return 0
+
+
+class Supervisor:
+    def __init__(
+        self,
+        bus: Bus,
+        period_s: float = 0.05,
+        retry_s: float = 0.2,
+        max_retry_s: float = 2.0,
+    ) -> None:
+        self.bus = bus
+        self.period_s = period_s
+        self.retry_s = retry_s
+        self.max_retry_s = max_retry_s
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="ether_ros-supervisor", daemon=True)
+        self._wkc_errors = counter(bus.engine.stats(), "wkc_errors")
+        self._next_try: dict[str, float] = {}
+        self._backoff: dict[str, float] = {}
+        self._last_failure: dict[str, str] = {}
+        self.link_lost = False
+        self.events = 0
+        self.recoveries = 0
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive() and threading.current_thread() is not self._thread:
+            self._thread.join(timeout=30)
+
+    def counters(self) -> dict[str, int]:
+        return {"events": self.events, "recoveries": self.recoveries}
+
+    def _emit(self, kind: str, slave: Slave | None, message: str) -> None:
+        self.events += 1
+        self.bus.emit(BusEvent(kind, slave.name if slave else None, message))
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.period_s):
+            try:
+                self.check()
+            except Exception:  # keep supervising whatever happens in one round
+                log.exception("supervisor round failed")
+
+    def check(self) -> None:
+        """One supervision round (also callable directly, e.g. from tests)."""
+        bus = self.bus
+        wkc = counter(bus.engine.stats(), "wkc_errors")
+        if wkc > self._wkc_errors:
+            self._emit(
+                "wkc_error",
+                None,
+                f"{wkc - self._wkc_errors} cycle(s) with a wrong working counter "
+                f"(expected {bus.layout.expected_wkc if bus.layout else '?'})",
+            )
+        self._wkc_errors = wkc
+        try:
+            with bus._acyclic:
+                statuses = bus.al.read([s.ref for s in bus.slaves])
+        except EtherRosError as exc:
+            if not self.link_lost:
+                self.link_lost = True
+                self._emit("link_lost", None, f"the bus does not answer: {exc}")
+                for s in bus.slaves:
+                    s.lost = True
+                    s.last_problem = "no answer (link down?)"
+            return
+        if self.link_lost:
+            self.link_lost = False
+            self._emit("link_restored", None, "frames come back again")
+        now = time.monotonic()
+        for s, st in zip(bus.slaves, statuses, strict=True):
+            ok = st.answered and st.state == AlState.OP and not st.error
+            if ok:
+                if s.lost:
+                    self._recovered(s, "back in OP")
+                continue
+            if not s.lost:
+                s.lost = True
+                s.last_problem = st.describe()
+                self._emit("slave_lost", s, f"{s} left OP: {st.describe()}")
+                self._next_try[s.name] = now
+                self._backoff[s.name] = self.retry_s
+            if self._stop.is_set() or now < self._next_try.get(s.name, 0.0):
+                continue
+            self._try_recover(s)
+
+    def _try_recover(self, s: Slave) -> None:
+        try:
+            self.bus.recover_slave(s)
+        except EtherRosError as exc:
+            backoff = min(self._backoff.get(s.name, self.retry_s) * 2, self.max_retry_s)
+            self._backoff[s.name] = backoff
+            self._next_try[s.name] = time.monotonic() + backoff
+            text = str(exc)
+            if self._last_failure.get(s.name) != text:
+                self._last_failure[s.name] = text
+                self._emit("recovery_failed", s, f"{s}: recovery failed: {text}")
+            return
+        self._recovered(s, "recovered to OP")
+
+    def _recovered(self, s: Slave, how: str) -> None:
+        s.lost = False
+        s.recoveries += 1
+        self.recoveries += 1
+        self._last_failure.pop(s.name, None)
+        self._emit("slave_recovered", s, f"{s} {how} (was: {s.last_problem})")

@@ -1,0 +1,215 @@
+"""What the ROS node needs from the master's ``Bus``, in one place: the layout as
+:class:`BusSpec`, the sample batches as (record, image) pairs, the joint mapping, the statistics
+as flat numbers, and checked writes.
+
+Everything else in :mod:`ether_ros.ros` talks to this module rather than to the ``Bus`` directly,
+so a change in the master's API shows up here only.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from ether_ros.errors import EtherRosError
+from ether_ros.master.samples import (  # noqa: F401  (re-exported for the ROS side)
+    FLAG_LOST,
+    FLAG_OVERRUN,
+    FLAG_PANIC,
+    FLAG_WATCHDOG,
+    FLAG_WKC_ERROR,
+)
+from ether_ros.ros.layout import BusSpec, LayoutError, SlaveSpec, VariableSpec
+from ether_ros.ros.values import InvalidValue, check_value, to_python
+
+
+class WriteRejected(EtherRosError):
+    """A write that names nothing on the bus or does not fit its variable."""
+
+
+def variable_spec(var: Any, unique_name: bool) -> VariableSpec:
+    """A :class:`VariableSpec` from the config's ``ProcessVariable``."""
+    t = var.dtype
+    if t.kind == "real":
+        lo, hi = (-3.4028234663852886e38, 3.4028234663852886e38)
+        if var.bit_length == 64:
+            lo, hi = -math.inf, math.inf
+    else:
+        rng = var.range()
+        lo, hi = (float(rng[0]), float(rng[1])) if rng is not None else (0.0, 0.0)
+    return VariableSpec(
+        name=var.name if unique_name else var.key,
+        type=t.name,
+        index=int(var.index),
+        subindex=int(var.subindex),
+        bit_length=int(var.bit_length),
+        minimum=lo,
+        maximum=hi,
+    )
+
+
+def slave_spec(name: str, position: int, device: str, layout: Any) -> SlaveSpec:
+    if layout is None:
+        return SlaveSpec(name, position, device)
+    counts: dict[str, int] = {}
+    for v in (*layout.outputs, *layout.inputs):
+        counts[v.name] = counts.get(v.name, 0) + 1
+    return SlaveSpec(
+        name=name,
+        position=position,
+        device=device,
+        inputs=tuple(variable_spec(v, counts[v.name] == 1) for v in layout.inputs),
+        outputs=tuple(variable_spec(v, counts[v.name] == 1) for v in layout.outputs),
+    )
+
+
+def bus_spec(bus: Any) -> BusSpec:
+    """The layout of an opened ``Bus``: slaves in bus order with their mapped variables."""
+    slaves = []
+    for s in bus.slaves:
+        device = s.device.type_name if getattr(s, "device", None) is not None else ""
+        slaves.append(slave_spec(s.name, int(s.position), device, s.layout))
+    return BusSpec(
+        bus=str(bus.config.bus.name), cycle_us=int(bus.config.bus.cycle_us), slaves=tuple(slaves)
+    )
+
+
+@dataclass(frozen=True)
+class ImageSlice:
+    """Where one slave's data sits in the cyclic process image."""
+
+    slave: str
+    output_offset: int
+    output_bytes: int
+    input_offset: int
+    input_bytes: int
+
+
+def image_slices(bus: Any) -> list[ImageSlice]:
+    out = []
+    for s in bus.slaves:
+        a = s.area
+        if a is None:
+            continue
+        out.append(
+            ImageSlice(
+                s.name,
+                int(a.output_offset),
+                int(a.output_bytes),
+                int(a.input_offset),
+                int(a.input_bytes),
+            )
+        )
+    return out
+
+
+def output_bytes(bus: Any) -> int:
+    return int(bus.layout.output_bytes) if bus.layout is not None else 0
+
+
+def expected_wkc(bus: Any) -> int:
+    """Sum of the cyclic LRW datagrams' expected working counters (what a sample's ``wkc`` is
+    on a healthy bus)."""
+    plan = getattr(bus, "plan", None) or {}
+    lrw = [d for d in plan.get("datagrams", []) if d.get("kind") == "lrw"]
+    return sum(int(d.get("expected_wkc", 0)) for d in lrw)
+
+
+def sample_arrays(batch: Any) -> tuple[Any, Any]:
+    """(records, images) of one ``Bus.samples()`` batch: a structured numpy array of records
+    (``ether_ros.master.samples.SAMPLE_DTYPE``) and a 2-D uint8 array, one image per row."""
+    if batch is None:
+        return None, None
+    records = getattr(batch, "records", None)
+    if records is not None:
+        return records, batch.images
+    records, images = batch
+    return records, images
+
+
+def flat_stats(stats: Mapping[str, Any], prefix: str = "") -> dict[str, float]:
+    """Nested statistics -> {"wake_latency.p99": 1234.0, "lost_frames": 0.0, ...}."""
+    out: dict[str, float] = {}
+    for key, value in stats.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            out.update(flat_stats(value, f"{name}."))
+        elif isinstance(value, bool | int | float):
+            out[name] = float(value)
+    return out
+
+
+def stat(stats: Mapping[str, float], name: str) -> float:
+    """A counter by its last name part, wherever it is nested (``counters.lost_frames``)."""
+    if name in stats:
+        return stats[name]
+    for key, value in stats.items():
+        if key.endswith("." + name):
+            return value
+    return 0.0
+
+
+def resolve_write(
+    spec: BusSpec,
+    slave: str,
+    position: int,
+    all_slaves: bool,
+    variable: str,
+    value: float,
+    text: str,
+) -> list[tuple[SlaveSpec, VariableSpec, float]]:
+    """A WriteVariable request -> the checked (slave, variable, value) writes it stands for."""
+    from ether_ros.ros.values import parse_text
+
+    if not variable:
+        raise WriteRejected("no variable given")
+    if all_slaves:
+        targets = [s for s in spec.slaves if s.has_output(variable)]
+        if not targets:
+            raise WriteRejected(f"no slave has an output variable '{variable}'")
+    else:
+        try:
+            if slave:
+                targets = [spec.slave(slave)]
+            elif position >= 0:
+                targets = [spec.slave(position)]
+            else:
+                raise WriteRejected("no slave given (name, position or all_slaves)")
+        except LayoutError as exc:
+            raise WriteRejected(str(exc)) from None
+    out = []
+    for s in targets:
+        try:
+            var = s.output(variable)
+        except LayoutError:
+            kind = "an input" if _has_input(s, variable) else "not a variable"
+            raise WriteRejected(
+                f"slave '{s.name}': '{variable}' is {kind} (outputs only)"
+            ) from None
+        try:
+            checked = parse_text(text, var) if text else check_value(value, var)
+        except InvalidValue as exc:
+            raise WriteRejected(f"slave '{s.name}': {exc}") from None
+        out.append((s, var, checked))
+    return out
+
+
+def _has_input(slave: SlaveSpec, ref: str) -> bool:
+    try:
+        slave.input(ref)
+    except LayoutError:
+        return False
+    return True
+
+
+def apply_writes(bus: Any, writes: list[tuple[SlaveSpec, VariableSpec, float]]) -> None:
+    """Put checked writes into the output image, one ``write_many`` per slave so a slave's
+    values reach the wire in the same cycle."""
+    by_slave: dict[str, dict[str, object]] = {}
+    for s, var, value in writes:
+        name = var.name
+        by_slave.setdefault(s.name, {})[name] = to_python(value, var.type)
+    for slave, values in by_slave.items():
+        bus.write_many(slave, values)

@@ -1,0 +1,357 @@
+"""A ROS 2 client of the ether_ros node: what the console, the demo, the tests and the
+benchmarks use to operate a running node over ROS 2 only.
+
+It is an ordinary rclpy node spun by its own executor thread. It calls the node's services
+(commands, writes, SDO, lifecycle transitions) and keeps the latest message of each topic (layout,
+decoded inputs/outputs per slave, joint states, diagnostics, write results) so callers can read
+them or wait for a condition on them.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, TypeVar
+
+import rclpy
+import rclpy.executors
+from diagnostic_msgs.msg import DiagnosticArray
+from ether_ros_msgs.msg import BusLayout, PdoRaw, SlaveValues, WriteResult, WriteVariable
+from ether_ros_msgs.srv import Command, SdoRead, SdoWrite, WriteVariables
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState, GetState
+from rclpy.context import Context
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+
+from ether_ros.errors import EtherRosError
+from ether_ros.ros.convert import spec_from_msg
+from ether_ros.ros.layout import BusSpec
+from ether_ros.ros.node import QOS_COMMANDS, QOS_HIGH_RATE, QOS_LATCHED, QOS_RELIABLE
+
+T = TypeVar("T")
+
+TRANSITIONS = {
+    "configure": Transition.TRANSITION_CONFIGURE,
+    "cleanup": Transition.TRANSITION_CLEANUP,
+    "activate": Transition.TRANSITION_ACTIVATE,
+    "deactivate": Transition.TRANSITION_DEACTIVATE,
+    "shutdown": Transition.TRANSITION_UNCONFIGURED_SHUTDOWN,
+    "inactive_shutdown": Transition.TRANSITION_INACTIVE_SHUTDOWN,
+    "active_shutdown": Transition.TRANSITION_ACTIVE_SHUTDOWN,
+}
+
+
+class ClientError(EtherRosError):
+    """The node did not answer (not running, wrong name or namespace, timeout)."""
+
+
+@dataclass
+class Latest:
+    """The latest values of the node's topics, as the client last received them."""
+
+    layout: BusSpec | None = None
+    inputs: dict[str, dict[str, float]] = field(default_factory=dict)
+    outputs: dict[str, dict[str, float]] = field(default_factory=dict)  # echo of the wire
+    commanded: dict[str, dict[str, float]] = field(default_factory=dict)  # pdo_out_timer
+    joint_state: JointState | None = None
+    diagnostics: DiagnosticArray | None = None
+    raw: PdoRaw | None = None
+    counts: dict[str, int] = field(default_factory=dict)
+
+
+class EtherRosClient:
+    def __init__(
+        self,
+        node_name: str = "ether_comm",
+        namespace: str = "",
+        client_name: str | None = None,
+        context: Context | None = None,
+        raw: bool = False,
+        on_joint_state: Callable[[JointState], None] | None = None,
+        on_inputs: Callable[[SlaveValues], None] | None = None,
+        on_outputs: Callable[[SlaveValues], None] | None = None,
+    ) -> None:
+        self._own_context = context is None and not rclpy.ok()
+        if self._own_context:
+            rclpy.init()
+        self._context = context
+        ns = namespace.rstrip("/")
+        self.prefix = f"{ns}/" if ns else ""
+        self.target = f"{ns}/{node_name}" if ns else f"/{node_name}"
+        name = client_name or f"ether_ros_client_{_unique()}"
+        self.node = rclpy.create_node(name, context=context)
+        self.latest = Latest()
+        self.results: deque[WriteResult] = deque(maxlen=1000)
+        self._cond = threading.Condition()
+        self._on_joint_state = on_joint_state
+        self._on_inputs = on_inputs
+        self._on_outputs = on_outputs
+        self._request_ids = itertools.count(1)
+        n, p = self.node, self.prefix
+        self._command = n.create_client(Command, f"{p}ethercat_communicator")
+        self._panic = n.create_client(Trigger, f"{p}panic")
+        self._writes = n.create_client(WriteVariables, f"{p}write_variables")
+        self._sdo_read = n.create_client(SdoRead, f"{p}sdo_read")
+        self._sdo_write = n.create_client(SdoWrite, f"{p}sdo_write")
+        self._change_state = n.create_client(ChangeState, f"{self.target}/change_state")
+        self._get_state = n.create_client(GetState, f"{self.target}/get_state")
+        self._write_pub = n.create_publisher(WriteVariable, f"{p}pdo_listener", QOS_COMMANDS)
+        n.create_subscription(BusLayout, f"{p}bus_layout", self._on_layout, QOS_LATCHED)
+        n.create_subscription(
+            SlaveValues, f"{p}pdo_in", self._on_values("inputs"), qos_profile_sensor_data
+        )
+        n.create_subscription(
+            SlaveValues, f"{p}pdo_out", self._on_values("outputs"), qos_profile_sensor_data
+        )
+        n.create_subscription(
+            SlaveValues, f"{p}pdo_out_timer", self._on_values("commanded"), QOS_RELIABLE
+        )
+        n.create_subscription(JointState, f"{p}joint_states", self._on_joints, QOS_RELIABLE)
+        n.create_subscription(DiagnosticArray, f"{p}diagnostics", self._on_diag, QOS_RELIABLE)
+        n.create_subscription(WriteResult, f"{p}write_results", self._on_result, QOS_COMMANDS)
+        if raw:
+            n.create_subscription(PdoRaw, f"{p}pdo_raw", self._on_raw, QOS_HIGH_RATE)
+        self._executor = rclpy.executors.SingleThreadedExecutor(context=context)
+        self._executor.add_node(self.node)
+        self._thread = threading.Thread(target=self._spin, name="ether_ros-client", daemon=True)
+        self._thread.start()
+
+    def _spin(self) -> None:
+        with contextlib.suppress(Exception):  # the context was shut down while spinning
+            self._executor.spin()
+
+    def close(self) -> None:
+        self._executor.shutdown(timeout_sec=1.0)
+        self.node.destroy_node()
+        self._thread.join(timeout=2)
+        if self._own_context and rclpy.ok():
+            rclpy.try_shutdown()
+
+    def __enter__(self) -> EtherRosClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------------ topics
+    def _bump(self, name: str) -> None:
+        self.latest.counts[name] = self.latest.counts.get(name, 0) + 1
+
+    def _on_layout(self, msg: BusLayout) -> None:
+        with self._cond:
+            self.latest.layout = spec_from_msg(msg)
+            self._bump("bus_layout")
+            self._cond.notify_all()
+
+    def _on_values(self, kind: str) -> Callable[[SlaveValues], None]:
+        def handle(msg: SlaveValues) -> None:
+            with self._cond:
+                layout = self.latest.layout
+                if layout is not None:
+                    try:
+                        slave = layout.slave(msg.slave)
+                    except EtherRosError:
+                        return
+                    names = slave.inputs if kind == "inputs" else slave.outputs
+                    if len(names) == len(msg.values):
+                        target: dict[str, dict[str, float]] = getattr(self.latest, kind)
+                        target[msg.slave] = {
+                            v.name: float(x) for v, x in zip(names, msg.values, strict=True)
+                        }
+                self._bump(kind)
+                self._cond.notify_all()
+            if kind == "inputs" and self._on_inputs is not None:
+                self._on_inputs(msg)
+            if kind == "outputs" and self._on_outputs is not None:
+                self._on_outputs(msg)
+
+        return handle
+
+    def _on_joints(self, msg: JointState) -> None:
+        with self._cond:
+            self.latest.joint_state = msg
+            self._bump("joint_states")
+            self._cond.notify_all()
+        if self._on_joint_state is not None:
+            self._on_joint_state(msg)
+
+    def _on_diag(self, msg: DiagnosticArray) -> None:
+        with self._cond:
+            self.latest.diagnostics = msg
+            self._bump("diagnostics")
+            self._cond.notify_all()
+
+    def _on_result(self, msg: WriteResult) -> None:
+        with self._cond:
+            self.results.append(msg)
+            self._bump("write_results")
+            self._cond.notify_all()
+
+    def _on_raw(self, msg: PdoRaw) -> None:
+        with self._cond:
+            self.latest.raw = msg
+            self._bump("pdo_raw")
+            self._cond.notify_all()
+
+    def wait_for(self, predicate: Callable[[Latest], T], timeout: float = 5.0) -> T:
+        """Wait until ``predicate(latest)`` is truthy and return it; ClientError on timeout."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while True:
+                value = predicate(self.latest)
+                if value:
+                    return value
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise ClientError(f"timed out after {timeout:g} s waiting for the node")
+                self._cond.wait(min(left, 0.1))
+
+    def layout(self, timeout: float = 5.0) -> BusSpec:
+        layout = self.wait_for(lambda latest: latest.layout, timeout)
+        assert layout is not None
+        return layout
+
+    def master_status(self) -> dict[str, str]:
+        """Key/values of the master's diagnostic status (empty before the first report)."""
+        diag = self.latest.diagnostics
+        if diag is None:
+            return {}
+        for st in diag.status:
+            if st.name.endswith(": master"):
+                values = {kv.key: kv.value for kv in st.values}
+                values["message"] = st.message
+                values["level"] = str(int.from_bytes(st.level, "little"))
+                return values
+        return {}
+
+    def slave_states(self) -> dict[str, str]:
+        diag = self.latest.diagnostics
+        out: dict[str, str] = {}
+        if diag is None:
+            return out
+        for st in diag.status:
+            if ": slave " in st.name:
+                out[st.name.split(": slave ", 1)[1]] = st.message
+        return out
+
+    # ------------------------------------------------------------------------ services
+    def _call(self, client: Any, request: Any, timeout: float) -> Any:
+        if not client.wait_for_service(timeout_sec=timeout):
+            raise ClientError(
+                f"service {client.srv_name} is not available (is the node {self.target} running?)"
+            )
+        future = client.call_async(request)
+        done = threading.Event()
+        future.add_done_callback(lambda _f: done.set())
+        if not done.wait(timeout):
+            client.remove_pending_request(future)
+            raise ClientError(f"service {client.srv_name} did not answer within {timeout:g} s")
+        return future.result()
+
+    def command(self, command: str, timeout: float = 30.0) -> tuple[bool, str]:
+        resp = self._call(self._command, Command.Request(command=command), timeout)
+        return bool(resp.success), str(resp.message)
+
+    def panic(self, timeout: float = 5.0) -> tuple[bool, str]:
+        resp = self._call(self._panic, Trigger.Request(), timeout)
+        return bool(resp.success), str(resp.message)
+
+    def write_many(self, writes: list[WriteVariable], timeout: float = 5.0) -> tuple[bool, str]:
+        """All-or-nothing: the node validates every write before applying any."""
+        resp = self._call(self._writes, WriteVariables.Request(writes=writes), timeout)
+        return bool(resp.success), str(resp.message)
+
+    def write(
+        self, slave: str | int, variable: str, value: float | str, timeout: float = 5.0
+    ) -> tuple[bool, str]:
+        return self.write_many([make_write(slave, variable, value)], timeout)
+
+    def publish_write(self, slave: str | int, variable: str, value: float | str) -> int:
+        """Fire-and-forget on ``pdo_listener``; the answer comes on ``write_results`` with the
+        returned request id."""
+        msg = make_write(slave, variable, value)
+        msg.request_id = next(self._request_ids)
+        self._write_pub.publish(msg)
+        return int(msg.request_id)
+
+    def wait_result(self, request_id: int, timeout: float = 5.0) -> WriteResult:
+        def find(_latest: Latest) -> WriteResult | None:
+            for r in self.results:
+                if r.request_id == request_id:
+                    return r
+            return None
+
+        return self.wait_for(find, timeout)
+
+    def sdo_read(
+        self, slave: str, index: int, subindex: int, type_name: str = "", timeout: float = 10.0
+    ) -> SdoRead.Response:
+        req = SdoRead.Request(slave=slave, index=index, subindex=subindex, type=type_name)
+        return self._call(self._sdo_read, req, timeout)
+
+    def sdo_write(
+        self,
+        slave: str,
+        index: int,
+        subindex: int,
+        type_name: str,
+        value: str,
+        timeout: float = 10.0,
+    ) -> tuple[bool, str]:
+        req = SdoWrite.Request(
+            slave=slave, index=index, subindex=subindex, type=type_name, value=value
+        )
+        resp = self._call(self._sdo_write, req, timeout)
+        return bool(resp.success), str(resp.message)
+
+    def change_state(self, transition: str, timeout: float = 30.0) -> bool:
+        if transition not in TRANSITIONS:
+            raise ClientError(f"unknown transition '{transition}' ({', '.join(TRANSITIONS)})")
+        req = ChangeState.Request()
+        req.transition.id = TRANSITIONS[transition]
+        return bool(self._call(self._change_state, req, timeout).success)
+
+    def get_state(self, timeout: float = 5.0) -> str:
+        return str(self._call(self._get_state, GetState.Request(), timeout).current_state.label)
+
+    def wait_for_node(self, timeout: float = 20.0) -> str:
+        """Wait until the node answers ``get_state``; returns its lifecycle state."""
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                return self.get_state(timeout=max(0.5, min(2.0, deadline - time.monotonic())))
+            except ClientError:
+                if time.monotonic() >= deadline:
+                    raise
+
+
+def make_write(slave: str | int, variable: str, value: float | str) -> WriteVariable:
+    msg = WriteVariable()
+    if isinstance(slave, int):
+        msg.position = slave
+    elif slave.lower() == "all":
+        msg.all_slaves = True
+    else:
+        msg.slave = slave
+    msg.variable = variable
+    if isinstance(value, str):
+        msg.text = value
+    else:
+        msg.value = float(value)
+    return msg
+
+
+_counter = itertools.count()
+
+
+def _unique() -> str:
+    import os
+
+    return f"{os.getpid()}_{next(_counter)}"

@@ -1,0 +1,115 @@
+"""The process-data layout as the ROS side sees it: which variables each slave has, their types
+and ranges, in the order their values are published.
+
+These are plain dataclasses with no ROS import, so the console's command parser (a pure function)
+and its tests use them without a ROS context. :mod:`ether_ros.ros.convert` turns them into the
+``ether_ros_msgs`` messages and back.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+from ether_ros.errors import EtherRosError
+
+
+class LayoutError(EtherRosError):
+    """A slave or variable reference that names nothing on this bus."""
+
+
+@dataclass(frozen=True)
+class VariableSpec:
+    """One mapped process variable."""
+
+    name: str
+    type: str  # ESI data type name: BOOL, SINT, INT, DINT, USINT, UINT, UDINT, REAL, ...
+    index: int
+    subindex: int
+    bit_length: int
+    minimum: float
+    maximum: float
+
+    @property
+    def address(self) -> str:
+        return f"0x{self.index:04x}:{self.subindex:02x}"
+
+
+@dataclass(frozen=True)
+class SlaveSpec:
+    name: str
+    position: int
+    device: str
+    inputs: tuple[VariableSpec, ...] = ()
+    outputs: tuple[VariableSpec, ...] = ()
+
+    def output(self, ref: str) -> VariableSpec:
+        """The output variable named ``ref`` or addressed by ``ref`` ("0x7030:03", "7030:3")."""
+        return _find(self.outputs, ref, self.name, "output")
+
+    def input(self, ref: str) -> VariableSpec:
+        return _find(self.inputs, ref, self.name, "input")
+
+    def has_output(self, ref: str) -> bool:
+        try:
+            self.output(ref)
+        except LayoutError:
+            return False
+        return True
+
+
+@dataclass(frozen=True)
+class BusSpec:
+    bus: str
+    cycle_us: int
+    slaves: tuple[SlaveSpec, ...] = field(default_factory=tuple)
+
+    def slave(self, ref: str | int) -> SlaveSpec:
+        """A slave by name, or by position (an int or a decimal string)."""
+        if isinstance(ref, int) or (isinstance(ref, str) and ref.isdigit()):
+            position = int(ref)
+            for s in self.slaves:
+                if s.position == position:
+                    return s
+            raise LayoutError(
+                f"no slave at position {position} (positions: "
+                f"{', '.join(str(s.position) for s in self.slaves) or 'none'})"
+            )
+        for s in self.slaves:
+            if s.name == ref:
+                return s
+        raise LayoutError(
+            f"no slave named '{ref}' (slaves: {', '.join(s.name for s in self.slaves) or 'none'})"
+        )
+
+
+_ADDRESS = re.compile(r"^(?:0x)?([0-9a-fA-F]{1,4}):(?:0x)?([0-9a-fA-F]{1,2})$")
+
+
+def parse_address(ref: str) -> tuple[int, int] | None:
+    """``"0x7030:03"`` / ``"7030:3"`` -> (0x7030, 3); anything else -> None. Both parts are hex,
+    as object dictionary addresses are always written."""
+    m = _ADDRESS.match(ref.strip())
+    if not m:
+        return None
+    return int(m.group(1), 16), int(m.group(2), 16)
+
+
+def _find(variables: tuple[VariableSpec, ...], ref: str, slave: str, kind: str) -> VariableSpec:
+    address = parse_address(ref)
+    if address is not None:
+        for v in variables:
+            if (v.index, v.subindex) == address:
+                return v
+        raise LayoutError(
+            f"slave '{slave}' maps no {kind} variable at 0x{address[0]:04x}:{address[1]:02x}"
+        )
+    for v in variables:
+        if v.name == ref:
+            return v
+    # Names in ESI files are not consistent in case (FlatnessParam100 next to a_ellipse100):
+    # accept a case-insensitive match when it is unambiguous.
+    folded = [v for v in variables if v.name.lower() == ref.lower()]
+    if len(folded) == 1:
+        return folded[0]
+    raise LayoutError(f"slave '{slave}' has no {kind} variable '{ref}'")

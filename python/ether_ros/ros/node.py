@@ -1,0 +1,661 @@
+"""The ``ether_ros`` ROS 2 lifecycle node (default name ``ether_comm``, from ``ros.node_name``).
+
+Lifecycle (managed node; transitions through ``~/change_state`` or the ``ethercat_communicator``
+service):
+
+- configure: load the configuration file and open the bus (scan, check against the config);
+  publish the process-data layout on ``bus_layout`` (transient local);
+- activate: bring the bus to OP and start the cyclic exchange; start publishing;
+- deactivate: stop publishing; safe outputs on the wire, slaves to SAFEOP (the master then takes
+  them on to INIT) and the cyclic exchange stops;
+- cleanup / shutdown: close the bus and release the interface.
+
+Topics, services and parameters are listed in docs/ros.md, next to the thesis's Table 4.3.
+
+Threads: the ROS executor (services, the write subscription, timers) and the sample publisher
+thread (:mod:`ether_ros.ros.sample_publisher`) are plain Python threads; the engine's real-time
+thread never waits for either. Panic has its own callback group, so it is served even while a
+transition or an SDO transfer is in progress.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import rclpy
+import rclpy.executors
+from diagnostic_msgs.msg import DiagnosticArray
+from ether_ros_msgs.msg import BusLayout, PdoRaw, SlaveValues, WriteResult, WriteVariable
+from ether_ros_msgs.srv import Command, SdoRead, SdoWrite, WriteVariables
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.parameter import Parameter
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+    qos_profile_sensor_data,
+)
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+
+from ether_ros.config import types as dt
+from ether_ros.errors import EtherRosError
+from ether_ros.ros import bridge, diagnostics
+from ether_ros.ros.convert import layout_msg
+from ether_ros.ros.layout import BusSpec, LayoutError
+from ether_ros.ros.sample_publisher import Rates, SamplePublisher, joint_maps
+from ether_ros.ros.values import InvalidValue, data_type, to_python
+
+log = logging.getLogger(__name__)
+
+# QoS per stream. High-rate process data: best effort, a deep queue so a burst is not lost in
+# the middleware (subscribers must be best effort too, e.g. qos_profile_sensor_data).
+QOS_HIGH_RATE = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=100,
+    reliability=ReliabilityPolicy.BEST_EFFORT,
+    durability=DurabilityPolicy.VOLATILE,
+)
+QOS_SENSOR = qos_profile_sensor_data
+QOS_RELIABLE = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE
+)
+QOS_COMMANDS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE
+)
+QOS_LATCHED = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
+
+# Parameters the operator may change at run time; every other ``bus.*``/``slaves.*``/``ros.*``
+# parameter mirrors the configuration file and is read-only (edit the file, then reconfigure).
+_RUNTIME_PARAMETERS = {
+    "ros.raw_decimation",
+    "ros.decoded_decimation",
+    "ros.snapshot_period_ms",
+    "command_timeout_ms",
+    "diagnostics_period_ms",
+}
+
+BusOpener = Callable[..., Any]
+
+
+def _open_bus(config: Any, interface: str | None = None, link: Any = None) -> Any:
+    from ether_ros.master.bus import Bus
+
+    return Bus.open(config, interface=interface, link=link)
+
+
+def load_config(path: str, interface: str | None) -> Any:
+    from ether_ros.config import load_bus_config
+
+    return load_bus_config(path, interface=interface or None)
+
+
+class EtherRosNode(LifecycleNode):
+    def __init__(
+        self,
+        config_path: str | Path,
+        interface: str | None = None,
+        *,
+        link: Any = None,
+        bus_opener: BusOpener = _open_bus,
+        node_name: str | None = None,
+    ) -> None:
+        cfg = load_config(str(config_path), interface)
+        name = node_name or cfg.ros.node_name
+        super().__init__(name, namespace=cfg.ros.namespace or None)
+        self._config_path = str(Path(config_path).resolve())
+        self._link = link
+        self._bus_opener = bus_opener
+        self._cfg: Any = cfg
+        self._bus: Any = None
+        self._spec: BusSpec | None = None
+        self._samples: SamplePublisher | None = None
+        self._rates = Rates(cfg.ros.raw_decimation, cfg.ros.decoded_decimation)
+        self._bus_lock = threading.RLock()
+        self._panic = False
+        self._last_command = time.monotonic()
+        self._last_error = ""
+        self._mirroring = False
+
+        self._declare_parameters(cfg, interface)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+        # Callback groups: the default (mutually exclusive) group serializes the lifecycle
+        # services, commands, SDO and diagnostics (everything that touches the acyclic path);
+        # writes have their own group; panic is reentrant and never waits for anything.
+        self._writes_group = MutuallyExclusiveCallbackGroup()
+        self._timer_group = MutuallyExclusiveCallbackGroup()
+        self._panic_group = ReentrantCallbackGroup()
+
+        self._pub: dict[str, Any] = {
+            "pdo_raw": self.create_publisher(PdoRaw, "pdo_raw", QOS_HIGH_RATE),
+            "pdo_in": self.create_publisher(SlaveValues, "pdo_in", QOS_SENSOR),
+            "pdo_out": self.create_publisher(SlaveValues, "pdo_out", QOS_SENSOR),
+            "pdo_out_timer": self.create_publisher(SlaveValues, "pdo_out_timer", QOS_RELIABLE),
+            "joint_states": self.create_publisher(JointState, "joint_states", QOS_RELIABLE),
+        }
+        self._layout_pub = self.create_publisher(BusLayout, "bus_layout", QOS_LATCHED)
+        self._diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", QOS_RELIABLE)
+        self._result_pub = self.create_publisher(WriteResult, "write_results", QOS_COMMANDS)
+
+        self.create_subscription(
+            WriteVariable,
+            "pdo_listener",
+            self._on_write_topic,
+            QOS_COMMANDS,
+            callback_group=self._writes_group,
+        )
+        self.create_service(
+            WriteVariables,
+            "write_variables",
+            self._on_write_service,
+            callback_group=self._writes_group,
+        )
+        self.create_service(Command, "ethercat_communicator", self._on_command)
+        self.create_service(Trigger, "panic", self._on_panic, callback_group=self._panic_group)
+        self.create_service(SdoRead, "sdo_read", self._on_sdo_read)
+        self.create_service(SdoWrite, "sdo_write", self._on_sdo_write)
+
+        self._diag_timer = self.create_timer(
+            self._param_ms("diagnostics_period_ms") / 1000.0,
+            self._publish_diagnostics,
+            callback_group=self._timer_group,
+        )
+        self._snapshot_timer: Any = None
+
+    # ------------------------------------------------------------------------ parameters
+    def _declare_parameters(self, cfg: Any, interface: str | None) -> None:
+        self.declare_parameter(
+            "config",
+            self._config_path,
+            ParameterDescriptor(description="bus configuration file", read_only=True),
+        )
+        self.declare_parameter(
+            "interface",
+            interface or "",
+            ParameterDescriptor(description="network interface (empty: bus.interface)"),
+        )
+        self.declare_parameter(
+            "command_timeout_ms",
+            0,
+            ParameterDescriptor(
+                description="no write for this long -> the engine's watchdog puts the safe "
+                "outputs on the wire until the next write (0: off)"
+            ),
+        )
+        self.declare_parameter(
+            "diagnostics_period_ms", 1000, ParameterDescriptor(description="diagnostics period")
+        )
+        for name, value in config_parameters(cfg).items():
+            self.declare_parameter(
+                name,
+                value,
+                ParameterDescriptor(
+                    description="from the configuration file",
+                    dynamic_typing=True,
+                ),
+            )
+
+    def _update_mirror(self, cfg: Any) -> None:
+        params = []
+        for name, value in config_parameters(cfg).items():
+            if self.has_parameter(name):
+                params.append(Parameter(name, value=value))
+            else:
+                self.declare_parameter(name, value, ParameterDescriptor(dynamic_typing=True))
+        self._mirroring = True
+        try:
+            self.set_parameters(params)
+        finally:
+            self._mirroring = False
+
+    def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
+        if self._mirroring:
+            return SetParametersResult(successful=True)
+        for p in params:
+            if p.name not in _RUNTIME_PARAMETERS and p.name != "interface":
+                return SetParametersResult(
+                    successful=False,
+                    reason=f"{p.name} mirrors the configuration file; edit the file and "
+                    "reconfigure the node",
+                )
+            if p.name == "interface":
+                continue
+            if not isinstance(p.value, int) or isinstance(p.value, bool):
+                return SetParametersResult(successful=False, reason=f"{p.name} is an integer")
+            low = 1 if p.name.endswith("decimation") or p.name == "diagnostics_period_ms" else 0
+            if p.value < low:
+                return SetParametersResult(successful=False, reason=f"{p.name} must be >= {low}")
+        for p in params:
+            if p.name == "ros.raw_decimation":
+                self._rates.raw_decimation = int(p.value)
+            elif p.name == "ros.decoded_decimation":
+                self._rates.decoded_decimation = int(p.value)
+            elif p.name == "ros.snapshot_period_ms":
+                self._restart_snapshot_timer(int(p.value))
+            elif p.name == "diagnostics_period_ms":
+                self._diag_timer.timer_period_ns = int(p.value) * 1_000_000
+                self._diag_timer.reset()
+        return SetParametersResult(successful=True)
+
+    def _param_ms(self, name: str) -> int:
+        return int(self.get_parameter(name).value)
+
+    # ------------------------------------------------------------------------ lifecycle
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        interface = str(self.get_parameter("interface").value) or None
+        try:
+            cfg = load_config(self._config_path, interface)
+            with self._bus_lock:
+                bus = self._bus_opener(cfg, interface=interface, link=self._link)
+                self._cfg, self._bus = cfg, bus
+                self._spec = bridge.bus_spec(bus)
+            self._update_mirror(cfg)
+            self._rates.raw_decimation = self._param_ms("ros.raw_decimation")
+            self._rates.decoded_decimation = self._param_ms("ros.decoded_decimation")
+        except EtherRosError as exc:
+            return self._fail("configure", exc)
+        self._layout_pub.publish(self._layout_message())
+        self.get_logger().info(
+            f"configured: {len(self._spec.slaves)} slave(s) on {cfg.bus.interface}"
+        )
+        self._last_error = ""
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        bus, spec = self._bus, self._spec
+        if bus is None or spec is None:
+            return self._fail("activate", EtherRosError("the bus is not open"))
+        try:
+            with self._bus_lock:
+                bus.start()
+        except EtherRosError as exc:
+            self._stop_bus()
+            return self._fail("activate", exc)
+        self._panic = False
+        self._last_command = time.monotonic()
+        # Half a second of samples at most per batch: beyond that ROS has fallen behind and
+        # the oldest samples are skipped (and counted) rather than published late.
+        backlog = max(100, int(0.5e6 / max(spec.cycle_us, 1)))
+        self._samples = SamplePublisher(
+            bus,
+            spec,
+            self._pub,
+            joint_maps(self._cfg),
+            self._rates,
+            self._feed_watchdog,
+            max_backlog=backlog,
+        )
+        self._samples.start()
+        self._restart_snapshot_timer(self._param_ms("ros.snapshot_period_ms"))
+        self.get_logger().info("active: cyclic exchange running, slaves in OP")
+        self._last_error = ""
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._stop_publishing()
+        self._stop_bus()
+        self.get_logger().info("inactive: safe outputs sent, cyclic exchange stopped")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._release()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._release()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._release()
+        return TransitionCallbackReturn.SUCCESS
+
+    def _fail(self, what: str, exc: BaseException) -> TransitionCallbackReturn:
+        self._last_error = f"{what} failed: {exc}"
+        self.get_logger().error(self._last_error)
+        if what == "configure":
+            self._release()
+        return TransitionCallbackReturn.FAILURE
+
+    def _stop_publishing(self) -> None:
+        if self._snapshot_timer is not None:
+            self._snapshot_timer.cancel()
+            self.destroy_timer(self._snapshot_timer)
+            self._snapshot_timer = None
+        if self._samples is not None:
+            self._samples.stop()
+            self._samples = None
+
+    def _stop_bus(self) -> None:
+        with self._bus_lock:
+            if self._bus is not None:
+                try:
+                    self._bus.stop()
+                except EtherRosError as exc:
+                    self.get_logger().warning(f"stopping the bus: {exc}")
+
+    def _release(self) -> None:
+        self._stop_publishing()
+        with self._bus_lock:
+            bus, self._bus, self._spec = self._bus, None, None
+            if bus is not None:
+                try:
+                    bus.close()
+                except EtherRosError as exc:
+                    self.get_logger().warning(f"closing the bus: {exc}")
+
+    def lifecycle_state(self) -> str:
+        return str(self._state_machine.current_state[1])
+
+    def destroy_node(self) -> None:
+        self._release()
+        super().destroy_node()
+
+    # ------------------------------------------------------------------------ publishing
+    def _layout_message(self) -> BusLayout:
+        assert self._spec is not None
+        msg = layout_msg(self._spec)
+        msg.header.stamp = self.get_clock().now().to_msg()
+        return msg
+
+    def _restart_snapshot_timer(self, period_ms: int) -> None:
+        if self._snapshot_timer is not None:
+            self._snapshot_timer.cancel()
+            self.destroy_timer(self._snapshot_timer)
+            self._snapshot_timer = None
+        if period_ms > 0 and self._samples is not None:
+            self._snapshot_timer = self.create_timer(
+                period_ms / 1000.0, self._publish_snapshot, callback_group=self._timer_group
+            )
+
+    def _publish_snapshot(self) -> None:
+        """``pdo_out_timer``: the commanded outputs of every slave, periodically (as the
+        thesis's /pdo_out_timer), whether or not anything changed."""
+        with self._bus_lock:
+            bus, spec = self._bus, self._spec
+            if bus is None or spec is None or self._samples is None:
+                return
+            stamp = self.get_clock().now().to_msg()
+            for s in spec.slaves:
+                if not s.outputs:
+                    continue
+                values = bus.outputs(s.name)
+                msg = SlaveValues()
+                msg.header.stamp = stamp
+                msg.header.frame_id = s.name
+                msg.slave = s.name
+                msg.position = s.position
+                msg.cycle = self._samples.counters.last_cycle
+                msg.values = [float(values[v.name]) for v in s.outputs]
+                self._pub["pdo_out_timer"].publish(msg)
+
+    def _publish_diagnostics(self) -> None:
+        name = self.get_fully_qualified_name()
+        lifecycle = self.lifecycle_state()
+        stats: dict[str, float] = {}
+        statuses = []
+        ros_numbers: dict[str, float] = {}
+        dc_error = 0.0
+        bus = self._bus
+        if bus is not None and getattr(bus, "running", False):
+            try:
+                stats = bridge.flat_stats(bus.stats())
+            except EtherRosError as exc:
+                self.get_logger().warning(f"reading statistics: {exc}")
+        samples = self._samples
+        if samples is not None:
+            c = samples.counters
+            ros_numbers = {
+                "samples": c.samples,
+                "published_raw": c.published_raw,
+                "published_decoded": c.published_decoded,
+                "dropped": c.dropped,
+                "watchdog_cycles": c.watchdog_cycles,
+                "watchdog_active": float(bool(c.last_flags & bridge.FLAG_WATCHDOG)),
+                "panic_cycles": c.panic_cycles,
+                "last_cycle": c.last_cycle,
+                "working_counter": c.wkc,
+            }
+            dc_error = samples.take_dc_error()
+        statuses.append(
+            diagnostics.master_status(name, lifecycle, stats, ros_numbers, self._panic, dc_error)
+        )
+        if bus is not None:
+            try:
+                with self._bus_lock:
+                    states = bus.states() if self._bus is not None else []
+                statuses.extend(diagnostics.slave_statuses(name, states))
+            except EtherRosError as exc:
+                self.get_logger().warning(f"reading slave states: {exc}")
+        self._diag_pub.publish(diagnostics.array(statuses, self.get_clock().now().to_msg()))
+
+    def _feed_watchdog(self) -> bool:
+        """Called by the sample thread every loop: keep the engine's command watchdog fed while
+        commands are fresh (or always, when ``command_timeout_ms`` is 0). If this process stalls
+        or the commands stop, the engine puts the safe outputs on the wire by itself."""
+        timeout_ms = self._param_ms("command_timeout_ms")
+        if timeout_ms and (time.monotonic() - self._last_command) * 1000.0 > timeout_ms:
+            return False
+        bus = self._bus
+        if bus is not None:
+            bus.feed_watchdog()
+        return True
+
+    # ------------------------------------------------------------------------ writes
+    def _write(self, requests: list[WriteVariable]) -> tuple[bool, str]:
+        with self._bus_lock:
+            bus, spec = self._bus, self._spec
+            if bus is None or spec is None or self.lifecycle_state() != "active":
+                return False, f"the node is {self.lifecycle_state()}: writes need it active"
+            try:
+                writes = []
+                for r in requests:
+                    writes.extend(
+                        bridge.resolve_write(
+                            spec,
+                            r.slave,
+                            int(r.position),
+                            bool(r.all_slaves),
+                            r.variable,
+                            float(r.value),
+                            r.text,
+                        )
+                    )
+                self._last_command = time.monotonic()
+                bridge.apply_writes(bus, writes)
+            except EtherRosError as exc:
+                return False, str(exc)
+        if not writes:
+            return True, "nothing to write"
+        shown = ", ".join(f"{s.name}.{v.name}={value:g}" for s, v, value in writes[:8])
+        more = f" (+{len(writes) - 8} more)" if len(writes) > 8 else ""
+        return True, f"wrote {shown}{more}"
+
+    def _on_write_topic(self, msg: WriteVariable) -> None:
+        ok, message = self._write([msg])
+        if not ok:
+            self.get_logger().warning(f"write refused: {message}")
+        self._result_pub.publish(
+            WriteResult(request_id=msg.request_id, success=ok, message=message)
+        )
+
+    def _on_write_service(
+        self, req: WriteVariables.Request, resp: WriteVariables.Response
+    ) -> WriteVariables.Response:
+        resp.success, resp.message = self._write(list(req.writes))
+        return resp
+
+    # ------------------------------------------------------------------------ commands
+    def _on_command(self, req: Command.Request, resp: Command.Response) -> Command.Response:
+        command = req.command.strip().lower()
+        try:
+            resp.success, resp.message = self.run_command(command)
+        except Exception as exc:  # a service must always answer
+            resp.success, resp.message = False, f"{command} failed: {exc}"
+        return resp
+
+    def run_command(self, command: str) -> tuple[bool, str]:
+        state = self.lifecycle_state()
+        if command == "start":
+            if state == "active":
+                return True, "already running"
+            if state == "unconfigured" and not self._transition("configure"):
+                return False, self._last_error or "configure failed"
+            if not self._transition("activate"):
+                return False, self._last_error or "activate failed"
+            return True, "running: slaves in OP"
+        if command == "stop":
+            if state != "active":
+                return True, f"not running ({state})"
+            self._transition("deactivate")
+            return True, "stopped: safe outputs sent, slaves left OP"
+        if command == "restart":
+            if state == "active":
+                self._transition("deactivate")
+            return self.run_command("start")
+        if command == "panic":
+            return self.panic()
+        if command == "clear_panic":
+            return self.clear_panic()
+        if command == "reset_watchdog":
+            self._last_command = time.monotonic()
+            return True, "command watchdog fed"
+        return False, (
+            f"unknown command '{command}' (start, stop, restart, panic, clear_panic, "
+            "reset_watchdog)"
+        )
+
+    def _transition(self, name: str) -> bool:
+        trigger = getattr(self, f"trigger_{name}")
+        result = trigger()
+        return bool(result == TransitionCallbackReturn.SUCCESS)
+
+    def panic(self) -> tuple[bool, str]:
+        bus = self._bus
+        self._panic = True
+        if bus is None or not getattr(bus, "running", False):
+            return True, "panic latched (no cyclic exchange running)"
+        bus.panic()
+        self.get_logger().error("PANIC: safe outputs on the wire")
+        return True, "panic: safe outputs on the wire until clear_panic"
+
+    def clear_panic(self) -> tuple[bool, str]:
+        bus = self._bus
+        self._panic = False
+        if bus is not None and getattr(bus, "running", False):
+            bus.clear_panic()
+        self._last_command = time.monotonic()
+        return True, "panic cleared: outputs follow the commands again"
+
+    def _on_panic(self, req: Trigger.Request, resp: Trigger.Response) -> Trigger.Response:
+        try:
+            resp.success, resp.message = self.panic()
+        except Exception as exc:
+            resp.success, resp.message = False, f"panic failed: {exc}"
+        return resp
+
+    # ------------------------------------------------------------------------ SDO
+    def _sdo_target(self, slave: str) -> Any:
+        spec = self._spec
+        if self._bus is None or spec is None:
+            raise EtherRosError(f"the node is {self.lifecycle_state()}: no bus open")
+        try:
+            return spec.slave(slave).name
+        except LayoutError as exc:
+            raise EtherRosError(str(exc)) from None
+
+    def _on_sdo_read(self, req: SdoRead.Request, resp: SdoRead.Response) -> SdoRead.Response:
+        try:
+            name = self._sdo_target(req.slave)
+            dtype = req.type.strip() or None
+            if dtype is not None:
+                data_type(dtype)
+            with self._bus_lock:
+                value = self._bus.sdo_read(name, int(req.index), int(req.subindex), dtype)
+            if isinstance(value, bytes | bytearray):
+                resp.data = bytes(value)
+                resp.message = f"{len(value)} byte(s)"
+            else:
+                t = data_type(dtype) if dtype else None
+                if t is not None:
+                    resp.data = dt.encode_value(t, value, t.bit_length)
+                resp.value = float(value)
+                resp.message = f"{value}"
+            resp.success = True
+        except (EtherRosError, ValueError, TypeError) as exc:
+            resp.success, resp.message = False, str(exc)
+        return resp
+
+    def _on_sdo_write(self, req: SdoWrite.Request, resp: SdoWrite.Response) -> SdoWrite.Response:
+        from ether_ros.ros.layout import VariableSpec
+        from ether_ros.ros.values import parse_text, type_range
+
+        try:
+            name = self._sdo_target(req.slave)
+            lo, hi = type_range(req.type)
+            address = f"0x{req.index:04x}:{req.subindex:02x}"
+            var = VariableSpec(address, req.type, req.index, req.subindex, 0, lo, hi)
+            value = to_python(parse_text(req.value, var), req.type)
+            with self._bus_lock:
+                self._bus.sdo_write(name, int(req.index), int(req.subindex), value, req.type)
+            resp.success, resp.message = True, f"{name} {address} = {value}"
+        except (EtherRosError, ValueError, InvalidValue) as exc:
+            resp.success, resp.message = False, str(exc)
+        return resp
+
+
+def config_parameters(cfg: Any) -> dict[str, Any]:
+    """The configuration as flat ROS parameters (``bus.cycle_us``, ``slaves.<name>.position``,
+    ...). Values ROS parameters cannot hold (null, lists of mappings) are left out."""
+    data = cfg.model_dump(mode="json")
+    out: dict[str, Any] = {}
+    _flatten("bus", data.get("bus", {}), out)
+    _flatten("ros", data.get("ros", {}), out)
+    if data.get("esi"):
+        out["esi"] = [str(p) for p in data["esi"]]
+    for s in data.get("slaves", []):
+        base = f"slaves.{s['name']}"
+        for key in ("position", "alias", "vendor_id", "product_code", "revision", "device"):
+            if s.get(key) is not None:
+                out[f"{base}.{key}"] = s[key]
+        _flatten(f"{base}.safe_outputs", s.get("safe_outputs") or {}, out)
+        joints = [j["name"] for j in s.get("joints") or []]
+        if joints:
+            out[f"{base}.joints"] = joints
+    return out
+
+
+def _flatten(prefix: str, value: Any, out: dict[str, Any]) -> None:
+    if isinstance(value, dict):
+        for k, v in value.items():
+            _flatten(f"{prefix}.{k}", v, out)
+    elif value is None:
+        return
+    elif isinstance(value, list):
+        if value and all(isinstance(v, str) for v in value):
+            out[prefix] = list(value)
+    else:
+        out[prefix] = value
+
+
+def spin(node: EtherRosNode, threads: int = 4) -> None:
+    """Run the node until shutdown (Ctrl-C / SIGTERM)."""
+    executor = rclpy.executors.MultiThreadedExecutor(num_threads=threads)
+    executor.add_node(node)
+    try:
+        executor.spin()
+    finally:
+        executor.shutdown()

@@ -1,0 +1,265 @@
+"""The thread that turns the engine's per-cycle samples into ROS messages.
+
+It runs off the real-time path: the engine's RT thread pushes one sample (record + process image)
+per cycle into a lock-free ring; this Python thread drains the ring through ``Bus.samples()``
+and publishes
+
+- ``pdo_raw`` every ``raw_decimation`` cycles (the whole image, inputs and outputs),
+- ``pdo_in`` / ``pdo_out`` (decoded values per slave) and ``joint_states`` every
+  ``decoded_decimation`` cycles.
+
+When ROS falls behind (a batch holds more than ``max_backlog`` samples) the oldest samples are
+skipped and counted in ``dropped``; the engine counts the samples it could not even queue
+(ring full) itself. A second small thread feeds the engine's command watchdog every 10 ms while
+the node's commands are fresh (see ``EtherRosNode``); the publisher keeps the numbers the
+diagnostics report.
+"""
+
+from __future__ import annotations
+
+import array
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from ether_ros_msgs.msg import PdoRaw, SlaveValues
+from sensor_msgs.msg import JointState
+
+from ether_ros.ros import bridge
+from ether_ros.ros.layout import BusSpec
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class JointMap:
+    """One joint of ``joint_states``: SI value = raw * scale + offset."""
+
+    name: str
+    slave: str
+    position: str
+    position_scale: float = 1.0
+    position_offset: float = 0.0
+    velocity: str | None = None
+    velocity_scale: float = 1.0
+    effort: str | None = None
+    effort_scale: float = 1.0
+
+
+def joint_maps(config: Any) -> list[JointMap]:
+    out = []
+    for s in config.slaves:
+        for j in getattr(s, "joints", None) or []:
+            out.append(
+                JointMap(
+                    name=j.name,
+                    slave=s.name,
+                    position=j.position,
+                    position_scale=float(j.position_scale),
+                    position_offset=float(j.position_offset),
+                    velocity=j.velocity,
+                    velocity_scale=float(j.velocity_scale),
+                    effort=j.effort,
+                    effort_scale=float(j.effort_scale),
+                )
+            )
+    return out
+
+
+@dataclass
+class PublisherCounters:
+    samples: int = 0
+    published_raw: int = 0
+    published_decoded: int = 0
+    dropped: int = 0
+    lost: int = 0
+    watchdog_cycles: int = 0
+    panic_cycles: int = 0
+    last_cycle: int = 0
+    last_flags: int = 0
+    dc_error_max_ns: int = 0  # largest |DC difference| since the diagnostics last read it
+    wkc: int = 0
+    extra: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class Rates:
+    raw_decimation: int = 1
+    decoded_decimation: int = 10
+
+
+class SamplePublisher:
+    def __init__(
+        self,
+        bus: Any,
+        spec: BusSpec,
+        publishers: dict[str, Any],
+        joints: list[JointMap],
+        rates: Rates,
+        feed_watchdog: Callable[[], bool],
+        max_backlog: int = 5000,
+        poll_s: float = 0.002,
+    ) -> None:
+        self._bus = bus
+        self._spec = spec
+        self._pub = publishers
+        self._joints = joints
+        self.rates = rates
+        self._feed_watchdog = feed_watchdog
+        self._max_backlog = max_backlog
+        self._poll_s = poll_s
+        self._slices = bridge.image_slices(bus)
+        self._output_bytes = bridge.output_bytes(bus)
+        self._expected_wkc = bridge.expected_wkc(bus)
+        self._layouts = {s.name: s.layout for s in bus.slaves}
+        self._positions = {s.name: s.position for s in spec.slaves}
+        self.counters = PublisherCounters()
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        # CLOCK_MONOTONIC (the engine's time base) -> wall clock for message stamps.
+        self._mono_to_wall_ns = time.time_ns() - time.clock_gettime_ns(time.CLOCK_MONOTONIC)
+
+    def start(self) -> None:
+        self._stop.clear()
+        self._threads = [
+            threading.Thread(target=self._run, name="ether_ros-samples", daemon=True),
+            threading.Thread(target=self._feed, name="ether_ros-watchdog", daemon=True),
+        ]
+        for t in self._threads:
+            t.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        for t in self._threads:
+            t.join(timeout=5)
+        self._threads = []
+
+    def take_dc_error(self) -> int:
+        with self._lock:
+            value = self.counters.dc_error_max_ns
+            self.counters.dc_error_max_ns = 0
+            return value
+
+    def _feed(self) -> None:
+        """Feed the engine's command watchdog every 10 ms, in its own thread so a long batch of
+        messages never starves it: only a stalled process (or stale commands, see the node's
+        ``command_timeout_ms``) lets the watchdog expire."""
+        while not self._stop.wait(0.01):
+            try:
+                self._feed_watchdog()
+            except Exception:
+                log.exception("feeding the command watchdog failed")
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                batch = self._bus.samples()
+                published = self._publish_batch(batch)
+            except Exception:  # keep publishing: one bad batch must not end the thread
+                log.exception("publishing samples failed")
+                published = 0
+            if not published:
+                self._stop.wait(self._poll_s)
+
+    def _publish_batch(self, batch: Any) -> int:
+        records, images = bridge.sample_arrays(batch)
+        if records is None or len(records) == 0:
+            return 0
+        n = len(records)
+        excess = n - self._max_backlog
+        if excess > 0:
+            records, images = records[excess:], images[excess:]
+        flags = records["flags"]
+        c = self.counters
+        with self._lock:
+            c.dropped += max(excess, 0)
+            c.samples += n
+            c.last_cycle = int(records["cycle"][-1])
+            c.last_flags = int(flags[-1])
+            c.wkc = int(records["wkc"][-1])
+            c.lost += int(np.count_nonzero(flags & bridge.FLAG_LOST))
+            c.watchdog_cycles += int(np.count_nonzero(flags & bridge.FLAG_WATCHDOG))
+            c.panic_cycles += int(np.count_nonzero(flags & bridge.FLAG_PANIC))
+            dc = int(np.max(np.abs(records["dc_diff_ns"].astype(np.int64))))
+            c.dc_error_max_ns = max(c.dc_error_max_ns, dc)
+        cycles = records["cycle"]
+        raw_every = max(self.rates.raw_decimation, 1)
+        decoded_every = max(self.rates.decoded_decimation, 1)
+        for i in np.flatnonzero((cycles % raw_every == 0) | (cycles % decoded_every == 0)):
+            record = records[i]
+            cycle = int(record["cycle"])
+            image = images[i].tobytes()
+            stamp = self._stamp(int(record["t_wake_ns"]))
+            if cycle % raw_every == 0:
+                self._publish_raw(stamp, cycle, int(record["wkc"]), image)
+            if cycle % decoded_every == 0:
+                self._publish_decoded(stamp, cycle, image)
+        return n
+
+    def _stamp(self, t_mono_ns: int) -> Time:
+        wall = t_mono_ns + self._mono_to_wall_ns if t_mono_ns else time.time_ns()
+        return Time(sec=wall // 1_000_000_000, nanosec=wall % 1_000_000_000)
+
+    def _publish_raw(self, stamp: Time, cycle: int, wkc: int, image: bytes) -> None:
+        msg = PdoRaw()
+        msg.header.stamp = stamp
+        msg.header.frame_id = self._spec.bus
+        msg.cycle = cycle
+        msg.working_counter = wkc & 0xFFFF
+        msg.expected_working_counter = self._expected_wkc & 0xFFFF
+        msg.pdo_out = array.array("B", image[: self._output_bytes])
+        msg.pdo_in = array.array("B", image[self._output_bytes :])
+        self._pub["pdo_raw"].publish(msg)
+        self.counters.published_raw += 1
+
+    def _publish_decoded(self, stamp: Time, cycle: int, image: bytes) -> None:
+        inputs_by_slave: dict[str, dict[str, Any]] = {}
+        for sl in self._slices:
+            layout = self._layouts.get(sl.slave)
+            if layout is None:
+                continue
+            inputs = layout.unpack(image[sl.input_offset : sl.input_offset + sl.input_bytes])
+            outputs = layout.unpack(
+                image[sl.output_offset : sl.output_offset + sl.output_bytes], "output"
+            )
+            inputs_by_slave[sl.slave] = inputs
+            for topic, values in (("pdo_in", inputs), ("pdo_out", outputs)):
+                if not values:
+                    continue
+                msg = SlaveValues()
+                msg.header.stamp = stamp
+                msg.header.frame_id = sl.slave
+                msg.slave = sl.slave
+                msg.position = self._positions.get(sl.slave, 0)
+                msg.cycle = cycle
+                msg.values = [float(v) for v in values.values()]
+                self._pub[topic].publish(msg)
+        if self._joints:
+            self._pub["joint_states"].publish(self._joint_state(stamp, inputs_by_slave))
+        self.counters.published_decoded += 1
+
+    def _joint_state(self, stamp: Time, inputs: dict[str, dict[str, Any]]) -> JointState:
+        msg = JointState()
+        msg.header.stamp = stamp
+        names, pos, vel, eff = [], [], [], []
+        with_velocity = all(j.velocity for j in self._joints)
+        with_effort = all(j.effort for j in self._joints)
+        for j in self._joints:
+            values = inputs.get(j.slave, {})
+            names.append(j.name)
+            pos.append(float(values.get(j.position, 0.0)) * j.position_scale + j.position_offset)
+            if with_velocity and j.velocity:
+                vel.append(float(values.get(j.velocity, 0.0)) * j.velocity_scale)
+            if with_effort and j.effort:
+                eff.append(float(values.get(j.effort, 0.0)) * j.effort_scale)
+        msg.name = names
+        msg.position = pos
+        msg.velocity = vel
+        msg.effort = eff
+        return msg

@@ -1,0 +1,304 @@
+"""Drive the simulator with an independent master (pysoem, i.e. SOEM): the proof that the
+virtual bus behaves like the hardware, used by the acceptance tests and ``ether-ros demo``.
+
+- :class:`SimProcess` runs ``ether-ros sim CONFIG --interface IFACE`` as a separate process
+  (optionally inside a network namespace) and talks to its control socket.
+- :class:`SoemBus` brings the bus up with pysoem the way a SOEM application does
+  (``config_init`` → ``config_dc`` → SYNC0 in the PREOP→SAFEOP hook → ``config_map`` → OP) and
+  runs process-data cycles.
+- :func:`table_6_1` gives the trot parameters of the thesis per leg.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import selectors
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+from ether_ros.config.bus import BusConfig, SlaveConfig
+from ether_ros.config.process import ProcessLayout
+from ether_ros.errors import BusError, EtherRosError
+from ether_ros.sim.control import request, socket_path
+from ether_ros.sim.spec import bus_order
+from ether_ros.testing.netns import netns_command
+
+INIT, PREOP, SAFEOP, OP = 1, 2, 4, 8
+
+
+class SimProcess:
+    """``ether-ros sim`` in its own process; a context manager that stops it on exit."""
+
+    def __init__(self, config: Path, interface: str, netns: str | None = None) -> None:
+        self.config = Path(config)
+        self.interface = interface
+        self.netns = netns
+        self.control = socket_path(interface)
+        self.proc: subprocess.Popen[str] | None = None
+        self.ready_line = ""
+
+    def start(self, timeout: float = 30.0) -> SimProcess:
+        argv = [sys.executable, "-m", "ether_ros.cli.main", "sim", str(self.config),
+                "--interface", self.interface, "--control", str(self.control)]  # fmt: skip
+        self.proc = subprocess.Popen(
+            netns_command(self.netns, argv),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        )
+        assert self.proc.stdout is not None
+        sel = selectors.DefaultSelector()
+        sel.register(self.proc.stdout, selectors.EVENT_READ)
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if sel.select(timeout=0.2):
+                line = self.proc.stdout.readline()
+                if line:
+                    self.ready_line = line.strip()
+                    sel.close()
+                    return self
+            if self.proc.poll() is not None:
+                break
+        sel.close()
+        err = self.stop()
+        raise EtherRosError(f"simulator did not become ready: {err.strip() or 'no output'}")
+
+    def request(self, payload: dict[str, Any]) -> Any:
+        return request(self.control, payload)
+
+    def fault(self, kind: str, **args: Any) -> None:
+        self.request({"op": "fault", "kind": kind, **args})
+
+    def stop(self) -> str:
+        """SIGTERM the simulator, wait for it, and return its stderr."""
+        if self.proc is None:
+            return ""
+        proc, self.proc = self.proc, None
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        err = proc.stderr.read() if proc.stderr is not None else ""
+        for stream in (proc.stdout, proc.stderr):
+            if stream is not None:
+                stream.close()
+        self.returncode = proc.returncode
+        return err
+
+    def __enter__(self) -> SimProcess:
+        return self.start() if self.proc is None else self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.stop()
+
+
+@dataclass
+class CycleStats:
+    cycles: int = 0
+    wkc_errors: int = 0  # cycles whose working counter was not the expected one
+    lost: int = 0  # cycles with no frame back (wkc <= 0)
+    wkc_seen: dict[int, int] = field(default_factory=dict)
+
+
+class SoemBus:
+    """A pysoem master on ``interface`` for the slaves of ``cfg``."""
+
+    def __init__(self, cfg: BusConfig, interface: str, receive_timeout_us: int = 2000) -> None:
+        import pysoem
+
+        self.pysoem = pysoem
+        self.cfg = cfg
+        self.slaves_cfg = bus_order(cfg)
+        self.layouts: list[ProcessLayout] = [s.layout for s in self.slaves_cfg]
+        self.master = pysoem.Master()
+        self.master.open(interface)
+        self.stats = CycleStats()
+        self.cycle_s = cfg.bus.cycle_us / 1e6
+        self.receive_timeout_us = receive_timeout_us
+
+    def close(self) -> None:
+        self.master.close()
+
+    @property
+    def slaves(self) -> list[Any]:
+        return list(self.master.slaves)
+
+    def scan(self) -> int:
+        """``config_init``: count the slaves and read their SII."""
+        n = self.master.config_init()
+        if n <= 0:
+            raise BusError(f"pysoem found no slaves (config_init returned {n})")
+        return int(n)
+
+    def configure(self, dc: bool | None = None) -> int:
+        """DC, SYNC0 and PDO mapping; ends in SAFEOP. Returns the size of the IO map."""
+        dc = self.cfg.bus.dc.enabled if dc is None else dc
+        cycle_ns = self.cfg.bus.cycle_us * 1000
+        shift_ns = int(self.cfg.bus.dc.sync0_shift_us * 1000)
+        if dc:
+            self.master.config_dc()
+        for i, slave in enumerate(self.master.slaves):
+            # pysoem calls setup_func(slave) in config_map, in PREOP, just before the slave's
+            # PDO mapping is read and PREOP->SAFEOP is requested: the place for the PDO
+            # assignment and SDO init of the config, and for SYNC0 (a slave that requires DC
+            # refuses SAFEOP without it).
+            slave.setup_func = _preop_hook(self.slaves_cfg[i], dc, cycle_ns, shift_ns)
+        size = int(self.master.config_map())
+        state = self.master.state_check(SAFEOP, 500_000)
+        if state != SAFEOP:
+            self.master.read_state()
+            detail = ", ".join(
+                f"{s.name}: state {s.state:#x} AL {s.al_status:#06x}" for s in self.master.slaves
+            )
+            raise BusError(f"slaves did not reach SAFEOP ({detail})")
+        return size
+
+    def cycle(self) -> int:
+        """One process-data exchange; returns the working counter."""
+        self.master.send_processdata()
+        wkc = int(self.master.receive_processdata(self.receive_timeout_us))
+        st = self.stats
+        st.cycles += 1
+        st.wkc_seen[wkc] = st.wkc_seen.get(wkc, 0) + 1
+        if wkc != self.master.expected_wkc:
+            st.wkc_errors += 1
+            if wkc <= 0:
+                st.lost += 1
+        return wkc
+
+    def run(self, seconds: float, each: Callable[[int], None] | None = None) -> None:
+        """Cycle for ``seconds`` at the configured cycle time (best effort from Python)."""
+        period = max(self.cycle_s, 0.0004)
+        next_t = time.perf_counter()
+        end = next_t + seconds
+        n = 0
+        while next_t < end:
+            if each is not None:
+                each(n)
+            self.cycle()
+            n += 1
+            next_t += period
+            delay = next_t - time.perf_counter()
+            if delay > 0:
+                time.sleep(delay)
+            elif delay < -0.05:
+                next_t = time.perf_counter()  # fell far behind (VM hiccup): don't burst
+
+    def request_op(self, timeout_s: float = 5.0) -> bool:
+        """Cycle while asking every slave for OP; True when all are in OP."""
+        self.cycle()
+        self.master.state = OP
+        self.master.write_state()
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            self.run(0.02)
+            if self.master.state_check(OP, 1000) == OP:
+                return True
+        self.master.read_state()
+        return False
+
+    def states(self) -> list[tuple[int, int]]:
+        """(AL state, AL status code) of every slave, read from the bus now."""
+        self.master.read_state()
+        return [(int(s.state), int(s.al_status)) for s in self.master.slaves]
+
+    def set_outputs(self, index: int, values: Mapping[str, object]) -> None:
+        slave = self.master.slaves[index]
+        slave.output = bytes(self.layouts[index].pack_outputs(values, base=bytes(slave.output)))
+
+    def inputs(self, index: int) -> dict[str, Any]:
+        return self.layouts[index].unpack(bytes(self.master.slaves[index].input), "input")
+
+
+def _preop_hook(
+    slave_cfg: SlaveConfig, dc: bool, cycle_ns: int, shift_ns: int
+) -> Callable[[Any], None]:
+    assign = slave_cfg.pdo_assign
+
+    def hook(slave: Any) -> None:
+        if assign is not None:
+            for sm_index, pdos in ((0x1C12, assign.rx), (0x1C13, assign.tx)):
+                if pdos is None:
+                    continue
+                slave.sdo_write(sm_index, 0, bytes([0]))
+                for sub, pdo in enumerate(pdos, start=1):
+                    slave.sdo_write(sm_index, sub, pdo.to_bytes(2, "little"))
+                slave.sdo_write(sm_index, 0, bytes([len(pdos)]))
+        for init in slave_cfg.sdo_init:
+            slave.sdo_write(init.index, init.subindex, init.data)
+        if dc and slave_cfg.esi.dc_supported:
+            slave.dc_sync(True, cycle_ns, shift_ns)
+
+    return hook
+
+
+# ---- the trot of thesis Table 6.1 -----------------------------------------------------------
+
+# Per leg: y centre (mm) and phase (deg). FL and HR share phase 180, FR and HL 0: a trot.
+_TABLE_6_1_LEGS = {"front_left": (599, 180), "front_right": (599, 0), "hind_left": (598, 0),
+                   "hind_right": (598, 180)}  # fmt: skip
+
+
+def table_6_1(
+    slave_name: str, a_cm: int = 5, b_cm: int = 4, transition_s: int = 3
+) -> dict[str, int]:
+    """Output values of Table 6.1 for a leg (matched by name prefix), State_Machine 1."""
+    key = next((k for k in _TABLE_6_1_LEGS if slave_name.startswith(k)), "front_right")
+    y_c, phase = _TABLE_6_1_LEGS[key]
+    return {
+        "State_Machine": 1,
+        "Transition_time": transition_s,
+        "FilterBandwidth": 20,
+        "Kp100_knee": 8000,
+        "Kd1000_knee": 50,
+        "Ki100_knee": 0,
+        "Kp100_hip": 8000,
+        "Kd1000_hip": 50,
+        "Ki100_hip": 0,
+        "x_cntr_traj1000": 0,
+        "y_cntr_traj1000": y_c,
+        "a_ellipse100": a_cm,
+        "b_ellipse100": b_cm,
+        "traj_freq100": 100,
+        "phase_deg": phase,
+        "FlatnessParam100": 0,
+    }
+
+
+@dataclass
+class TrackStats:
+    samples: int = 0
+    sq_err: float = 0.0  # sum of squared (measured - desired), deg^2, hip and knee
+    desired_min: float = math.inf
+    desired_max: float = -math.inf
+
+    def add(self, measured: float, desired: float) -> None:
+        self.samples += 1
+        self.sq_err += (measured - desired) ** 2
+        self.desired_min = min(self.desired_min, desired)
+        self.desired_max = max(self.desired_max, desired)
+
+    @property
+    def rms_deg(self) -> float:
+        return math.sqrt(self.sq_err / self.samples) if self.samples else math.nan
+
+    @property
+    def desired_span_deg(self) -> float:
+        return self.desired_max - self.desired_min if self.samples else 0.0

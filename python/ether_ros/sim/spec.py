@@ -1,0 +1,116 @@
+"""Slave specs for the simulator: one dict per slave, built from the bus config and the ESI.
+
+The keys are the contract with ``SimNetwork.add_slave`` (documented at the top of
+``crates/py/src/sim_bindings.rs``): identity, the SII EEPROM image, the CoE dictionary
+(objects and entries with their default values), the firmware model and its parameters, clock
+drift and propagation delay, DC capability, and the standard mailbox.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from ether_ros.config.bus import BusConfig, SlaveConfig
+from ether_ros.config.esi import EsiDevice
+from ether_ros.config.sii import build_sii
+from ether_ros.errors import ConfigError
+
+# Serial numbers of simulated slaves when the config gives none: recognisable, and unique
+# along the bus (0x5E000000 + position).
+SERIAL_BASE = 0x5E00_0000
+
+
+def mailbox_spec(device: EsiDevice) -> dict[str, int] | None:
+    """Standard mailbox placement from the ESI's mailbox SyncManagers (None without mailbox)."""
+    out, inp = device.sm("MBoxOut"), device.sm("MBoxIn")
+    if device.mailbox is None or out is None or inp is None:
+        return None
+    return {
+        "rx_offset": out.start,
+        "rx_size": out.default_size,
+        "tx_offset": inp.start,
+        "tx_size": inp.default_size,
+    }
+
+
+def device_spec(
+    device: EsiDevice,
+    *,
+    name: str,
+    sim_device: str = "none",
+    params: dict[str, float] | None = None,
+    alias: int = 0,
+    serial: int = 0,
+    drift_ppm: float = 0.0,
+    delay_ns: int = 500,
+) -> dict[str, Any]:
+    """The ``add_slave`` spec of one slave running ``device``."""
+    objects = [(o.index, o.name, o.object_code) for o in device.objects]
+    entries = [
+        (
+            e.index,
+            e.subindex,
+            e.name,
+            e.data_type,
+            e.bit_length,
+            e.access,
+            e.pdo_mappable,
+            bytes(e.default),
+        )
+        for o in device.objects
+        for e in o.entries
+    ]
+    return {
+        "name": name,
+        "vendor_id": device.vendor_id,
+        "product_code": device.product_code,
+        "revision": device.revision,
+        "serial": serial,
+        "alias": alias,
+        "sii": build_sii(device, alias=alias, serial=serial),
+        "objects": objects,
+        "entries": entries,
+        "device": sim_device,
+        "params": {k: float(v) for k, v in (params or {}).items()},
+        "drift_ppm": float(drift_ppm),
+        "delay_ns": int(delay_ns),
+        "dc_supported": device.dc_supported,
+        "dc_required": device.dc_required,
+        "mailbox": mailbox_spec(device),
+        "pdram_kib": 8,
+    }
+
+
+def slave_spec(slave: SlaveConfig, position: int) -> dict[str, Any]:
+    """The spec of a configured slave at ``position`` on the simulated bus."""
+    serial = slave.sim.serial if slave.sim.serial is not None else SERIAL_BASE + position
+    return device_spec(
+        slave.esi,
+        name=slave.name,
+        sim_device=slave.sim_device,
+        params=slave.sim.params,
+        alias=slave.alias or 0,
+        serial=serial,
+        drift_ppm=slave.sim.drift_ppm,
+        delay_ns=slave.sim.delay_ns,
+    )
+
+
+def bus_order(cfg: BusConfig) -> list[SlaveConfig]:
+    """The slaves in the order they sit on the wire: by position; slaves addressed by alias
+    only keep their place in the list relative to the others."""
+    if all(s.position is not None for s in cfg.slaves):
+        ordered = sorted(cfg.slaves, key=lambda s: s.position or 0)
+        positions = [s.position for s in ordered]
+        if positions != list(range(len(ordered))):
+            raise ConfigError(
+                f"{cfg.source}: the simulator needs slave positions 0..{len(ordered) - 1} without"
+                f" gaps, got {positions}"
+            )
+        return ordered
+    return list(cfg.slaves)
+
+
+def network_specs(cfg: BusConfig) -> list[dict[str, Any]]:
+    """Specs for every slave of ``cfg`` in bus order."""
+    return [slave_spec(s, i) for i, s in enumerate(bus_order(cfg))]

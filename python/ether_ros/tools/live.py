@@ -1,0 +1,383 @@
+"""``ether-ros top``: a live view of the bus (slaves and states, loop timing, lost frames, DC).
+
+The screen (:class:`TopApp`, textual) draws :class:`LiveSnapshot` objects; where they come from
+is a :class:`LiveSource`: a standalone bus opened by this process (:class:`BusLiveSource`) or
+the running ROS 2 node's diagnostics (:class:`DiagnosticsLiveSource`). Tests feed the screen a
+source of their own.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, Protocol
+
+import numpy as np
+from textual.app import App, ComposeResult
+from textual.containers import Horizontal, Vertical
+from textual.widgets import DataTable, Footer, Header, Static
+
+HISTOGRAM_BINS = 12
+
+
+@dataclass
+class SlaveRow:
+    position: int
+    name: str
+    state: str  # INIT, PREOP, SAFEOP, OP, BOOT (+ " ERR" when the error flag is set)
+    detail: str = ""  # AL status code text, device name, ...
+
+
+@dataclass
+class LiveSnapshot:
+    bus: str = ""
+    cycle_us: int = 0
+    cycles: int = 0
+    lost_frames: int = 0
+    late_frames: int = 0
+    wkc_errors: int = 0
+    dc_sync_error_ns: float | None = None
+    panic: bool = False
+    slaves: list[SlaveRow] = field(default_factory=list)
+    # Recent per-cycle values, µs (what the histograms are made of).
+    wake_latency_us: Sequence[float] = ()
+    exec_us: Sequence[float] = ()
+    period_us: Sequence[float] = ()
+    rtt_us: Sequence[float] = ()
+    # Timing as (p50, p99, max) µs by name, when only quantiles are known (the ROS node).
+    quantiles_us: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    source: str = ""
+    error: str = ""  # the source cannot deliver (node gone, bus closed): shown, not raised
+
+
+class LiveSource(Protocol):
+    def poll(self) -> LiveSnapshot: ...
+
+    def close(self) -> None: ...
+
+
+# ---- text rendering (kept separate from textual so it can be read and tested plainly) ---------
+
+_BLOCKS = " ▁▂▃▄▅▆▇█"
+
+
+def histogram_text(label: str, values: Sequence[float], bins: int = HISTOGRAM_BINS) -> str:
+    """One histogram as text: a row of bars, its range, median and maximum (µs)."""
+    data = np.asarray(values, dtype=float)
+    data = data[np.isfinite(data)]
+    if data.size == 0:
+        return f"{label:<16} no data"
+    lo, hi = float(data.min()), float(data.max())
+    if hi - lo < 1e-9:
+        hi = lo + 1.0
+    counts, _ = np.histogram(data, bins=bins, range=(lo, hi))
+    peak = counts.max() or 1
+    # Log scale: the tail (the few late cycles) is what matters, and it would vanish linearly.
+    bars = "".join(
+        _BLOCKS[0 if c == 0 else max(1, round(math.log1p(c) / math.log1p(peak) * 8))]
+        for c in counts
+    )
+    return (
+        f"{label:<16} {lo:8.1f} |{bars}| {hi:8.1f} µs   median {np.median(data):7.1f}"
+        f"  max {data.max():7.1f}"
+    )
+
+
+def stats_text(s: LiveSnapshot) -> str:
+    dc = "n/a" if s.dc_sync_error_ns is None else f"{s.dc_sync_error_ns:.0f} ns"
+    freq = f"{1e6 / s.cycle_us:.0f} Hz" if s.cycle_us else "?"
+    lines = [
+        f"bus {s.bus or '?'}   cycle {s.cycle_us} µs ({freq})   cycles {s.cycles}"
+        + ("   PANIC" if s.panic else ""),
+        f"lost frames {s.lost_frames}   late frames {s.late_frames}   "
+        f"working counter errors {s.wkc_errors}   DC sync error {dc}",
+    ]
+    if s.error:
+        lines.append(f"source: {s.error}")
+    return "\n".join(lines)
+
+
+def timing_text(s: LiveSnapshot) -> str:
+    panels = (
+        ("wake_latency", "wake-up latency", s.wake_latency_us),
+        ("exec", "execution", s.exec_us),
+        ("period", "period", s.period_us),
+        ("rtt", "round trip", s.rtt_us),
+    )
+    lines = []
+    for key, label, values in panels:
+        if not values and key in s.quantiles_us:
+            p50, p99, top = s.quantiles_us[key]
+            lines.append(f"{label:<16} p50 {p50:8.1f}  p99 {p99:8.1f}  max {top:8.1f} µs")
+        else:
+            lines.append(histogram_text(label, values))
+    return "\n".join(lines)
+
+
+# ---- the screen ---------------------------------------------------------------------------
+
+
+class TopApp(App[None]):
+    """Slaves, statistics and timing histograms, refreshed every ``interval`` seconds."""
+
+    TITLE = "ether-ros top"
+    BINDINGS: ClassVar = [("q", "quit", "quit")]
+    CSS = """
+    #stats { height: auto; padding: 0 1; }
+    #slaves { height: auto; max-height: 50%; }
+    #timing { height: auto; padding: 0 1; }
+    """
+
+    def __init__(self, source: LiveSource, interval: float = 0.5) -> None:
+        super().__init__()
+        self.source = source
+        self.interval = interval
+        self.snapshot = LiveSnapshot()
+
+    def compose(self) -> ComposeResult:
+        yield Header()
+        with Vertical():
+            yield Static("", id="stats")
+            with Horizontal():
+                yield DataTable(id="slaves", cursor_type="row", zebra_stripes=True)
+            yield Static("", id="timing")
+        yield Footer()
+
+    def on_mount(self) -> None:
+        table = self.query_one("#slaves", DataTable)
+        table.add_columns("pos", "slave", "state", "detail")
+        self.refresh_view()
+        self.set_interval(self.interval, self.refresh_view)
+
+    def refresh_view(self) -> None:
+        try:
+            snapshot = self.source.poll()
+        except Exception as exc:  # the view must survive a source that went away
+            snapshot = LiveSnapshot(error=str(exc) or type(exc).__name__)
+        self.snapshot = snapshot
+        self.sub_title = snapshot.source
+        self.query_one("#stats", Static).update(stats_text(snapshot))
+        self.query_one("#timing", Static).update(timing_text(snapshot))
+        table = self.query_one("#slaves", DataTable)
+        table.clear()
+        for row in snapshot.slaves:
+            table.add_row(str(row.position), row.name, row.state, row.detail, key=str(row.position))
+
+    def on_unmount(self) -> None:
+        self.source.close()
+
+
+# ---- sources ------------------------------------------------------------------------------
+
+
+def _get(obj: Any, name: str, default: Any = 0) -> Any:
+    if isinstance(obj, dict):
+        return obj.get(name, default)
+    return getattr(obj, name, default)
+
+
+def _flatten(d: Any, prefix: str = "") -> dict[str, Any]:
+    flat: dict[str, Any] = {}
+    for key, value in dict(d).items():
+        if isinstance(value, dict):
+            flat.update(_flatten(value, f"{prefix}{key}."))
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
+
+
+def stat(stats: Any, name: str, default: float = 0.0) -> float:
+    """A statistic by its last name part, wherever the engine nests it
+    (``counters.lost_frames``)."""
+    flat = _flatten(stats)
+    if name in flat:
+        return float(flat[name])
+    for key, value in flat.items():
+        if key.endswith("." + name):
+            return float(value)
+    return default
+
+
+class BusLiveSource:
+    """A bus this process opened (``Bus``): its states, statistics and samples.
+
+    Samples are drained at every poll; the last ``window`` cycles feed the histograms and the
+    DC sync error (largest |difference| in the window).
+    """
+
+    def __init__(self, bus: Any, window: int = 5000, owns_bus: bool = True) -> None:
+        self.bus = bus
+        self.owns_bus = owns_bus
+        self.window = window
+        self._columns: dict[str, deque[float]] = {
+            k: deque(maxlen=window)
+            for k in ("wake_latency_ns", "exec_ns", "period_ns", "rtt_ns", "dc_diff_ns")
+        }
+
+    def _take_samples(self) -> None:
+        from ether_ros.tools.bus_source import split_samples
+
+        records, _images = split_samples(self.bus.samples())
+        if not len(records):
+            return
+        names = records.dtype.names or ()
+        for key, column in self._columns.items():
+            if key not in names:
+                continue
+            values = np.asarray(records[key], dtype=float)
+            if key == "rtt_ns":
+                values = values[values > 0]  # 0: no reply processed in that cycle
+            if key == "period_ns":
+                values = values[values > 0]  # 0: the first cycle
+            column.extend((values / 1000.0).tolist() if key != "dc_diff_ns" else values)
+
+    def poll(self) -> LiveSnapshot:
+        self._take_samples()
+        stats = self.bus.stats()
+        cfg = self.bus.config.bus
+        slaves = []
+        for st in self.bus.states():
+            state = str(_get(st, "state", "?")) + (" ERR" if _get(st, "error", False) else "")
+            code = int(_get(st, "code", 0))
+            detail = f"0x{code:04x} {_get(st, 'text', '')}" if _get(st, "error", False) else ""
+            slaves.append(
+                SlaveRow(int(_get(st, "position")), str(_get(st, "name", "")), state, detail)
+            )
+        dc = self._columns["dc_diff_ns"]
+        return LiveSnapshot(
+            bus=str(cfg.name),
+            cycle_us=int(cfg.cycle_us),
+            cycles=int(stat(stats, "cycles")),
+            lost_frames=int(stat(stats, "lost_frames")),
+            late_frames=int(stat(stats, "late_frames")),
+            wkc_errors=int(stat(stats, "wkc_errors")),
+            dc_sync_error_ns=max((abs(x) for x in dc), default=None),
+            panic=bool(stat(stats, "panic")),
+            slaves=slaves,
+            wake_latency_us=list(self._columns["wake_latency_ns"]),
+            exec_us=list(self._columns["exec_ns"]),
+            period_us=list(self._columns["period_ns"]),
+            rtt_us=list(self._columns["rtt_ns"]),
+            source=f"standalone bus on {cfg.interface}",
+        )
+
+    def close(self) -> None:
+        if self.owns_bus:
+            self.bus.close()
+
+
+def snapshot_from_diagnostics(
+    master: dict[str, str], slaves: dict[str, tuple[str, dict[str, str]]], bus: str = ""
+) -> LiveSnapshot:
+    """A snapshot from the node's diagnostics (``ether_ros.ros.diagnostics``).
+
+    ``master``: the key/values of the "<node>: master" status (cycles, lost_frames,
+    late_frames, wkc_errors, panic, <h>_p50_ns/_p99_ns/_max_ns for the loop timing,
+    dc_sync_error_max_ns). ``slaves``: slave name -> (message, key/values of its status:
+    position, al_state, al_error, al_status_code). The node sends quantiles, not every cycle,
+    so the timing is shown as p50/p99/max.
+    """
+
+    def num(key: str, default: float = 0.0) -> float:
+        try:
+            return float(master.get(key, default))
+        except ValueError:
+            return default
+
+    rows = []
+    for name, (message, kv) in slaves.items():
+        error = kv.get("al_error", "false") == "true"
+        state = kv.get("al_state", "?") + (" ERR" if error else "")
+        try:
+            position = int(kv.get("position", "0"))
+        except ValueError:
+            position = 0
+        rows.append(SlaveRow(position, name, state, message if error else ""))
+    rows.sort(key=lambda r: r.position)
+    quantiles = {}
+    for h in ("wake_latency", "exec", "period", "rtt"):
+        if f"{h}_p50_ns" in master:
+            quantiles[h] = (
+                num(f"{h}_p50_ns") / 1000,
+                num(f"{h}_p99_ns") / 1000,
+                num(f"{h}_max_ns") / 1000,
+            )
+    dc = master.get("dc_sync_error_max_ns")
+    return LiveSnapshot(
+        bus=bus,
+        cycles=int(num("cycles")),
+        lost_frames=int(num("lost_frames")),
+        late_frames=int(num("late_frames")),
+        wkc_errors=int(num("wkc_errors")),
+        dc_sync_error_ns=None if dc in (None, "") else num("dc_sync_error_max_ns"),
+        panic=master.get("panic", "false") == "true",
+        slaves=rows,
+        quantiles_us=quantiles,
+        source=f"ROS 2 diagnostics ({master.get('lifecycle_state', '?')})",
+    )
+
+
+class DiagnosticsLiveSource:
+    """The running node: subscribes to its diagnostics and shows the newest statuses."""
+
+    def __init__(self, topic: str = "/diagnostics", node_name: str = "ether_ros_top") -> None:
+        try:
+            import rclpy
+            from diagnostic_msgs.msg import DiagnosticArray
+        except ImportError as exc:
+            from ether_ros.errors import EtherRosError
+
+            raise EtherRosError(
+                "ROS 2 (rclpy, diagnostic_msgs) is not available: source the "
+                "ROS 2 setup, or use --config CFG --interface IFACE for a "
+                "standalone bus"
+            ) from exc
+        self._rclpy = rclpy
+        if not rclpy.ok():
+            rclpy.init()
+        self._node = rclpy.create_node(node_name)
+        self._master: dict[str, str] | None = None
+        self._node_name = ""
+        self._slaves: dict[str, tuple[str, dict[str, str]]] = {}
+        self._node.create_subscription(DiagnosticArray, topic, self._on_message, 10)
+
+    def _on_message(self, msg: Any) -> None:
+        for status in msg.status:
+            node, sep, what = status.name.partition(": ")
+            if not sep:
+                continue
+            values = {kv.key: kv.value for kv in status.values}
+            if what == "master":
+                self._master, self._node_name = values, node
+            elif what.startswith("slave "):
+                self._slaves[what[len("slave ") :]] = (status.message, values)
+
+    def poll(self) -> LiveSnapshot:
+        self._rclpy.spin_once(self._node, timeout_sec=0.0)
+        if self._master is None:
+            return LiveSnapshot(
+                source="ROS 2 diagnostics", error="waiting for the node's diagnostics"
+            )
+        return snapshot_from_diagnostics(self._master, self._slaves, self._node_name)
+
+    def close(self) -> None:
+        self._node.destroy_node()
+
+
+class StaticSource:
+    """A fixed sequence of snapshots (the last one repeats); for demos and tests."""
+
+    def __init__(self, snapshots: Iterable[LiveSnapshot]) -> None:
+        self._snapshots = list(snapshots)
+        self._i = 0
+        self.closed = False
+
+    def poll(self) -> LiveSnapshot:
+        snap = self._snapshots[min(self._i, len(self._snapshots) - 1)]
+        self._i += 1
+        return snap
+
+    def close(self) -> None:
+        self.closed = True

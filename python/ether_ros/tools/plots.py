@@ -1,0 +1,285 @@
+"""Figures of a recording: the thesis's trot figures 6.5–6.11 and the loop timing.
+
+Every figure is built from a :class:`~ether_ros.tools.recording.Recording` as a matplotlib
+``Figure`` (Agg, no display), so tests can inspect the lines and the CLI can save PNG and SVG.
+
+Conventions (Laelaps II leg, thesis eq. 4.1 and Table 4.2): ``hip_angle`` is the thigh angle θ1
+and ``knee_angle`` the shank angle θ2, both absolute from the downward vertical, in deg × 100;
+``PWM10000_*`` is % × 100; ``velocity_*1000`` is rad/s × 1000. The toe is at
+x = l1 sin θ1 + l2 sin θ2, y = l1 cos θ1 + l2 cos θ2 with y pointing down from the hip.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
+
+from ether_ros.tools.recording import Recording, RecordingError
+
+L1_MM = 250.0
+L2_MM = 350.0
+
+DESIRED_COLOR = "red"
+ACTUAL_COLOR = "black"
+LIMIT_COLOR = "red"
+
+
+@dataclass(frozen=True)
+class LegLimits:
+    """Limits drawn on the figures. PWM: Table 6.1 (the motors' continuous current).
+
+    Speed: the GP 52 C gearhead's maximum input speed, 6000 rpm, through its ratio and the
+    48/26 pulley (hip 343/8, knee 637/12), as joint speed in rad/s.
+    """
+
+    pwm_knee_pct: float = 38.25
+    pwm_hip_pct: float = 41.17
+    speed_knee_rad_s: float = 6000 / (637 / 12 * 48 / 26) * 2 * math.pi / 60
+    speed_hip_rad_s: float = 6000 / (343 / 8 * 48 / 26) * 2 * math.pi / 60
+
+
+LEG_VARIABLES = (
+    "hip_angle",
+    "desired_hip_angle",
+    "knee_angle",
+    "desired_knee_angle",
+    "PWM10000_knee",
+    "PWM10000_hip",
+    "velocity_knee1000",
+    "velocity_hip1000",
+)
+
+
+def forward_kinematics(theta1: np.ndarray, theta2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. 4.1: toe (x, y) in mm from the thigh and shank angles in rad."""
+    x = L1_MM * np.sin(theta1) + L2_MM * np.sin(theta2)
+    y = L1_MM * np.cos(theta1) + L2_MM * np.cos(theta2)
+    return x, y
+
+
+def leg_slaves(rec: Recording) -> list[str]:
+    """Slaves whose inputs carry the Laelaps II leg variables, in bus order."""
+    legs = [
+        s.name
+        for s in sorted(rec.bus.slaves, key=lambda s: s.position)
+        if s.name in rec.inputs and all(v in rec.inputs[s.name].columns for v in LEG_VARIABLES)
+    ]
+    return legs
+
+
+def _time_axis(rec: Recording, cycles: np.ndarray) -> np.ndarray:
+    if cycles.size == 0:
+        return cycles.astype(float)
+    first = min(int(s.cycle[0]) for s in rec.inputs.values() if s.cycle.size)
+    return (cycles.astype(np.int64) - first) * rec.cycle_s
+
+
+def steady_state_mask(rec: Recording, slave: str) -> np.ndarray:
+    """Samples of the steady trot: the step length (``a_ellipse100``) commanded at its largest,
+    from one ``Transition_time`` after that command (the firmware ramps over that time) until
+    the command goes down again. Without those outputs in the recording, every sample counts.
+    """
+    inputs = rec.inputs[slave]
+    everything = np.ones(inputs.cycle.size, dtype=bool)
+    outputs = rec.outputs.get(slave)
+    if outputs is None or "a_ellipse100" not in outputs.columns or outputs.cycle.size == 0:
+        return everything
+    a = outputs["a_ellipse100"]
+    top = a.max()
+    if top <= 0:
+        return everything
+    at_top = outputs.cycle[a >= top].astype(np.int64)
+    lo, hi = int(at_top.min()), int(at_top.max())
+    if "Transition_time" in outputs.columns:
+        ramp_cycles = int(outputs["Transition_time"][a >= top].max() / rec.cycle_s)
+        if lo + ramp_cycles < hi:
+            lo += ramp_cycles
+    cycles = inputs.cycle.astype(np.int64)
+    return (cycles >= lo) & (cycles <= hi)
+
+
+def _grid(n: int) -> tuple[int, int]:
+    cols = 2 if n > 1 else 1
+    return math.ceil(n / cols), cols
+
+
+def _new_figure(title: str, n: int) -> tuple[Figure, list[Axes]]:
+    rows, cols = _grid(n)
+    fig = Figure(figsize=(5.0 * cols, 3.2 * rows), layout="constrained")
+    axes = [fig.add_subplot(rows, cols, i + 1) for i in range(n)]
+    fig.suptitle(title)
+    return fig, axes
+
+
+def toe_figure(rec: Recording, legs: Sequence[str]) -> Figure:
+    """Figure 6.5: desired (red) and actual (black) toe path of each leg, steady state."""
+    fig, axes = _new_figure("Toe trajectory: desired (red) and actual (black)", len(legs))
+    for ax, leg in zip(axes, legs, strict=True):
+        s = rec.inputs[leg]
+        mask = steady_state_mask(rec, leg)
+        for kind, prefix, color in (
+            ("desired", "desired_", DESIRED_COLOR),
+            ("actual", "", ACTUAL_COLOR),
+        ):
+            t1 = np.radians(s[f"{prefix}hip_angle"][mask] / 100.0)
+            t2 = np.radians(s[f"{prefix}knee_angle"][mask] / 100.0)
+            x, y = forward_kinematics(t1, t2)
+            ax.plot(x, y, color=color, linewidth=1.0, label=kind)
+        ax.set_title(leg)
+        ax.set_xlabel("x [mm]")
+        ax.set_ylabel("y [mm]")
+        ax.set_aspect("equal", adjustable="datalim")
+        if not ax.yaxis_inverted():
+            ax.invert_yaxis()  # y points down from the hip
+        ax.legend(loc="upper right", fontsize="small")
+    return fig
+
+
+def _time_figure(
+    rec: Recording,
+    legs: Sequence[str],
+    title: str,
+    ylabel: str,
+    pairs: Sequence[tuple[str, str, float, str]],
+    limit: float | None = None,
+) -> Figure:
+    """Per-leg time plots: ``pairs`` are (variable, label, scale, color)."""
+    fig, axes = _new_figure(title, len(legs))
+    for ax, leg in zip(axes, legs, strict=True):
+        s = rec.inputs[leg]
+        t = _time_axis(rec, s.cycle)
+        for var, label, scale, color in pairs:
+            ax.plot(t, s[var] * scale, color=color, linewidth=0.8, label=label)
+        if limit is not None:
+            for sign in (1, -1):
+                ax.axhline(
+                    sign * limit,
+                    color=LIMIT_COLOR,
+                    linestyle="--",
+                    linewidth=1.0,
+                    label="limit" if sign > 0 else "_nolegend_",
+                )
+        ax.set_title(leg)
+        ax.set_xlabel("time [s]")
+        ax.set_ylabel(ylabel)
+        ax.legend(loc="upper right", fontsize="small")
+    return fig
+
+
+def timing_figure(rec: Recording) -> Figure:
+    """Histograms of the loop timing of every recorded cycle (µs, log counts)."""
+    fig, axes = _new_figure(
+        f"Loop timing, {rec.timing.get('cycle', np.empty(0)).size} cycles of {rec.bus.cycle_us} µs",
+        4,
+    )
+    panels = (
+        ("wake_latency_ns", "wake-up latency [µs]"),
+        ("exec_ns", "execution [µs]"),
+        ("period_ns", "period [µs]"),
+        ("rtt_ns", "round trip [µs]"),
+    )
+    for ax, (key, label) in zip(axes, panels, strict=True):
+        data = rec.timing.get(key, np.empty(0)).astype(float) / 1000.0
+        if key == "rtt_ns":
+            data = data[data > 0]  # 0: no reply processed in that cycle
+        if key == "period_ns" and data.size:
+            data = data[1:]  # the first cycle has no predecessor
+        if data.size:
+            ax.hist(data, bins=60, color=ACTUAL_COLOR, log=True)
+            ax.set_title(f"median {np.median(data):.1f}, max {data.max():.1f} µs", fontsize="small")
+        else:
+            ax.set_title("no data", fontsize="small")
+        ax.set_xlabel(label)
+        ax.set_ylabel("cycles")
+    return fig
+
+
+def build_figures(rec: Recording, limits: LegLimits | None = None) -> dict[str, Figure]:
+    """All figures the recording supports, by file stem."""
+    limits = limits or LegLimits()
+    figures: dict[str, Figure] = {}
+    legs = leg_slaves(rec)
+    if legs:
+        figures["fig6_5_toe_trajectory"] = toe_figure(rec, legs)
+        figures["fig6_6_knee_angle"] = _time_figure(
+            rec,
+            legs,
+            "Knee angle: desired (red) and actual (black)",
+            "knee angle [deg]",
+            [
+                ("desired_knee_angle", "desired", 0.01, DESIRED_COLOR),
+                ("knee_angle", "actual", 0.01, ACTUAL_COLOR),
+            ],
+        )
+        figures["fig6_7_hip_angle"] = _time_figure(
+            rec,
+            legs,
+            "Hip angle: desired (red) and actual (black)",
+            "hip angle [deg]",
+            [
+                ("desired_hip_angle", "desired", 0.01, DESIRED_COLOR),
+                ("hip_angle", "actual", 0.01, ACTUAL_COLOR),
+            ],
+        )
+        figures["fig6_8_knee_pwm"] = _time_figure(
+            rec,
+            legs,
+            f"Knee PWM command and limit (±{limits.pwm_knee_pct} %)",
+            "PWM [%]",
+            [("PWM10000_knee", "PWM", 0.01, ACTUAL_COLOR)],
+            limits.pwm_knee_pct,
+        )
+        figures["fig6_9_hip_pwm"] = _time_figure(
+            rec,
+            legs,
+            f"Hip PWM command and limit (±{limits.pwm_hip_pct} %)",
+            "PWM [%]",
+            [("PWM10000_hip", "PWM", 0.01, ACTUAL_COLOR)],
+            limits.pwm_hip_pct,
+        )
+        figures["fig6_10_knee_velocity"] = _time_figure(
+            rec,
+            legs,
+            f"Knee velocity and limit (±{limits.speed_knee_rad_s:.2f} rad/s)",
+            "velocity [rad/s]",
+            [("velocity_knee1000", "velocity", 0.001, ACTUAL_COLOR)],
+            limits.speed_knee_rad_s,
+        )
+        figures["fig6_11_hip_velocity"] = _time_figure(
+            rec,
+            legs,
+            f"Hip velocity and limit (±{limits.speed_hip_rad_s:.2f} rad/s)",
+            "velocity [rad/s]",
+            [("velocity_hip1000", "velocity", 0.001, ACTUAL_COLOR)],
+            limits.speed_hip_rad_s,
+        )
+    if rec.timing:
+        figures["loop_timing"] = timing_figure(rec)
+    if not figures:
+        raise RecordingError(
+            f"recording {rec.path} has neither leg variables nor loop timing to plot"
+        )
+    return figures
+
+
+def save_figures(
+    figures: dict[str, Figure], outdir: str | Path, formats: Sequence[str] = ("png", "svg")
+) -> list[Path]:
+    out = Path(outdir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise RecordingError(f"cannot create output directory {out}: {exc.strerror}") from exc
+    written: list[Path] = []
+    for stem, fig in figures.items():
+        for fmt in formats:
+            path = out / f"{stem}.{fmt}"
+            fig.savefig(path, dpi=110)
+            written.append(path)
+    return written

@@ -1,0 +1,227 @@
+"""Smoke test of the Rust simulator core through `ether_ros._native.SimNetwork`: a tiny
+hand-made slave spec, frames built by a small helper, and (as root) SOEM talking to it over a
+veth pair."""
+
+from __future__ import annotations
+
+import struct
+import time
+from typing import Any
+
+import pytest
+
+from ether_ros._native import SimNetwork
+from ether_ros.testing.netns import VethPair
+
+MASTER_MAC = bytes([0x02, 0, 0, 0, 0, 1])
+APRD, APWR, FPRD, FPWR, BRD, BWR, LRW = 1, 2, 4, 5, 7, 8, 12
+MBX_RX, MBX_TX, OUT_SM, IN_SM = 0x1000, 0x1080, 0x1100, 0x1180
+VENDOR, PRODUCT = 0x00000A12, 0x00A986FD
+
+
+def crc8(data: bytes) -> int:
+    crc = 0xFF
+    for b in data:
+        crc ^= b
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x07) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
+    return crc
+
+
+def sii_image(alias: int = 0) -> bytes:
+    """Configuration area, identity, standard mailbox, SyncM category, end marker."""
+    w = [0] * 0x40
+    w[0] = 0x0C80
+    w[4] = alias
+    w[8], w[9] = VENDOR & 0xFFFF, VENDOR >> 16
+    w[10], w[11] = PRODUCT & 0xFFFF, PRODUCT >> 16
+    w[0x18], w[0x19], w[0x1A], w[0x1B], w[0x1C] = MBX_RX, 128, MBX_TX, 128, 0x0004
+    w[0x3E], w[0x3F] = 0x0001, 0x0001
+    b = bytearray(struct.pack("<64H", *w))
+    b[14] = crc8(bytes(b[:14]))
+    sms = [(MBX_RX, 128, 0x26, 1, 1), (MBX_TX, 128, 0x22, 1, 2)]
+    sms += [(OUT_SM, 2, 0x64, 1, 3), (IN_SM, 4, 0x20, 1, 4)]
+    cat = b"".join(struct.pack("<HHBBBB", s, n, c, 0, e, t) for s, n, c, e, t in sms)
+    b += struct.pack("<HH", 41, len(cat) // 2) + cat
+    b += struct.pack("<H", 0xFFFF)
+    return bytes(b)
+
+
+def spec(alias: int = 0) -> dict[str, Any]:
+    """Output 0x7000:1 (u16) via 0x1600, input 0x6000:1 (u32) via 0x1A00."""
+    u8, u16, u32 = 5, 6, 7
+    entries = [
+        (0x1000, 0, "Device type", u32, 32, "ro", False, struct.pack("<I", 0x00020192)),
+        (0x1C00, 0, "n", u8, 8, "ro", False, b"\x04"),
+        *((0x1C00, k, f"sm{k}", u8, 8, "ro", False, bytes([k])) for k in range(1, 5)),
+        (0x1600, 0, "n", u8, 8, "rw", False, b"\x01"),
+        (0x1600, 1, "e1", u32, 32, "rw", False, struct.pack("<I", 0x70000110)),
+        (0x1A00, 0, "n", u8, 8, "rw", False, b"\x01"),
+        (0x1A00, 1, "e1", u32, 32, "rw", False, struct.pack("<I", 0x60000120)),
+        (0x1C12, 0, "n", u8, 8, "rw", False, b"\x01"),
+        (0x1C12, 1, "p1", u16, 16, "rw", False, struct.pack("<H", 0x1600)),
+        (0x1C13, 0, "n", u8, 8, "rw", False, b"\x01"),
+        (0x1C13, 1, "p1", u16, 16, "rw", False, struct.pack("<H", 0x1A00)),
+        (0x6000, 1, "Input", u32, 32, "ro", True, struct.pack("<I", 0x11223344)),
+        (0x7000, 1, "Output", u16, 16, "rw", True, b"\x00\x00"),
+    ]
+    objects = [(i, f"obj {i:04X}", 7 if i == 0x1000 else 9) for i in sorted({e[0] for e in entries})]
+    return {
+        "name": "tiny",
+        "vendor_id": VENDOR,
+        "product_code": PRODUCT,
+        "sii": sii_image(alias),
+        "objects": objects,
+        "entries": entries,
+        "device": "none",
+        "params": {},
+        "drift_ppm": 0.0,
+        "delay_ns": 800,
+        "dc_supported": True,
+        "dc_required": False,
+        "mailbox": {"rx_offset": MBX_RX, "rx_size": 128, "tx_offset": MBX_TX, "tx_size": 128},
+        "pdram_kib": 8,
+    }
+
+
+def frame(cmd: int, adp: int, ado: int, data: bytes) -> bytes:
+    """One-datagram EtherCAT frame, padded to 60 bytes."""
+    dgram = struct.pack("<BBHHHH", cmd, 0x5A, adp & 0xFFFF, ado, len(data), 0) + data + b"\0\0"
+    body = struct.pack("<H", len(dgram) | 0x1000) + dgram
+    f = b"\xff" * 6 + MASTER_MAC + b"\x88\xa4" + body
+    return f.ljust(60, b"\0")
+
+
+def xfer(net: SimNetwork, cmd: int, adp: int, ado: int, data: bytes) -> tuple[bytes, int]:
+    reply = net.process_frame(frame(cmd, adp, ado, data))
+    assert reply is not None
+    assert reply[6] == MASTER_MAC[0] ^ 0x02
+    n = len(data)
+    return reply[26 : 26 + n], struct.unpack_from("<H", reply, 26 + n)[0]
+
+
+def sm(start: int, length: int, control: int) -> bytes:
+    return struct.pack("<HHBBBB", start, length, control, 0, 1, 0)
+
+
+def fmmu(log: int, length: int, phys: int, kind: int) -> bytes:
+    return struct.pack("<IHBBHBBBBH", log, length, 0, 7, phys, 0, kind, 1, 0, 0)
+
+
+def test_frames_bring_a_slave_to_op_and_exchange_process_data() -> None:
+    net = SimNetwork(manual_clock_ns=1_000_000_000)
+    assert net.add_slave(spec()) == 0
+    assert net.add_slave(spec()) == 1
+    _, wkc = xfer(net, BRD, 0, 0x0000, b"\0\0")
+    assert wkc == 2
+    for pos in range(2):
+        _, wkc = xfer(net, APWR, -pos, 0x0010, struct.pack("<H", 0x1001 + pos))
+        assert wkc == 1
+    st = 0x1002
+    assert xfer(net, FPWR, st, 0x0800, sm(MBX_RX, 128, 0x26))[1] == 1
+    xfer(net, FPWR, st, 0x0808, sm(MBX_TX, 128, 0x22))
+    xfer(net, FPWR, st, 0x0120, b"\x02\x00")
+    status, _ = xfer(net, FPRD, st, 0x0130, b"\0" * 6)
+    assert struct.unpack("<HHH", status) == (2, 0, 0)
+    xfer(net, FPWR, st, 0x0810, sm(OUT_SM, 2, 0x64))
+    xfer(net, FPWR, st, 0x0818, sm(IN_SM, 4, 0x20))
+    xfer(net, FPWR, st, 0x0600, fmmu(0x10000, 2, OUT_SM, 2))
+    xfer(net, FPWR, st, 0x0610, fmmu(0x10002, 4, IN_SM, 1))
+    xfer(net, FPWR, st, 0x0120, b"\x04\x00")
+    data, wkc = xfer(net, LRW, 0x0000, 0x0001, struct.pack("<H", 0xBEEF) + b"\0" * 4)
+    assert wkc == 3
+    assert data[2:] == struct.pack("<I", 0x11223344)
+    xfer(net, FPWR, st, 0x0120, b"\x08\x00")
+    info = net.slave_info(1)
+    assert (info["al_state_name"], info["al_status_code"], info["station_address"]) == ("OP", 0, st)
+    xfer(net, LRW, 0x0000, 0x0001, struct.pack("<H", 0xBEEF) + b"\0" * 4)
+    assert net.od_read(1, 0x7000, 1) == struct.pack("<H", 0xBEEF)
+    net.od_write(1, 0x6000, 1, struct.pack("<I", 7))
+    data, _ = xfer(net, LRW, 0x0000, 0x0001, b"\0" * 6)
+    assert data[2:] == struct.pack("<I", 7)
+    # The watchdog (100 ms) expires without outputs.
+    net.advance_clock(200_000_000)
+    net.poll()
+    info = net.slave_info(1)
+    assert (info["al_state_name"], info["al_error"], info["al_status_code"]) == ("SAFEOP", True, 0x1B)
+    assert info["watchdog_expired"]
+    stats = net.stats()
+    assert stats["commands"]["LRW"] == 3
+    assert stats["frames_answered"] == stats["frames_seen"]
+
+
+def test_faults_and_bad_input_are_reported() -> None:
+    net = SimNetwork(seed=7, manual_clock_ns=1)
+    net.add_slave(spec())
+    net.fault("drop", rate=1.0, burst=2)
+    assert net.process_frame(frame(BRD, 0, 0, b"\0\0")) is None
+    net.fault("clear")
+    assert net.process_frame(frame(BRD, 0, 0, b"\0\0")) is not None
+    net.fault("link", up=False)
+    assert net.process_frame(frame(BRD, 0, 0, b"\0\0")) is None
+    net.fault("link", up=True)
+    net.fault("refuse_op", pos=0)
+    assert net.slave_info(0)["refuse_op"]
+    net.fault("drift_step", pos=0, ppm=25.0)
+    assert net.slave_info(0)["dc_drift_ppm"] == 25.0
+    assert net.process_frame(b"\x00" * 10) is None
+    assert net.process_frame(b"\xff" * 6 + MASTER_MAC + b"\x08\x00" + b"\0" * 46) is None
+    with pytest.raises(ValueError, match="unknown fault 'explode'"):
+        net.fault("explode")
+    with pytest.raises(ValueError, match="has no argument 'speed'"):
+        net.fault("drop", rate=0.1, speed=3)
+    with pytest.raises(ValueError, match="rate 2 is not within"):
+        net.fault("drop", rate=2.0)
+    with pytest.raises(IndexError, match="no slave at position 3"):
+        net.slave_info(3)
+    bad = spec()
+    bad["delay_ns"] = "soon"
+    with pytest.raises(ValueError, match="'delay_ns'"):
+        net.add_slave(bad)
+    bad = spec()
+    bad["colour"] = "blue"
+    with pytest.raises(ValueError, match="unknown key 'colour'"):
+        net.add_slave(bad)
+    bad = spec()
+    bad["device"] = "toaster"
+    with pytest.raises(ValueError, match="toaster"):
+        net.add_slave(bad)
+    with pytest.raises(ValueError, match="no object entry 0x1234:0"):
+        net.od_read(0, 0x1234, 0)
+
+
+@pytest.mark.netns
+def test_soem_reads_the_sii_and_reaches_safeop_over_veth(veth: VethPair) -> None:
+    pysoem = pytest.importorskip("pysoem")
+    net = SimNetwork()
+    net.add_slave(spec(alias=0x0042))
+    net.add_slave(spec())
+    net.run_on_interface(veth.slave)
+    try:
+        master = pysoem.Master()
+        master.open(veth.master)
+        try:
+            assert master.config_init() == 2
+            s0 = master.slaves[0]
+            assert (s0.man, s0.id) == (VENDOR, PRODUCT)
+            assert master.state_check(pysoem.PREOP_STATE, 200_000) == pysoem.PREOP_STATE
+            assert s0.sdo_read(0x1000, 0) == struct.pack("<I", 0x00020192)
+            master.config_map()
+            assert master.state_check(pysoem.SAFEOP_STATE, 200_000) == pysoem.SAFEOP_STATE
+            master.send_processdata()
+            assert master.receive_processdata(20_000) == 6
+            master.state = pysoem.OP_STATE
+            master.write_state()
+            deadline = time.monotonic() + 2.0
+            while time.monotonic() < deadline:
+                master.send_processdata()
+                master.receive_processdata(2_000)
+                if master.state_check(pysoem.OP_STATE, 1_000) == pysoem.OP_STATE:
+                    break
+            assert master.read_state() == pysoem.OP_STATE
+            assert net.slave_info(0)["alias"] == 0x0042
+        finally:
+            master.close()
+    finally:
+        net.stop()
+    assert net.stats()["frames_answered"] > 10

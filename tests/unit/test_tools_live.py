@@ -1,0 +1,129 @@
+"""`ether-ros top`: the screen driven by textual's pilot, fed by a source one layer down."""
+
+from __future__ import annotations
+
+import asyncio
+
+import numpy as np
+from textual.widgets import DataTable, Static
+
+from ether_ros.tools.live import (
+    LiveSnapshot,
+    SlaveRow,
+    StaticSource,
+    TopApp,
+    histogram_text,
+    snapshot_from_diagnostics,
+    timing_text,
+)
+
+
+def snapshot(lost: int, state: str) -> LiveSnapshot:
+    rng = np.random.default_rng(1)
+    return LiveSnapshot(
+        bus="laelaps_ii",
+        cycle_us=400,
+        cycles=25_000,
+        lost_frames=lost,
+        late_frames=1,
+        wkc_errors=0,
+        dc_sync_error_ns=87.0,
+        slaves=[
+            SlaveRow(0, "front_left", state, "LaelapsII_Leg"),
+            SlaveRow(1, "front_right", "OP", "LaelapsII_Leg"),
+        ],
+        wake_latency_us=list(rng.gamma(2.0, 5.0, 500)),
+        exec_us=[20.0] * 500,
+        period_us=list(400 + rng.normal(0, 3, 500)),
+        rtt_us=[110.0] * 500,
+        source="test",
+    )
+
+
+def text_of(app: TopApp, widget_id: str) -> str:
+    return str(app.query_one(widget_id, Static).content)
+
+
+def test_screen_shows_slaves_stats_and_histograms_and_updates() -> None:
+    source = StaticSource([snapshot(0, "SAFEOP"), snapshot(3, "OP")])
+
+    async def run() -> None:
+        app = TopApp(source, interval=3600)  # refreshed by hand below: no timing involved
+        async with app.run_test(size=(140, 40)) as pilot:
+            await pilot.pause()
+            stats = text_of(app, "#stats")
+            assert "bus laelaps_ii" in stats and "2500 Hz" in stats
+            assert "DC sync error 87 ns" in stats
+            table = app.query_one("#slaves", DataTable)
+            assert table.row_count == 2
+            assert table.get_row("0") == ["0", "front_left", "SAFEOP", "LaelapsII_Leg"]
+            timing = text_of(app, "#timing")
+            for label in ("wake-up latency", "execution", "period", "round trip"):
+                assert label in timing
+            assert "median   110.0" in timing
+            # The next refresh brings the second snapshot.
+            app.refresh_view()
+            await pilot.pause()
+            assert "lost frames 3" in text_of(app, "#stats")
+            assert table.get_row("0")[2] == "OP"
+            await pilot.press("q")
+        assert source.closed
+
+    asyncio.run(run())
+
+
+def test_a_failing_source_is_shown_not_raised() -> None:
+    class Broken:
+        def poll(self) -> LiveSnapshot:
+            raise RuntimeError("node went away")
+
+        def close(self) -> None:
+            pass
+
+    async def run() -> None:
+        app = TopApp(Broken(), interval=0.05)
+        async with app.run_test() as pilot:
+            await pilot.pause()
+            assert "source: node went away" in text_of(app, "#stats")
+
+    asyncio.run(run())
+
+
+def test_histogram_text_marks_the_tail() -> None:
+    line = histogram_text("period", [400.0] * 999 + [900.0])
+    bars = line.split("|")[1]
+    assert bars[0] == "█" and bars[-1] != " "  # the single late cycle still shows
+    assert "max   900.0" in line
+    assert "no data" in histogram_text("round trip", [])
+
+
+def test_snapshot_from_the_nodes_diagnostics_shows_quantiles() -> None:
+    master = {
+        "lifecycle_state": "active",
+        "cycles": "25000",
+        "lost_frames": "7",
+        "late_frames": "1",
+        "wkc_errors": "0",
+        "panic": "true",
+        "rtt_p50_ns": "110000",
+        "rtt_p99_ns": "130000",
+        "rtt_max_ns": "150000",
+        "dc_sync_error_max_ns": "-12",
+    }
+    slaves = {
+        "hind_left_leg": ("OP", {"position": "1", "al_state": "OP", "al_error": "false"}),
+        "hind_right_leg": (
+            "SAFEOP with error 0x001b: sync manager watchdog",
+            {"position": "0", "al_state": "SAFEOP", "al_error": "true"},
+        ),
+    }
+    snap = snapshot_from_diagnostics(master, slaves, "ether_comm")
+    assert [(r.name, r.state) for r in snap.slaves] == [
+        ("hind_right_leg", "SAFEOP ERR"),
+        ("hind_left_leg", "OP"),
+    ]
+    assert "watchdog" in snap.slaves[0].detail
+    assert snap.lost_frames == 7 and snap.dc_sync_error_ns == -12.0 and snap.panic
+    text = timing_text(snap)
+    assert "round trip       p50    110.0  p99    130.0  max    150.0 µs" in text
+    assert "execution        no data" in text
