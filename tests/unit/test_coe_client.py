@@ -44,6 +44,7 @@ class FakeSlave:
     lose_reads: int = 0  # the next N read-mailbox reads reach the slave but the answer is lost
     last_sent: bytes = b""
     repeat_ack: int = 0
+    last_counter: int | None = None
     transfer: dict[str, object] | None = None
 
     # ---- Datagrams protocol --------------------------------------------------------------
@@ -81,7 +82,10 @@ class FakeSlave:
         if station != STATION or ado != RX_OFFSET or len(data) != RX_SIZE:
             return 0
         length, _addr, _chan, type_counter = struct.unpack_from("<HHBB", data)
-        assert 1 <= type_counter >> 4 <= 7, "counter must cycle 1..7"
+        counter = type_counter >> 4
+        expected = 0 if self.last_counter is None else self.last_counter % 7 + 1
+        assert counter == expected, "first message 0, then 1..7 cycling"
+        self.last_counter = counter
         payload = data[6 : 6 + length]
         self.requests.append(payload)
         if self.mailbox_error is not None:
@@ -113,10 +117,10 @@ class FakeSlave:
             data = bytes(entry.value)
             if len(data) <= 4:
                 flags = 0x43 | (4 - len(data)) << 2
-                return [sdo(3, flags, index, sub, data.ljust(4, b"\x00"))]
+                return [sdo_frame(3, flags, index, sub, data.ljust(4, b"\x00"))]
             room = RX_SIZE - 6 - 10
             self.transfer = {"data": data, "sent": room, "toggle": 0}
-            return [sdo(3, 0x41, index, sub, struct.pack("<I", len(data))) + data[:room]]
+            return [sdo_frame(3, 0x41, index, sub, struct.pack("<I", len(data))) + data[:room]]
         if cs == 3:  # upload segment
             t = self.transfer
             assert t is not None
@@ -140,14 +144,14 @@ class FakeSlave:
             if cmd & 0x02:
                 n = 4 - ((cmd >> 2) & 3)
                 entry.value[:] = r[6 : 6 + n]
-                return [sdo(3, 0x60, index, sub)]
+                return [sdo_frame(3, 0x60, index, sub)]
             size = struct.unpack_from("<I", r, 6)[0]
             data = r[10:]
             if len(data) >= size:
                 entry.value[:] = data[:size]
             else:
                 self.transfer = {"entry": entry, "size": size, "data": bytearray(data), "toggle": 0}
-            return [sdo(3, 0x60, index, sub)]
+            return [sdo_frame(3, 0x60, index, sub)]
         if cs == 0:  # download segment
             t = self.transfer
             assert t is not None
@@ -193,12 +197,12 @@ class FakeSlave:
         return [info_error(0x05040001)]
 
 
-def sdo(service: int, cmd: int, index: int, sub: int, data: bytes = bytes(4)) -> bytes:
+def sdo_frame(service: int, cmd: int, index: int, sub: int, data: bytes = bytes(4)) -> bytes:
     return struct.pack("<HBHB", service << 12, cmd, index, sub) + data
 
 
 def abort(index: int, sub: int, code: int) -> bytes:
-    return sdo(2, 0x80, index, sub, struct.pack("<I", code))
+    return sdo_frame(2, 0x80, index, sub, struct.pack("<I", code))
 
 
 def info_error(code: int) -> bytes:
@@ -289,6 +293,20 @@ def test_timeout_names_slave_and_what_was_awaited(slave: FakeSlave) -> None:
         sdo.upload(0x1000, 0)
     assert "slave 'front_left_leg': SDO upload 0x1000:00 failed: timed out" in str(e.value)
     assert "CoE reply in the read mailbox" in str(e.value)
+
+
+def test_late_reply_of_a_timed_out_request_is_dropped(slave: FakeSlave) -> None:
+    slave.silent = True
+    sdo = make_client(slave, timeout_s=0.02)
+    with pytest.raises(MailboxError, match="timed out"):
+        sdo.upload(0x2000, 0)
+    # The slave answers late; the next transfer must not take that answer for its own.
+    slave.silent = False
+    slave.push(3, sdo_frame(3, 0x4B, 0x2000, 0, b"\x07\x00\x00\x00"))
+    slave.emergency(0x5000, 0x01, bytes(5))
+    assert sdo.upload(0x1000, 0) == struct.pack("<I", 0x1389)
+    assert sdo.mailbox.discarded == 1
+    assert [e.error_code for e in sdo.emergencies] == [0x5000]
 
 
 def test_full_write_mailbox_is_waited_for_then_times_out(slave: FakeSlave) -> None:

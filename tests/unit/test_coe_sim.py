@@ -98,8 +98,8 @@ def spec_for(device: EsiDevice, mbx: dict[str, int]) -> dict[str, Any]:
     }
 
 
-@pytest.fixture
-def sdo() -> SdoClient:
+def open_sim_slave() -> SdoClient:
+    """A simulator with one slave in PREOP and an SDO client for it."""
     device = load_esi(ESI)[0]
     mbox_out, mbox_in = device.sm("MBoxOut"), device.sm("MBoxIn")
     assert mbox_out is not None and mbox_in is not None
@@ -124,12 +124,17 @@ def sdo() -> SdoClient:
             break
     else:
         code, _ = dg.fprd(STATION, 0x0134, 2)
-        pytest.fail(f"slave did not reach PREOP: AL status {status.hex()}, code {code.hex()}")
+        raise AssertionError(f"no PREOP: AL status {status.hex()}, code {code.hex()}")
     mailbox = Mailbox(
         dg, STATION, "front_left_leg", mbx["rx_offset"], mbx["rx_size"],
         mbx["tx_offset"], mbx["tx_size"],
     )  # fmt: skip
     return SdoClient(mailbox, "front_left_leg", timeout_s=1.0)
+
+
+@pytest.fixture
+def sdo() -> SdoClient:
+    return open_sim_slave()
 
 
 def test_expedited_and_segmented_upload(sdo: SdoClient) -> None:

@@ -268,7 +268,7 @@ def test_esi_path_is_relative_to_the_yaml(tmp_path: Path) -> None:
     (tmp_path / "esi" / "leg.xml").write_text((DEVICES / "laelaps_ii_leg.xml").read_text())
     text = textwrap.dedent(
         """\
-        esi: [../esi]
+        esi: ../esi
         bus: {dc: {enabled: true}}
         slaves:
           - {name: leg, device: LaelapsII_Leg}

@@ -5,6 +5,7 @@ sockets and the veth pair are real. No assertion depends on timing."""
 
 from __future__ import annotations
 
+import gc
 import os
 import socket
 import threading
@@ -13,9 +14,9 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+import ether_ros._native as _native
 import pytest
 
-from ether_ros import _native  # type: ignore[attr-defined]
 from ether_ros.errors import LinkError
 from ether_ros.master.samples import (
     FLAG_ACYCLIC,
@@ -107,7 +108,8 @@ class VethResponder:
 
     def __init__(self, ifname: str, esc: FakeEsc) -> None:
         self.esc = esc
-        self.sock = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, socket.htons(ETHERTYPE))
+        # Protocol 0 until bound: nothing from other interfaces gets queued before bind().
+        self.sock = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, 0)
         self.sock.bind((ifname, ETHERTYPE))
         self.sock.settimeout(0.05)
         self.extra: list[bytes] = []  # frames to send once, before the next reply
@@ -266,7 +268,7 @@ def test_cyclic_exchange_in_process(sim: tuple[_native.Engine, FakeEsc], order: 
     stats = engine.stats()
     assert stats["cycles"] == len(s)
     assert stats["acyclic_frames"] >= 1
-    for name in ("wake_latency", "exec", "period", "rtt"):
+    for name in ("wake_latency", "exec", "period", "rtt", "send"):
         h = stats[name]
         assert h["count"] > 0 and h["min"] <= h["p50"] <= h["p99"] <= h["p999"] <= h["max"]
     engine.reset_stats()
@@ -439,6 +441,18 @@ def test_full_ring_drops_new_samples_and_counts_them(sim: tuple[_native.Engine, 
     s = drain(engine)
     assert len(s) == 4
     assert list(s.records["cycle"]) == [0, 1, 2, 3]  # the oldest are kept, the newest dropped
+
+
+def test_dropping_a_running_engine_stops_its_thread() -> None:
+    # The Python responder needs the GIL in the RT thread: dropping the engine must not hold it
+    # while joining (that would deadlock).
+    esc = FakeEsc()
+    engine = Engine.open_sim(esc)
+    engine.start_cyclic(plan())
+    wait_for(lambda: len(esc.outputs()) > 2, "cycles")
+    del engine
+    gc.collect()
+    assert _thread_named("ether_ros-rt") is None
 
 
 def _fds() -> int:

@@ -114,7 +114,8 @@ def test_generic_io_device() -> None:
     layout = ProcessLayout.for_device(gio)
     assert layout.rx_pdos == (0x1600, 0x1601) and layout.tx_pdos == (0x1A00, 0x1A01)
     assert (layout.output_bytes, layout.input_bytes) == (5, 5)
-    assert [v.name for v in layout.outputs] == [f"DigitalOutput{i}" for i in range(1, 9)] + ["AnalogOutput1", "AnalogOutput2"]
+    digital = [f"DigitalOutput{i}" for i in range(1, 9)]
+    assert [v.name for v in layout.outputs] == [*digital, "AnalogOutput1", "AnalogOutput2"]
     assert layout.variable("AnalogInput2").key == "0x6010:02"
 
 

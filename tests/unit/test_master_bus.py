@@ -3,13 +3,14 @@ bring-up to OP, process data both ways, validation before the wire, SDO in OP, s
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 from ether_ros.config import load_bus_config
-from ether_ros.config.bus import BusConfig
+from ether_ros.config.bus import BusConfig, PdoAssign
 from ether_ros.config.process import ProcessValueError
 from ether_ros.errors import BusError
 from ether_ros.master import Bus
@@ -29,7 +30,7 @@ def _config(name: str = "laelaps.yaml") -> BusConfig:
 
 
 def _network(cfg: BusConfig) -> object:
-    from ether_ros.sim import build_network
+    from ether_ros.sim.network import build_network
 
     return build_network(cfg)
 
@@ -47,9 +48,11 @@ def test_validation_happens_before_the_wire(bus: Bus) -> None:
     with pytest.raises(ProcessValueError, match="is an input"):
         bus.write("front_left_leg", "hip_angle", 1)
     with pytest.raises(ProcessValueError, match="out of range"):
-        bus.write("front_left_leg", "State_Machine", 1 << 40)
+        bus.write("front_left_leg", "Kp100_knee", 40000)  # int16
     with pytest.raises(ProcessValueError, match="integer"):
-        bus.write("front_left_leg", "State_Machine", "run")
+        bus.write("front_left_leg", "Kp100_knee", "fast")
+    with pytest.raises(ProcessValueError, match="bool"):
+        bus.write("front_left_leg", "State_Machine", 2)
     with pytest.raises(BusError, match="no slave 'left_wing'"):
         bus.write("left_wing", "State_Machine", 1)
     assert bus.outputs("front_left_leg")["State_Machine"] == 0
@@ -80,3 +83,54 @@ def test_identity_mismatch_is_named() -> None:
     )
     with pytest.raises(BusError, match=message):
         Bus.open(cfg, link=net)
+
+
+def test_reset_reference_clock_comes_back_in_sync() -> None:
+    cfg = _config()
+    net = _network(cfg)
+    with Bus.open(cfg, link=net, drift_frames=100) as bus:
+        bus.start()
+        events: list[str] = []
+        bus.on_event(lambda e: events.append(f"{e.kind} {e.slave}"))
+        net.fault("reset", slave=0)  # type: ignore[attr-defined]
+        deadline = time.monotonic() + 10
+        while "slave_recovered hind_right_leg" not in events and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert "slave_lost hind_right_leg" in events
+        assert "slave_recovered hind_right_leg" in events
+        assert [s.state for s in bus.states()] == ["OP"] * 4
+        # Its system time was restored from a running slave (the reset put it back at its local
+        # time, years away from the system time since 2000): the two read the same date.
+        ref, other = (net.slave_info(p) for p in (0, 1))  # type: ignore[attr-defined]
+        assert abs(ref["dc_system_time"] - other["dc_system_time"]) < 1_000_000_000
+        assert ref["sync0_active"]
+
+
+def test_pdo_assignment_override_is_written_over_coe() -> None:
+    cfg = _config("mixed.yaml")
+    net = _network(cfg)
+    io = cfg.slaves[4]
+    io.pdo_assign = PdoAssign(rx=[0x1601], tx=[0x1A01])  # analog only
+    with Bus.open(cfg, link=net, drift_frames=100) as bus:
+        area = bus.slave("io_box").area
+        assert area is not None and (area.output_bytes, area.input_bytes) == (4, 4)
+        bus.start()
+        assert [s.state for s in bus.states()] == ["OP"] * 5
+        assert bus.sdo_read("io_box", 0x1C12, 0) == 1
+        assert bus.sdo_read("io_box", 0x1C12, 1) == 0x1601
+        with pytest.raises(ProcessValueError, match="DigitalOutput1"):
+            bus.write("io_box", "DigitalOutput1", True)
+        bus.write("io_box", "AnalogOutput2", -1200)
+        deadline = time.monotonic() + 10
+        while bus.read("io_box", "AnalogInput2") > -1100 and time.monotonic() < deadline:  # type: ignore[operator]
+            time.sleep(0.02)
+        assert bus.read("io_box", "AnalogInput2") <= -1100  # type: ignore[operator]
+
+
+def test_pdo_override_on_a_fixed_device_is_refused_by_name() -> None:
+    cfg = _config()
+    net = _network(cfg)
+    cfg.slaves[1].pdo_assign = PdoAssign(rx=[0x1600], tx=[])
+    message = r"slave 1 \(hind_left_leg\): .* cannot change its PDO"
+    with Bus.open(cfg, link=net, drift_frames=100) as bus, pytest.raises(BusError, match=message):
+        bus.start()

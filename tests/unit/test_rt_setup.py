@@ -190,3 +190,24 @@ def test_unknown_interface_and_cpu(stock: Path, capsys: pytest.CaptureFixture[st
     assert "'eth9' not found" in capsys.readouterr().err
     assert main(["rt", "setup", "--root", str(stock), "--cpu", "8", "--interface", "enp5s0"]) == 2
     assert "CPU 8 is not online" in capsys.readouterr().err
+
+
+def test_irq_threads_go_above_the_rt_thread_and_come_back(tmp_path: Path) -> None:
+    root = tmp_path / "host"
+    shutil.copytree(DATA / "preempt_rt", root)
+    before = snapshot(root)
+    undo_file = tmp_path / "undo.json"
+    args = ["rt", "setup", "--root", str(root), "--cpu", "3", "--interface", "enp5s0"]
+    # The tuned host's IRQ threads run at 90: above an RT thread at 80, nothing to do there.
+    assert main([*args, "--apply", "--undo-file", str(undo_file)]) == 0
+    assert "irq/40" not in undo_file.read_text()
+    assert main(["rt", "setup", "--root", str(root), "--undo", str(undo_file)]) == 0
+    # An RT thread at 92 needs them at 97; enp6s0's IRQ thread is not the EtherCAT NIC's.
+    assert main([*args, "--priority", "92", "--apply", "--undo-file", str(undo_file)]) == 0
+    stat = (root / "proc/140/stat").read_text().split()
+    assert (stat[39], stat[40]) == ("97", "1")  # rt_priority (field 40), policy (field 41)
+    assert (root / "proc/150/stat").read_text() == before["proc/150/stat"]
+    report = run_checks(Host(root), CheckOptions(interface="enp5s0", cpu=3, priority=92))
+    assert {c.name: c.status for c in report.checks}["NIC IRQ thread priority"] == PASS
+    assert main(["rt", "setup", "--root", str(root), "--undo", str(undo_file)]) == 0
+    assert (root / "proc/140/stat").read_text().split()[39] == "90"

@@ -112,3 +112,11 @@ def test_bad_alias_and_too_small_eeprom(tmp_path: Path) -> None:
     (tiny,) = load_esi(small)
     with pytest.raises(ConfigError, match=r"needs \d+ bytes but the EEPROM has 256"):
         build_sii(tiny)
+
+
+def test_device_name_is_string_one() -> None:
+    # SOEM names a slave by SII string 1; IgH by the GENERAL category's name index.
+    (gio,) = load_esi(REPO / "devices" / "generic_io.xml")
+    info = parse_sii(build_sii(gio))
+    assert info.strings[0] == gio.name
+    assert info.general is not None and info.general.name == gio.name

@@ -175,3 +175,11 @@ def test_sim_fault_without_simulator_is_one_line_error(tmp_path: Path, capsys: A
     err = capsys.readouterr().err.strip()
     assert err.startswith("ether-ros sim-fault: error: no simulator listening on")
     assert "\n" not in err
+
+
+def test_identity_object_carries_the_serial() -> None:
+    cfg = load_bus_config(REPO / "config" / "laelaps.yaml")
+    for pos, spec in enumerate(network_specs(cfg)):
+        entries = {(e[0], e[1]): e[7] for e in spec["entries"]}
+        assert int.from_bytes(entries[(0x1018, 4)], "little") == SERIAL_BASE + pos
+        assert int.from_bytes(entries[(0x1018, 1)], "little") == 0x0A12

@@ -9,8 +9,8 @@ import time
 from typing import Any
 
 import pytest
-
 from ether_ros._native import SimNetwork
+
 from ether_ros.testing.netns import VethPair
 
 MASTER_MAC = bytes([0x02, 0, 0, 0, 0, 1])
@@ -65,7 +65,9 @@ def spec(alias: int = 0) -> dict[str, Any]:
         (0x6000, 1, "Input", u32, 32, "ro", True, struct.pack("<I", 0x11223344)),
         (0x7000, 1, "Output", u16, 16, "rw", True, b"\x00\x00"),
     ]
-    objects = [(i, f"obj {i:04X}", 7 if i == 0x1000 else 9) for i in sorted({e[0] for e in entries})]
+    objects = [
+        (i, f"obj {i:04X}", 7 if i == 0x1000 else 9) for i in sorted({e[0] for e in entries})
+    ]
     return {
         "name": "tiny",
         "vendor_id": VENDOR,
@@ -143,7 +145,11 @@ def test_frames_bring_a_slave_to_op_and_exchange_process_data() -> None:
     net.advance_clock(200_000_000)
     net.poll()
     info = net.slave_info(1)
-    assert (info["al_state_name"], info["al_error"], info["al_status_code"]) == ("SAFEOP", True, 0x1B)
+    assert (info["al_state_name"], info["al_error"], info["al_status_code"]) == (
+        "SAFEOP",
+        True,
+        0x1B,
+    )
     assert info["watchdog_expired"]
     stats = net.stats()
     assert stats["commands"]["LRW"] == 3
@@ -160,9 +166,9 @@ def test_faults_and_bad_input_are_reported() -> None:
     net.fault("link", up=False)
     assert net.process_frame(frame(BRD, 0, 0, b"\0\0")) is None
     net.fault("link", up=True)
-    net.fault("refuse_op", pos=0)
+    net.fault("refuse_op", slave=0)
     assert net.slave_info(0)["refuse_op"]
-    net.fault("drift_step", pos=0, ppm=25.0)
+    net.fault("drift_step", pos=0, ppm=25.0)  # `pos` is accepted too
     assert net.slave_info(0)["dc_drift_ppm"] == 25.0
     assert net.process_frame(b"\x00" * 10) is None
     assert net.process_frame(b"\xff" * 6 + MASTER_MAC + b"\x08\x00" + b"\0" * 46) is None
@@ -188,6 +194,9 @@ def test_faults_and_bad_input_are_reported() -> None:
         net.add_slave(bad)
     with pytest.raises(ValueError, match="no object entry 0x1234:0"):
         net.od_read(0, 0x1234, 0)
+    with pytest.raises(OSError, match="nosuchif0"):
+        net.run_on_interface("nosuchif0")
+    assert not net.running
 
 
 @pytest.mark.netns

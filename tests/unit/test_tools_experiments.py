@@ -106,7 +106,7 @@ def test_trot_needs_laelaps_legs() -> None:
     try:
         with pytest.raises(ExperimentError, match="no slave has the Laelaps II trajectory"):
             trot(bus, TrotPlan(transition_s=0, hold_s=0))
-        with pytest.raises(ExperimentError, match="transition time must be 0..127"):
+        with pytest.raises(ExperimentError, match=r"transition time must be 0\.\.127"):
             trot(bus, TrotPlan(transition_s=200))
     finally:
         bus.close()

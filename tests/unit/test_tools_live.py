@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 
 import numpy as np
+import pytest
 from textual.widgets import DataTable, Static
 
 from ether_ros.tools.live import (
@@ -81,7 +82,7 @@ def test_a_failing_source_is_shown_not_raised() -> None:
             pass
 
     async def run() -> None:
-        app = TopApp(Broken(), interval=0.05)
+        app = TopApp(Broken(), interval=3600)
         async with app.run_test() as pilot:
             await pilot.pause()
             assert "source: node went away" in text_of(app, "#stats")
@@ -127,3 +128,74 @@ def test_snapshot_from_the_nodes_diagnostics_shows_quantiles() -> None:
     text = timing_text(snap)
     assert "round trip       p50    110.0  p99    130.0  max    150.0 µs" in text
     assert "execution        no data" in text
+
+
+@pytest.mark.ros
+def test_diagnostics_source_reads_the_nodes_statuses() -> None:
+    """A real rclpy publisher sends what the node's diagnostics module builds; the live view's
+    source subscribes and turns it into a snapshot."""
+    import time
+    import uuid
+    from types import SimpleNamespace
+
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    from ether_ros.ros import diagnostics
+    from ether_ros.tools.live import DiagnosticsLiveSource
+
+    topic = f"/test_diag_{uuid.uuid4().hex[:8]}"
+    source = DiagnosticsLiveSource(topic)
+    node = rclpy.create_node(f"test_pub_{uuid.uuid4().hex[:8]}")
+    try:
+        pub = node.create_publisher(DiagnosticArray, topic, 10)
+        stats = {
+            "cycles": 5000,
+            "lost_frames": 2,
+            "rtt.p50": 110000,
+            "rtt.p99": 120000,
+            "rtt.max": 150000,
+        }
+        states = [
+            SimpleNamespace(
+                name="hind_right_leg",
+                position=0,
+                station=0x1001,
+                state="OP",
+                error=False,
+                code=0,
+                text="",
+            ),
+            SimpleNamespace(
+                name="hind_left_leg",
+                position=1,
+                station=0x1002,
+                state="SAFEOP",
+                error=True,
+                code=0x1B,
+                text="sync manager watchdog",
+            ),
+        ]
+        statuses = [
+            diagnostics.master_status("ether_comm", "active", stats, {}, False, 42.0),
+            *diagnostics.slave_statuses("ether_comm", states),
+        ]
+        msg = diagnostics.array(statuses, node.get_clock().now().to_msg())
+        deadline = time.monotonic() + 10
+        snap = source.poll()
+        while snap.error and time.monotonic() < deadline:
+            pub.publish(msg)
+            time.sleep(0.05)
+            snap = source.poll()
+        assert not snap.error, snap.error
+        assert snap.source.startswith("node test_pub_") or snap.source.startswith("node ")
+        assert snap.cycles == 5000 and snap.lost_frames == 2
+        assert snap.dc_sync_error_ns == 42.0
+        assert [(r.name, r.state) for r in snap.slaves] == [
+            ("hind_right_leg", "OP"),
+            ("hind_left_leg", "SAFEOP ERR"),
+        ]
+        assert snap.quantiles_us["rtt"] == (110.0, 120.0, 150.0)
+    finally:
+        node.destroy_node()
+        source.close()

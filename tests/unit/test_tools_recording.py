@@ -72,7 +72,7 @@ def test_round_trip(tmp_path: Path) -> None:
     assert leg["knee_angle"][3] == -1500.0
     assert rec.outputs["leg"]["a"].tolist() == [1.0] * len(leg.cycle)
     assert rec.joints["position"][:, 0][2] == pytest.approx(20 * 100.0 * 0.01)
-    with pytest.raises(RecordingError, match="no variable 'nope'.*hip_angle, knee_angle"):
+    with pytest.raises(RecordingError, match=r"no variable 'nope'.*hip_angle, knee_angle"):
         leg["nope"]
     with pytest.raises(RecordingError, match="no slave 'arm'"):
         rec.bus.slave("arm")

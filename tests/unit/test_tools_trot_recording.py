@@ -9,18 +9,14 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import matplotlib
 import numpy as np
 import pytest
+from matplotlib.lines import Line2D
 
-matplotlib.use("Agg")
-
-from matplotlib.lines import Line2D  # noqa: E402
-
-from ether_ros.tools.experiments import TrotResult  # noqa: E402
-from ether_ros.tools.plots import build_figures, forward_kinematics, save_figures  # noqa: E402
-from ether_ros.tools.recording import Recording, read_recording  # noqa: E402
-from ether_ros.tools.sim_recording import record_simulated_trot  # noqa: E402
+from ether_ros.tools.experiments import TrotResult
+from ether_ros.tools.plots import build_figures, forward_kinematics, save_figures
+from ether_ros.tools.recording import Recording, read_recording
+from ether_ros.tools.sim_recording import record_simulated_trot
 
 LEGS = ["hind_right_leg", "hind_left_leg", "front_left_leg", "front_right_leg"]
 

@@ -131,6 +131,7 @@ pub struct Cyclic {
     // Results of the current cycle.
     flags: u16,
     rtt_ns: u32,
+    send_ns: u64,
     wkc: u16,
     dc_diff_ns: i32,
 }
@@ -165,6 +166,7 @@ impl Cyclic {
             ref_sample: None,
             flags: 0,
             rtt_ns: 0,
+            send_ns: 0,
             wkc: 0,
             dc_diff_ns: 0,
         }
@@ -199,13 +201,6 @@ impl Cyclic {
             self.wkc = 0;
             self.dc_diff_ns = 0;
             self.ref_sample = None;
-            if self.shared.mailbox.expire(t_wake) {
-                self.shared
-                    .stats
-                    .counters
-                    .acyclic_timeouts
-                    .fetch_add(1, Ordering::Relaxed);
-            }
             let t_sent = match order {
                 Order::SendAtWake => {
                     // Nothing in the frame depends on the previous reply, so the frame goes
@@ -227,6 +222,15 @@ impl Cyclic {
                     t
                 }
             };
+            // An acyclic request gets its answer time plus this cycle's receive: with a cycle
+            // longer than its timeout, the reply read at the next wake still counts.
+            if self.shared.mailbox.expire(t_wake) {
+                self.shared
+                    .stats
+                    .counters
+                    .acyclic_timeouts
+                    .fetch_add(1, Ordering::Relaxed);
+            }
             // DC: the reply tells where the reference clock stands.
             let mut next = planned + plan_cycle;
             self.dc_update(&mut next, plan_cycle);
@@ -283,6 +287,7 @@ impl Cyclic {
         if r.rtt_ns > 0 {
             s.rtt.record(r.rtt_ns as u64);
         }
+        s.send.record(self.send_ns);
     }
 
     /// The frame of cycle `cycle` had its chance: no reply means lost.
@@ -448,6 +453,7 @@ impl Cyclic {
         let t_handed = now_ns();
         let sent = self.link.send(&self.frame[..self.layout.len]);
         let t_sent = now_ns();
+        self.send_ns = (t_sent - t_handed).max(0) as u64;
         match sent {
             Ok(()) => {
                 let cycle = self.cycle;

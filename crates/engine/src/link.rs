@@ -80,11 +80,12 @@ impl RawSocketLink {
                     format!("no network interface named '{ifname}'"),
                 ));
             }
-            let proto = (ETHERTYPE).to_be() as libc::c_int;
+            // Protocol 0: the socket receives nothing until bind() names the interface and the
+            // EtherType, so frames of other interfaces never get queued in between.
             let fd = libc::socket(
                 libc::AF_PACKET,
                 libc::SOCK_RAW | libc::SOCK_NONBLOCK | libc::SOCK_CLOEXEC,
-                proto,
+                0,
             );
             if fd < 0 {
                 return Err(os_error(

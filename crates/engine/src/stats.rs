@@ -181,15 +181,18 @@ pub struct Stats {
     pub exec: Histogram,
     pub period: Histogram,
     pub rtt: Histogram,
+    /// Time inside the link's send call for the cyclic frame (part of `exec`).
+    pub send: Histogram,
 }
 
 impl Stats {
-    pub fn histograms(&self) -> [(&'static str, &Histogram); 4] {
+    pub fn histograms(&self) -> [(&'static str, &Histogram); 5] {
         [
             ("wake_latency", &self.wake_latency),
             ("exec", &self.exec),
             ("period", &self.period),
             ("rtt", &self.rtt),
+            ("send", &self.send),
         ]
     }
 

@@ -7,8 +7,8 @@ use std::sync::{Arc, Mutex, Weak};
 
 use ether_ros_engine::plan::{CyclicDatagram, DcMode, DcPlan, Order, Policy, RtPlan};
 use ether_ros_engine::{flags, Engine, Error, InProcessLink, Plan, Request, Responder, RECORD_LEN};
-use ether_ros_wire::{Command, MAX_FRAME_LEN};
 use ether_ros_sim::network::Network;
+use ether_ros_wire::{Command, MAX_FRAME_LEN};
 use pyo3::exceptions::{PyException, PyValueError};
 use pyo3::prelude::*;
 use pyo3::sync::PyOnceLock;
@@ -339,6 +339,23 @@ fn _close_all_engines(py: Python<'_>) {
 #[pyclass(name = "Engine", module = "ether_ros._native", frozen)]
 pub struct PyEngine {
     inner: Arc<Engine>,
+}
+
+impl Drop for PyEngine {
+    /// An engine dropped while cyclic stops its RT thread here. Python holds the GIL during
+    /// deallocation; it is released for the join, since an RT thread calling a Python
+    /// responder needs it to finish its cycle.
+    fn drop(&mut self) {
+        if Arc::strong_count(&self.inner) == 1 && self.inner.is_running() {
+            let engine = self.inner.clone();
+            // SAFETY: a plain query of the interpreter state.
+            if unsafe { pyo3::ffi::Py_IsInitialized() } != 0 {
+                Python::attach(|py| py.detach(move || engine.stop_cyclic()));
+            } else {
+                engine.stop_cyclic();
+            }
+        }
+    }
 }
 
 #[pymethods]

@@ -2,25 +2,26 @@
 //!
 //! # Slave spec (the dict passed to `SimNetwork.add_slave`)
 //!
-//! Built by `python/ether_ros/sim/spec.py` from the bus config and the ESI. Keys (all optional
-//! except `sii`; a wrong type is a `ValueError` naming the key):
+//! Built by `python/ether_ros/sim/spec.py` from the bus config and the ESI; documented for
+//! people in `docs/simulator.md`. Keys (all optional except `sii`; an unknown key or a wrong
+//! type is a `ValueError` naming the key):
 //!
 //! | key | type | meaning |
 //! |---|---|---|
 //! | `name` | str | slave name, for messages |
-//! | `vendor_id`, `product_code`, `revision`, `serial` | int | identity (informational: the master reads them from the SII) |
+//! | `vendor_id`, `product_code`, `revision`, `serial` | int | identity (informational: the master reads it from the SII) |
 //! | `alias` | int | station alias; used only when `sii` is shorter than 5 words (the ESC loads 0x0012 from SII word 4) |
-//! | `sii` | bytes | the SII EEPROM image (even length) |
+//! | `sii` | bytes | the SII EEPROM image |
 //! | `objects` | list[(index, name, object_code)] | CoE objects |
-//! | `entries` | list[(index, subindex, name, data_type, bit_length, access, pdo_mappable, default)] | CoE entries; `access` is 'ro', 'rw' or 'wo'; `default` is little-endian bytes |
-//! | `device` | str | firmware model for `devices::create` ("none", "laelaps_leg", "generic_io", ...) |
+//! | `entries` | list[(index, subindex, name, data_type, bit_length, access, pdo_mappable, default)] | CoE entries; `access` is 'ro', 'rw' or 'wo'; `default` is little-endian bytes or None (zeros) |
+//! | `device` | str | firmware model for `devices::create` ("none" default, "laelaps_leg", "generic_io") |
 //! | `params` | dict[str, float] | device parameters |
-//! | `drift_ppm` | float | clock drift of the slave's local clock |
-//! | `delay_ns` | int | propagation delay from the previous slave (or the master) to this one |
-//! | `dc_supported` | bool | ESC has distributed clocks (feature bit 2/3 in 0x0008) |
-//! | `dc_required` | bool | PREOP->SAFEOP refuses (0x0030) unless SYNC0 is active with a cycle time |
-//! | `mailbox` | dict{rx_offset, rx_size, tx_offset, tx_size} or None | standard mailbox (SM0 = rx, master->slave; SM1 = tx) |
-//! | `pdram_kib` | int | process-data RAM size in KiB (register 0x0006), default 8 |
+//! | `drift_ppm` | float | clock drift of the slave's local clock (default 0) |
+//! | `delay_ns` | int | propagation delay from the previous slave (or the master) to this one (default 500) |
+//! | `dc_supported` | bool | the ESC has distributed clocks (feature bits 2/3 in 0x0008; default True) |
+//! | `dc_required` | bool | PREOP->SAFEOP refuses (0x0030) unless SYNC0 is active with a cycle time (default False) |
+//! | `mailbox` | dict{rx_offset, rx_size, tx_offset, tx_size} or None | standard mailbox (SM0 = rx, master->slave; SM1 = tx), used when SII words 0x18..=0x1B are zero |
+//! | `pdram_kib` | int | process-data RAM size in KiB (register 0x0006), 1..=60, default 8 |
 
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
@@ -360,38 +361,59 @@ impl SimNetwork {
         self.runner.as_ref().is_some_and(|r| r.is_running())
     }
 
-    /// Inject a fault: drop(rate, burst=1), corrupt(rate, bytes=1), delay(us), reset(pos),
-    /// refuse_op(pos, enable=True), link(up, pos=None), drift_step(pos, ppm),
-    /// stall_mailbox(pos, enable=True), seed(seed), clear().
+    /// Inject a fault: drop(rate, burst=1, outbound=False), corrupt(rate, bytes=1), delay(us), reset(slave),
+    /// refuse_op(slave, on=True), link(up, at=None), drift_step(slave, ppm),
+    /// stall_mailbox(slave, on=True), seed(seed), clear(). `slave`/`at` are positions;
+    /// `pos` and `enable` are accepted as other names for `slave`/`at` and `on`.
     #[pyo3(signature = (kind, **kwargs))]
-    fn fault(&self, kind: &str, kwargs: Option<&Bound<'_, PyDict>>) -> PyResult<()> {
+    fn fault<'py>(
+        &self,
+        py: Python<'py>,
+        kind: &str,
+        kwargs: Option<&Bound<'py, PyDict>>,
+    ) -> PyResult<()> {
         let allowed: &[&str] = match kind {
-            "drop" => &["rate", "burst"],
+            "drop" => &["rate", "burst", "outbound"],
             "corrupt" => &["rate", "bytes"],
             "delay" => &["us"],
-            "reset" => &["pos"],
-            "refuse_op" | "stall_mailbox" => &["pos", "enable"],
-            "link" => &["up", "pos"],
-            "drift_step" => &["pos", "ppm"],
+            "reset" => &["slave"],
+            "refuse_op" | "stall_mailbox" => &["slave", "on"],
+            "link" => &["up", "at"],
+            "drift_step" => &["slave", "ppm"],
             "seed" => &["seed"],
             "clear" => &[],
             other => {
                 return Err(PyValueError::new_err(format!(
-                    "unknown fault '{other}' (drop, corrupt, delay, reset, refuse_op, link, drift_step, stall_mailbox, seed, clear)"
+                    "unknown fault '{other}' (drop, corrupt, delay, reset, refuse_op, link, \
+                     drift_step, stall_mailbox, seed, clear)"
                 )))
             }
         };
+        // Normalise the alternative argument names.
+        let args = PyDict::new(py);
         if let Some(d) = kwargs {
-            for k in d.keys() {
+            for (k, v) in d.iter() {
                 let k: String = k.extract()?;
-                if !allowed.contains(&k.as_str()) {
+                let canonical = match (k.as_str(), kind) {
+                    ("pos", "link") => "at",
+                    ("pos", _) => "slave",
+                    ("enable", _) => "on",
+                    (other, _) => other,
+                };
+                if !allowed.contains(&canonical) {
                     return Err(PyValueError::new_err(format!(
                         "fault '{kind}' has no argument '{k}' (expected: {})",
-                        allowed.join(", ")
+                        if allowed.is_empty() {
+                            "none".to_string()
+                        } else {
+                            allowed.join(", ")
+                        }
                     )));
                 }
+                args.set_item(canonical, v)?;
             }
         }
+        let kwargs = Some(&args);
         let mut net = self.lock()?;
         match kind {
             "drop" => {
@@ -403,6 +425,7 @@ impl SimNetwork {
                 }
                 net.faults.drop_rate = rate;
                 net.faults.drop_burst = kw::<u32>(kwargs, "burst", kind)?.unwrap_or(1).max(1);
+                net.faults.drop_outbound = kw::<bool>(kwargs, "outbound", kind)?.unwrap_or(false);
             }
             "corrupt" => {
                 let rate: f64 = need(kw(kwargs, "rate", kind)?, kind, "rate")?;
@@ -416,13 +439,13 @@ impl SimNetwork {
             }
             "delay" => net.faults.delay_us = need(kw(kwargs, "us", kind)?, kind, "us")?,
             "reset" => {
-                let pos: usize = need(kw(kwargs, "pos", kind)?, kind, "pos")?;
+                let pos: usize = need(kw(kwargs, "slave", kind)?, kind, "slave")?;
                 slave(&mut net, pos)?;
                 net.reset_slave(pos);
             }
             "refuse_op" | "stall_mailbox" => {
-                let pos: usize = need(kw(kwargs, "pos", kind)?, kind, "pos")?;
-                let enable = kw::<bool>(kwargs, "enable", kind)?.unwrap_or(true);
+                let pos: usize = need(kw(kwargs, "slave", kind)?, kind, "slave")?;
+                let enable = kw::<bool>(kwargs, "on", kind)?.unwrap_or(true);
                 let s = slave(&mut net, pos)?;
                 if kind == "refuse_op" {
                     s.refuse_op = enable;
@@ -432,7 +455,7 @@ impl SimNetwork {
             }
             "link" => {
                 let up: bool = need(kw(kwargs, "up", kind)?, kind, "up")?;
-                match kw::<usize>(kwargs, "pos", kind)? {
+                match kw::<usize>(kwargs, "at", kind)? {
                     None => net.faults.link_down = !up,
                     Some(pos) => {
                         slave(&mut net, pos)?;
@@ -442,7 +465,7 @@ impl SimNetwork {
                 }
             }
             "drift_step" => {
-                let pos: usize = need(kw(kwargs, "pos", kind)?, kind, "pos")?;
+                let pos: usize = need(kw(kwargs, "slave", kind)?, kind, "slave")?;
                 let ppm: f64 = need(kw(kwargs, "ppm", kind)?, kind, "ppm")?;
                 let now = net.now();
                 let s = slave(&mut net, pos)?;

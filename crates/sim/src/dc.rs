@@ -12,8 +12,11 @@
 const MAX_SLEW: f64 = 2.0e-4;
 /// Largest frequency correction the loop learns (±500 ppm).
 const MAX_CORRECTION: f64 = 5.0e-4;
-/// Fraction of the measured frequency error corrected per compare.
-const FREQUENCY_GAIN: f64 = 0.5;
+/// Time constant of the frequency estimate: a compare after `dt` corrects `dt / τ` of the
+/// measured frequency error (at most half), so frequent compares with 1 ns quantisation
+/// average out instead of making the rate jitter.
+const FREQUENCY_TAU_NS: f64 = 20.0e6;
+const MAX_FREQUENCY_GAIN: f64 = 0.5;
 
 #[derive(Clone, Debug)]
 pub struct DcClock {
@@ -75,19 +78,6 @@ impl DcClock {
         }
     }
 
-    /// Host time at which the local clock reads `local` (inverse of `local`, ignoring a slew
-    /// still in progress: used only to schedule, where a few ns do not matter).
-    pub fn host_at_local(&self, local: u64) -> u64 {
-        let applied = self.local_f64(self.base_host) - self.base_local;
-        let d = (local as f64 - self.base_local - applied) / self.rate();
-        let h = self.base_host as f64 + d;
-        if h <= 0.0 {
-            0
-        } else {
-            h as u64
-        }
-    }
-
     fn rebase(&mut self, host: u64) {
         let now = self.local_f64(host);
         let dt = host as f64 - self.base_host as f64;
@@ -132,8 +122,9 @@ impl DcClock {
             let dt = host.saturating_sub(last) as f64;
             if dt > 0.0 && self.last_slew.abs() <= MAX_SLEW * dt {
                 // The previous error was fully slewed in: what is left is frequency error.
-                self.correction = (self.correction - FREQUENCY_GAIN * diff / dt)
-                    .clamp(-MAX_CORRECTION, MAX_CORRECTION);
+                let gain = (dt / FREQUENCY_TAU_NS).min(MAX_FREQUENCY_GAIN);
+                self.correction =
+                    (self.correction - gain * diff / dt).clamp(-MAX_CORRECTION, MAX_CORRECTION);
             }
         }
         self.slew = -diff;
@@ -181,6 +172,25 @@ mod tests {
             "{}",
             c.correction_ppm()
         );
+    }
+
+    #[test]
+    fn fast_compares_do_not_make_the_rate_jitter() {
+        // IgH-style static drift compensation: a burst of compares 30 µs apart.
+        let mut c = DcClock::new(0, 0, -35.0);
+        let mut host = 0u64;
+        for _ in 0..20_000 {
+            host += 30_000;
+            let diff = c.local(host) as i64 - host as i64;
+            c.compare(host, diff);
+        }
+        assert!(
+            (c.correction_ppm() - 35.0).abs() < 2.0,
+            "{}",
+            c.correction_ppm()
+        );
+        let diff = c.local(host + 30_000) as i64 - (host + 30_000) as i64;
+        assert!(diff.abs() < 10, "{diff}");
     }
 
     #[test]

@@ -716,7 +716,7 @@ impl Esc {
             // A start time in the past: a real ESC would wait for the 32-bit wrap; we start at
             // the next cycle boundary instead and count it.
             self.counters.sync0_late_starts += 1;
-            start + (now - start).div_ceil(cycle) * cycle
+            start.saturating_add((now - start).div_ceil(cycle).saturating_mul(cycle))
         };
         self.sync0_cycle = cycle;
         self.sync0_next = Some(next);
@@ -1060,10 +1060,16 @@ impl Esc {
         }
         if self.mbx_rx_pending && self.sm[0].full {
             self.mbx_rx_pending = false;
-            let (start, len) = (self.sm[0].start as usize, self.sm[0].len as usize);
-            let msg_len = u16::from_le_bytes([self.mem[start], self.mem[start + 1]]) as usize;
-            let kind = self.mem[start + 5] & 0x0f;
-            let counter = (self.mem[start + 5] >> 4) & 0x07;
+            let start = (self.sm[0].start as usize).min(MEM_SIZE);
+            let end = (start + self.sm[0].len as usize).min(MEM_SIZE);
+            let area = &self.mem[start..end];
+            let len = area.len();
+            let (msg_len, kind, counter) = if len >= reg::mbx::HEADER_LEN {
+                let l = u16::from_le_bytes([area[0], area[1]]) as usize;
+                (l, area[5] & 0x0f, (area[5] >> 4) & 0x07)
+            } else {
+                (0, 0, 0)
+            };
             self.sm[0].full = false;
             self.counters.mailbox_received += 1;
             let repeated = counter != 0 && counter == self.mbx_last_rx_counter;
@@ -1175,43 +1181,58 @@ impl Esc {
             if self.app_next_step < horizon {
                 let skipped = (horizon - self.app_next_step).div_ceil(p);
                 self.counters.device_steps_skipped += skipped;
-                self.app_next_step += skipped * p;
+                self.app_next_step = self.app_next_step.saturating_add(skipped.saturating_mul(p));
             }
         }
+        // SYNC0 runs in system time; schedule it in local time (the offset may have changed).
         let offset = self.get64(reg::DC_SYSTEM_TIME_OFFSET);
-        if let Some(next) = self.sync0_next {
-            let horizon_sys = horizon.wrapping_add(offset);
-            if next < horizon_sys && self.sync0_cycle > 0 {
-                let skip = (horizon_sys - next).div_ceil(self.sync0_cycle);
-                self.sync0_next = Some(next + skip * self.sync0_cycle);
+        let cycle = self.sync0_cycle.max(1);
+        let mut sync_local = self.sync0_next.map(|s| s.wrapping_sub(offset));
+        if let Some(n) = sync_local {
+            if n < horizon {
+                let skip = (horizon - n).div_ceil(cycle);
+                sync_local = Some(n.saturating_add(skip.saturating_mul(cycle)));
             }
         }
+        // Never loop forever on absurd settings: past this many events, skip to now.
+        let mut budget = 4 * MAX_CATCH_UP_NS / 1_000;
         loop {
             let next_dev = if period.is_some() {
                 self.app_next_step
             } else {
                 u64::MAX
             };
-            let next_sync = self.sync0_next.map_or(u64::MAX, |s| s.wrapping_sub(offset));
+            let next_sync = sync_local.unwrap_or(u64::MAX);
             let t = next_dev.min(next_sync);
             if t > local_now {
                 break;
             }
+            if budget == 0 {
+                if let Some(p) = period {
+                    self.app_next_step = local_now.saturating_add(p);
+                }
+                sync_local = sync_local.map(|_| local_now.saturating_add(cycle));
+                break;
+            }
+            budget -= 1;
             if next_sync <= next_dev {
                 self.latch_outputs();
                 self.latch_inputs();
                 self.mem[reg::DC_SYNC0_STATUS as usize] = 1;
                 self.counters.sync0_events += 1;
-                self.sync0_next = self.sync0_next.map(|s| s + self.sync0_cycle.max(1));
+                sync_local = Some(next_sync.saturating_add(cycle));
             } else {
                 let valid = self.outputs_valid();
                 if let Some(d) = self.device.as_mut() {
                     d.step(&mut self.od, t, valid);
                 }
                 self.counters.device_steps += 1;
-                self.app_next_step += period.unwrap_or(u64::MAX / 2);
+                self.app_next_step = self
+                    .app_next_step
+                    .saturating_add(period.unwrap_or(u64::MAX));
             }
         }
+        self.sync0_next = sync_local.map(|n| n.wrapping_add(offset));
         self.check_watchdog();
     }
 

@@ -42,6 +42,10 @@ pub struct Faults {
     /// Frames dropped per burst (at least 1).
     pub drop_burst: u32,
     pub drop_remaining: u32,
+    /// Dropped frames are lost before reaching slave 0 (true) instead of on the way back after
+    /// every slave processed them (false, the default: the master loses the answer, the slaves
+    /// still got their outputs).
+    pub drop_outbound: bool,
     /// Probability that an answered frame is corrupted.
     pub corrupt_rate: f64,
     /// Bytes flipped per corrupted frame (at least 1).

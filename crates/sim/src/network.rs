@@ -192,7 +192,8 @@ impl Network {
             self.stats.frames_malformed += 1;
             return false;
         };
-        if self.faults.should_drop(&mut self.rng) {
+        let dropped = self.faults.should_drop(&mut self.rng);
+        if dropped && (self.faults.drop_outbound || self.faults.link_down) {
             self.stats.frames_dropped += 1;
             return false;
         }
@@ -216,6 +217,10 @@ impl Network {
                 process_datagram(esc, frame, s, &mut self.scratch);
             }
             esc.after_frame();
+        }
+        if dropped {
+            self.stats.frames_dropped += 1;
+            return false;
         }
         if self.faults.maybe_corrupt(&mut self.rng, frame) {
             self.stats.frames_corrupted += 1;

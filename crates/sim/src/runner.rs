@@ -130,7 +130,10 @@ fn frame_loop(sock: Socket, net: Arc<Mutex<Network>>, stop: Arc<AtomicBool>) {
     let fd = sock.0;
     // A blocking receive with a 1 ms timeout: one syscall per frame, and a poll of the
     // slaves whenever the line is idle.
-    let tv = libc::timeval { tv_sec: 0, tv_usec: IDLE_POLL_US };
+    let tv = libc::timeval {
+        tv_sec: 0,
+        tv_usec: IDLE_POLL_US,
+    };
     // SAFETY: setting a socket option from a valid timeval.
     unsafe {
         libc::setsockopt(

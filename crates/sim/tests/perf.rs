@@ -26,14 +26,31 @@ fn cyclic_frame_cost_for_four_legs() {
         fpwr(&mut net, st, 0x0810, &sm_bytes(OUT_SM, 2, 0x64, 1));
         fpwr(&mut net, st, 0x0818, &sm_bytes(IN_SM, 4, 0x20, 1));
         let log = 0x1_0000 + 6 * p as u32;
-        fpwr(&mut net, st, 0x0600, &fmmu_bytes(log, 2, 0, 7, OUT_SM, 0, 2));
-        fpwr(&mut net, st, 0x0610, &fmmu_bytes(log + 2, 4, 0, 7, IN_SM, 0, 1));
+        fpwr(
+            &mut net,
+            st,
+            0x0600,
+            &fmmu_bytes(log, 2, 0, 7, OUT_SM, 0, 2),
+        );
+        fpwr(
+            &mut net,
+            st,
+            0x0610,
+            &fmmu_bytes(log + 2, 4, 0, 7, IN_SM, 0, 1),
+        );
         fpwr(&mut net, st, 0x0120, &[4, 0]);
     }
     let mut buf = [0u8; wire::MAX_FRAME_LEN];
     let mut b = FrameBuilder::new(&mut buf, wire::MASTER_MAC).unwrap();
     b.push(Command::Lrw, 0, 0x1_0000, None, 24).unwrap();
-    b.push(Command::Armw, 1, wire::auto_increment_address(0, 0x0910), None, 8).unwrap();
+    b.push(
+        Command::Armw,
+        1,
+        wire::auto_increment_address(0, 0x0910),
+        None,
+        8,
+    )
+    .unwrap();
     let n = b.finish();
     let template = buf;
     let frames = 200_000u32;

@@ -335,8 +335,26 @@ fn faults_drop_refuse_reset_and_break_the_link() {
     assign_addresses(&mut net);
     net.faults.drop_rate = 1.0;
     assert!(try_xfer(&mut net, Command::Brd, 0, &[0; 2]).is_none());
+    // Lost on the way back: the write landed. Lost on the way out: it did not.
+    assert!(try_xfer(
+        &mut net,
+        Command::Bwr,
+        wire::fixed_address(0, 0x0200),
+        &[5, 0]
+    )
+    .is_none());
+    net.faults.drop_outbound = true;
+    assert!(try_xfer(
+        &mut net,
+        Command::Bwr,
+        wire::fixed_address(0, 0x0200),
+        &[6, 0]
+    )
+    .is_none());
+    net.faults.drop_outbound = false;
     net.faults.drop_rate = 0.0;
     net.faults.drop_burst = 0;
+    assert_eq!(fprd(&mut net, station(1), 0x0200, 2).0, vec![5, 0]);
     assert!(try_xfer(&mut net, Command::Brd, 0, &[0; 2]).is_some());
     // Burst: one trigger drops `burst` frames.
     net.faults.drop_rate = 1.0;
@@ -403,7 +421,7 @@ fn random_bytes_and_mutated_frames_never_panic() {
     to_preop(&mut net, station(0));
     let mut rng = Rng::new(0xE7C4);
     let mut buf = [0u8; wire::MAX_FRAME_LEN];
-    for i in 0..20_000 {
+    for i in 0..60_000 {
         let n = rng.below(wire::MAX_FRAME_LEN + 1);
         if i % 2 == 0 {
             for b in buf[..n].iter_mut() {
@@ -420,9 +438,25 @@ fn random_bytes_and_mutated_frames_never_panic() {
             let mut b = FrameBuilder::new(&mut buf, wire::MASTER_MAC).unwrap();
             for _ in 0..1 + rng.below(4) {
                 let cmd = Command::from_u8(rng.below(15) as u8).unwrap();
+                let mut data = [0u8; 64];
+                for d in data.iter_mut() {
+                    *d = rng.next_u64() as u8;
+                }
                 let len = rng.below(64);
-                let addr = rng.next_u64() as u32 & 0xffff_0003;
-                let _ = b.push(cmd, 0, addr, None, len);
+                // Mostly registers (SMs, FMMUs, AL control, SII, DC) and the mailbox area.
+                let ado = match rng.below(4) {
+                    0 => rng.below(0x1000),
+                    1 => 0x0800 + rng.below(0x40),
+                    2 => 0x0900 + rng.below(0xB0),
+                    _ => rng.below(0x10000),
+                } as u32;
+                let adp = [0u32, 1, 0xffff, 0xfffe, 0x1001, 0x1002, 0x1003][rng.below(7)];
+                let addr = if cmd.addressing() == wire::Addressing::Logical {
+                    rng.next_u64() as u32 & 0x0001_ffff
+                } else {
+                    (ado << 16) | adp
+                };
+                let _ = b.push(cmd, 0, addr, Some(&data[..len]), 0);
             }
             let len = b.finish();
             for _ in 0..rng.below(4) {
@@ -430,9 +464,12 @@ fn random_bytes_and_mutated_frames_never_panic() {
                 buf[at] ^= rng.next_u64() as u8;
             }
             let _ = net.process_frame(&mut buf[..len]);
+            net.advance_clock(rng.below(2_000_000) as u64);
             continue;
         }
         let _ = net.process_frame(&mut buf[..n]);
     }
-    assert!(net.stats.frames_seen >= 20_000);
+    assert!(net.stats.frames_seen >= 60_000);
+    let touched: u64 = net.slaves.iter().map(|s| s.counters.al_errors).sum();
+    assert!(touched > 0, "the fuzzer reached the AL state machine");
 }

@@ -189,7 +189,8 @@ def cmd_download(ins: Any, args: argparse.Namespace) -> Any:
     }
     if args.json:
         return entry
-    print(f"0x{ref.index:04X}:{ref.subindex:02X} {ref.name} <- {args.value} ({data.hex(' ')})")
+    name = f" {ref.name}" if ref.name else ""
+    print(f"0x{ref.index:04X}:{ref.subindex:02X}{name} <- {args.value} ({data.hex(' ')})")
     return None
 
 

@@ -41,6 +41,12 @@ def register(subparsers: Any) -> None:
     setup.add_argument("--root", default="/", help="host root to change (default /)")
     setup.add_argument("--cpu", type=int, help="the CPU to dedicate to the RT thread")
     setup.add_argument("--interface", help="the EtherCAT network interface")
+    setup.add_argument(
+        "--priority",
+        type=int,
+        default=80,
+        help="the RT thread's priority: NIC IRQ threads go above it (default 80)",
+    )
     setup.add_argument("--apply", action="store_true", help="make the changes")
     setup.add_argument(
         "--undo-file",
@@ -75,7 +81,7 @@ def run_setup(args: argparse.Namespace) -> int:
         return 1 if problems else 0
     if args.cpu is None or args.interface is None:
         raise HostError("rt setup needs --cpu and --interface (or --undo FILE)")
-    plan = make_plan(host, args.cpu, args.interface)
+    plan = make_plan(host, args.cpu, args.interface, args.priority)
     for note in plan.notes:
         print(f"note: {note}")
     if not plan.steps:

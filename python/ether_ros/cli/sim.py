@@ -11,7 +11,7 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from ether_ros.errors import ConfigError
+from ether_ros.errors import ConfigError, LinkError
 
 _FAULT_HELP = {
     "drop": "drop frames: each frame starts a burst of BURST lost frames with probability RATE",
@@ -41,6 +41,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--control", type=Path, help="control socket path (default:"
                    " /run/ether_ros/sim-INTERFACE.sock)")  # fmt: skip
     p.add_argument("--no-control", action="store_true", help="no control socket")
+    p.add_argument("--seed", type=int, default=1, help="seed of the fault-injection random"
+                   " generator (default 1)")  # fmt: skip
     p.set_defaults(func=run_sim)
 
     f = subparsers.add_parser(
@@ -84,7 +86,9 @@ def run_sim(args: argparse.Namespace) -> int:
     iface = cfg.bus.interface
     if not iface:
         raise ConfigError(f"{args.config}: no interface: give --interface or bus.interface")
-    net = build_network(cfg)
+    if not 0 <= args.seed < 2**64:
+        raise ConfigError(f"--seed must be 0..2^64-1, got {args.seed}")
+    net = build_network(cfg, seed=args.seed)
     stop = threading.Event()
 
     def on_signal(signum: int, frame: Any) -> None:
@@ -98,7 +102,10 @@ def run_sim(args: argparse.Namespace) -> int:
             server = ControlServer(
                 path, slave_names(cfg), lambda op, kind, a: handle_request(net, op, kind, a)
             )
-        net.run_on_interface(iface)
+        try:
+            net.run_on_interface(iface)
+        except OSError as exc:
+            raise LinkError(str(exc)) from None
         if server is not None:
             server.start()
         print(f"ether-ros sim: {len(cfg.slaves)} slaves on {iface} ready", flush=True)
@@ -116,8 +123,7 @@ def run_sim(args: argparse.Namespace) -> int:
 
 
 def _running(net: Any) -> bool:
-    running = getattr(net, "is_running", None)
-    return bool(running()) if callable(running) else True
+    return bool(getattr(net, "running", True))
 
 
 def fault_request(args: argparse.Namespace) -> dict[str, Any]:

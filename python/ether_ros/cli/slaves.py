@@ -89,7 +89,7 @@ def details(entry: dict[str, Any]) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ether_ros import _native  # type: ignore[attr-defined]
+    from ether_ros import _native
     from ether_ros.master.al import AlStateMachine, SlaveRef
     from ether_ros.master.datagrams import DatagramService
     from ether_ros.master.scan import Expected, match_configuration, scan

@@ -198,7 +198,9 @@ class SlaveConfig(_Model):
 
 class BusConfig(_Model):
     bus: BusSection = Field(default_factory=BusSection)
-    esi: list[str] = Field(default_factory=list)
+    esi: Annotated[list[str], BeforeValidator(lambda v: [v] if isinstance(v, str) else v)] = Field(
+        default_factory=list
+    )
     ros: RosConfig = Field(default_factory=RosConfig)
     slaves: list[SlaveConfig] = Field(min_length=1)
     _source: Path | None = PrivateAttr(default=None)

@@ -242,10 +242,11 @@ def build_sii(device: EsiDevice, alias: int = 0, serial: int = 0) -> bytes:
     for i, ch in enumerate(device.physics[:4]):
         ports |= {"Y": 0x1, "K": 0x3, "H": 0x4}.get(ch, 0) << (4 * i)
     general = bytearray(32)
+    # The name must be string 1: SOEM takes string 1 as the slave name, IgH the NameIdx.
+    general[3] = strings.index(device.name)
     general[0] = strings.index(device.group_type)
     general[1] = 0
     general[2] = strings.index(device.type_name)
-    general[3] = strings.index(device.name)
     general[5] = coe
     general[6] = 1 if mb is not None and mb.foe else 0
     general[7] = 1 if mb is not None and mb.eoe else 0

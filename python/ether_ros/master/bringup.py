@@ -105,18 +105,38 @@ def configure_preop(dg: DatagramService, slave: Slave) -> None:
             slave, index, sub, item.value, getattr(item, "type", None)
         )
         sdo_download(slave, index, sub, data, f"sdo_init 0x{index:04X}:{sub}")
-    if slave.selection.source == "config" and slave.has_coe:
-        pdo_config = slave.device is not None and (
-            slave.device.mailbox is not None and slave.device.mailbox.pdo_config
-        )
-        for w in assignment_writes(slave.selection, write_mapping=pdo_config):
-            sdo_download(slave, w.index, w.subindex, w.data, w.why)
+    if slave.selection.source == "config":
+        write_pdo_assignment(slave)
     area = slave.area
     if area is None:
         return
     sms = process_sync_managers(slave.device, area.output_bytes, area.input_bytes)
     write_sync_managers(dg, slave.station, str(slave), sms)
     write_fmmus(dg, slave.station, str(slave), process_fmmus(area, sms, LOGICAL_BASE))
+
+
+def write_pdo_assignment(slave: Slave) -> None:
+    """Tell the slave the configuration's PDO assignment (0x1C12/0x1C13, and the mapping
+    objects when it supports PDO configuration). A slave that cannot change its assignment is
+    fine as long as the configuration asks for what it has anyway."""
+    device = slave.device
+    mailbox = device.mailbox if device is not None else None
+    can_assign = slave.has_coe and mailbox is not None and mailbox.pdo_assign
+    chosen = ([p.index for p in slave.selection.rx], [p.index for p in slave.selection.tx])
+    if not can_assign:
+        if device is not None and chosen == (
+            list(device.default_rx_pdos()),
+            list(device.default_tx_pdos()),
+        ):
+            return
+        wanted = ", ".join(f"0x{i:04X}" for i in (*chosen[0], *chosen[1]))
+        raise BusError(
+            f"{slave}: the configuration assigns PDOs {wanted}, but the device cannot change "
+            "its PDO assignment (no CoE PdoAssign in its ESI)"
+        )
+    pdo_config = mailbox is not None and mailbox.pdo_config
+    for w in assignment_writes(slave.selection, write_mapping=pdo_config):
+        sdo_download(slave, w.index, w.subindex, w.data, w.why)
 
 
 def configure_all_preop(dg: DatagramService, slaves: Sequence[Slave]) -> None:

@@ -82,6 +82,7 @@ class Bus:
         )
         self.dc_reference: Slave | None = None
         self._acyclic = threading.RLock()
+        self._output_lock = threading.Lock()  # read-modify-write of the output image
         self._outputs = bytearray()
         self._safe = b""
         self._running = False
@@ -101,7 +102,7 @@ class Bus:
         """Open the link (``interface``, or ``link``: an in-process ``SimNetwork``), scan the
         bus and check it against the configuration. The slaves stay in INIT until ``start``."""
         cfg = _load_config(config)
-        from ether_ros import _native  # type: ignore[attr-defined]
+        from ether_ros import _native
 
         if link is not None:
             engine = _native.Engine.open_sim(link)
@@ -405,18 +406,19 @@ class Bus:
         if s.layout is None or area is None or not area.output_bytes:
             raise BusError(f"{s}: has no outputs")
         begin, end = area.output_offset, area.output_offset + area.output_bytes
-        current = bytes(self._outputs[begin:end])
         for name in values:
             var = self._variable(s, name)
             if var.direction != "output":
                 raise ProcessValueError(f"{s}: variable {name!r} is an input, not an output")
-        try:
-            new = s.layout.pack_outputs(values, base=current)
-        except ProcessValueError as exc:
-            raise ProcessValueError(f"{s}: {exc}") from None
-        self._outputs[begin:end] = new
-        if self._running:
-            self.engine.write_outputs(begin, bytes(new))
+        with self._output_lock:
+            current = bytes(self._outputs[begin:end])
+            try:
+                new = s.layout.pack_outputs(values, base=current)
+            except ProcessValueError as exc:
+                raise ProcessValueError(f"{s}: {exc}") from None
+            self._outputs[begin:end] = new
+            if self._running:
+                self.engine.write_outputs(begin, bytes(new))
 
     def write_all(self, variable: str, value: object) -> int:
         """Set ``variable`` on every slave that has it as an output; returns how many."""
@@ -586,8 +588,19 @@ class Bus:
             bringup.configure_preop(self.dg, s)
             if s.dc is not None and self.dc_reference is not None and self.dc_reference.dc:
                 ref = self.dc_reference.dc
-                if s.dc is not ref:
-                    self.dc.resync_slave(ref, s.dc)
+                # Re-sync from a DC slave that kept running: the reference, or (when the
+                # reference itself was reset) the next healthy one, else the master's clock.
+                source = ref if s.dc is not ref else None
+                if source is None:
+                    source = next(
+                        (
+                            o.dc
+                            for o in self.slaves
+                            if o.dc is not None and o is not s and not o.lost
+                        ),
+                        None,
+                    )
+                self.dc.resync_slave(source, s.dc)
                 self.dc.activate_sync0([s.dc], self.cycle_ns, self._sync0_shift_ns, ref)
             self.al.transition([s.ref], AlState.SAFEOP)
             time.sleep(max(3 * self.cycle_ns / 1e9, 0.005))

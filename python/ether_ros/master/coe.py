@@ -221,6 +221,7 @@ class SdoClient:
     def upload(self, index: int, subindex: int, complete_access: bool = False) -> bytes:
         """Read an entry (or, with complete access, the whole object from ``subindex`` 0 or 1)."""
         what = self._what("upload", index, subindex, complete_access)
+        self.mailbox.flush()
         command = CCS_UPLOAD_INITIATE << 5 | (COMPLETE_ACCESS if complete_access else 0)
         reply = self._exchange(_sdo(command, index, subindex), what)
         self._check_echo(reply, SCS_UPLOAD_INITIATE, index, subindex, what)
@@ -260,6 +261,7 @@ class SdoClient:
     ) -> None:
         """Write an entry (or, with complete access, the object from ``subindex`` 0 or 1)."""
         what = self._what("download", index, subindex, complete_access)
+        self.mailbox.flush()
         ca = COMPLETE_ACCESS if complete_access else 0
         if 0 < len(data) <= 4:
             command = CCS_DOWNLOAD_INITIATE << 5 | ca | (4 - len(data)) << 2 | 0x03
@@ -297,6 +299,7 @@ class SdoClient:
     def _info(self, opcode: int, body: bytes, expect: int, what: str) -> bytes:
         """One SDO Information exchange; the fragments of the answer put together."""
         request = _coe_header(SERVICE_SDO_INFORMATION) + bytes([opcode, 0, 0, 0]) + body
+        self.mailbox.flush()
         try:
             self.mailbox.send(MailboxType.COE, request, self.timeout_s)
         except MailboxError as e:

@@ -249,26 +249,34 @@ class DistributedClocks:
             [Datagram(Cmd.FPWR, fixed_address(s.station, ACTIVATION), b"\0") for s in slaves]
         )
 
-    def resync_slave(self, reference: DcSlave, slave: DcSlave) -> None:
-        """Give one slave (back after a reset) the running system time again: latch receive
-        times, then offset = reference's system time at the latch + the slave's delay − the
-        slave's local latch. Its propagation delay is the one measured at bring-up."""
+    def resync_slave(self, source: DcSlave | None, slave: DcSlave) -> None:
+        """Give one slave (back after a reset) the running system time again.
+
+        One broadcast latches every slave's local receive time; the frame passed ``source`` (a
+        DC slave that kept running) ``source.delay_ns`` after the reference and ``slave``
+        ``slave.delay_ns`` after it, so the slave's offset is ``source``'s system time at its
+        latch + the delay difference − the slave's local latch. Without a running source (the
+        reference alone was reset) the master's time is the source, as at start-up. The
+        propagation delay is the one measured at start-up (the cabling did not change)."""
+        send_time = self.master_time()
         self.dg.bwr(RECEIVE_TIME_PORT0, u32(0))
-        replies = self.dg.batch(
-            [
-                Datagram(Cmd.FPRD, fixed_address(reference.station, RECEIVE_TIME_PU), 8),
-                Datagram(Cmd.FPRD, fixed_address(reference.station, SYSTEM_TIME_OFFSET), 8),
-                Datagram(Cmd.FPRD, fixed_address(slave.station, RECEIVE_TIME_PU), 8),
+        requests = [Datagram(Cmd.FPRD, fixed_address(slave.station, RECEIVE_TIME_PU), 8)]
+        if source is not None:
+            requests += [
+                Datagram(Cmd.FPRD, fixed_address(source.station, RECEIVE_TIME_PU), 8),
+                Datagram(Cmd.FPRD, fixed_address(source.station, SYSTEM_TIME_OFFSET), 8),
             ]
-        )
+        replies = self.dg.batch(requests)
         if any(r.wkc != 1 for r in replies):
             raise BusError(f"slave {slave.position} ({slave.name}): DC re-sync got no answer")
-        ref_local, ref_offset, local = (struct.unpack("<Q", r.data)[0] for r in replies)
-        slave.offset = (ref_local + ref_offset + slave.delay_ns - local) & MASK64
+        values = [struct.unpack("<Q", r.data)[0] for r in replies]
+        local = values[0]
+        if source is not None:
+            source_time = (values[1] + values[2] - source.delay_ns) & MASK64
+        else:
+            source_time = send_time
+        slave.offset = (source_time + slave.delay_ns - local) & MASK64
         who = f"slave {slave.position} ({slave.name})"
-        self.dg.write_checked(
-            slave.station, SYSTEM_TIME_OFFSET, u64(slave.offset), "DC offset", who
-        )
-        self.dg.write_checked(
-            slave.station, SYSTEM_TIME_DELAY, u32(slave.delay_ns), "DC delay", who
-        )
+        offset, delay = u64(slave.offset), u32(slave.delay_ns)
+        self.dg.write_checked(slave.station, SYSTEM_TIME_OFFSET, offset, "DC offset", who)
+        self.dg.write_checked(slave.station, SYSTEM_TIME_DELAY, delay, "DC delay", who)

@@ -86,7 +86,7 @@ class Mailbox:
         self.rx_size = rx_size
         self.tx_offset = tx_offset  # read mailbox (slave -> master), SM1
         self.tx_size = tx_size
-        self._counter = 0
+        self._counter: int | None = None
         self.emergency_handler: Callable[[bytes], None] | None = None
         # Messages of other types that arrived while waiting for something else.
         self.discarded = 0
@@ -103,8 +103,13 @@ class Mailbox:
         return self.tx_size - MAILBOX_HEADER_LEN
 
     def _next_counter(self) -> int:
-        # 1..7 cycling; 0 means "no counter" and is never used by the master.
-        self._counter = self._counter % 7 + 1
+        # Slaves drop a message whose counter equals the previous one (a retried write). A new
+        # Mailbox cannot know the counter another master process used last, so its first message
+        # carries 0, which slaves never treat as a repeat; after that 1..7 cycling.
+        if self._counter is None:
+            self._counter = 0
+        else:
+            self._counter = self._counter % 7 + 1
         return self._counter
 
     @staticmethod
@@ -158,6 +163,23 @@ class Mailbox:
             else:
                 attempt += 1
                 self._sleep(attempt)
+
+    def flush(self, limit: int = 16) -> int:
+        """Empty the read mailbox before a new request, so a late reply to an earlier request
+        that timed out cannot be taken for the new answer. Emergencies are dispatched; anything
+        else is dropped. Returns the number of dropped messages."""
+        dropped = 0
+        for _ in range(limit):
+            message = self._poll()
+            if message is None:
+                break
+            mbx_type, payload = message
+            if self._is_emergency(mbx_type, payload) and self.emergency_handler is not None:
+                self.emergency_handler(payload)
+            else:
+                dropped += 1
+                self.discarded += 1
+        return dropped
 
     def poll_emergencies(self) -> None:
         """Read whatever the slave has put into its read mailbox and dispatch it."""

@@ -3,11 +3,14 @@ cyclic working counter and every slave's AL status, reports what goes wrong, and
 that dropped out of OP back by re-running their configuration once they answer again.
 
 What it sees and does:
-- working-counter errors counted by the engine: one ``wkc_error`` event per burst;
+- working-counter errors counted by the engine: one ``wkc_error`` event per burst (a run of
+  supervision rounds that each saw new errors);
 - a slave not in OP, with an AL error, or not answering: ``slave_lost`` (once), then a recovery
   attempt every ``retry_s`` (backing off to ``max_retry_s``) — INIT, mailbox, PREOP
   configuration, DC re-sync, SAFEOP, OP — and ``slave_recovered`` when it is back in OP;
-- no answer at all (cable pulled): ``link_lost`` once, ``link_restored`` when frames return.
+- no answer at all (cable pulled): ``link_lost`` once, ``link_restored`` when frames return;
+- CoE emergency messages in the slaves' mailboxes (polled every ``emergency_period_s``):
+  ``emergency``, one per message.
 """
 
 from __future__ import annotations
@@ -31,7 +34,7 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class BusEvent:
     """Something the supervisor noticed. ``kind``: slave_lost, slave_recovered,
-    recovery_failed, wkc_error, link_lost, link_restored."""
+    recovery_failed, wkc_error, link_lost, link_restored, emergency."""
 
     kind: str
     slave: str | None
@@ -56,14 +59,18 @@ class Supervisor:
         period_s: float = 0.05,
         retry_s: float = 0.2,
         max_retry_s: float = 2.0,
+        emergency_period_s: float = 0.5,
     ) -> None:
         self.bus = bus
         self.period_s = period_s
         self.retry_s = retry_s
         self.max_retry_s = max_retry_s
+        self.emergency_period_s = emergency_period_s
+        self._next_emergency_poll = 0.0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="ether_ros-supervisor", daemon=True)
         self._wkc_errors = counter(bus.engine.stats(), "wkc_errors")
+        self._wkc_burst = False
         self._next_try: dict[str, float] = {}
         self._backoff: dict[str, float] = {}
         self._last_failure: dict[str, str] = {}
@@ -97,13 +104,15 @@ class Supervisor:
         """One supervision round (also callable directly, e.g. from tests)."""
         bus = self.bus
         wkc = counter(bus.engine.stats(), "wkc_errors")
-        if wkc > self._wkc_errors:
+        # One event per burst of bad cycles, not one per supervision round.
+        if wkc > self._wkc_errors and not self._wkc_burst:
             self._emit(
                 "wkc_error",
                 None,
                 f"{wkc - self._wkc_errors} cycle(s) with a wrong working counter "
                 f"(expected {bus.layout.expected_wkc if bus.layout else '?'})",
             )
+        self._wkc_burst = wkc > self._wkc_errors
         self._wkc_errors = wkc
         try:
             with bus._acyclic:
@@ -135,6 +144,26 @@ class Supervisor:
             if self._stop.is_set() or now < self._next_try.get(s.name, 0.0):
                 continue
             self._try_recover(s)
+        if now >= self._next_emergency_poll:
+            self._next_emergency_poll = now + self.emergency_period_s
+            self._poll_emergencies()
+
+    def _poll_emergencies(self) -> None:
+        for s in self.bus.slaves:
+            if not s.lost and not self._stop.is_set():
+                self._poll_emergencies_of(s)
+
+    def _poll_emergencies_of(self, s: Slave) -> None:
+        if s.sdo is None:
+            return
+        try:
+            with self.bus._acyclic:
+                emergencies = s.sdo.poll_emergencies()
+        except EtherRosError as exc:
+            log.debug("%s: polling emergencies failed: %s", s, exc)
+            return
+        for em in emergencies:
+            self._emit("emergency", s, em.text)
 
     def _try_recover(self, s: Slave) -> None:
         try:
@@ -143,10 +172,13 @@ class Supervisor:
             backoff = min(self._backoff.get(s.name, self.retry_s) * 2, self.max_retry_s)
             self._backoff[s.name] = backoff
             self._next_try[s.name] = time.monotonic() + backoff
-            text = str(exc)
+            text = str(exc).removeprefix(f"{s}: ")
             if self._last_failure.get(s.name) != text:
                 self._last_failure[s.name] = text
                 self._emit("recovery_failed", s, f"{s}: recovery failed: {text}")
+            # A refusal usually comes with an emergency; read it before the next attempt's
+            # INIT empties the mailbox.
+            self._poll_emergencies_of(s)
             return
         self._recovered(s, "recovered to OP")
 

@@ -25,8 +25,10 @@ from ether_ros_msgs.msg import BusLayout, PdoRaw, SlaveValues, WriteResult, Writ
 from ether_ros_msgs.srv import Command, SdoRead, SdoWrite, WriteVariables
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState, GetState
+from rcl_interfaces.msg import Parameter as ParameterMsg
+from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.context import Context
-from rclpy.qos import qos_profile_sensor_data
+from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
@@ -104,12 +106,8 @@ class EtherRosClient:
         self._get_state = n.create_client(GetState, f"{self.target}/get_state")
         self._write_pub = n.create_publisher(WriteVariable, f"{p}pdo_listener", QOS_COMMANDS)
         n.create_subscription(BusLayout, f"{p}bus_layout", self._on_layout, QOS_LATCHED)
-        n.create_subscription(
-            SlaveValues, f"{p}pdo_in", self._on_values("inputs"), qos_profile_sensor_data
-        )
-        n.create_subscription(
-            SlaveValues, f"{p}pdo_out", self._on_values("outputs"), qos_profile_sensor_data
-        )
+        n.create_subscription(SlaveValues, f"{p}pdo_in", self._on_values("inputs"), QOS_HIGH_RATE)
+        n.create_subscription(SlaveValues, f"{p}pdo_out", self._on_values("outputs"), QOS_HIGH_RATE)
         n.create_subscription(
             SlaveValues, f"{p}pdo_out_timer", self._on_values("commanded"), QOS_RELIABLE
         )
@@ -320,6 +318,28 @@ class EtherRosClient:
 
     def get_state(self, timeout: float = 5.0) -> str:
         return str(self._call(self._get_state, GetState.Request(), timeout).current_state.label)
+
+    def get_parameters(self, names: list[str], timeout: float = 5.0) -> dict[str, Any]:
+        """The node's parameters by name (None for an undeclared one)."""
+        client = self.node.create_client(GetParameters, f"{self.target}/get_parameters")
+        try:
+            resp = self._call(client, GetParameters.Request(names=names), timeout)
+        finally:
+            self.node.destroy_client(client)
+        return {
+            n: Parameter.from_parameter_msg(ParameterMsg(name=n, value=v)).value
+            for n, v in zip(names, resp.values, strict=True)
+        }
+
+    def set_parameter(self, name: str, value: Any, timeout: float = 5.0) -> tuple[bool, str]:
+        client = self.node.create_client(SetParameters, f"{self.target}/set_parameters")
+        try:
+            msg = Parameter(name, value=value).to_parameter_msg()
+            req = SetParameters.Request(parameters=[msg])
+            result = self._call(client, req, timeout).results[0]
+        finally:
+            self.node.destroy_client(client)
+        return bool(result.successful), str(result.reason)
 
     def wait_for_node(self, timeout: float = 20.0) -> str:
         """Wait until the node answers ``get_state``; returns its lifecycle state."""

@@ -578,26 +578,38 @@ class EtherRosNode(LifecycleNode):
             raise EtherRosError(str(exc)) from None
 
     def _on_sdo_read(self, req: SdoRead.Request, resp: SdoRead.Response) -> SdoRead.Response:
+        """Upload the object as raw bytes, then decode it with the requested type, or the type
+        the ESI dictionary gives the object, when that is a number."""
         try:
             name = self._sdo_target(req.slave)
-            dtype = req.type.strip() or None
-            if dtype is not None:
-                data_type(dtype)
+            t = data_type(req.type) if req.type.strip() else None
+            index, subindex = int(req.index), int(req.subindex)
             with self._bus_lock:
-                value = self._bus.sdo_read(name, int(req.index), int(req.subindex), dtype)
-            if isinstance(value, bytes | bytearray):
-                resp.data = bytes(value)
-                resp.message = f"{len(value)} byte(s)"
-            else:
-                t = data_type(dtype) if dtype else None
-                if t is not None:
-                    resp.data = dt.encode_value(t, value, t.bit_length)
-                resp.value = float(value)
-                resp.message = f"{value}"
+                raw = self._bus.sdo_read(name, index, subindex, "octet_string")
+                if t is None:
+                    t = self._dictionary_type(name, index, subindex)
+            data = bytes(raw)
+            resp.data = data
             resp.success = True
+            resp.message = f"{len(data)} byte(s): {data.hex(' ')}"
+            if t is not None and t.kind in ("bool", "int", "uint", "real"):
+                nbytes = (t.bit_length + 7) // 8
+                if len(data) < nbytes:
+                    raise EtherRosError(
+                        f"{name} 0x{index:04x}:{subindex:02x}: {len(data)} byte(s) read, "
+                        f"{t.name} needs {nbytes}"
+                    )
+                value = dt.decode_value(t, data[:nbytes], t.bit_length)
+                resp.value = float(value)  # type: ignore[arg-type]
+                resp.message = f"{value} ({t.name})"
         except (EtherRosError, ValueError, TypeError) as exc:
             resp.success, resp.message = False, str(exc)
         return resp
+
+    def _dictionary_type(self, slave: str, index: int, subindex: int) -> dt.DataType | None:
+        device = getattr(self._bus.slave(slave), "device", None)
+        entry = device.od_entry(index, subindex) if device is not None else None
+        return dt.BY_CODE.get(entry.data_type) if entry is not None else None
 
     def _on_sdo_write(self, req: SdoWrite.Request, resp: SdoWrite.Response) -> SdoWrite.Response:
         from ether_ros.ros.layout import VariableSpec

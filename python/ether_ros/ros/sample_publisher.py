@@ -116,7 +116,14 @@ class SamplePublisher:
         self._slices = bridge.image_slices(bus)
         self._output_bytes = bridge.output_bytes(bus)
         self._expected_wkc = bridge.expected_wkc(bus)
-        self._layouts = {s.name: s.layout for s in bus.slaves}
+        self._decoders = {
+            s.name: (bridge.AreaDecoder(s.layout.inputs), bridge.AreaDecoder(s.layout.outputs))
+            for s in bus.slaves
+            if s.layout is not None
+        }
+        self._input_names = {
+            s.name: {v.name: i for i, v in enumerate(s.inputs)} for s in spec.slaves
+        }
         self._positions = {s.name: s.position for s in spec.slaves}
         self.counters = PublisherCounters()
         self._lock = threading.Lock()
@@ -219,14 +226,14 @@ class SamplePublisher:
         self.counters.published_raw += 1
 
     def _publish_decoded(self, stamp: Time, cycle: int, image: bytes) -> None:
-        inputs_by_slave: dict[str, dict[str, Any]] = {}
+        inputs_by_slave: dict[str, list[float]] = {}
         for sl in self._slices:
-            layout = self._layouts.get(sl.slave)
-            if layout is None:
+            decoders = self._decoders.get(sl.slave)
+            if decoders is None:
                 continue
-            inputs = layout.unpack(image[sl.input_offset : sl.input_offset + sl.input_bytes])
-            outputs = layout.unpack(
-                image[sl.output_offset : sl.output_offset + sl.output_bytes], "output"
+            inputs = decoders[0].decode(image[sl.input_offset : sl.input_offset + sl.input_bytes])
+            outputs = decoders[1].decode(
+                image[sl.output_offset : sl.output_offset + sl.output_bytes]
             )
             inputs_by_slave[sl.slave] = inputs
             for topic, values in (("pdo_in", inputs), ("pdo_out", outputs)):
@@ -238,26 +245,31 @@ class SamplePublisher:
                 msg.slave = sl.slave
                 msg.position = self._positions.get(sl.slave, 0)
                 msg.cycle = cycle
-                msg.values = [float(v) for v in values.values()]
+                msg.values = values
                 self._pub[topic].publish(msg)
         if self._joints:
             self._pub["joint_states"].publish(self._joint_state(stamp, inputs_by_slave))
         self.counters.published_decoded += 1
 
-    def _joint_state(self, stamp: Time, inputs: dict[str, dict[str, Any]]) -> JointState:
+    def _joint_state(self, stamp: Time, inputs: dict[str, list[float]]) -> JointState:
         msg = JointState()
         msg.header.stamp = stamp
         names, pos, vel, eff = [], [], [], []
         with_velocity = all(j.velocity for j in self._joints)
         with_effort = all(j.effort for j in self._joints)
+
+        def raw(slave: str, variable: str | None) -> float:
+            index = self._input_names.get(slave, {}).get(variable or "")
+            values = inputs.get(slave)
+            return values[index] if values is not None and index is not None else 0.0
+
         for j in self._joints:
-            values = inputs.get(j.slave, {})
             names.append(j.name)
-            pos.append(float(values.get(j.position, 0.0)) * j.position_scale + j.position_offset)
-            if with_velocity and j.velocity:
-                vel.append(float(values.get(j.velocity, 0.0)) * j.velocity_scale)
-            if with_effort and j.effort:
-                eff.append(float(values.get(j.effort, 0.0)) * j.effort_scale)
+            pos.append(raw(j.slave, j.position) * j.position_scale + j.position_offset)
+            if with_velocity:
+                vel.append(raw(j.slave, j.velocity) * j.velocity_scale)
+            if with_effort:
+                eff.append(raw(j.slave, j.effort) * j.effort_scale)
         msg.name = names
         msg.position = pos
         msg.velocity = vel

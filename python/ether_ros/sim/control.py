@@ -64,6 +64,7 @@ FAULTS: dict[str, dict[str, Arg]] = {
     "link": {"up": Arg(bool), "at": Arg(str, default=OMIT)},
     "drift_step": {"slave": Arg(str), "ppm": Arg(float, -1000.0, 1000.0)},
     "stall_mailbox": {"slave": Arg(str), "on": Arg(bool, default=True)},
+    "seed": {"seed": Arg(int, 0, 2**63 - 1)},
     "clear": {},
 }
 QUERIES = ("stats", "slave_info", "probe")
@@ -157,12 +158,19 @@ class ControlServer:
         self.slaves = list(slaves)
         self.handler = handler
         self._lock = threading.Lock()
-        path.parent.mkdir(parents=True, exist_ok=True)
         if path.exists() or path.is_symlink():
             self._remove_stale(path)
         self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        self._sock.bind(str(path))
-        os.chmod(path, 0o660)
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self._sock.bind(str(path))
+            os.chmod(path, 0o660)
+        except OSError as exc:
+            self._sock.close()
+            raise ControlError(
+                f"cannot create the control socket {path}: {exc.strerror or exc}"
+                " (run as root, give --control PATH, or --no-control)"
+            ) from None
         self._sock.listen(8)
         self._sock.settimeout(0.2)
         self._stop = threading.Event()

@@ -8,11 +8,12 @@ from ether_ros.config.bus import BusConfig
 from ether_ros.sim.spec import bus_order, network_specs
 
 
-def build_network(cfg: BusConfig) -> Any:
-    """A ``SimNetwork`` with one virtual slave per configured slave, in bus order."""
+def build_network(cfg: BusConfig, seed: int = 1) -> Any:
+    """A ``SimNetwork`` with one virtual slave per configured slave, in bus order; ``seed``
+    seeds the fault-injection random generator (same seed, same faults)."""
     from ether_ros._native import SimNetwork
 
-    net = SimNetwork()
+    net = SimNetwork(seed=seed)
     for spec in network_specs(cfg):
         net.add_slave(spec)
     return net

@@ -44,6 +44,7 @@ class SimProcess:
         self.control = socket_path(interface)
         self.proc: subprocess.Popen[str] | None = None
         self.ready_line = ""
+        self.returncode: int | None = None
 
     def start(self, timeout: float = 30.0) -> SimProcess:
         argv = [sys.executable, "-m", "ether_ros.cli.main", "sim", str(self.config),
@@ -168,6 +169,7 @@ class SoemBus:
                 f"{s.name}: state {s.state:#x} AL {s.al_status:#06x}" for s in self.master.slaves
             )
             raise BusError(f"slaves did not reach SAFEOP ({detail})")
+        self.master.read_state()  # refresh every slave's state, not only the group's
         return size
 
     def cycle(self) -> int:

@@ -46,6 +46,8 @@ def device_spec(
 ) -> dict[str, Any]:
     """The ``add_slave`` spec of one slave running ``device``."""
     objects = [(o.index, o.name, o.object_code) for o in device.objects]
+    # The identity object carries this slave's serial number (the ESI can't know it).
+    identity = {(0x1018, 4): serial}
     entries = [
         (
             e.index,
@@ -55,7 +57,7 @@ def device_spec(
             e.bit_length,
             e.access,
             e.pdo_mappable,
-            bytes(e.default),
+            _default(e.default, identity.get((e.index, e.subindex)), e.bit_length),
         )
         for o in device.objects
         for e in o.entries
@@ -79,6 +81,12 @@ def device_spec(
         "mailbox": mailbox_spec(device),
         "pdram_kib": 8,
     }
+
+
+def _default(esi_default: bytes, override: int | None, bit_length: int) -> bytes:
+    if override is None:
+        return bytes(esi_default)
+    return override.to_bytes((bit_length + 7) // 8, "little")
 
 
 def slave_spec(slave: SlaveConfig, position: int) -> dict[str, Any]:

@@ -133,7 +133,7 @@ class Inspector:
         config: str | None = None,
         esi: Sequence[str] = (),
     ) -> Inspector:
-        from ether_ros import _native  # type: ignore[attr-defined]
+        from ether_ros import _native
         from ether_ros.config import load_bus_config
         from ether_ros.config.esi import load_esi_paths
 
@@ -310,6 +310,7 @@ class Inspector:
             in_sm.start,
             in_sm.length,
         )
+        _sync_mailbox_counter(coe.SdoClient(mailbox, self.name_of(f), timeout_s=0.3))
         client = coe.SdoClient(mailbox, self.name_of(f))
         self._sdo[f.position] = client
         return client
@@ -317,19 +318,25 @@ class Inspector:
     def resolve_object(
         self, which: str | int, spec: str, type_name: str | None = None
     ) -> ObjectRef:
-        """``0x7030:3`` / ``0x7030:03`` / ``28720:3`` or a name from the ESI dictionary
-        (``a_ellipse100`` or ``TrajectoryParameters.a_ellipse100``)."""
+        """``0x7030:3`` / ``0x7030:0a`` (hex) / ``28720:10`` (decimal), or a name from the ESI
+        dictionary (``a_ellipse100`` or ``TrajectoryParameters.a_ellipse100``)."""
         f = self.slave(which)
         device = self.device(f)
         forced = data_type(type_name) if type_name else None
         m = re.fullmatch(r"\s*(0x[0-9a-fA-F]+|\d+)\s*:\s*(0x[0-9a-fA-F]+|\d+)\s*", spec)
         if m:
-            index, sub = int(m.group(1), 0), int(m.group(2), 0)
+            # As everywhere in ether_ros (0x7000:0d): after a hex index the subindex is hex too.
+            index = int(m.group(1), 0)
+            sub_text = m.group(2)
+            hex_sub = m.group(1).lower().startswith("0x") or sub_text.lower().startswith("0x")
+            sub = int(sub_text.lower().removeprefix("0x"), 16 if hex_sub else 10)
             if not (0 <= index <= 0xFFFF and 0 <= sub <= 0xFF):
                 raise InspectError(
                     f"object {spec!r} is out of range (index 0..0xFFFF, subindex 0..0xFF)"
                 )
             entry = device.od_entry(index, sub) if device else None
+            if entry is None and forced is None:
+                return self._describe_on_slave(f, index, sub)
             return _object_ref(index, sub, entry, forced)
         if device is None:
             raise InspectError(
@@ -349,6 +356,28 @@ class Inspector:
             raise InspectError(f"{spec!r} is ambiguous ({where}); use index:subindex")
         e = hits[0]
         return _object_ref(e.index, e.subindex, e, forced)
+
+    def _describe_on_slave(self, f: FoundSlave, index: int, sub: int) -> ObjectRef:
+        """Name and type of an object without an ESI: from the SII's PDO entries, else from
+        the slave's SDO information service; untyped when neither knows it."""
+        e = self._sii_entry(f, index, sub)
+        if e is not None and e.data_type in dt.BY_CODE:
+            return ObjectRef(index, sub, e.name, dt.BY_CODE[e.data_type], e.bit_length)
+        if f.header.general and f.header.general.coe_details & 0x02:
+            try:
+                d = self.sdo_client(f.position).entry_description(index, sub)
+            except EtherRosError:
+                return ObjectRef(index, sub)
+            return ObjectRef(index, sub, d.name, dt.BY_CODE.get(d.data_type), d.bit_length)
+        return ObjectRef(index, sub)
+
+    @staticmethod
+    def _sii_entry(f: FoundSlave, index: int, sub: int) -> Any:
+        for pdo in (*f.header.rx_pdos, *f.header.tx_pdos):
+            for e in pdo.entries:
+                if (e.index, e.subindex) == (index, sub):
+                    return e
+        return None
 
     def upload(
         self, which: str | int, spec: str, type_name: str | None = None
@@ -507,6 +536,8 @@ class Inspector:
                 (value,) = struct.unpack("<I", client.upload(pdo_index, k)[:4])
                 index, sub, bits = value >> 16, (value >> 8) & 0xFF, value & 0xFF
                 od = device.od_entry(index, sub) if device and index else None
+                if od is None and index:
+                    od = self._sii_entry(f, index, sub)
                 entries.append(
                     {
                         "index": index,
@@ -517,9 +548,9 @@ class Inspector:
                     }
                 )
             pdo_desc = device.pdo(pdo_index) if device else None
-            pdos.append(
-                {"index": pdo_index, "name": pdo_desc.name if pdo_desc else "", "entries": entries}
-            )
+            sii_pdos = [p for p in (*f.header.rx_pdos, *f.header.tx_pdos) if p.index == pdo_index]
+            pdo_name = pdo_desc.name if pdo_desc else (sii_pdos[0].name if sii_pdos else "")
+            pdos.append({"index": pdo_index, "name": pdo_name, "entries": entries})
         return pdos
 
     # ---- topology and link ----------------------------------------------------------------
@@ -612,6 +643,24 @@ class Inspector:
             "interface_stats": sys_stats,
             "engine": engine_stats,
         }
+
+
+def _sync_mailbox_counter(probe: Any) -> None:
+    """Make sure the slave takes our next mailbox message.
+
+    A slave drops a message whose counter equals the one of the message before (it takes it
+    for a repetition). A new process starts counting at 1 again, and the slave may still
+    remember 1 from the previous command: the first request would then vanish. A harmless
+    read of 0x1000 (device type) with a short timeout, repeated with the next counter until
+    the slave answers (with data or an abort: both mean it took the message), settles that.
+    """
+    for _attempt in range(3):
+        try:
+            probe.upload(0x1000, 0)
+            return
+        except EtherRosError as exc:
+            if "timed out" not in str(exc):
+                return  # an abort is an answer: the counter was accepted
 
 
 def _parent(nodes: list[dict[str, Any]], i: int) -> int:

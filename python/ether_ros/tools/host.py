@@ -204,6 +204,26 @@ class Host:
     def all_irqs(self) -> list[int]:
         return sorted(int(p.rsplit("/", 1)[1]) for p in self.glob("proc/irq/[0-9]*"))
 
+    def set_sched(self, pid: int, policy: int, priority: int) -> None:
+        """Set a thread's scheduling policy and real-time priority (a fixture tree gets the
+        two fields of its ``stat`` file rewritten, as the kernel would report them)."""
+        if self.is_live:
+            try:
+                os.sched_setscheduler(pid, policy, os.sched_param(priority))
+            except OSError as exc:
+                raise HostError(
+                    f"cannot set the scheduling of pid {pid}: {os.strerror(exc.errno or 0)}"
+                ) from exc
+            return
+        path = f"/proc/{pid}/stat"
+        stat = self.read(path)
+        if stat is None:
+            raise HostError(f"no process {pid} under {self.root}")
+        close = stat.rfind(")")
+        fields = stat[close + 2 :].split()
+        fields[37], fields[38] = str(priority), str(policy)
+        self.write(path, stat[: close + 2] + " ".join(fields) + "\n")
+
     def threads(self) -> list[ThreadSched]:
         """Every process in /proc with its scheduling policy and real-time priority."""
         result: list[ThreadSched] = []

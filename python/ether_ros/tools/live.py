@@ -322,7 +322,12 @@ def snapshot_from_diagnostics(
 class DiagnosticsLiveSource:
     """The running node: subscribes to its diagnostics and shows the newest statuses."""
 
-    def __init__(self, topic: str = "/diagnostics", node_name: str = "ether_ros_top") -> None:
+    def __init__(
+        self,
+        topic: str = "/diagnostics",
+        node_name: str = "ether_ros_top",
+        layout_topic: str = "/bus_layout",
+    ) -> None:
         try:
             import rclpy
             from diagnostic_msgs.msg import DiagnosticArray
@@ -335,13 +340,30 @@ class DiagnosticsLiveSource:
                 "standalone bus"
             ) from exc
         self._rclpy = rclpy
-        if not rclpy.ok():
+        self._owns_context = not rclpy.ok()
+        if self._owns_context:
             rclpy.init()
         self._node = rclpy.create_node(node_name)
         self._master: dict[str, str] | None = None
         self._node_name = ""
         self._slaves: dict[str, tuple[str, dict[str, str]]] = {}
         self._node.create_subscription(DiagnosticArray, topic, self._on_message, 10)
+        self._bus_name = ""
+        self._cycle_us = 0
+        self._subscribe_layout(layout_topic)
+
+    def _subscribe_layout(self, topic: str) -> None:
+        """The node's latched bus layout gives the bus name and cycle time."""
+        try:
+            from ether_ros_msgs.msg import BusLayout
+            from rclpy.qos import DurabilityPolicy, QoSProfile
+        except ImportError:
+            return  # the messages are not built: the view goes without the cycle time
+        qos = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self._node.create_subscription(BusLayout, topic, self._on_layout, qos)
+
+    def _on_layout(self, msg: Any) -> None:
+        self._bus_name, self._cycle_us = str(msg.bus), int(msg.cycle_us)
 
     def _on_message(self, msg: Any) -> None:
         for status in msg.status:
@@ -350,7 +372,7 @@ class DiagnosticsLiveSource:
                 continue
             values = {kv.key: kv.value for kv in status.values}
             if what == "master":
-                self._master, self._node_name = values, node
+                self._master, self._node_name = values, node.lstrip("/")
             elif what.startswith("slave "):
                 self._slaves[what[len("slave ") :]] = (status.message, values)
 
@@ -360,10 +382,15 @@ class DiagnosticsLiveSource:
             return LiveSnapshot(
                 source="ROS 2 diagnostics", error="waiting for the node's diagnostics"
             )
-        return snapshot_from_diagnostics(self._master, self._slaves, self._node_name)
+        snap = snapshot_from_diagnostics(self._master, self._slaves, self._bus_name)
+        snap.cycle_us = self._cycle_us
+        snap.source = f"node {self._node_name}, {snap.source}"
+        return snap
 
     def close(self) -> None:
         self._node.destroy_node()
+        if self._owns_context and self._rclpy.ok():
+            self._rclpy.shutdown()
 
 
 class StaticSource:

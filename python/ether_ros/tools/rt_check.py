@@ -28,6 +28,8 @@ CAP_NET_RAW, CAP_IPC_LOCK, CAP_SYS_NICE = 13, 14, 23
 
 # A C-state whose exit latency exceeds this may land on top of a cycle's wake-up.
 MAX_CSTATE_LATENCY_US = 10
+# NIC IRQ threads run this much above the RT thread: they deliver the frame it waits for.
+IRQ_PRIORITY_MARGIN = 5
 # Locked memory the master needs without CAP_IPC_LOCK: the RT stack, rings and buffers.
 MIN_MEMLOCK_BYTES = 64 * 1024 * 1024
 
@@ -362,7 +364,8 @@ def check_irq_threads(host: Host, options: CheckOptions) -> Check:
         name,
         WARN,
         listed + f" (RT thread priority {options.priority})",
-        f"chrt -f -p {min(options.priority + 5, 99)} {low[0].pid} (for each NIC IRQ "
+        f"`ether-ros rt setup --apply`, or chrt -f -p "
+        f"{min(options.priority + IRQ_PRIORITY_MARGIN, 99)} {low[0].pid} (for each NIC IRQ "
         "thread; again after reloading the driver)",
     )
 

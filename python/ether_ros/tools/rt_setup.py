@@ -20,6 +20,7 @@ value it cannot read first is left alone, because it could not be put back.
 from __future__ import annotations
 
 import json
+import re
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,7 +35,9 @@ from ether_ros.tools.host import (
     parse_cpu_list,
     parse_cpu_mask,
 )
-from ether_ros.tools.rt_check import MAX_CSTATE_LATENCY_US
+from ether_ros.tools.rt_check import IRQ_PRIORITY_MARGIN, MAX_CSTATE_LATENCY_US
+
+SCHED_FIFO = 1
 
 CGROUP = "/sys/fs/cgroup"
 PARTITION = f"{CGROUP}/ether_ros_rt"
@@ -44,7 +47,8 @@ UNDO_FORMAT = "ether_ros rt setup undo"
 @dataclass
 class Step:
     """One change: ``kind`` is write (a file), mkdir (a cgroup), controller (enable a cgroup
-    controller in the root) or ethtool (coalescing settings)."""
+    controller in the root), ethtool (coalescing settings) or sched (a thread's policy and
+    priority; ``target`` is the pid, ``value`` and ``current`` are [policy, priority])."""
 
     kind: str
     target: str
@@ -60,6 +64,11 @@ class Step:
             return f"mkdir {self.target}: {self.why}"
         if self.kind == "controller":
             return f"write +{self.value} > {self.target}: {self.why}"
+        if self.kind == "sched":
+            return (
+                f"chrt -f -p {self.value[1]} {self.target} (now policy {self.current[0]}, "
+                f"priority {self.current[1]}): {self.why}"
+            )
         settings = " ".join(f"{k} {v}" for k, v in self.value.items())
         return f"ethtool -C {self.target} {settings}: {self.why}"
 
@@ -73,7 +82,7 @@ class Plan:
     notes: list[str] = field(default_factory=list)
 
 
-def make_plan(host: Host, cpu: int, interface: str) -> Plan:
+def make_plan(host: Host, cpu: int, interface: str, priority: int = 80) -> Plan:
     online = host.online_cpus()
     if cpu not in online:
         raise HostError(f"CPU {cpu} is not online (online: {format_cpu_list(online) or 'none'})")
@@ -92,6 +101,7 @@ def make_plan(host: Host, cpu: int, interface: str) -> Plan:
     plan = Plan(cpu, interface, housekeeping)
     _plan_partition(host, plan)
     _plan_irqs(host, plan)
+    _plan_irq_threads(host, plan, priority)
     _plan_steering(host, plan)
     _plan_write(
         host,
@@ -185,6 +195,29 @@ def _plan_irqs(host: Host, plan: Plan) -> None:
             plan.steps.append(Step("write", path, hk_list, "off the RT CPU", current))
     if not nic:
         plan.notes.append(f"{plan.interface} raises no hardware IRQ (virtual interface)")
+
+
+def _plan_irq_threads(host: Host, plan: Plan, priority: int) -> None:
+    """The NIC's IRQ threads (PREEMPT_RT or threadirqs) above the RT thread's priority."""
+    irqs = host.interface_irqs(plan.interface)
+    if not irqs:
+        return
+    target = min(priority + IRQ_PRIORITY_MARGIN, 99)
+    for t in host.threads():
+        m = re.match(r"irq/(\d+)-", t.comm)
+        if not m or int(m.group(1)) not in irqs:
+            continue
+        if t.policy == SCHED_FIFO and t.rt_priority >= target:
+            continue
+        plan.steps.append(
+            Step(
+                "sched",
+                str(t.pid),
+                [SCHED_FIFO, target],
+                f"{t.comm} above the RT thread ({priority})",
+                [t.policy, t.rt_priority],
+            )
+        )
 
 
 def _plan_steering(host: Host, plan: Plan) -> None:
@@ -298,6 +331,9 @@ def _apply_step(host: Host, step: Step, created_dirs: set[str]) -> dict[str, Any
     if step.kind == "ethtool":
         Ethtool(host).set(step.target, step.value)
         return {"kind": "ethtool", "interface": step.target, "previous": step.current}
+    if step.kind == "sched":
+        host.set_sched(int(step.target), step.value[0], step.value[1])
+        return {"kind": "sched", "pid": int(step.target), "previous": list(step.current)}
     inside_new = any(step.target.startswith(d + "/") for d in created_dirs)
     if inside_new:
         # Control files of a cgroup we made go away with it; nothing to restore.
@@ -364,6 +400,9 @@ def undo(host: Host, undo_file: Path) -> list[str]:
                 enable_controller(host, change["path"], change["controller"], enable=False)
             elif kind == "ethtool":
                 Ethtool(host).set(change["interface"], dict(change["previous"]))
+            elif kind == "sched":
+                policy, prio = change["previous"]
+                host.set_sched(int(change["pid"]), int(policy), int(prio))
             else:
                 problems.append(f"unknown change kind {kind!r} in {undo_file}")
         except HostError as exc:

@@ -7,7 +7,7 @@
 //! its transmission, the hip actuator drives theta1; so each motor's reflected rotor inertia and
 //! friction act on its own coordinate. Integration is semi-implicit Euler.
 
-use super::leg_kinematics::{forward, jacobian, JointAngles, L1, L2};
+use super::leg_kinematics::{JointAngles, L1, L2};
 
 /// Standard gravity, m/s².
 const G: f64 = 9.80665;
@@ -157,17 +157,16 @@ impl LegPhysics {
         -self.contact.1
     }
 
-    fn floor_force(&self) -> (f64, f64) {
+    /// Floor reaction on the toe at height `toe_y` with the Jacobian `jac` (both from the
+    /// current angles, computed once per step by the caller).
+    fn floor_force(&self, toe_y: f64, jac: &[[f64; 2]; 2]) -> (f64, f64) {
         let p = &self.params;
-        let (x, y) = forward(self.q);
-        let _ = x;
-        let depth = y - p.floor_y;
+        let depth = toe_y - p.floor_y;
         if depth <= 0.0 {
             return (0.0, 0.0);
         }
-        let j = jacobian(self.q);
-        let vx = j[0][0] * self.w[0] + j[0][1] * self.w[1];
-        let vy = j[1][0] * self.w[0] + j[1][1] * self.w[1];
+        let vx = jac[0][0] * self.w[0] + jac[0][1] * self.w[1];
+        let vy = jac[1][0] * self.w[0] + jac[1][1] * self.w[1];
         // Normal force pushes up (-y) and never pulls the toe into the floor.
         let normal = (p.floor_stiffness * depth + p.floor_damping * vy).max(0.0);
         let tangential = -p.floor_friction * normal * (vx / 0.01).tanh();
@@ -217,21 +216,26 @@ impl LegPhysics {
         // Links as uniform rods about their centres of mass.
         let i1 = m1 * L1 * L1 / 12.0;
         let i2 = m2 * L2 * L2 / 12.0;
-        let (t1, t2) = (self.q.theta1, self.q.theta2);
-        let d = t1 - t2;
+        // One sin/cos per angle serves the mass matrix, gravity, kinematics and the Jacobian.
+        let (s1, co1) = self.q.theta1.sin_cos();
+        let (s2, co2) = self.q.theta2.sin_cos();
+        let cos_d = co1 * co2 + s1 * s2; // cos(theta1 - theta2)
+        let sin_d = s1 * co2 - co1 * s2; // sin(theta1 - theta2)
         let k = m2 * L1 * c2;
         let m11 = i1 + m1 * c1 * c1 + m2 * L1 * L1 + self.hip.reflected_inertia();
         let m22 = i2 + m2 * c2 * c2 + self.knee.reflected_inertia();
-        let m12 = k * d.cos();
+        let m12 = k * cos_d;
         // Velocity-product terms of the Lagrangian in absolute angles.
-        let h1 = k * d.sin() * self.w[1] * self.w[1];
-        let h2 = -k * d.sin() * self.w[0] * self.w[0];
+        let h1 = k * sin_d * self.w[1] * self.w[1];
+        let h2 = -k * sin_d * self.w[0] * self.w[0];
         // y points down, so gravity pulls the links towards theta = 0.
-        let g1 = -G * (m1 * c1 + m2 * L1) * t1.sin();
-        let g2 = -G * m2 * c2 * t2.sin();
-        let (fx, fy) = self.floor_force();
+        let g1 = -G * (m1 * c1 + m2 * L1) * s1;
+        let g2 = -G * m2 * c2 * s2;
+        // Eq. 4.1 and its Jacobian from the same sines and cosines.
+        let toe_y = L1 * co1 + L2 * co2;
+        let jac = [[L1 * co1, L2 * co2], [-L1 * s1, -L2 * s2]];
+        let (fx, fy) = self.floor_force(toe_y, &jac);
         self.contact = (fx, fy);
-        let jac = jacobian(self.q);
         let q1 = jac[0][0] * fx + jac[1][0] * fy;
         let q2 = jac[0][1] * fx + jac[1][1] * fy;
         let stops = self.stop_torques();

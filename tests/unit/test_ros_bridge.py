@@ -1,0 +1,116 @@
+"""The ROS side's view of the bus, without ROS: layout specs, the fast area decoder, write
+resolution and checking, statistics, and the configuration as parameters."""
+
+from __future__ import annotations
+
+import random
+from pathlib import Path
+
+import pytest
+
+from ether_ros.config import load_bus_config
+from ether_ros.ros import bridge
+from ether_ros.ros.layout import BusSpec, parse_address
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def load(name: str):  # type: ignore[no-untyped-def]
+    return load_bus_config(REPO / "config" / name)
+
+
+def spec(cfg) -> BusSpec:  # type: ignore[no-untyped-def]
+    slaves = tuple(
+        bridge.slave_spec(s.name, i, s.esi.type_name, s.layout) for i, s in enumerate(cfg.slaves)
+    )
+    return BusSpec(cfg.bus.name, cfg.bus.cycle_us, slaves)
+
+
+@pytest.mark.parametrize("config", ["laelaps.yaml", "generic_io.yaml", "mixed.yaml"])
+def test_area_decoder_matches_the_layout_codec(config: str) -> None:
+    rng = random.Random(7)
+    for s in load(config).slaves:
+        layout = s.layout
+        for variables, size, direction in (
+            (layout.inputs, layout.input_bytes, "input"),
+            (layout.outputs, layout.output_bytes, "output"),
+        ):
+            decoder = bridge.AreaDecoder(variables)
+            for _ in range(20):
+                area = bytes(rng.randrange(256) for _ in range(size))
+                expected = [float(v) for v in layout.unpack(area, direction).values()]
+                assert decoder.decode(area) == expected
+
+
+def test_spec_names_types_and_ranges() -> None:
+    leg = spec(load("laelaps.yaml")).slave("front_left_leg")
+    assert leg.position == 2 and leg.device == "LaelapsII_Leg"
+    b = leg.output("b_ellipse100")
+    assert (b.type, b.index, b.subindex, b.minimum, b.maximum) == (
+        "int16",
+        0x7030,
+        4,
+        -32768.0,
+        32767.0,
+    )
+    assert leg.output("0x7030:04") == b == leg.output("7030:4") == leg.output("B_ELLIPSE100")
+    assert leg.input("hip_angle").type == "int16"
+    assert leg.output("State_Machine").type == "bool"
+    assert parse_address("0x7030:04") == (0x7030, 4) and parse_address("x:y") is None
+
+
+def test_resolve_write_by_name_position_all_and_text() -> None:
+    s = spec(load("laelaps.yaml"))
+    [(slave, var, value)] = bridge.resolve_write(s, "", 3, False, "Kp100_knee", 8000.0, "")
+    assert (slave.name, var.name, value) == ("front_right_leg", "Kp100_knee", 8000.0)
+    writes = bridge.resolve_write(s, "", -1, True, "0x7030:04", 0.0, "0x4")
+    assert [(w[0].name, w[2]) for w in writes] == [(x.name, 4.0) for x in s.slaves]
+    [(_, var, value)] = bridge.resolve_write(s, "hind_left_leg", -1, False, "Blue_LED", 0, "on")
+    assert (var.name, value) == ("Blue_LED", 1.0)
+
+
+@pytest.mark.parametrize(
+    ("args", "reason"),
+    [
+        (("", -1, False, "Kp100_knee", 1.0, ""), "no slave given"),
+        (("x", -1, False, "Kp100_knee", 1.0, ""), "no slave named 'x'"),
+        (("", 9, False, "Kp100_knee", 1.0, ""), "no slave at position 9"),
+        (("", -1, True, "hip_angle", 1.0, ""), "no slave has an output variable"),
+        (("front_left_leg", -1, False, "hip_angle", 1.0, ""), "is an input"),
+        (("front_left_leg", -1, False, "", 1.0, ""), "no variable given"),
+        (("front_left_leg", -1, False, "Kp100_knee", 1e9, ""), "outside -32768..32767"),
+        (("front_left_leg", -1, False, "Kp100_knee", float("nan"), ""), "not a finite number"),
+        (("front_left_leg", -1, False, "Kp100_knee", 0.0, "1e3x"), "not an integer"),
+        (("front_left_leg", -1, False, "State_Machine", 0.5, ""), "not an integer"),
+    ],
+)
+def test_resolve_write_refuses_with_the_reason(args: tuple, reason: str) -> None:  # type: ignore[type-arg]
+    with pytest.raises(bridge.WriteRejected) as err:
+        bridge.resolve_write(spec(load("laelaps.yaml")), *args)
+    assert reason in str(err.value)
+
+
+def test_flat_stats_and_lookup() -> None:
+    stats = {"counters": {"lost_frames": 3, "cycles": 10}, "rtt": {"p99": 50}, "ok": True}
+    flat = bridge.flat_stats(stats)
+    assert flat == {"counters.lost_frames": 3.0, "counters.cycles": 10.0, "rtt.p99": 50.0,
+                    "ok": 1.0}  # fmt: skip
+    assert bridge.stat(flat, "lost_frames") == 3.0
+    assert bridge.stat(flat, "rtt.p99") == 50.0
+    assert bridge.stat(flat, "missing") == 0.0
+
+
+def test_configuration_as_parameters() -> None:
+    from ether_ros.ros.node import config_parameters
+
+    params = config_parameters(load("laelaps.yaml"))
+    assert params["bus.cycle_us"] == 400
+    assert params["bus.dc.mode"] == "ref_follows_master"
+    assert params["bus.realtime.cpu"] == 1
+    assert params["ros.node_name"] == "ether_comm"
+    assert params["slaves.hind_right_leg.position"] == 0
+    assert params["slaves.hind_right_leg.product_code"] == 0x00A986FD
+    assert params["slaves.hind_right_leg.safe_outputs.State_Machine"] == 0
+    assert params["slaves.front_left_leg.joints"] == ["fl_hip", "fl_knee"]
+    assert params["esi"] == ["../devices"]
+    assert all(v is not None and not isinstance(v, dict) for v in params.values())
