@@ -91,3 +91,22 @@ def test_bench_cycle_reports_and_writes_json(
     for key in ("wake_latency_us", "exec_us", "period_us", "rtt_us"):
         assert set(result[key]) == {"p50", "p99", "p999", "max"}
         assert result[key]["max"] >= result[key]["p50"] >= 0
+
+
+def test_slaves_next_to_a_running_master_shows_op_and_disturbs_nothing(
+    sim: SimProcess, veth_ns: VethPair
+) -> None:
+    from ether_ros.config import load_bus_config
+    from ether_ros.master import Bus
+
+    cfg = load_bus_config(LAELAPS, interface=veth_ns.master)
+    cfg.bus.cycle_us = 1000
+    cfg.bus.realtime.cpu = None
+    cfg.bus.realtime.lock_memory = False
+    cfg.bus.watchdog_ms = 0
+    with Bus.open(cfg, drift_frames=300) as bus:
+        bus.start()
+        r = ether_ros("slaves", "--interface", veth_ns.master)
+        assert r.returncode == 0, r.stderr
+        assert [line.split()[2] for line in r.stdout.strip().splitlines()] == ["OP"] * 4
+        assert [s.state for s in bus.states()] == ["OP"] * 4

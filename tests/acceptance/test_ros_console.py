@@ -125,9 +125,9 @@ def test_sequence_file_runs_step_by_step(rig: RosRig, tmp_path: Path) -> None:
     bad.write_text(
         "steps:\n  - set hind_left_leg b_ellipse100=3\n  - set hind_left_leg a_ellipse100=40\n"
     )
-    r = console(rig, "--run", str(bad))
-    assert r.returncode == 1
-    assert "step 2" in r.stdout and "invalid ellipse" in r.stdout
+    printed: list[str] = []
+    assert run_lines(Console(rig.client, out=printed.append), [f"run {bad}"]) == 1
+    assert "bad.yaml: step 2: " in printed[-1] and "invalid ellipse" in printed[-1]
 
 
 def test_panic_key_and_panic_command(rig: RosRig) -> None:

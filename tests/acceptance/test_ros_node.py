@@ -275,3 +275,9 @@ def test_inactive_start_leaves_transitions_to_the_caller(veth_allowed: bool) -> 
         assert [s.name for s in c.layout().slaves] == list(LEGS)
         assert c.change_state("activate")
         assert c.wait_for(lambda _l: c.slave_states() == dict.fromkeys(LEGS, "OP"), 10)
+        # SIGINT (as from Ctrl-C or a process manager): the node deactivates and releases the
+        # bus before it exits; the slaves are left out of OP.
+        assert rig.stop_node() == 0
+        states = {rig.sim("slave_info", slave=p)["al_state_name"] for p in range(4)}
+        assert "OP" not in states, states
+        assert "inactive: safe outputs sent" in rig.node_log.read_text()

@@ -45,9 +45,12 @@ def laelaps(veth_ns: VethPair) -> Iterator[tuple[SimProcess, SoemBus]]:
             bus.close()
 
 
-def _to_op(bus: SoemBus) -> None:
+def _to_op(bus: SoemBus, watchdog_ms: float = 2000) -> None:
     assert bus.scan() == len(bus.slaves_cfg)
     bus.configure()
+    # A multi-ms VM stall of this Python master must not look like a dead master to the slaves
+    # (the 100 ms default would take them out of OP); the watchdog test passes 100.
+    bus.set_watchdog(watchdog_ms)
     for i, s in enumerate(bus.slaves_cfg):
         bus.set_outputs(i, table_6_1(s.name, 0, 0, 1) | {"State_Machine": 0})
     assert bus.request_op(), bus.states()
@@ -67,6 +70,7 @@ def test_scan_sdo_mapping_dc_and_op(laelaps: tuple[SimProcess, SoemBus]) -> None
     assert len(set(serials)) == 4
 
     size = bus.configure()
+    bus.set_watchdog(2000)  # see _to_op
     assert size == 4 * (38 + 22)
     for s in bus.slaves:
         assert (len(s.output), len(s.input)) == (38, 22)
@@ -146,6 +150,18 @@ def test_faults_seen_by_soem(laelaps: tuple[SimProcess, SoemBus]) -> None:
     bus.run(0.5)
     assert bus.stats.lost - before <= (bus.stats.cycles - cycles_before) // 100
 
+    # Answers later than the master waits for are lost frames to it.
+    bus.receive_timeout_us = 1_000
+    sim.fault("delay", us=20_000)
+    before = bus.stats.lost
+    for _ in range(10):
+        bus.cycle()
+    assert bus.stats.lost - before >= 5
+    sim.fault("clear")
+    bus.receive_timeout_us = RECEIVE_TIMEOUT_US
+    bus.run(0.3)
+    assert bus.cycle() == 12
+
     # A slave that loses power forgets its station address (no answer there any more) and
     # comes back in INIT; the others stay in OP. The working counter drops by its 3.
     sim.fault("reset", slave="hind_left_leg")
@@ -164,6 +180,7 @@ def test_refuse_op(laelaps: tuple[SimProcess, SoemBus]) -> None:
     sim, bus = laelaps
     assert bus.scan() == 4
     bus.configure()
+    bus.set_watchdog(2000)  # see _to_op
     sim.fault("refuse_op", slave=2)
     assert not bus.request_op(timeout_s=1.0)
     states = bus.states()
@@ -183,6 +200,7 @@ def test_generic_io_loopback(veth_ns: VethPair) -> None:
             assert [s.name for s in bus.slaves] == ["GenericIO", "GenericIO"]
             # io_b's config assigns only the digital PDOs: written over CoE in PREOP.
             assert bus.configure() == (5 + 5) + (1 + 1)
+            bus.set_watchdog(2000)  # see _to_op
             assert bus.master.expected_wkc == 3 * 2
             assert bus.request_op(), bus.states()
             bus.set_outputs(0, {f"DigitalOutput{i}": i % 2 for i in range(1, 9)}
@@ -232,7 +250,7 @@ def test_link_down_and_stalled_mailbox(laelaps: tuple[SimProcess, SoemBus]) -> N
     import pysoem
 
     sim, bus = laelaps
-    _to_op(bus)
+    _to_op(bus, watchdog_ms=100)
     bus.receive_timeout_us = 5_000  # frames that never come back cost this much each
     sim.fault("link", up=False)
     before = bus.stats.lost
@@ -276,6 +294,7 @@ def test_mixed_bus_legs_and_generic_io(veth_ns: VethPair) -> None:
             assert bus.scan() == 5
             assert [s.name for s in bus.slaves] == ["LaelapsII_Leg"] * 4 + ["GenericIO"]
             assert bus.configure() == 4 * (38 + 22) + (5 + 5)
+            bus.set_watchdog(2000)  # see _to_op
             assert bus.master.expected_wkc == 3 * 5
             assert bus.request_op(), bus.states()
             bus.set_outputs(4, {"DigitalOutput5": True})

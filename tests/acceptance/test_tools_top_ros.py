@@ -65,8 +65,9 @@ def test_top_shows_the_running_nodes_slaves(
                             if table.row_count == 4
                             else []
                         )
-                        if states == ["OP"] * 4:
-                            break
+                        stats = str(app.query_one("#stats", Static).content)
+                        if states == ["OP"] * 4 and "cycle 400 µs" in stats:
+                            break  # every slave in OP and the latched layout received
                         assert node.poll() is None, node.stderr.read() if node.stderr else ""
                     assert states == ["OP"] * 4
                     stats = str(app.query_one("#stats", Static).content)

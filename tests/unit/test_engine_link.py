@@ -22,6 +22,7 @@ from ether_ros.master.samples import (
     FLAG_ACYCLIC,
     FLAG_LOST,
     FLAG_PANIC,
+    FLAG_SEND_ERROR,
     FLAG_UNMATCHED,
     FLAG_WATCHDOG,
     FLAG_WKC_ERROR,
@@ -362,22 +363,25 @@ def test_panic_reaches_the_wire_from_the_next_frame(
     engine.write_outputs(0, b"\x01\x02\x03\x04")
     wait_for(lambda: esc.last()[:4] == b"\x01\x02\x03\x04", "live outputs")
     drain(engine)
-    t_panic = Engine.now_ns()
+    t_call = Engine.now_ns()
     engine.panic()
+    t_returned = Engine.now_ns()
     assert engine.is_panicked
     wait_for(lambda: esc.last() == SAFE[:8], "safe outputs")
-    wait_for(lambda: len(esc.outputs()) > 0 and engine.stats()["cycles"] > 0, "cycles")
     time.sleep(0.01)
+    t_clear = Engine.now_ns()
     engine.write_outputs(0, b"\x05\x05\x05\x05")
     engine.clear_panic()
     wait_for(lambda: esc.last()[:4] == b"\x05\x05\x05\x05", "live outputs again")
     engine.stop_cyclic()
-    s = drain(engine)
-    # Every cycle that woke after panic() and before clear_panic() sent the safe image: the
-    # first such cycle is the next frame built.
-    after = s.records[s.records["t_wake_ns"] > t_panic]
-    first = after[0]
-    assert first["flags"] & FLAG_PANIC
+    r = drain(engine).records
+    panicked = (r["flags"] & FLAG_PANIC) != 0
+    # Every cycle that woke after panic() returned, until clear_panic(), sent the safe image;
+    # of the cycles that woke after the call began, only the first (in progress) may not have.
+    assert panicked[(r["t_wake_ns"] > t_returned) & (r["t_wake_ns"] < t_clear)].all()
+    first = r[(r["t_wake_ns"] > t_call) & panicked][0]
+    assert int(first["cycle"]) - int(r[r["t_wake_ns"] > t_call][0]["cycle"]) <= 1
+    # And that frame really carried the safe image to the slaves.
     index = 0x80 | (int(first["cycle"]) & 0x7F)
     sent = {i: d for i, d in esc.seen}
     assert sent[index][0:4] + sent[index][6:10] == SAFE[:8]
@@ -420,6 +424,23 @@ def test_foreign_and_malformed_frames_are_counted_and_ignored(
     s = drain(engine)
     assert (s.records["flags"] & FLAG_UNMATCHED).any()
     assert engine.stats()["wkc_errors"] == 0
+
+
+def test_pulled_cable_is_counted_and_the_exchange_resumes(
+    veth: VethPair, wire: tuple[_native.Engine, FakeEsc, VethResponder]
+) -> None:
+    engine, esc, _r = wire
+    engine.start_cyclic(plan())
+    engine.write_outputs(0, b"\x04\x04\x04\x04")
+    wait_for(lambda: esc.last()[:4] == b"\x04\x04\x04\x04", "outputs on the wire")
+    veth.set_link(False)
+    wait_for(lambda: engine.stats()["send_errors"] + engine.stats()["lost_frames"] >= 5, "errors")
+    veth.set_link(True)
+    seen = len(esc.outputs())
+    wait_for(lambda: len(esc.outputs()) > seen + 3, "frames after the cable is back")
+    assert engine.is_running
+    engine.stop_cyclic()
+    assert (drain(engine).records["flags"] & (FLAG_LOST | FLAG_SEND_ERROR)).any()
 
 
 def test_lost_frames_are_counted_per_cycle(sim: tuple[_native.Engine, FakeEsc]) -> None:

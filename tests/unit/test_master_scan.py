@@ -18,9 +18,11 @@ DEVICES = Path(__file__).resolve().parents[2] / "devices"
 
 
 class FakeEsc:
-    def __init__(self, sii: bytes, alias: int = 0) -> None:
+    def __init__(self, sii: bytes, alias: int = 0, read_bytes: int = 8, fail: bool = False) -> None:
         self.mem = bytearray(0x1000)
         self.sii = sii
+        self.read_bytes = read_bytes
+        self.fail = fail
         self.mem[0x0008] = 0x04  # DC supported
         struct.pack_into("<H", self.mem, 0x0012, alias)
         self.mem[0x0130] = 0x01
@@ -36,11 +38,13 @@ class FakeEsc:
         self.mem[ado : ado + len(data)] = data
         if ado <= 0x0502 < ado + len(data):
             control = struct.unpack_from("<H", self.mem, 0x0502)[0]
-            if control & 0x0100:  # read command: 8 bytes from the word address
+            if control & 0x0100:  # read command: 4 or 8 bytes from the word address
                 word = struct.unpack_from("<I", self.mem, 0x0504)[0]
-                chunk = self.sii[2 * word : 2 * word + 8].ljust(8, b"\xff")
-                self.mem[0x0508:0x0510] = chunk
-                struct.pack_into("<H", self.mem, 0x0502, 0x0040)  # done, 8-byte reads
+                n = self.read_bytes
+                chunk = self.sii[2 * word : 2 * word + n].ljust(n, b"\xff")
+                self.mem[0x0508 : 0x0508 + n] = chunk
+                status = (0x0040 if n == 8 else 0) | (0x2000 if self.fail else 0)
+                struct.pack_into("<H", self.mem, 0x0502, status)
 
 
 class FakeLine:
@@ -120,3 +124,16 @@ def test_missing_and_extra_slaves(leg_sii: bytes) -> None:
 
 def test_empty_bus() -> None:
     assert scan(DatagramService(FakeLine([]))) == []
+
+
+def test_sii_with_4_byte_reads_gives_the_same_image(leg_sii: bytes) -> None:
+    eight = scan(DatagramService(FakeLine([FakeEsc(leg_sii)])))[0]
+    four = scan(DatagramService(FakeLine([FakeEsc(leg_sii, read_bytes=4)])))[0]
+    assert four.header == eight.header
+    assert four.sii[: len(leg_sii)] == eight.sii[: len(leg_sii)]
+
+
+def test_sii_read_error_names_the_slave(leg_sii: bytes) -> None:
+    line = FakeLine([FakeEsc(leg_sii), FakeEsc(leg_sii, fail=True)])
+    with pytest.raises(BusError, match=r"slave 1: SII read at word 0x0000 failed"):
+        scan(DatagramService(line))

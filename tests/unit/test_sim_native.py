@@ -4,6 +4,7 @@ veth pair."""
 
 from __future__ import annotations
 
+import socket
 import struct
 import time
 from typing import Any
@@ -234,3 +235,32 @@ def test_soem_reads_the_sii_and_reaches_safeop_over_veth(veth: VethPair) -> None
     finally:
         net.stop()
     assert net.stats()["frames_answered"] > 10
+
+
+@pytest.mark.netns
+def test_delayed_answers_keep_their_order_over_veth(veth: VethPair) -> None:
+    net = SimNetwork()
+    net.add_slave(spec())
+    net.run_on_interface(veth.slave)
+    sock = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, socket.htons(0x88A4))
+    try:
+        sock.bind((veth.master, 0))
+        sock.settimeout(2.0)
+        net.fault("delay", us=3000)
+        sent = time.monotonic()
+        for i in range(20):
+            sock.send(frame(BWR, 0, 0x0200, struct.pack("<H", i)))
+        got: list[int] = []
+        first = 0.0
+        while len(got) < 20:
+            reply = sock.recv(2048)
+            if reply[6] == MASTER_MAC[0]:
+                continue  # our own frame, seen on the way out
+            first = first or time.monotonic()
+            got.append(struct.unpack_from("<H", reply, 26)[0])
+        assert got == list(range(20))
+        # A lower bound only: scheduling hiccups make answers later, never earlier.
+        assert first - sent >= 0.0025
+    finally:
+        sock.close()
+        net.stop()

@@ -406,3 +406,104 @@ impl Mailbox {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::Arc;
+
+    #[test]
+    fn seqlock_readers_never_accept_a_torn_copy() {
+        let buf = Arc::new(SeqBuffer::new(&[0u8; 256]));
+        let writer = {
+            let buf = buf.clone();
+            std::thread::spawn(move || {
+                for k in 0..20_000u32 {
+                    buf.write(0, &[(k % 251) as u8; 256]);
+                }
+            })
+        };
+        let mut dst = [0u8; 256];
+        let mut accepted = 0;
+        while !writer.is_finished() || accepted == 0 {
+            if buf.try_read(&mut dst).is_some() {
+                accepted += 1;
+                assert!(dst.iter().all(|&b| b == dst[0]), "torn copy accepted");
+            }
+        }
+        writer.join().unwrap();
+        assert_eq!(buf.read(), vec![(19_999 % 251) as u8; 256]);
+    }
+
+    #[test]
+    fn full_ring_drops_the_new_sample_and_keeps_the_old() {
+        let ring = SampleRing::new(2, 3);
+        for c in 0..4u64 {
+            let pushed = ring.push(
+                &SampleRecord {
+                    cycle: c,
+                    ..Default::default()
+                },
+                &[c as u8; 3],
+            );
+            assert_eq!(pushed, c < 2);
+        }
+        assert_eq!(ring.dropped(), 2);
+        let (mut recs, mut imgs) = (Vec::new(), Vec::new());
+        assert_eq!(ring.drain(10, &mut recs, &mut imgs), 2);
+        let cycles: Vec<u64> = recs
+            .chunks(RECORD_LEN)
+            .map(|r| SampleRecord::decode(r).cycle)
+            .collect();
+        assert_eq!(cycles, vec![0, 1]);
+        assert_eq!(imgs, vec![0, 0, 0, 1, 1, 1]);
+        assert!(ring.push(&SampleRecord::default(), &[9; 3]));
+    }
+
+    #[test]
+    fn record_round_trips() {
+        let r = SampleRecord {
+            cycle: 1 << 40,
+            t_wake_ns: 123,
+            wake_latency_ns: -7,
+            exec_ns: 4000,
+            period_ns: 400_000,
+            rtt_ns: 20_000,
+            wkc: 12,
+            flags: flags::LOST | flags::PANIC,
+            dc_diff_ns: -99,
+        };
+        let mut b = [0u8; RECORD_LEN];
+        r.encode(&mut b);
+        assert_eq!(SampleRecord::decode(&b), r);
+    }
+
+    #[test]
+    fn mailbox_hands_ownership_back_and_forth() {
+        use mailbox_state::*;
+        let mb = Mailbox::default();
+        mb.post(&[1, 2, 3], 1_000);
+        assert!(mb.cancel(), "an untaken request can be withdrawn");
+        assert_eq!(mb.state.load(Ordering::Acquire), EMPTY);
+        mb.post(&[1, 2, 3], 1_000);
+        assert_eq!(mb.take(), Some(&[1u8, 2, 3][..]));
+        assert!(!mb.cancel(), "a taken request belongs to the RT thread");
+        assert!(mb.take().is_none());
+        mb.mark_sent(10_000);
+        assert_eq!(mb.sent_request(), Some(&[1u8, 2, 3][..]));
+        assert!(!mb.expire(10_500));
+        mb.deliver(&[4, 5]);
+        assert_eq!(mb.state.load(Ordering::Acquire), DONE);
+        assert_eq!(mb.reply(), vec![4, 5]);
+        mb.state.store(EMPTY, Ordering::Release);
+        mb.post(&[7], 1_000);
+        mb.take();
+        mb.mark_sent(0);
+        assert!(mb.expire(1_001));
+        assert_eq!(mb.state.load(Ordering::Acquire), TIMEOUT);
+        mb.state.store(EMPTY, Ordering::Release);
+        mb.post(&[7], 1_000);
+        mb.abort_pending();
+        assert_eq!(mb.state.load(Ordering::Acquire), ABORTED);
+    }
+}

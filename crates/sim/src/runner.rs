@@ -8,7 +8,6 @@ use std::io;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
-use std::time::Duration;
 
 use ether_ros_wire as wire;
 
@@ -18,6 +17,10 @@ use crate::network::Network;
 const IDLE_POLL_US: libc::suseconds_t = 1_000;
 /// Real-time priority the frame thread asks for (ignored when not permitted).
 const RT_PRIORITY: i32 = 70;
+/// Receive buffer size (largest Ethernet frame without FCS, rounded up).
+const FRAME_BUF: usize = 1536;
+/// Answers the `delay` fault can hold back at once.
+const DELAY_QUEUE: usize = 256;
 
 struct Socket(libc::c_int);
 
@@ -125,6 +128,85 @@ impl Drop for Runner {
     }
 }
 
+/// Answers held back by the `delay` fault, sent when due. Preallocated so the frame path
+/// never allocates; when full, further delayed answers are dropped (and counted).
+struct DelayQueue {
+    frames: Vec<[u8; FRAME_BUF]>,
+    lens: Vec<usize>,
+    due: Vec<u64>,
+    head: usize,
+    count: usize,
+}
+
+impl DelayQueue {
+    fn new() -> Self {
+        DelayQueue {
+            frames: vec![[0u8; FRAME_BUF]; DELAY_QUEUE],
+            lens: vec![0; DELAY_QUEUE],
+            due: vec![0; DELAY_QUEUE],
+            head: 0,
+            count: 0,
+        }
+    }
+
+    fn push(&mut self, frame: &[u8], due: u64) -> bool {
+        if self.count == DELAY_QUEUE || frame.len() > FRAME_BUF {
+            return false;
+        }
+        let i = (self.head + self.count) % DELAY_QUEUE;
+        self.frames[i][..frame.len()].copy_from_slice(frame);
+        self.lens[i] = frame.len();
+        self.due[i] = due;
+        self.count += 1;
+        true
+    }
+
+    fn next_due(&self) -> Option<u64> {
+        (self.count > 0).then(|| self.due[self.head])
+    }
+
+    /// Send every answer due by `now`.
+    fn send_due(&mut self, fd: libc::c_int, now: u64) -> u64 {
+        let mut errors = 0;
+        while self.count > 0 && self.due[self.head] <= now {
+            let f = &self.frames[self.head][..self.lens[self.head]];
+            // SAFETY: send a buffer we own on the bound socket.
+            let sent = unsafe { libc::send(fd, f.as_ptr() as *const libc::c_void, f.len(), 0) };
+            if sent < 0 {
+                errors += 1;
+            }
+            self.head = (self.head + 1) % DELAY_QUEUE;
+            self.count -= 1;
+        }
+        errors
+    }
+}
+
+fn monotonic_ns() -> u64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: clock_gettime writes into the timespec we own.
+    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
+    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
+}
+
+/// Wait until the socket is readable or `timeout_ns` passed (ns resolution, unlike poll()).
+fn wait_readable(fd: libc::c_int, timeout_ns: u64) -> bool {
+    let mut pfd = libc::pollfd {
+        fd,
+        events: libc::POLLIN,
+        revents: 0,
+    };
+    let ts = libc::timespec {
+        tv_sec: (timeout_ns / 1_000_000_000) as libc::time_t,
+        tv_nsec: (timeout_ns % 1_000_000_000) as libc::c_long,
+    };
+    // SAFETY: one valid pollfd and a valid timeout.
+    unsafe { libc::ppoll(&mut pfd, 1, &ts, std::ptr::null()) > 0 }
+}
+
 fn frame_loop(sock: Socket, net: Arc<Mutex<Network>>, stop: Arc<AtomicBool>) {
     try_realtime();
     let fd = sock.0;
@@ -144,9 +226,30 @@ fn frame_loop(sock: Socket, net: Arc<Mutex<Network>>, stop: Arc<AtomicBool>) {
             std::mem::size_of::<libc::timeval>() as u32,
         );
     }
-    let mut buf = [0u8; 2048];
+    let mut buf = [0u8; FRAME_BUF];
+    let mut delayed = DelayQueue::new();
     let mut last_poll = 0u64;
     while !stop.load(Ordering::Relaxed) {
+        let mut flags = 0;
+        if delayed.next_due().is_some() {
+            // Delayed answers pending: wait only until the first is due.
+            let now = monotonic_ns();
+            let errors = delayed.send_due(fd, now);
+            if errors > 0 {
+                if let Ok(mut net) = net.lock() {
+                    net.stats.send_errors += errors;
+                }
+            }
+            if let Some(due) = delayed.next_due() {
+                let wait = due
+                    .saturating_sub(now)
+                    .clamp(1_000, IDLE_POLL_US as u64 * 1_000);
+                if !wait_readable(fd, wait) {
+                    continue;
+                }
+                flags = libc::MSG_DONTWAIT;
+            }
+        }
         // SAFETY: recvfrom into our buffer and address struct, sizes passed correctly.
         let mut sll: libc::sockaddr_ll = unsafe { std::mem::zeroed() };
         let mut alen = std::mem::size_of::<libc::sockaddr_ll>() as libc::socklen_t;
@@ -155,15 +258,17 @@ fn frame_loop(sock: Socket, net: Arc<Mutex<Network>>, stop: Arc<AtomicBool>) {
                 fd,
                 buf.as_mut_ptr() as *mut libc::c_void,
                 buf.len(),
-                0,
+                flags,
                 &mut sll as *mut libc::sockaddr_ll as *mut libc::sockaddr,
                 &mut alen,
             )
         };
         if n <= 0 {
-            if let Ok(mut net) = net.lock() {
-                net.poll();
-                last_poll = net.now();
+            if flags == 0 {
+                if let Ok(mut net) = net.lock() {
+                    net.poll();
+                    last_poll = net.now();
+                }
             }
             continue;
         }
@@ -188,8 +293,15 @@ fn frame_loop(sock: Socket, net: Arc<Mutex<Network>>, stop: Arc<AtomicBool>) {
         if !answer {
             continue;
         }
-        if delay_us > 0 {
-            std::thread::sleep(Duration::from_micros(delay_us));
+        // Once answers are held back, later ones queue behind them: the order is kept.
+        if delay_us > 0 || delayed.next_due().is_some() {
+            let due = monotonic_ns() + delay_us * 1_000;
+            if !delayed.push(&buf[..len], due) {
+                if let Ok(mut net) = net.lock() {
+                    net.stats.frames_dropped += 1;
+                }
+            }
+            continue;
         }
         // SAFETY: send our buffer on the bound socket.
         let sent = unsafe { libc::send(fd, buf.as_ptr() as *const libc::c_void, len, 0) };

@@ -111,8 +111,9 @@ def run_cycle(args: argparse.Namespace) -> int:
         bus.samples()
         deadline = time.monotonic() + args.seconds
         while time.monotonic() < deadline:
-            time.sleep(min(0.1, max(0.0, deadline - time.monotonic())))
+            time.sleep(min(0.05, max(0.0, deadline - time.monotonic())))
             bus.samples()  # keep the ring from overflowing; the stats are what we report
+            bus.feed_watchdog()  # the outputs stay as they are: no watchdog trips
         stats = dict(bus.stats())
         bus.stop()
     result = summarize(stats, args.seconds, int(cfg.bus.cycle_us))

@@ -54,6 +54,9 @@ def run_demo(args: argparse.Namespace) -> int:
         try:
             n = bus.scan()
             bus.configure()
+            # Python on a shared VM can stall for tens of ms: don't let the slaves' 100 ms
+            # process-data watchdog mistake that for a dead master.
+            bus.set_watchdog(1000)
             legs = [i for i, s in enumerate(bus.slaves_cfg) if s.layout.has("a_ellipse100")]
             if not legs:
                 raise EtherRosError(f"{args.config}: no Laelaps II legs on this bus")

@@ -61,7 +61,10 @@ def run_trot(args: argparse.Namespace) -> int:
             bus, TrotPlan(transition_s=args.transition, hold_s=args.hold), record=args.record
         )
     legs = ", ".join(f"{name}={leg}" for name, leg in result.legs.items())
-    print(f"trot done: legs {legs}; {result.lost_frames} lost frames")
+    print(
+        f"trot done: legs {legs}; {result.lost_frames} lost frames, "
+        f"{result.watchdog_trips} watchdog trips"
+    )
     if result.recording is not None:
         print(
             f"{result.recording}: {result.cycles_recorded} cycles "

@@ -244,7 +244,7 @@ class Bus:
             if self.dc_reference is not None and self.dc_reference.dc is not None:
                 ref = self.dc_reference.dc
                 self.dc.measure(dc_slaves, len(self.slaves))
-                self.dc.compensate_drift(ref, self._ref_follows)
+                self.dc.compensate_drift(ref)
                 sync0_start = self.dc.activate_sync0(
                     dc_slaves, self.cycle_ns, self._sync0_shift_ns, ref
                 )
@@ -265,10 +265,6 @@ class Bus:
                 raise
         self.supervisor = Supervisor(self)
         self.supervisor.start()
-
-    @property
-    def _ref_follows(self) -> bool:
-        return self._dc_mode == "ref_follows_master"
 
     @property
     def _dc_mode(self) -> str:

@@ -161,8 +161,11 @@ class DistributedClocks:
 
     def measure(self, slaves: Sequence[DcSlave], bus_size: int) -> None:
         """Latch receive times and set delays and offsets on every DC slave (first = reference)."""
-        send_time = self.master_time()
+        # The latch happens while the frame passes the reference: take the middle of the
+        # broadcast's round trip as the master's time at that moment.
+        before = self.master_time()
         wkc = self.dg.bwr(RECEIVE_TIME_PORT0, u32(0))
+        send_time = (before + self.master_time()) // 2
         if wkc < len(slaves):
             raise BusError(f"DC: only {wkc} slaves latched receive times, expected {len(slaves)}")
         ports = self.dg.batch(
@@ -192,20 +195,19 @@ class DistributedClocks:
                 raise BusError(f"slave {s.position} ({s.name}): writing DC offset/delay failed")
         log.info("DC delays (ns): %s", {s.name: s.delay_ns for s in slaves})
 
-    def compensate_drift(self, reference: DcSlave, follow_master: bool) -> None:
+    def compensate_drift(self, reference: DcSlave) -> None:
         """Static drift compensation: the reference's time, many times, to all other slaves.
 
-        In ``ref_follows_master`` mode the master's time goes to the reference first, so the
-        reference starts its own drift correction towards the master's clock."""
+        The master's own time is not written to the reference here, in either mode: from
+        Python it would be stale by the time the frame passes (tens of µs, varying), and every
+        such write makes the reference's control loop chase that error. In
+        ``ref_follows_master`` the engine writes it from the real-time thread every cycle,
+        stamped with the planned send instant."""
         address = fixed_address(reference.station, SYSTEM_TIME)
         remaining = self.drift_frames
         while remaining > 0:
             n = min(self.drift_per_frame, remaining)
-            frame: list[Datagram] = []
-            if follow_master:
-                frame.append(Datagram(Cmd.FPWR, address, u64(self.master_time())))
-            frame.extend(Datagram(Cmd.FRMW, address, 8) for _ in range(n))
-            self.dg.batch(frame)
+            self.dg.batch([Datagram(Cmd.FRMW, address, 8) for _ in range(n)])
             remaining -= n
 
     def read_time_diffs(self, slaves: Sequence[DcSlave]) -> list[int]:

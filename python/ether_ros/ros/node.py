@@ -434,11 +434,11 @@ class EtherRosNode(LifecycleNode):
             diagnostics.master_status(name, lifecycle, stats, ros_numbers, self._panic, dc_error)
         )
         if bus is not None:
+            # Not under _bus_lock: reading the AL states is acyclic traffic (a few cycles) and
+            # writes must not wait for it. A bus closed meanwhile just skips this report.
             try:
-                with self._bus_lock:
-                    states = bus.states() if self._bus is not None else []
-                statuses.extend(diagnostics.slave_statuses(name, states))
-            except EtherRosError as exc:
+                statuses.extend(diagnostics.slave_statuses(name, bus.states()))
+            except Exception as exc:
                 self.get_logger().warning(f"reading slave states: {exc}")
         self._diag_pub.publish(diagnostics.array(statuses, self.get_clock().now().to_msg()))
 
@@ -584,10 +584,11 @@ class EtherRosNode(LifecycleNode):
             name = self._sdo_target(req.slave)
             t = data_type(req.type) if req.type.strip() else None
             index, subindex = int(req.index), int(req.subindex)
-            with self._bus_lock:
-                raw = self._bus.sdo_read(name, index, subindex, "octet_string")
-                if t is None:
-                    t = self._dictionary_type(name, index, subindex)
+            # SDO callbacks share the lifecycle's callback group, so the bus cannot be closed
+            # under them; no _bus_lock, so writes never wait for a mailbox transfer.
+            raw = self._bus.sdo_read(name, index, subindex, "octet_string")
+            if t is None:
+                t = self._dictionary_type(name, index, subindex)
             data = bytes(raw)
             resp.data = data
             resp.success = True
@@ -621,8 +622,7 @@ class EtherRosNode(LifecycleNode):
             address = f"0x{req.index:04x}:{req.subindex:02x}"
             var = VariableSpec(address, req.type, req.index, req.subindex, 0, lo, hi)
             value = to_python(parse_text(req.value, var), req.type)
-            with self._bus_lock:
-                self._bus.sdo_write(name, int(req.index), int(req.subindex), value, req.type)
+            self._bus.sdo_write(name, int(req.index), int(req.subindex), value, req.type)
             resp.success, resp.message = True, f"{name} {address} = {value}"
         except (EtherRosError, ValueError, InvalidValue) as exc:
             resp.success, resp.message = False, str(exc)

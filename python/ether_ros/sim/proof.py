@@ -172,6 +172,12 @@ class SoemBus:
         self.master.read_state()  # refresh every slave's state, not only the group's
         return size
 
+    def set_watchdog(self, ms: float) -> None:
+        """Process-data watchdog of every slave (ESC default 100 ms). Tests that must not trip
+        it on a VM hiccup lengthen it; the watchdog test keeps the default."""
+        for slave in self.master.slaves:
+            slave.set_watchdog("processdata", ms)
+
     def cycle(self) -> int:
         """One process-data exchange; returns the working counter."""
         self.master.send_processdata()

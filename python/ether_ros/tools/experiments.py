@@ -89,6 +89,9 @@ class TrotResult:
     cycles_recorded: int
     lost_frames: int
     recording: Path | None
+    # Times the command watchdog put the safe outputs on the wire during the run (this process
+    # stalled longer than bus.watchdog_ms between two feeds).
+    watchdog_trips: int = 0
 
 
 def _wait(bus: Any, seconds: float, check: Callable[[], None] | None = None) -> None:
@@ -150,6 +153,7 @@ def trot(
     phases: list[Phase] = []
     t0 = time.monotonic()
     lost_before = _lost(bus)
+    trips_before = _counter(bus, "watchdog_trips")
 
     def step(name: str, variable: str | None, value: int, seconds: float) -> None:
         start = time.monotonic() - t0
@@ -176,15 +180,18 @@ def trot(
         writer.cycles if writer else 0,
         _lost(bus) - lost_before,
         Path(record) if record is not None else None,
+        _counter(bus, "watchdog_trips") - trips_before,
     )
 
 
 def _lost(bus: Any) -> int:
-    stats = bus.stats()
-    for key in ("lost_frames", "lost"):
-        if key in stats:
-            return int(stats[key])
-    return 0
+    return _counter(bus, "lost_frames")
+
+
+def _counter(bus: Any, name: str) -> int:
+    from ether_ros.tools.live import stat
+
+    return int(stat(bus.stats(), name))
 
 
 # ---- frequency ---------------------------------------------------------------------------

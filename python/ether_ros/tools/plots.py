@@ -74,10 +74,7 @@ def leg_slaves(rec: Recording) -> list[str]:
 
 
 def _time_axis(rec: Recording, cycles: np.ndarray) -> np.ndarray:
-    if cycles.size == 0:
-        return cycles.astype(float)
-    first = min(int(s.cycle[0]) for s in rec.inputs.values() if s.cycle.size)
-    return (cycles.astype(np.int64) - first) * rec.cycle_s
+    return rec.wake_times_s(cycles)
 
 
 def steady_state_mask(rec: Recording, slave: str) -> np.ndarray:
@@ -94,14 +91,15 @@ def steady_state_mask(rec: Recording, slave: str) -> np.ndarray:
     top = a.max()
     if top <= 0:
         return everything
-    at_top = outputs.cycle[a >= top].astype(np.int64)
-    lo, hi = int(at_top.min()), int(at_top.max())
+    # In time, not in cycles: cycles skipped under load would shift a cycle-count window.
+    at_top = rec.wake_times_s(outputs.cycle[a >= top])
+    lo, hi = float(at_top.min()), float(at_top.max())
     if "Transition_time" in outputs.columns:
-        ramp_cycles = int(outputs["Transition_time"][a >= top].max() / rec.cycle_s)
-        if lo + ramp_cycles < hi:
-            lo += ramp_cycles
-    cycles = inputs.cycle.astype(np.int64)
-    return (cycles >= lo) & (cycles <= hi)
+        ramp_s = float(outputs["Transition_time"][a >= top].max())
+        if lo + ramp_s < hi:
+            lo += ramp_s
+    t = rec.wake_times_s(inputs.cycle)
+    return (t >= lo) & (t <= hi)
 
 
 def _grid(n: int) -> tuple[int, int]:

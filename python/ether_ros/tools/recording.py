@@ -499,6 +499,20 @@ class Recording:
     def cycle_s(self) -> float:
         return self.bus.cycle_us * 1e-6
 
+    def wake_times_s(self, cycles: np.ndarray) -> np.ndarray:
+        """When the given cycles ran, in seconds since the first recorded cycle.
+
+        From each cycle's measured wake-up time, so skipped cycles (overruns) do not stretch
+        or squeeze the time axis; cycle × period when the timing is not in the recording."""
+        cycles = np.asarray(cycles, dtype=np.int64)
+        known = self.timing.get("cycle")
+        wake = self.timing.get("t_wake_ns")
+        if known is None or wake is None or known.size == 0:
+            first = int(cycles.min()) if cycles.size else 0
+            return (cycles - first) * self.cycle_s
+        t = (wake.astype(np.int64) - int(wake[0])) * 1e-9
+        return np.interp(cycles.astype(float), known.astype(float), t)
+
     def lost_frames(self) -> int:
         flags = self.timing.get("flags")
         return 0 if flags is None else int(np.count_nonzero(flags & FLAG_LOST))

@@ -253,7 +253,7 @@ impl LegPhysics {
 
 #[cfg(test)]
 mod tests {
-    use super::super::leg_kinematics::inverse;
+    use super::super::leg_kinematics::{forward, inverse};
     use super::*;
 
     #[test]

@@ -1,0 +1,115 @@
+"""Supervision rounds against a scripted bus (one layer down: AL statuses and engine counters
+are scripted; the Supervisor's own logic is real)."""
+
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+from ether_ros.errors import BusError, LinkError
+from ether_ros.master.al import AlState, AlStatus, SlaveRef
+from ether_ros.master.supervisor import BusEvent, Supervisor, counter
+
+
+class FakeSlave:
+    def __init__(self, position: int, name: str) -> None:
+        self.position, self.name = position, name
+        self.station = 0x1001 + position
+        self.lost = False
+        self.last_problem = ""
+        self.recoveries = 0
+        self.sdo = None
+
+    @property
+    def ref(self) -> SlaveRef:
+        return SlaveRef(self.position, self.station, self.name)
+
+    def __str__(self) -> str:
+        return f"slave {self.position} ({self.name})"
+
+
+class FakeBus:
+    def __init__(self) -> None:
+        self.slaves = [FakeSlave(0, "a"), FakeSlave(1, "b")]
+        self.wkc_errors = 0
+        self.statuses = [AlStatus(AlState.OP, False, 0)] * 2
+        self.link_up = True
+        self.refuse = False
+        self.recover_calls = 0
+        self.events: list[BusEvent] = []
+        self._acyclic = threading.RLock()
+        self.layout = None
+        bus = self
+
+        class Engine:
+            def stats(self) -> dict[str, Any]:
+                return {"wkc_errors": bus.wkc_errors}
+
+        class Al:
+            def read(self, refs: list[SlaveRef]) -> list[AlStatus]:
+                if not bus.link_up:
+                    raise LinkError("no answer")
+                return list(bus.statuses)
+
+        self.engine, self.al = Engine(), Al()
+
+    def emit(self, event: BusEvent) -> None:
+        self.events.append(event)
+
+    def recover_slave(self, s: FakeSlave) -> None:
+        self.recover_calls += 1
+        if self.refuse:
+            raise BusError(f"{s} refused OP: stays in SAFEOP")
+        self.statuses[s.position] = AlStatus(AlState.OP, False, 0)
+
+    def kinds(self) -> list[str]:
+        return [e.kind for e in self.events]
+
+
+def test_counter_flat_or_nested() -> None:
+    assert counter({"wkc_errors": 3}, "wkc_errors") == 3
+    assert counter({"counters": {"wkc_errors": 4}}, "wkc_errors") == 4
+    assert counter({}, "wkc_errors") == 0
+
+
+def test_wkc_errors_reported_once_per_burst() -> None:
+    bus = FakeBus()
+    sup = Supervisor(bus, retry_s=0)  # type: ignore[arg-type]
+    for errors in (5, 9, 12, 12, 20):
+        bus.wkc_errors = errors
+        sup.check()
+    assert bus.kinds() == ["wkc_error", "wkc_error"]
+    assert bus.events[0].message.startswith("5 cycle(s) with a wrong working counter")
+
+
+def test_lost_slave_is_reported_then_recovered() -> None:
+    bus = FakeBus()
+    sup = Supervisor(bus, retry_s=0)  # type: ignore[arg-type]
+    bus.statuses[1] = AlStatus(AlState.SAFEOP, True, 0x001B)
+    bus.refuse = True
+    sup.check()
+    sup.check()
+    assert bus.kinds() == ["slave_lost", "recovery_failed"]  # the same failure only once
+    assert "SAFEOP + ERROR 0x001B (SyncManager watchdog" in bus.events[0].message
+    assert (
+        bus.events[1].message
+        == "slave 1 (b): recovery failed: slave 1 (b) refused OP: stays in SAFEOP"
+    )
+    bus.refuse = False
+    sup._next_try["b"] = 0.0
+    sup.check()
+    assert bus.kinds()[-1] == "slave_recovered"
+    assert not bus.slaves[1].lost and bus.slaves[1].recoveries == 1
+
+
+def test_link_lost_and_restored() -> None:
+    bus = FakeBus()
+    sup = Supervisor(bus, retry_s=0)  # type: ignore[arg-type]
+    bus.link_up = False
+    sup.check()
+    sup.check()
+    assert bus.kinds() == ["link_lost"]
+    assert all(s.lost for s in bus.slaves)
+    bus.link_up = True
+    sup.check()
+    assert bus.kinds() == ["link_lost", "link_restored", "slave_recovered", "slave_recovered"]
