@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from ether_ros.config import BusConfig, load_bus_config
-from ether_ros.errors import EtherRosError
+from ether_ros.errors import EtherRosError, MailboxError
 from ether_ros.master import Bus, BusEvent
 from ether_ros.sim.proof import SimProcess, table_6_1
 from ether_ros.testing.netns import VethPair
@@ -138,6 +138,12 @@ def test_mixed_bus_io_echo_and_sdo_in_op(mixed_bus: tuple[Bus, SimProcess]) -> N
     assert bus.sdo_read("front_left_leg", 0x1018, 2) == 0x00A986FD
     assert bus.sdo_read("front_left_leg", 0x1008, 0) == "LaelapsII_Leg"
     assert bus.sdo_read("io_box", 0x1C13, 1) is not None
+    # Downloads in OP reach the slave; its refusals come back as one-line errors naming it.
+    with pytest.raises(MailboxError, match=r"'front_left_leg'.*0x06010002.*read-only"):
+        bus.sdo_write("front_left_leg", 0x1018, 1, 5)
+    with pytest.raises(MailboxError, match=r"'io_box'.*0x08000022"):
+        bus.sdo_write("io_box", 0x1C12, 0, 0)  # no PDO re-assignment in OP
+    assert bus.sdo_read("io_box", 0x1C12, 0) == 2
     assert _states(bus) == ["OP"] * 5
 
 

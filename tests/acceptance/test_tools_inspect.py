@@ -3,6 +3,8 @@ simulator in its own process and network namespace, over a real veth pair."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import subprocess
 import sys
@@ -12,6 +14,7 @@ from typing import Any
 
 import pytest
 
+from ether_ros.cli.main import main
 from ether_ros.config.esi import load_esi
 from ether_ros.sim.proof import SimProcess
 from ether_ros.testing.netns import VethPair, can_create_veth
@@ -31,6 +34,7 @@ def iface() -> Iterator[str]:
 
 
 def ether_ros(*args: str) -> subprocess.CompletedProcess[str]:
+    """The command in its own process, exactly as a user runs it."""
     return subprocess.run(
         [sys.executable, "-m", "ether_ros.cli.main", *args],
         capture_output=True,
@@ -40,8 +44,17 @@ def ether_ros(*args: str) -> subprocess.CompletedProcess[str]:
     )
 
 
+def cli(*args: str) -> subprocess.CompletedProcess[str]:
+    """The same command line through the CLI entry point in this process (no interpreter
+    start-up per call; the simulator still answers from its own process over the veth)."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(list(args))
+    return subprocess.CompletedProcess(list(args), code, out.getvalue(), err.getvalue())
+
+
 def ok_json(*args: str) -> Any:
-    out = ether_ros(*args, "--json")
+    out = cli(*args, "--json")
     assert out.returncode == 0, out.stderr
     return json.loads(out.stdout)
 
@@ -84,7 +97,7 @@ def test_upload_and_download_by_index_and_by_name(iface: str) -> None:
     ],
 )
 def test_bad_requests_are_one_line_errors(iface: str, args: list[str], message: str) -> None:
-    out = ether_ros(*args, "-i", iface)
+    out = cli(*args, "-i", iface)
     assert out.returncode == 2
     assert message in out.stderr and out.stderr.count("\n") == 1, out.stderr
 
@@ -144,7 +157,7 @@ def test_xml_from_sii_describes_the_same_device(iface: str, tmp_path: Path) -> N
 
 
 def test_graph_and_master(iface: str) -> None:
-    out = ether_ros("graph", "-i", iface)
+    out = cli("graph", "-i", iface)
     assert out.returncode == 0
     assert "master -> slave0;" in out.stdout and "slave2 -> slave3;" in out.stdout
     topo = ok_json("graph", "-i", iface)

@@ -15,5 +15,7 @@ def test_help_lists_commands_and_version_prints() -> None:
 
 
 def test_no_command_is_a_usage_error() -> None:
-    out = subprocess.run([sys.executable, "-m", "ether_ros.cli.main"], capture_output=True, text=True)
+    out = subprocess.run(
+        [sys.executable, "-m", "ether_ros.cli.main"], capture_output=True, text=True
+    )
     assert out.returncode == 2

@@ -35,8 +35,7 @@ pub const MAX_PAYLOAD: usize = 1500;
 /// Largest frame we build or accept (header + MTU payload).
 pub const MAX_FRAME_LEN: usize = ETH_HEADER_LEN + MAX_PAYLOAD;
 /// Largest data length one datagram can carry in a standard frame.
-pub const MAX_DATAGRAM_DATA: usize =
-    MAX_PAYLOAD - ECAT_HEADER_LEN - DATAGRAM_HEADER_LEN - WKC_LEN;
+pub const MAX_DATAGRAM_DATA: usize = MAX_PAYLOAD - ECAT_HEADER_LEN - DATAGRAM_HEADER_LEN - WKC_LEN;
 /// EtherCAT header type value for DLPDUs.
 pub const ECAT_TYPE_DLPDU: u8 = 1;
 /// Masters conventionally send from a locally administered address; slaves flip bit 1 of the
@@ -115,13 +114,19 @@ impl Command {
     /// The command reads slave memory into the frame (ARMW/FRMW read at the addressed slave).
     pub fn reads(self) -> bool {
         use Command::*;
-        matches!(self, Aprd | Aprw | Fprd | Fprw | Brd | Brw | Lrd | Lrw | Armw | Frmw)
+        matches!(
+            self,
+            Aprd | Aprw | Fprd | Fprw | Brd | Brw | Lrd | Lrw | Armw | Frmw
+        )
     }
 
     /// The command writes frame data into slave memory (ARMW/FRMW write at all other slaves).
     pub fn writes(self) -> bool {
         use Command::*;
-        matches!(self, Apwr | Aprw | Fpwr | Fprw | Bwr | Brw | Lwr | Lrw | Armw | Frmw)
+        matches!(
+            self,
+            Apwr | Aprw | Fpwr | Fprw | Bwr | Brw | Lwr | Lrw | Armw | Frmw
+        )
     }
 
     pub fn name(self) -> &'static str {
@@ -218,7 +223,11 @@ impl<'a> FrameBuilder<'a> {
         buf[6..12].copy_from_slice(&src);
         buf[12..14].copy_from_slice(&ETHERTYPE.to_be_bytes());
         buf[14..16].fill(0);
-        Ok(FrameBuilder { buf, len: ETH_HEADER_LEN + ECAT_HEADER_LEN, last_header: None })
+        Ok(FrameBuilder {
+            buf,
+            len: ETH_HEADER_LEN + ECAT_HEADER_LEN,
+            last_header: None,
+        })
     }
 
     /// Room left for data in one more datagram.
@@ -268,7 +277,12 @@ impl<'a> FrameBuilder<'a> {
         self.buf[w..w + 2].fill(0);
         self.len = w + WKC_LEN;
         self.last_header = Some(h);
-        Ok(DatagramSlot { header: h, data: d, len, wkc: w })
+        Ok(DatagramSlot {
+            header: h,
+            data: d,
+            len,
+            wkc: w,
+        })
     }
 
     /// Finish the frame: write the EtherCAT header, pad to the Ethernet minimum, return the
@@ -333,7 +347,12 @@ pub struct Datagrams<'a> {
 /// Parse a frame's datagrams. The frame's headers are checked first.
 pub fn datagrams(frame: &[u8]) -> Result<Datagrams<'_>, WireError> {
     let end = check_frame(frame)?;
-    Ok(Datagrams { frame, pos: ETH_HEADER_LEN + ECAT_HEADER_LEN, end, done: false })
+    Ok(Datagrams {
+        frame,
+        pos: ETH_HEADER_LEN + ECAT_HEADER_LEN,
+        end,
+        done: false,
+    })
 }
 
 impl Iterator for Datagrams<'_> {
@@ -369,7 +388,12 @@ impl Iterator for Datagrams<'_> {
             circulating: lenword & 0x4000 != 0,
             more,
             irq: u16::from_le_bytes([f[h + 8], f[h + 9]]),
-            slot: DatagramSlot { header: h, data: d, len, wkc: w },
+            slot: DatagramSlot {
+                header: h,
+                data: d,
+                len,
+                wkc: w,
+            },
         }))
     }
 }
@@ -399,7 +423,13 @@ mod tests {
         let mut b = FrameBuilder::new(&mut buf, MASTER_MAC).unwrap();
         let s1 = b.push(Command::Brd, 7, 0, None, 2).unwrap();
         let s2 = b
-            .push(Command::Fpwr, 8, fixed_address(0x1001, 0x0120), Some(&[2, 0]), 0)
+            .push(
+                Command::Fpwr,
+                8,
+                fixed_address(0x1001, 0x0120),
+                Some(&[2, 0]),
+                0,
+            )
             .unwrap();
         let n = b.finish();
         assert_eq!(n, MIN_FRAME_LEN);
@@ -417,7 +447,10 @@ mod tests {
     #[test]
     fn auto_increment_address_is_negative_position() {
         assert_eq!(split_address(auto_increment_address(0, 0x10)), (0, 0x10));
-        assert_eq!(split_address(auto_increment_address(3, 0x10)), (0xfffd, 0x10));
+        assert_eq!(
+            split_address(auto_increment_address(3, 0x10)),
+            (0xfffd, 0x10)
+        );
     }
 
     #[test]
@@ -442,7 +475,13 @@ mod tests {
     fn no_room_is_an_error() {
         let mut buf = [0u8; 80];
         let mut b = FrameBuilder::new(&mut buf, MASTER_MAC).unwrap();
-        assert_eq!(b.push(Command::Lrd, 0, 0, None, 100).err(), Some(WireError::NoRoom));
-        assert_eq!(b.push(Command::Lrd, 0, 0, None, 4000).err(), Some(WireError::TooLong));
+        assert_eq!(
+            b.push(Command::Lrd, 0, 0, None, 100).err(),
+            Some(WireError::NoRoom)
+        );
+        assert_eq!(
+            b.push(Command::Lrd, 0, 0, None, 4000).err(),
+            Some(WireError::TooLong)
+        );
     }
 }
