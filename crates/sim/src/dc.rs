@@ -1,22 +1,42 @@
 //! Distributed clock of one virtual ESC: a local clock running from the host's monotonic clock
-//! with a drift, the system-time offset, and the drift control loop driven by writes to the
-//! system time register (0x0910), as the ESC's PLL does.
+//! with a drift, the system-time offset, and the time control loop driven by writes to the
+//! system time register (0x0910), as in the ESC.
+//!
+//! What a real ESC does (datasheet, "Distributed Clocks", drift compensation): a write to
+//! 0x0910 does not set the time. The ESC computes Δ = local system time at the frame's arrival
+//! − written time (− its propagation delay 0x0928 for followers), averages Δ over 2^n values
+//! (n = 0x0934 bits 0..3), shows the mean in 0x092C, and trims its clock speed, in bounded
+//! steps, so that Δ → 0. It never jumps.
+//!
+//! The model here is a PI loop on the filtered Δ:
+//! - proportional: the filtered offset is slewed out at a rate proportional to it
+//!   (`|Δ| / PHASE_TAU_NS`, at most `MAX_SLEW`), and only up to the measured amount, so a pause
+//!   between compares cannot make it overshoot;
+//! - integral: a frequency correction accumulates Δ·dt (`Δ` clamped to what the slew can
+//!   handle), which learns the crystal's drift, so a locked clock keeps Δ ≈ 0 without slewing.
+//!
+//! The gains make a critically damped loop (time constant ~0.1 s) that tolerates noisy compares:
+//! in "reference follows master" the written master time is stamped before the frame leaves
+//! and reaches the reference tens of µs later with jitter; a loop that treated every compare
+//! as exact (the previous model) turned that jitter into ±500 ppm speed jumps and lost lock.
 //!
 //! The clock is a pure function of host time between "rebase" points (a compare, a drift step),
-//! so reading it never changes it: `local = base_local + (t - base_host)·rate + slew`, where the
-//! slew applies the last measured offset error at a bounded rate (like the real ESC, which adds
-//! 9 or 11 ns instead of 10 ns per 10 ns tick until the error is gone) and `rate` carries the
-//! drift and the learned frequency correction.
+//! so reading it never changes it: `local = base_local + (t − base_host)·rate + slew applied`.
 
 /// Fastest the slew can move the local clock against host time (200 ns per ms).
 const MAX_SLEW: f64 = 2.0e-4;
 /// Largest frequency correction the loop learns (±500 ppm).
 const MAX_CORRECTION: f64 = 5.0e-4;
-/// Time constant of the frequency estimate: a compare after `dt` corrects `dt / τ` of the
-/// measured frequency error (at most half), so frequent compares with 1 ns quantisation
-/// average out instead of making the rate jitter.
-const FREQUENCY_TAU_NS: f64 = 20.0e6;
-const MAX_FREQUENCY_GAIN: f64 = 0.5;
+/// Proportional time constant: an offset Δ is slewed out at |Δ| / τ (ns/ns).
+const PHASE_TAU_NS: f64 = 50.0e6;
+/// Integral time constant: with `PHASE_TAU_NS` the loop's damping is ~0.7, its settling ~0.1 s.
+const FREQUENCY_TAU_NS: f64 = 100.0e6;
+/// Offset beyond which the slew runs at its maximum rate (the proportional part saturates).
+const SLEW_SATURATION_NS: f64 = MAX_SLEW * PHASE_TAU_NS;
+/// Largest filter depth exponent (0x0934 bits 0..3 allow 15; deeper filters only add lag).
+const MAX_FILTER_DEPTH: u8 = 8;
+/// Longest time step one compare integrates (see `compare`).
+const MAX_INTEGRAL_STEP_NS: f64 = 5.0e6;
 
 #[derive(Clone, Debug)]
 pub struct DcClock {
@@ -26,12 +46,16 @@ pub struct DcClock {
     drift_ppm: f64,
     /// Frequency correction learned by the control loop (dimensionless).
     correction: f64,
-    /// Offset still to be slewed in at `MAX_SLEW` from `base_host` on (ns, signed).
+    /// Offset still to be slewed in from `base_host` on (ns, signed)…
     slew: f64,
-    /// Host time of the last compare (for the frequency estimate).
+    /// …at this rate (ns per ns, at most `MAX_SLEW`).
+    slew_rate: f64,
+    /// Host time of the last compare (the integral's time step).
     last_compare_host: Option<u64>,
-    /// Slew that was pending when the last compare happened.
-    last_slew: f64,
+    /// Filtered Δ (local − received, ns): what 0x092C shows.
+    filtered: f64,
+    /// Smallest |filtered| seen since the slew saturated (anti-windup, see `compare`).
+    saturated_best: Option<f64>,
 }
 
 impl DcClock {
@@ -43,8 +67,10 @@ impl DcClock {
             drift_ppm,
             correction: 0.0,
             slew: 0.0,
+            slew_rate: 0.0,
             last_compare_host: None,
-            last_slew: 0.0,
+            filtered: 0.0,
+            saturated_best: None,
         }
     }
 
@@ -52,21 +78,18 @@ impl DcClock {
         1.0 + self.drift_ppm * 1e-6 + self.correction
     }
 
+    /// Part of the pending slew applied `dt` ns after the base point.
+    fn slew_applied(&self, dt: f64) -> f64 {
+        if self.slew == 0.0 || dt <= 0.0 {
+            return 0.0;
+        }
+        self.slew.signum() * (self.slew_rate * dt).min(self.slew.abs())
+    }
+
     /// Local time (ns) at host time `host`.
     pub fn local_f64(&self, host: u64) -> f64 {
         let dt = host as f64 - self.base_host as f64;
-        let mut t = self.base_local + dt * self.rate();
-        if self.slew != 0.0 {
-            let needed = self.slew.abs() / MAX_SLEW;
-            t += if dt <= 0.0 {
-                0.0
-            } else if dt >= needed {
-                self.slew
-            } else {
-                self.slew.signum() * MAX_SLEW * dt
-            };
-        }
-        t
+        self.base_local + dt * self.rate() + self.slew_applied(dt)
     }
 
     pub fn local(&self, host: u64) -> u64 {
@@ -81,10 +104,7 @@ impl DcClock {
     fn rebase(&mut self, host: u64) {
         let now = self.local_f64(host);
         let dt = host as f64 - self.base_host as f64;
-        if self.slew != 0.0 && dt > 0.0 {
-            let applied = (MAX_SLEW * dt).min(self.slew.abs());
-            self.slew -= self.slew.signum() * applied;
-        }
+        self.slew -= self.slew_applied(dt);
         self.base_local = now;
         self.base_host = host.max(self.base_host);
     }
@@ -104,32 +124,66 @@ impl DcClock {
         self.correction * 1e6
     }
 
+    /// The filtered time difference (local − received, ns), as 0x092C shows it.
+    pub fn filtered_difference(&self) -> i64 {
+        self.filtered.round() as i64
+    }
+
     /// Reset the control loop (write to the speed counter start register).
     pub fn reset_loop(&mut self, host: u64) {
         self.rebase(host);
         self.correction = 0.0;
         self.slew = 0.0;
+        self.slew_rate = 0.0;
         self.last_compare_host = None;
+        self.filtered = 0.0;
+        self.saturated_best = None;
     }
 
-    /// One compare of the drift control loop: `diff` = local system time − received system
-    /// time (ns), measured at host time `host`. Slews the offset out and learns the frequency
-    /// error once the previous slew had time to complete.
-    pub fn compare(&mut self, host: u64, diff: i64) {
+    /// One compare of the time control loop: `diff` = local system time − received system
+    /// time (ns) at host time `host`, averaged over about 2^`filter_depth` compares (0x0934).
+    /// Returns the filtered difference (for 0x092C).
+    pub fn compare(&mut self, host: u64, diff: i64, filter_depth: u8) -> i64 {
         self.rebase(host);
         let diff = diff as f64;
-        if let Some(last) = self.last_compare_host {
-            let dt = host.saturating_sub(last) as f64;
-            if dt > 0.0 && self.last_slew.abs() <= MAX_SLEW * dt {
-                // The previous error was fully slewed in: what is left is frequency error.
-                let gain = (dt / FREQUENCY_TAU_NS).min(MAX_FREQUENCY_GAIN);
-                self.correction =
-                    (self.correction - gain * diff / dt).clamp(-MAX_CORRECTION, MAX_CORRECTION);
+        let dt = match self.last_compare_host {
+            None => {
+                self.filtered = diff;
+                0.0
             }
+            Some(last) => {
+                let weight = 1.0 / f64::from(1u32 << filter_depth.min(MAX_FILTER_DEPTH));
+                self.filtered += (diff - self.filtered) * weight;
+                // A long pause says nothing about how the offset evolved in between: the
+                // integral takes at most `MAX_INTEGRAL_STEP_NS` of it.
+                (host.saturating_sub(last) as f64).min(MAX_INTEGRAL_STEP_NS)
+            }
+        };
+        let e = self.filtered;
+        // Integral: learn the frequency error. While the slew runs at its limit (a large
+        // offset being removed) the integral holds, or it would wind up and overshoot once the
+        // offset is gone; it still learns if the offset keeps growing all the same (the
+        // frequency error is beyond what the slew can follow), so no error can lock it out.
+        let saturated = e.abs() > SLEW_SATURATION_NS;
+        let integrate = if saturated {
+            let best = self.saturated_best.get_or_insert(e.abs());
+            *best = best.min(e.abs());
+            e.abs() > *best + SLEW_SATURATION_NS
+        } else {
+            self.saturated_best = None;
+            true
+        };
+        if integrate && dt > 0.0 {
+            let e_i = e.clamp(-SLEW_SATURATION_NS, SLEW_SATURATION_NS);
+            self.correction = (self.correction - e_i * dt / (PHASE_TAU_NS * FREQUENCY_TAU_NS))
+                .clamp(-MAX_CORRECTION, MAX_CORRECTION);
         }
-        self.slew = -diff;
-        self.last_slew = self.slew;
+        // Proportional: slew the measured offset out (it replaces what was still pending: the
+        // new measurement already includes it).
+        self.slew = -e;
+        self.slew_rate = (e.abs() / PHASE_TAU_NS).min(MAX_SLEW);
         self.last_compare_host = Some(host);
+        self.filtered_difference()
     }
 }
 
@@ -160,10 +214,11 @@ mod tests {
         let mut c = DcClock::new(0, 3_000, 80.0);
         let mut host = 0u64;
         let mut last = 0i64;
-        for _ in 0..400 {
+        // One compare per ms for 1 s: ten time constants of the loop.
+        for _ in 0..1_000 {
             host += 1_000_000;
             let diff = c.local(host) as i64 - host as i64;
-            c.compare(host, diff);
+            c.compare(host, diff, 4);
             last = diff;
         }
         assert!(last.abs() < 20, "residual {last} ns");
@@ -182,7 +237,7 @@ mod tests {
         for _ in 0..20_000 {
             host += 30_000;
             let diff = c.local(host) as i64 - host as i64;
-            c.compare(host, diff);
+            c.compare(host, diff, 4);
         }
         assert!(
             (c.correction_ppm() - 35.0).abs() < 2.0,
@@ -191,6 +246,97 @@ mod tests {
         );
         let diff = c.local(host + 30_000) as i64 - (host + 30_000) as i64;
         assert!(diff.abs() < 10, "{diff}");
+    }
+
+    /// Deterministic noise in [0, 1) (xorshift), so the tests need no random crate.
+    fn noise(state: &mut u64) -> f64 {
+        *state ^= *state << 13;
+        *state ^= *state >> 7;
+        *state ^= *state << 17;
+        (*state >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    #[test]
+    fn noisy_writes_lock_without_saturating() {
+        // "Reference follows master": the written time is stamped before the frame leaves and
+        // arrives 10..40 µs later. The clock drifts +50 ppm and starts 60 µs ahead. It must
+        // settle at the mean lag behind the written time, learn −50 ppm, never saturate.
+        let mut c = DcClock::new(0, 60_000, 50.0);
+        let mut rng = 0x9E37_79B9_7F4A_7C15u64;
+        let cycle = 400_000u64;
+        let mut worst_correction = 0.0f64;
+        let mut errors = Vec::new();
+        for k in 0..10_000u64 {
+            let written = k * cycle;
+            let arrival = written + 10_000 + (30_000.0 * noise(&mut rng)) as u64;
+            c.compare(arrival, c.local(arrival) as i64 - written as i64, 4);
+            worst_correction = worst_correction.max(c.correction_ppm().abs());
+            if k >= 5_000 {
+                // Error against the master's time at arrival, minus the mean lag (25 µs).
+                errors.push(c.local(arrival) as f64 - arrival as f64 + 25_000.0);
+            }
+        }
+        assert!(worst_correction < 150.0, "correction reached {worst_correction} ppm");
+        assert!(
+            (c.correction_ppm() + 50.0).abs() < 10.0,
+            "{}",
+            c.correction_ppm()
+        );
+        let worst = errors.iter().fold(0.0f64, |m, e| m.max(e.abs()));
+        assert!(worst < 5_000.0, "clock wandered {worst} ns from the mean lag");
+    }
+
+    #[test]
+    fn large_offset_is_slewed_out_without_windup() {
+        // 1 ms off, no drift: the slew removes it at its maximum rate (5 s) and the integral
+        // must not have learned a frequency error meanwhile (it would overshoot after).
+        let mut c = DcClock::new(0, 1_000_000, 0.0);
+        let mut host = 0u64;
+        let mut diff = 0i64;
+        for _ in 0..20_000 {
+            host += 400_000;
+            diff = c.local(host) as i64 - host as i64;
+            c.compare(host, diff, 4);
+            assert!(diff > -10_000, "overshoot to {diff} ns");
+        }
+        assert!(diff.abs() < 20, "residual {diff} ns");
+        assert!(c.correction_ppm().abs() < 1.0, "{}", c.correction_ppm());
+    }
+
+    #[test]
+    fn drift_beyond_the_slew_rate_is_still_learned() {
+        // −300 ppm: more than the slew alone can follow; the integral must take over.
+        let mut c = DcClock::new(0, 0, -300.0);
+        let mut host = 0u64;
+        let mut diff = 0i64;
+        for _ in 0..50_000 {
+            host += 400_000;
+            diff = c.local(host) as i64 - host as i64;
+            c.compare(host, diff, 4);
+        }
+        assert!(diff.abs() < 20, "residual {diff} ns");
+        assert!(
+            (c.correction_ppm() - 300.0).abs() < 1.0,
+            "{}",
+            c.correction_ppm()
+        );
+    }
+
+    #[test]
+    fn a_pause_between_compares_does_not_kick_the_frequency() {
+        let mut c = DcClock::new(0, 0, 20.0);
+        let mut host = 0u64;
+        for _ in 0..10_000 {
+            host += 100_000;
+            let diff = c.local(host) as i64 - host as i64;
+            c.compare(host, diff, 4);
+        }
+        let learned = c.correction_ppm();
+        // One second without compares, then an offset of 2 µs (e.g. a master-side error).
+        host += 1_000_000_000;
+        let diff = c.local(host) as i64 - host as i64 + 2_000;
+        c.compare(host, diff, 4);
+        assert!((c.correction_ppm() - learned).abs() < 1.0, "{}", c.correction_ppm());
     }
 
     #[test]

@@ -33,6 +33,9 @@ const DEFAULT_WD_DIVIDER: u16 = 0x09C2;
 const DEFAULT_WD_TIME: u16 = 0x03E8;
 /// Catch-up bound for device steps: beyond this the device skips ahead.
 pub const MAX_CATCH_UP_NS: u64 = 100_000_000;
+/// CoE emergency error codes of refused AL state transitions (ETG.1000.6).
+const EMERGENCY_PREOP_TO_SAFEOP: u16 = 0xA000;
+const EMERGENCY_SAFEOP_TO_OP: u16 = 0xA001;
 /// Mailbox messages queued at most for the master (older ones are kept, new ones dropped).
 const MAILBOX_QUEUE_LIMIT: usize = 32;
 
@@ -258,6 +261,11 @@ impl Esc {
         self.put16(reg::WATCHDOG_TIME_PDI, DEFAULT_WD_TIME);
         self.put16(reg::WATCHDOG_TIME_PD, DEFAULT_WD_TIME);
         self.put16(reg::WATCHDOG_STATUS_PD, 1);
+        // DC time control loop defaults (datasheet): speed counter start 0x1000, Δ filter
+        // depth 4 (16 values), speed counter filter depth 12.
+        self.put16(reg::DC_SPEED_COUNTER_START, 0x1000);
+        self.mem[reg::DC_FILTER_DEPTH as usize] = 0x04;
+        self.mem[reg::DC_FILTER_DEPTH as usize + 1] = 0x0C;
         self.load_eeprom();
         self.update_al_registers();
         self.update_dl_status();
@@ -696,8 +704,9 @@ impl Esc {
         } else {
             local_sys.wrapping_sub(received.wrapping_add(delay)) as i64
         };
-        self.put32(reg::DC_SYSTEM_TIME_DIFF, encode_time_difference(diff));
-        self.dc.compare(self.now, diff);
+        let depth = self.mem[reg::DC_FILTER_DEPTH as usize] & 0x0f;
+        let filtered = self.dc.compare(self.now, diff, depth);
+        self.put32(reg::DC_SYSTEM_TIME_DIFF, encode_time_difference(filtered));
     }
 
     fn dc_activation(&mut self) {
@@ -878,12 +887,27 @@ impl Esc {
         };
         match result {
             Ok(()) => self.enter_state(requested),
-            Err(code) => self.fail(code),
+            Err(code) => {
+                // CoE emergency codes of the state machine (ETG.1000.6): 0xA000 is a refused
+                // PREOP → SAFEOP, 0xA001 a refused SAFEOP → OP.
+                let emergency = if (cur, requested) == (SAFEOP, OP) {
+                    EMERGENCY_SAFEOP_TO_OP
+                } else {
+                    EMERGENCY_PREOP_TO_SAFEOP
+                };
+                self.fail_with_emergency(code, emergency);
+            }
         }
     }
 
     /// Set the error indication with `code`, staying in the current state.
     pub fn fail(&mut self, code: u16) {
+        self.fail_with_emergency(code, EMERGENCY_PREOP_TO_SAFEOP);
+    }
+
+    /// `fail`, sending the CoE emergency `emergency` (with the AL status code) when the slave
+    /// has a mailbox.
+    fn fail_with_emergency(&mut self, code: u16, emergency: u16) {
         self.al_error = true;
         self.al_code = code;
         self.counters.al_errors += 1;
@@ -891,7 +915,7 @@ impl Esc {
         if self.mailbox.is_some() && self.al_state != reg::al::INIT {
             // CoE emergency "state machine transition error" carrying the AL status code.
             let c = code.to_le_bytes();
-            let msg = CoeServer::emergency(0xA000, 0x01, [c[0], c[1], 0, 0, 0]);
+            let msg = CoeServer::emergency(emergency, 0x01, [c[0], c[1], 0, 0, 0]);
             self.queue_mailbox(reg::mbx::TYPE_COE, msg);
         }
     }
@@ -1280,5 +1304,51 @@ impl Esc {
 
     pub fn probe(&self) -> Vec<(&'static str, f64)> {
         self.device.as_ref().map(|d| d.probe()).unwrap_or_default()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The CoE error code of the emergency queued last (mailbox header 6 + CoE header 2).
+    fn last_emergency_code(esc: &Esc) -> Option<u16> {
+        let msg = esc.mbx_queue.back()?;
+        Some(u16::from_le_bytes([msg[8], msg[9]]))
+    }
+
+    fn slave_with_mailbox() -> Esc {
+        let spec = SlaveSpec {
+            dc_supported: true,
+            dc_required: true,
+            mailbox: Some(MailboxSpec {
+                rx_offset: 0x1000,
+                rx_size: 128,
+                tx_offset: 0x1080,
+                tx_size: 128,
+            }),
+            ..Default::default()
+        };
+        Esc::new(spec, 0, 0)
+    }
+
+    #[test]
+    fn refused_safeop_to_op_sends_emergency_a001() {
+        let mut esc = slave_with_mailbox();
+        esc.al_state = reg::al::SAFEOP;
+        esc.refuse_op = true;
+        esc.request_state(reg::al::OP as u16);
+        assert_eq!(esc.al_code, reg::al_code::SYNCHRONIZATION_ERROR);
+        assert_eq!(last_emergency_code(&esc), Some(0xA001));
+    }
+
+    #[test]
+    fn refused_preop_to_safeop_sends_emergency_a000() {
+        let mut esc = slave_with_mailbox();
+        esc.al_state = reg::al::PREOP;
+        // The slave needs SYNC0, which is not running: SAFEOP is refused.
+        esc.request_state(reg::al::SAFEOP as u16);
+        assert_eq!(esc.al_code, reg::al_code::INVALID_DC_SYNC_CONFIG);
+        assert_eq!(last_emergency_code(&esc), Some(0xA000));
     }
 }

@@ -1,11 +1,16 @@
-"""``ether-ros demo``: the Laelaps II trot on a simulated bus, driven through pysoem.
+"""``ether-ros demo``: the Laelaps II trot on a simulated bus.
 
-Creates a veth pair (the simulator's end in its own network namespace), starts ``ether-ros sim``
-on it as a separate process, brings the four legs to OP with pysoem (SOEM) on the other end,
-and commands the trot of thesis Table 6.1: ``b_ellipse100`` ramps to 4 cm, then
-``a_ellipse100`` to 5 cm (Transition_time 3 s each), then the legs trot. It prints how well the
-legs tracked their desired angles, the cycle count and the working-counter errors, and removes
-everything it created.
+By default the trot is driven through the ROS 2 node (``--via ros``): the simulator and
+``ether-ros run`` each run in their own process on a veth pair, and the trot of thesis Table 6.1
+is published over ROS 2 only (see ``ether_ros.ros.demo``). ``--via pysoem`` drives the same
+simulated bus with pysoem (SOEM) instead, a check that needs neither our master nor ROS.
+
+With pysoem, the demo creates a veth pair (the simulator's end in its own network
+namespace), starts ``ether-ros sim`` on it as a separate process, brings the four legs to OP with
+pysoem on the other end, and commands the trot of thesis Table 6.1: ``b_ellipse100`` ramps to
+4 cm, then ``a_ellipse100`` to 5 cm (Transition_time 3 s each), then the legs trot. It prints how
+well the legs tracked their desired angles, the cycle count and the working-counter errors, and
+removes everything it created.
 """
 
 from __future__ import annotations
@@ -23,18 +28,32 @@ DEFAULT_CONFIG = Path(__file__).resolve().parents[3] / "config" / "laelaps.yaml"
 def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "demo",
-        help="trot the simulated Laelaps II through pysoem and print how the legs tracked",
+        help="trot the simulated Laelaps II through the ROS 2 node and print how the legs tracked",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--config", type=Path, default=DEFAULT_CONFIG, help="bus configuration")
-    p.add_argument("--seconds", type=float, default=10.0, help="length of the run (default 10)")
+    p.add_argument(
+        "--via",
+        choices=("ros", "pysoem"),
+        default="ros",
+        help="drive the trot through the ROS 2 node (default) or with pysoem",
+    )
+    p.add_argument("--seconds", type=float, default=10.0, help="pysoem: length of the run")
     p.add_argument("--no-netns", action="store_true", help="keep the simulator's veth end in"
                    " this network namespace")  # fmt: skip
     p.set_defaults(func=run_demo)
 
 
 def run_demo(args: argparse.Namespace) -> int:
+    if args.via == "ros":
+        from ether_ros.ros.demo import run_demo as run_ros_demo
+
+        return run_ros_demo(args.config)
+    return run_pysoem_demo(args)
+
+
+def run_pysoem_demo(args: argparse.Namespace) -> int:
     from ether_ros.config import load_bus_config
     from ether_ros.sim.proof import SimProcess, SoemBus, TrackStats, table_6_1
     from ether_ros.testing.netns import VethPair

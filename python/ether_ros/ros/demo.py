@@ -141,7 +141,12 @@ def summary(client: EtherRosClient, recorder: TrotRecorder) -> tuple[str, bool]:
             r = correlation(legs[a].desired_knee, legs[b].desired_knee)
             lines.append(f"  desired knee angle correlation {a} / {b}: {r:+.2f}")
     status = client.master_status()
+    states = client.slave_states()
     lines.append("Bus (from the node's diagnostics)")
+    lines.append(
+        "  slaves                       "
+        + ", ".join(f"{name} {state}" for name, state in states.items())
+    )
     for key, label in (
         ("cycles", "cycles"),
         ("lost_frames", "lost frames"),

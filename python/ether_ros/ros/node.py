@@ -104,6 +104,11 @@ def load_config(path: str, interface: str | None) -> Any:
 
 
 class EtherRosNode(LifecycleNode):
+    """The lifecycle node on one bus configuration (see the module doc and docs/ros.md).
+
+    ``link`` (an in-process ``SimNetwork``) replaces the network interface; ``bus_opener`` opens
+    the bus (``Bus.open`` by default)."""
+
     def __init__(
         self,
         config_path: str | Path,
@@ -112,10 +117,11 @@ class EtherRosNode(LifecycleNode):
         link: Any = None,
         bus_opener: BusOpener = _open_bus,
         node_name: str | None = None,
+        context: Any = None,
     ) -> None:
         cfg = load_config(str(config_path), interface)
         name = node_name or cfg.ros.node_name
-        super().__init__(name, namespace=cfg.ros.namespace or None)
+        super().__init__(name, namespace=cfg.ros.namespace or None, context=context)
         self._config_path = str(Path(config_path).resolve())
         self._link = link
         self._bus_opener = bus_opener
@@ -134,8 +140,9 @@ class EtherRosNode(LifecycleNode):
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         # Callback groups: the default (mutually exclusive) group serializes the lifecycle
-        # services, commands, SDO and diagnostics (everything that touches the acyclic path);
-        # writes have their own group; panic is reentrant and never waits for anything.
+        # services, commands, SDO and parameters (what opens, closes or talks acyclically to the
+        # bus); writes have their own group, the timers (diagnostics, snapshot) theirs; panic is
+        # reentrant and never waits for anything.
         self._writes_group = MutuallyExclusiveCallbackGroup()
         self._timer_group = MutuallyExclusiveCallbackGroup()
         self._panic_group = ReentrantCallbackGroup()
@@ -665,7 +672,7 @@ def _flatten(prefix: str, value: Any, out: dict[str, Any]) -> None:
 
 def spin(node: EtherRosNode, threads: int = 4) -> None:
     """Run the node until shutdown (Ctrl-C / SIGTERM)."""
-    executor = rclpy.executors.MultiThreadedExecutor(num_threads=threads)
+    executor = rclpy.executors.MultiThreadedExecutor(num_threads=threads, context=node.context)
     executor.add_node(node)
     try:
         executor.spin()

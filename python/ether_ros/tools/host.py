@@ -224,6 +224,18 @@ class Host:
         fields[37], fields[38] = str(priority), str(policy)
         self.write(path, stat[: close + 2] + " ".join(fields) + "\n")
 
+    def holders(self, device: str) -> list[int]:
+        """Processes with ``device`` open (their ``/proc/PID/fd`` links point at it)."""
+        pids: set[int] = set()
+        for fd in self.glob("proc/[0-9]*/fd/*"):
+            try:
+                target = os.readlink(self.path(fd))
+            except OSError:
+                continue  # gone, or not ours to look at
+            if target == device:
+                pids.add(int(fd.split("/")[2]))
+        return sorted(pids)
+
     def threads(self) -> list[ThreadSched]:
         """Every process in /proc with its scheduling policy and real-time priority."""
         result: list[ThreadSched] = []

@@ -277,6 +277,17 @@ def check_cstates(host: Host, options: CheckOptions) -> Check:
         found = f"no enabled idle state with exit latency > {MAX_CSTATE_LATENCY_US} µs"
         return Check(name, PASS, found + (f" ({', '.join(limits)})" if limits else ""))
     shown = ", ".join(deep[:4]) + (f" and {len(deep) - 4} more" if len(deep) > 4 else "")
+    holders = host.holders("/dev/cpu_dma_latency")
+    if holders:
+        # A process holding /dev/cpu_dma_latency open keeps the CPUs out of states slower than
+        # the latency it wrote (tuned, the master itself, cyclictest do this).
+        pids = ", ".join(map(str, holders[:3]))
+        return Check(
+            name,
+            PASS,
+            f"deep idle states enabled ({shown}) but /dev/cpu_dma_latency "
+            f"is held open (pid {pids})",
+        )
     return Check(
         name,
         WARN,

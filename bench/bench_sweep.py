@@ -1,0 +1,181 @@
+"""Thesis Table 6.5 as a sweep: how short can the EtherCAT loop time get before frames are lost?
+
+The thesis ran EtherLab on the Laelaps II hardware (4 legs, 240-byte frame) and counted skipped
+packets per loop time: with the generic (Linux network stack) driver 400 µs (2.5 kHz) was clean,
+350 µs only after optimizations; with the native driver down to 230 µs (4.35 kHz), below which
+the slaves refused OP. Here the same bus is the simulator (`ether-ros sim config/laelaps.yaml`,
+its own process pinned to CPU 0, in a network namespace across a veth pair: the generic-driver
+path, kernel network stack on both ends), and the master is `ether-ros bench cycle` (bring-up to
+OP, then the engine's RT thread: SCHED_FIFO 80, memory locked, pinned to CPU 1, send_at_wake
+order as in the thesis's IgH application). A fresh simulator and master per step; loop times
+400 → 100 µs in steps of 50 µs, and 50 µs as a stretch.
+
+Per step: lost frames (no reply by the time the next cycle is due: the thesis's "skipped
+packets"), late frames (a reply that came after that), working-counter errors, and the round trip
+and wake-up latency percentiles the engine reports. Target: zero lost frames at 100 µs.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from baseline import ToolError, rtt_probe
+from bench_master import (
+    IMAGE,
+    MASTER_CPU,
+    PRIORITY,
+    bench_cycle,
+    fmt_us,
+    pinned_simulator,
+    write_config,
+)
+from ether_ros.testing.netns import VethPair
+from report import BenchSkipped, Report
+
+LOOP_TIMES_US = (400, 350, 300, 250, 200, 150, 100)
+STRETCH_US = 50
+TARGET_US = 100
+
+# Thesis Table 6.5, skipped packets per loop time: EtherLab generic driver without / with the
+# latency optimizations, EtherLab native driver. "not run": the thesis has no row for it.
+NOT_RUN = "not run"
+REFUSED = "slaves refused OP"
+THESIS: dict[int, tuple[str, str, str]] = {
+    400: ("0", "0", "0"),
+    350: ("≈ 100", "0", "0"),
+    300: (NOT_RUN, "≈ 100", "0"),
+    250: (NOT_RUN, NOT_RUN, "0"),
+}
+
+
+def _thesis(loop_us: int) -> tuple[str, str, str]:
+    # The native driver's slaves refused OP at 220 µs and below (thesis §6.2.2.2).
+    return THESIS.get(loop_us, (NOT_RUN, NOT_RUN, REFUSED if loop_us <= 220 else NOT_RUN))
+
+
+def _khz(loop_us: int) -> str:
+    return f"{1000 / loop_us:.2f}"
+
+
+def run(report: Report) -> None:
+    try:
+        import ether_ros._native  # noqa: F401
+    except ImportError as e:
+        raise BenchSkipped(f"ether_ros._native is not built: {e}") from None
+    seconds = 5.0 if report.quick else 60.0
+    probe_seconds = max(2.0, seconds / 3)
+    steps = (*LOOP_TIMES_US, STRETCH_US)
+    results: dict[int, dict[str, Any]] = {}
+    errors: dict[int, str] = {}
+    with tempfile.TemporaryDirectory(prefix="bench_sweep_") as tmp:
+        config = write_config(Path(tmp), "send_at_wake")
+        for loop_us in steps:
+            print(f"[sweep] {loop_us} µs for {seconds:g} s", flush=True)
+            try:
+                with (
+                    VethPair.create(netns=True) as veth,
+                    pinned_simulator(config, veth.slave, veth.netns) as sim,
+                ):
+                    results[loop_us] = bench_cycle(config, veth.master, loop_us, seconds)
+                    # The same path without our master: the C probe through the same simulator
+                    # at the same rate, same frame size, same CPU and priority.
+                    probe = rtt_probe(
+                        veth.master,
+                        rate_hz=1e6 / loop_us,
+                        seconds=probe_seconds,
+                        lrw_bytes=IMAGE,
+                        priority=PRIORITY,
+                        cpu=MASTER_CPU,
+                    )
+                    results[loop_us]["c_probe"] = {
+                        "sent": probe.sent,
+                        "answered": probe.answered,
+                        "rtt_us": {k: v / 1000 for k, v in probe.rtt_ns.items()},
+                    }
+                    if sim.poll() is not None:
+                        raise ToolError(f"the simulator exited ({sim.returncode})")
+            except ToolError as e:
+                errors[loop_us] = str(e).splitlines()[-1][:300] if str(e) else type(e).__name__
+
+    rows = []
+    for loop_us in steps:
+        thesis = _thesis(loop_us)
+        r = results.get(loop_us)
+        if r is None:
+            rows.append(
+                [loop_us, _khz(loop_us), *thesis, f"failed: {errors.get(loop_us, '?')}"] + [""] * 8
+            )
+            continue
+        rtt, wake = r["rtt_us"], r["wake_latency_us"]
+        c_rtt: dict[str, float] = (r.get("c_probe") or {}).get("rtt_us") or {}
+        rows.append(
+            [
+                loop_us,
+                _khz(loop_us),
+                *thesis,
+                r["lost_frames"],
+                f"{100 * r['lost_frames'] / max(r['cycles'], 1):.2f} %",
+                r["late_frames"],
+                max(0, r["lost_frames"] - r["late_frames"]),
+                r["wkc_errors"],
+                r["cycles"],
+                f"{fmt_us(rtt['p50'])} / {fmt_us(rtt['p99'])}",
+                f"{fmt_us(wake['p99'])} / {fmt_us(wake['max'])}",
+                " / ".join(fmt_us(c_rtt.get(p)) for p in ("p50", "p99", "p999", "max")),
+            ]
+        )
+    report.text(
+        f"Skipped (lost) frames per EtherCAT loop time, {seconds:g} s per step. Thesis columns: "
+        "Table 6.5 on the Laelaps II hardware (EtherLab, 240-byte frame); the native driver also "
+        "had 0 skipped packets at 240 and 230 µs (4.35 kHz). ether_ros: 4 simulated legs, "
+        "veth pair, master RT thread SCHED_FIFO 80 on CPU 1, simulator on CPU 0. Lost = no "
+        "reply by the time the next cycle's frame is sent (what EtherLab counts as skipped); "
+        "'of which late' = the reply came after that; 'never answered' = lost − late. "
+        "After each step, `bench/c/rtt.c` sends the same "
+        f"{IMAGE}-byte LRW through the same simulator at the same rate for {probe_seconds:g} s "
+        "(CPU 1, SCHED_FIFO 80, no master): round trips longer than the loop time there are "
+        "replies a master cannot have in time, whatever it does."
+    )
+    report.table(
+        [
+            "loop time (µs)",
+            "kHz",
+            "thesis: generic, no optimizations",
+            "thesis: generic, optimized",
+            "thesis: native",
+            "ether_ros: lost",
+            "lost share",
+            "of which late",
+            "never answered",
+            "WKC errors",
+            "cycles",
+            "rtt p50 / p99 (µs)",
+            "wake-up p99 / max (µs)",
+            "C probe via the simulator: rtt p50 / p99 / p99.9 / max (µs)",
+        ],
+        rows,
+    )
+    clean = [t for t in steps if t in results and results[t]["lost_frames"] == 0]
+    best = min(clean) if clean else None
+    at_target = results.get(TARGET_US)
+    ok = at_target is not None and at_target["lost_frames"] == 0
+    best_text = (
+        f"{best} µs ({_khz(best)} kHz)" if best is not None else "none (every step lost frames)"
+    )
+    report.text(
+        f"Shortest loop time with zero lost frames: {best_text}; thesis: 400 µs (2.5 kHz) with "
+        "the generic driver (350 µs / 2.86 kHz after optimizations), 230 µs (4.35 kHz) with the "
+        f"native driver. Target: zero lost frames at {TARGET_US} µs: "
+        + (
+            "met."
+            if ok
+            else "NOT met" + (f" ({errors[TARGET_US]})." if TARGET_US in errors else ".")
+        )
+    )
+    report.value("seconds_per_step", seconds)
+    report.value("steps", {str(t): results[t] for t in results})
+    report.value("errors", {str(t): e for t, e in errors.items()})
+    report.value("shortest_clean_loop_us", best)
+    report.value("target_met", ok)

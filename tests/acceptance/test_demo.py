@@ -1,0 +1,46 @@
+"""`make demo` runs `ether-ros demo`: the main job must work end to end, both ways it runs."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+
+import pytest
+
+pytestmark = [pytest.mark.netns, pytest.mark.slow]
+
+
+def _demo(*args: str, timeout: float) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "ether_ros.cli.main", "demo", *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+def test_demo_trots_through_the_ros_node() -> None:
+    out = _demo(timeout=240)
+    assert out.returncode == 0, out.stdout + out.stderr
+    # The summary names every leg of config/laelaps.yaml with its tracking error.
+    for leg in ("hind_right_leg", "hind_left_leg", "front_left_leg", "front_right_leg"):
+        assert leg in out.stdout
+
+
+def test_demo_trots_through_pysoem() -> None:
+    out = _demo("--via", "pysoem", "--seconds", "4", timeout=120)
+    assert out.returncode == 0, out.stdout + out.stderr
+    rows = re.findall(
+        r"(\w+_leg)\s+hip RMS error\s+([\d.]+) deg \(desired swings\s+([\d.]+) deg\)", out.stdout
+    )
+    assert {leg for leg, _, _ in rows} == {
+        "hind_right_leg",
+        "hind_left_leg",
+        "front_left_leg",
+        "front_right_leg",
+    }, out.stdout
+    for leg, rms, swing in rows:
+        # The hips really swing, and follow their desired angles far closer than the swing.
+        assert float(swing) > 5.0, f"{leg} did not trot: {out.stdout}"
+        assert float(rms) < float(swing) / 3, f"{leg} did not track: {out.stdout}"

@@ -1,0 +1,73 @@
+"""The node with the simulator in the same process (in-process link, no veth, no second
+process): the quickest whole path — lifecycle, layout, a checked write reaching the slave's
+firmware and its echo, panic — for development. The acceptance tests do the same over a veth
+pair with separate processes."""
+
+from __future__ import annotations
+
+import os
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import MultiThreadedExecutor
+
+from ether_ros.config import load_bus_config
+from ether_ros.ros.client import EtherRosClient
+from ether_ros.ros.node import EtherRosNode
+from ether_ros.ros.rig import domain_for
+from ether_ros.sim.network import build_network
+
+pytestmark = [pytest.mark.ros]
+
+CONFIG = Path(__file__).resolve().parents[2] / "config" / "laelaps.yaml"
+
+
+@pytest.fixture(scope="module")
+def setup() -> Iterator[tuple[EtherRosNode, EtherRosClient, object]]:
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_for(os.getpid(), 2))
+    net = build_network(load_bus_config(CONFIG))
+    node = EtherRosNode(CONFIG, link=net, context=context)
+    executor = MultiThreadedExecutor(num_threads=4, context=context)
+    executor.add_node(node)
+    thread = threading.Thread(target=executor.spin, daemon=True)
+    thread.start()
+    client = EtherRosClient(context=context)
+    try:
+        yield node, client, net
+    finally:
+        client.close()
+        executor.shutdown(timeout_sec=2)
+        node.destroy_node()
+        context.try_shutdown()
+        thread.join(5)
+
+
+def echo(client: EtherRosClient, value: float) -> None:
+    client.wait_for(
+        lambda latest: latest.outputs.get("hind_right_leg", {}).get("Kp100_knee") == value
+    )
+
+
+def test_start_write_echo_and_panic(setup: tuple[EtherRosNode, EtherRosClient, object]) -> None:
+    node, client, net = setup
+    assert client.get_state() == "unconfigured"
+    assert client.command("start") == (True, "running: slaves in OP")
+    assert node.lifecycle_state() == "active"
+    assert client.layout().slaves[0].name == "hind_right_leg"
+    ok, message = client.write("hind_right_leg", "Kp100_knee", 8000)
+    assert ok, message
+    echo(client, 8000.0)
+    ok, message = client.write("hind_right_leg", "Kp100_knee", 8000.5)
+    assert not ok and "not an integer" in message
+    assert client.panic()[0]
+    echo(client, 0.0)
+    assert client.command("clear_panic")[0]
+    echo(client, 8000.0)
+    assert net.slave_info(0)["al_state_name"] == "OP"  # type: ignore[attr-defined]
+    assert client.command("stop")[0] and node.lifecycle_state() == "inactive"
+    assert net.slave_info(0)["al_state_name"] != "OP"  # type: ignore[attr-defined]
