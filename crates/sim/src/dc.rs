@@ -276,14 +276,20 @@ mod tests {
                 errors.push(c.local(arrival) as f64 - arrival as f64 + 25_000.0);
             }
         }
-        assert!(worst_correction < 150.0, "correction reached {worst_correction} ppm");
+        assert!(
+            worst_correction < 150.0,
+            "correction reached {worst_correction} ppm"
+        );
         assert!(
             (c.correction_ppm() + 50.0).abs() < 10.0,
             "{}",
             c.correction_ppm()
         );
         let worst = errors.iter().fold(0.0f64, |m, e| m.max(e.abs()));
-        assert!(worst < 5_000.0, "clock wandered {worst} ns from the mean lag");
+        assert!(
+            worst < 5_000.0,
+            "clock wandered {worst} ns from the mean lag"
+        );
     }
 
     #[test]
@@ -336,7 +342,11 @@ mod tests {
         host += 1_000_000_000;
         let diff = c.local(host) as i64 - host as i64 + 2_000;
         c.compare(host, diff, 4);
-        assert!((c.correction_ppm() - learned).abs() < 1.0, "{}", c.correction_ppm());
+        assert!(
+            (c.correction_ppm() - learned).abs() < 1.0,
+            "{}",
+            c.correction_ppm()
+        );
     }
 
     #[test]

@@ -43,8 +43,10 @@ fn open_socket(ifname: &str) -> io::Result<Socket> {
                 format!("no network interface named '{ifname}'"),
             ));
         }
-        let proto = (wire::ETHERTYPE).to_be() as libc::c_int;
-        let fd = libc::socket(libc::AF_PACKET, libc::SOCK_RAW, proto);
+        // Protocol 0 receives nothing until bind() names the interface and the EtherType;
+        // opening with the EtherType directly would queue EtherCAT frames from every interface
+        // (e.g. other buses on the same host) in the window before bind().
+        let fd = libc::socket(libc::AF_PACKET, libc::SOCK_RAW, 0);
         if fd < 0 {
             return Err(io::Error::last_os_error());
         }

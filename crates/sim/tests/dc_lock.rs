@@ -252,6 +252,9 @@ fn master_follows_reference_followers_lock_to_the_nanosecond() {
     for pos in 1..DRIFTS_PPM.len() {
         let expected = DRIFTS_PPM[0] - DRIFTS_PPM[pos];
         let learned = net.slaves[pos].dc.correction_ppm();
-        assert!((learned - expected).abs() < 0.5, "slave {pos}: {learned} ppm");
+        assert!(
+            (learned - expected).abs() < 0.5,
+            "slave {pos}: {learned} ppm"
+        );
     }
 }

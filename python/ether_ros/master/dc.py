@@ -12,7 +12,12 @@ Steps (ETG.1000.4 §9 / ESC datasheet "Distributed Clocks"):
    value at the same instant: the master's time when the latch frame passed the reference, plus
    the propagation delay to that slave.
 4. Static drift compensation: many FRMW 0x0910 from the reference clock; each slave compares the
-   received time (+ its delay) with its own and trims its clock speed.
+   received time (+ its delay) with its own and trims its clock speed. A write to 0x0910 never
+   sets a clock: the ESC averages Δ = local − received (shown in 0x092C) and speeds its clock up
+   or slows it down, in bounded steps, until Δ ≈ 0. In ``ref_follows_master`` the engine writes
+   the master's time (``CLOCK_MONOTONIC + time_offset_ns``, the same clock the offsets below
+   are computed from) to the reference every cycle, so the offset written here only has to be
+   right to within what the reference's loop slews out (µs), and its drift is left to that loop.
 5. SYNC0: cycle time (0x09A0), start time (0x0990) aligned to a cycle boundary of the system
    time plus the configured shift, then the activation word from the ESI (AssignActivate, low
    byte → cyclic unit control 0x0980, high byte → activation 0x0981).
@@ -117,7 +122,9 @@ def assign_activate_bytes(assign_activate: int) -> tuple[int, int]:
 
 
 def decode_time_diff(raw: int) -> int:
-    """0x092C: bit 31 is the sign (1: local is ahead), bits 0..30 the magnitude in ns."""
+    """0x092C as ``local − received`` in ns: bits 0..30 are the magnitude of the (filtered)
+    difference, bit 31 is set when the slave's local copy of the system time is *smaller* than
+    the received time (the slave is behind), which makes the value negative."""
     magnitude = raw & 0x7FFFFFFF
     return -magnitude if raw & 0x80000000 else magnitude
 
