@@ -10,7 +10,7 @@
 //!
 //! The model here is a PI loop on the filtered Δ:
 //! - proportional: the filtered offset is slewed out at a rate proportional to it
-//!   (`|Δ| / PHASE_TAU_NS`, at most `MAX_SLEW`), and only up to the measured amount, so a pause
+//!   (`|Δ| / τ`, at most `MAX_SLEW`), and only up to the measured amount, so a pause
 //!   between compares cannot make it overshoot;
 //! - integral: a frequency correction accumulates Δ·dt (`Δ` clamped to what the slew can
 //!   handle), which learns the crystal's drift, so a locked clock keeps Δ ≈ 0 without slewing.
@@ -27,14 +27,15 @@
 const MAX_SLEW: f64 = 2.0e-4;
 /// Largest frequency correction the loop learns (±500 ppm).
 const MAX_CORRECTION: f64 = 5.0e-4;
-/// Proportional time constant: an offset Δ is slewed out at |Δ| / τ (ns/ns).
+/// Proportional time constant at the default speed counter start (0x0930 = 0x1000): an offset
+/// Δ is slewed out at |Δ| / τ (ns/ns). The time constants scale with 0x0930 (a larger start
+/// value: a smaller bandwidth, as in the ESC), and the integral's is twice the proportional
+/// one (damping ~0.7; settling ~0.1 s at the default).
 const PHASE_TAU_NS: f64 = 50.0e6;
-/// Integral time constant: with `PHASE_TAU_NS` the loop's damping is ~0.7, its settling ~0.1 s.
-const FREQUENCY_TAU_NS: f64 = 100.0e6;
-/// Offset beyond which the slew runs at its maximum rate (the proportional part saturates).
-const SLEW_SATURATION_NS: f64 = MAX_SLEW * PHASE_TAU_NS;
-/// Largest filter depth exponent (0x0934 bits 0..3 allow 15; deeper filters only add lag).
-const MAX_FILTER_DEPTH: u8 = 8;
+/// Speed counter start (0x0930) at which `PHASE_TAU_NS` applies: the ESC's power-on value.
+pub const DEFAULT_SPEED_COUNTER_START: u16 = 0x1000;
+/// Largest filter depth exponent used (0x0934 bits 0..3 allow 15).
+const MAX_FILTER_DEPTH: u8 = 12;
 /// Longest time step one compare integrates (see `compare`).
 const MAX_INTEGRAL_STEP_NS: f64 = 5.0e6;
 
@@ -141,9 +142,22 @@ impl DcClock {
     }
 
     /// One compare of the time control loop: `diff` = local system time − received system
-    /// time (ns) at host time `host`, averaged over about 2^`filter_depth` compares (0x0934).
-    /// Returns the filtered difference (for 0x092C).
-    pub fn compare(&mut self, host: u64, diff: i64, filter_depth: u8) -> i64 {
+    /// time (ns) at host time `host`, averaged over about 2^`filter_depth` compares (0x0934),
+    /// with the loop bandwidth set by `speed_counter_start` (0x0930). Returns the filtered
+    /// difference (for 0x092C).
+    pub fn compare(
+        &mut self,
+        host: u64,
+        diff: i64,
+        filter_depth: u8,
+        speed_counter_start: u16,
+    ) -> i64 {
+        let scale = f64::from(speed_counter_start.max(1)) / f64::from(DEFAULT_SPEED_COUNTER_START);
+        let phase_tau = PHASE_TAU_NS * scale;
+        let frequency_tau = 2.0 * phase_tau;
+        // Offset beyond which the slew runs at its maximum rate (the proportional part
+        // saturates).
+        let slew_saturation = MAX_SLEW * phase_tau;
         self.rebase(host);
         let diff = diff as f64;
         let dt = match self.last_compare_host {
@@ -164,24 +178,24 @@ impl DcClock {
         // offset being removed) the integral holds, or it would wind up and overshoot once the
         // offset is gone; it still learns if the offset keeps growing all the same (the
         // frequency error is beyond what the slew can follow), so no error can lock it out.
-        let saturated = e.abs() > SLEW_SATURATION_NS;
+        let saturated = e.abs() > slew_saturation;
         let integrate = if saturated {
             let best = self.saturated_best.get_or_insert(e.abs());
             *best = best.min(e.abs());
-            e.abs() > *best + SLEW_SATURATION_NS
+            e.abs() > *best + slew_saturation
         } else {
             self.saturated_best = None;
             true
         };
         if integrate && dt > 0.0 {
-            let e_i = e.clamp(-SLEW_SATURATION_NS, SLEW_SATURATION_NS);
-            self.correction = (self.correction - e_i * dt / (PHASE_TAU_NS * FREQUENCY_TAU_NS))
+            let e_i = e.clamp(-slew_saturation, slew_saturation);
+            self.correction = (self.correction - e_i * dt / (phase_tau * frequency_tau))
                 .clamp(-MAX_CORRECTION, MAX_CORRECTION);
         }
         // Proportional: slew the measured offset out (it replaces what was still pending: the
         // new measurement already includes it).
         self.slew = -e;
-        self.slew_rate = (e.abs() / PHASE_TAU_NS).min(MAX_SLEW);
+        self.slew_rate = (e.abs() / phase_tau).min(MAX_SLEW);
         self.last_compare_host = Some(host);
         self.filtered_difference()
     }
@@ -218,7 +232,7 @@ mod tests {
         for _ in 0..1_000 {
             host += 1_000_000;
             let diff = c.local(host) as i64 - host as i64;
-            c.compare(host, diff, 4);
+            c.compare(host, diff, 4, DEFAULT_SPEED_COUNTER_START);
             last = diff;
         }
         assert!(last.abs() < 20, "residual {last} ns");
@@ -237,7 +251,7 @@ mod tests {
         for _ in 0..20_000 {
             host += 30_000;
             let diff = c.local(host) as i64 - host as i64;
-            c.compare(host, diff, 4);
+            c.compare(host, diff, 4, DEFAULT_SPEED_COUNTER_START);
         }
         assert!(
             (c.correction_ppm() - 35.0).abs() < 2.0,
@@ -269,7 +283,12 @@ mod tests {
         for k in 0..10_000u64 {
             let written = k * cycle;
             let arrival = written + 10_000 + (30_000.0 * noise(&mut rng)) as u64;
-            c.compare(arrival, c.local(arrival) as i64 - written as i64, 4);
+            c.compare(
+                arrival,
+                c.local(arrival) as i64 - written as i64,
+                4,
+                DEFAULT_SPEED_COUNTER_START,
+            );
             worst_correction = worst_correction.max(c.correction_ppm().abs());
             if k >= 5_000 {
                 // Error against the master's time at arrival, minus the mean lag (25 µs).
@@ -302,7 +321,7 @@ mod tests {
         for _ in 0..20_000 {
             host += 400_000;
             diff = c.local(host) as i64 - host as i64;
-            c.compare(host, diff, 4);
+            c.compare(host, diff, 4, DEFAULT_SPEED_COUNTER_START);
             assert!(diff > -10_000, "overshoot to {diff} ns");
         }
         assert!(diff.abs() < 20, "residual {diff} ns");
@@ -318,7 +337,7 @@ mod tests {
         for _ in 0..50_000 {
             host += 400_000;
             diff = c.local(host) as i64 - host as i64;
-            c.compare(host, diff, 4);
+            c.compare(host, diff, 4, DEFAULT_SPEED_COUNTER_START);
         }
         assert!(diff.abs() < 20, "residual {diff} ns");
         assert!(
@@ -335,13 +354,13 @@ mod tests {
         for _ in 0..10_000 {
             host += 100_000;
             let diff = c.local(host) as i64 - host as i64;
-            c.compare(host, diff, 4);
+            c.compare(host, diff, 4, DEFAULT_SPEED_COUNTER_START);
         }
         let learned = c.correction_ppm();
         // One second without compares, then an offset of 2 µs (e.g. a master-side error).
         host += 1_000_000_000;
         let diff = c.local(host) as i64 - host as i64 + 2_000;
-        c.compare(host, diff, 4);
+        c.compare(host, diff, 4, DEFAULT_SPEED_COUNTER_START);
         assert!(
             (c.correction_ppm() - learned).abs() < 1.0,
             "{}",

@@ -263,7 +263,10 @@ impl Esc {
         self.put16(reg::WATCHDOG_STATUS_PD, 1);
         // DC time control loop defaults (datasheet): speed counter start 0x1000, Δ filter
         // depth 4 (16 values), speed counter filter depth 12.
-        self.put16(reg::DC_SPEED_COUNTER_START, 0x1000);
+        self.put16(
+            reg::DC_SPEED_COUNTER_START,
+            crate::dc::DEFAULT_SPEED_COUNTER_START,
+        );
         self.mem[reg::DC_FILTER_DEPTH as usize] = 0x04;
         self.mem[reg::DC_FILTER_DEPTH as usize + 1] = 0x0C;
         self.load_eeprom();
@@ -705,7 +708,8 @@ impl Esc {
             local_sys.wrapping_sub(received.wrapping_add(delay)) as i64
         };
         let depth = self.mem[reg::DC_FILTER_DEPTH as usize] & 0x0f;
-        let filtered = self.dc.compare(self.now, diff, depth);
+        let speed = self.get16(reg::DC_SPEED_COUNTER_START) & 0x7fff;
+        let filtered = self.dc.compare(self.now, diff, depth, speed);
         self.put32(reg::DC_SYSTEM_TIME_DIFF, encode_time_difference(filtered));
     }
 
