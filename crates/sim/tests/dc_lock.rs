@@ -22,6 +22,9 @@ const CYCLE_NS: u64 = 400_000;
 const TIME_OFFSET_NS: u64 = 630_000_000_000_000_000;
 const DRIFTS_PPM: [f64; 4] = [50.0, -7.5, 25.0, -3.0];
 const SYSTEM_TIME: u16 = 0x0910;
+/// What `python/ether_ros/master/dc.py` writes to the reference's 0x0930 and 0x0934.
+const REFERENCE_SPEED_COUNTER_START: u16 = 0x4000;
+const REFERENCE_FILTER_DEPTH: u8 = 8;
 const SYSTEM_TIME_DIFF: u16 = 0x092C;
 
 fn master_time(host: u64) -> u64 {
@@ -118,6 +121,23 @@ fn bring_up() -> Network {
         );
         assert_eq!(delay, 800 * pos as u64, "propagation delay of slave {pos}");
     }
+    // The reference's loop follows the master's noisy time: the master gives it a lower
+    // bandwidth (speed counter start) and a deeper Δ filter, as `dc.py` does.
+    let st = station(0);
+    let speed: u16 = std::env::var("REF_SPEED").map_or(REFERENCE_SPEED_COUNTER_START, |v| v.parse().unwrap());
+    let depth: u8 = std::env::var("REF_DEPTH").map_or(REFERENCE_FILTER_DEPTH, |v| v.parse().unwrap());
+    xfer(
+        &mut net,
+        Command::Fpwr,
+        wire::fixed_address(st, 0x0930),
+        &speed.to_le_bytes(),
+    );
+    xfer(
+        &mut net,
+        Command::Fpwr,
+        wire::fixed_address(st, 0x0934),
+        &[depth],
+    );
     // Static drift compensation: 3000 FRMW from the reference, 16 per frame, 100 µs apart.
     for _ in 0..3000 / 16 {
         let t = net.now() + 100_000;
