@@ -24,6 +24,7 @@ from ether_ros.master.dc import (
     diff32,
     line_delays,
     loop_times,
+    reference_filter_depth,
     sync0_start_time,
     system_time_offsets,
 )
@@ -139,6 +140,7 @@ def manual_bus() -> Iterator[ManualBus]:
 def _bring_up(bus: ManualBus) -> DistributedClocks:
     dc = DistributedClocks(bus.dg, bus.master_time, drift_frames=3000)
     dc.measure(bus.slaves, len(bus.slaves))
+    dc.configure_reference_loop(bus.slaves[0], CYCLE_NS)
     # Static drift compensation, 16 FRMW per frame, frames 100 µs apart.
     frames = 3000 // 16
     for _ in range(frames):
@@ -162,6 +164,29 @@ def _cycles(bus: ManualBus, seconds: float, write_reference: bool) -> Callable[[
         assert all(r.wkc >= 1 for r in bus.dg.batch(frame))
         planned += CYCLE_NS
     return lambda: [bus.time_diff(pos) for pos in range(len(bus.slaves))]
+
+
+def test_reference_filter_spans_at_most_a_quarter_of_the_loop_time_constant() -> None:
+    assert reference_filter_depth(400_000) == 6  # 64 cycles = 25.6 ms of a 200 ms loop
+    assert reference_filter_depth(1_000_000) == 5
+    assert reference_filter_depth(125_000) == 8  # capped
+    assert reference_filter_depth(100_000_000) == 0
+    for cycle in (250_000, 400_000, 1_000_000, 4_000_000):
+        assert (1 << reference_filter_depth(cycle)) * cycle <= 50_000_000
+    with pytest.raises(ValueError):
+        reference_filter_depth(0)
+
+
+def test_reference_loop_settings_reach_the_reference(manual_bus: ManualBus) -> None:
+    dc = DistributedClocks(manual_bus.dg, manual_bus.master_time)
+    dc.configure_reference_loop(manual_bus.slaves[0], 400_000)
+    start, _ = manual_bus.dg.fprd(0x1001, 0x0930, 2)
+    depth, _ = manual_bus.dg.fprd(0x1001, 0x0934, 1)
+    assert struct.unpack("<H", start)[0] == 0x4000 and depth[0] == 6
+    # The others keep the ESC defaults.
+    start, _ = manual_bus.dg.fprd(0x1002, 0x0930, 2)
+    depth, _ = manual_bus.dg.fprd(0x1002, 0x0934, 1)
+    assert struct.unpack("<H", start)[0] == 0x1000 and depth[0] == 4
 
 
 def test_time_difference_sign_matches_the_slave() -> None:

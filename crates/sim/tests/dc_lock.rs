@@ -22,9 +22,10 @@ const CYCLE_NS: u64 = 400_000;
 const TIME_OFFSET_NS: u64 = 630_000_000_000_000_000;
 const DRIFTS_PPM: [f64; 4] = [50.0, -7.5, 25.0, -3.0];
 const SYSTEM_TIME: u16 = 0x0910;
-/// What `python/ether_ros/master/dc.py` writes to the reference's 0x0930 and 0x0934.
+/// What `python/ether_ros/master/dc.py` writes to the reference's 0x0930 and 0x0934 for a
+/// 400 µs cycle.
 const REFERENCE_SPEED_COUNTER_START: u16 = 0x4000;
-const REFERENCE_FILTER_DEPTH: u8 = 8;
+const REFERENCE_FILTER_DEPTH: u8 = 6;
 const SYSTEM_TIME_DIFF: u16 = 0x092C;
 
 fn master_time(host: u64) -> u64 {
@@ -124,19 +125,17 @@ fn bring_up() -> Network {
     // The reference's loop follows the master's noisy time: the master gives it a lower
     // bandwidth (speed counter start) and a deeper Δ filter, as `dc.py` does.
     let st = station(0);
-    let speed: u16 = std::env::var("REF_SPEED").map_or(REFERENCE_SPEED_COUNTER_START, |v| v.parse().unwrap());
-    let depth: u8 = std::env::var("REF_DEPTH").map_or(REFERENCE_FILTER_DEPTH, |v| v.parse().unwrap());
     xfer(
         &mut net,
         Command::Fpwr,
         wire::fixed_address(st, 0x0930),
-        &speed.to_le_bytes(),
+        &REFERENCE_SPEED_COUNTER_START.to_le_bytes(),
     );
     xfer(
         &mut net,
         Command::Fpwr,
         wire::fixed_address(st, 0x0934),
-        &[depth],
+        &[REFERENCE_FILTER_DEPTH],
     );
     // Static drift compensation: 3000 FRMW from the reference, 16 per frame, 100 µs apart.
     for _ in 0..3000 / 16 {
@@ -245,10 +244,10 @@ fn reference_follows_master_locks_without_saturating() {
     // reference runs the mean send lag (25 µs) + one hop behind the master's clock, steadily.
     assert!(percentile_abs(&run.reference_diffs, 0.99) < 10_000);
     assert!((-35_000..-15_000).contains(&mean), "mean {mean} ns");
-    assert!(percentile_abs(&wander, 1.0) < 5_000);
+    assert!(percentile_abs(&wander, 1.0) < 3_000);
     // The others follow the reference, whose speed keeps being trimmed (by a few ppm: the
     // written time's jitter): their corrections stay near the master's rate − their drift.
-    assert!(percentile_abs(&run.follower_diffs, 1.0) < 5_000);
+    assert!(percentile_abs(&run.follower_diffs, 1.0) < 2_000);
     for pos in 1..DRIFTS_PPM.len() {
         let learned = net.slaves[pos].dc.correction_ppm();
         assert!(

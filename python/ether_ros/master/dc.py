@@ -49,6 +49,8 @@ RECEIVE_TIME_PU = 0x0918
 SYSTEM_TIME_OFFSET = 0x0920
 SYSTEM_TIME_DELAY = 0x0928
 SYSTEM_TIME_DIFF = 0x092C
+SPEED_COUNTER_START = 0x0930
+FILTER_DEPTH = 0x0934
 CYCLIC_UNIT_CONTROL = 0x0980
 ACTIVATION = 0x0981
 START_TIME = 0x0990
@@ -60,6 +62,17 @@ MASK64 = 0xFFFFFFFFFFFFFFFF
 
 # Seconds from 1970-01-01 to 2000-01-01: EtherCAT system time counts from the year 2000.
 EPOCH_2000_S = 946_684_800
+
+# The reference clock's time control loop, when it follows the master's time: the written time
+# carries the master's send jitter (tens of µs on a PC), which the ESC's default loop
+# (speed counter start 0x1000, Δ averaged over 16 compares) passes on as ±100 ppm speed changes
+# that the other slaves must follow. A 4x smaller bandwidth and an average over up to a quarter
+# of the loop's time constant keep the reference steady; the others keep the defaults (their
+# compares carry no jitter).
+REFERENCE_SPEED_COUNTER_START = 0x4000
+# Loop time constant at that setting (the simulated ESC: 50 ms at 0x1000, proportional).
+REFERENCE_LOOP_TAU_NS = 200_000_000
+MAX_FILTER_DEPTH = 8
 
 
 def diff32(later: int, earlier: int) -> int:
@@ -114,6 +127,18 @@ def sync0_start_time(now: int, cycle_ns: int, shift_ns: int, margin_ns: int) -> 
     return boundary + shift_ns
 
 
+def reference_filter_depth(cycle_ns: int) -> int:
+    """0x0934 for the reference clock: average Δ over 2^n compares (one per cycle) spanning at
+    most a quarter of the loop's time constant — a longer average delays the loop enough to
+    make it ring."""
+    if cycle_ns <= 0:
+        raise ValueError("cycle time must be positive")
+    depth = 0
+    while depth < MAX_FILTER_DEPTH and (2 << depth) * cycle_ns <= REFERENCE_LOOP_TAU_NS // 4:
+        depth += 1
+    return depth
+
+
 def assign_activate_bytes(assign_activate: int) -> tuple[int, int]:
     """(0x0980 cyclic unit control, 0x0981 activation) from an ESI AssignActivate word.
 
@@ -165,6 +190,8 @@ class DistributedClocks:
         self.drift_frames = drift_frames
         self.drift_per_frame = drift_per_frame
         self.start_margin_ns = start_margin_ns
+        # (station, 0x0930, 0x0934) given to the reference, to give again after a reset.
+        self._reference_loop: tuple[int, int, int] | None = None
 
     def measure(self, slaves: Sequence[DcSlave], bus_size: int) -> None:
         """Latch receive times and set delays and offsets on every DC slave (first = reference)."""
@@ -223,6 +250,25 @@ class DistributedClocks:
         )
         return [decode_time_diff(struct.unpack_from("<I", r.data)[0]) for r in replies]
 
+    def configure_reference_loop(self, reference: DcSlave, cycle_ns: int) -> None:
+        """Set the reference clock's loop for following the master's time (a lower bandwidth,
+        0x0930, and a deeper Δ average, 0x0934, for ``cycle_ns`` compares). Harmless when the
+        master follows the reference instead: nothing then writes the reference's 0x0910."""
+        depth = reference_filter_depth(cycle_ns)
+        who = f"slave {reference.position} ({reference.name})"
+        self.dg.write_checked(
+            reference.station, FILTER_DEPTH, bytes([depth]), "DC filter depth", who
+        )
+        # Written last: a write to the speed counter start restarts the loop.
+        self.dg.write_checked(
+            reference.station,
+            SPEED_COUNTER_START,
+            u16(REFERENCE_SPEED_COUNTER_START),
+            "DC speed counter start",
+            who,
+        )
+        self._reference_loop = (reference.station, REFERENCE_SPEED_COUNTER_START, depth)
+
     def activate_sync0(
         self,
         slaves: Sequence[DcSlave],
@@ -230,12 +276,14 @@ class DistributedClocks:
         shift_ns: int,
         reference: DcSlave | None = None,
     ) -> int:
-        """Program SYNC0 on the slaves that use it; returns the start time (system time),
-        0 when none uses SYNC0. ``reference`` (default: the first slave) tells the time."""
+        """Set the reference clock's loop for the cycle (``configure_reference_loop``), then
+        program SYNC0 on the slaves that use it; returns the start time (system time), 0 when
+        none uses SYNC0. ``reference`` (default: the first slave) tells the time."""
+        clock = reference or slaves[0]
+        self.configure_reference_loop(clock, cycle_ns)
         users = [s for s in slaves if s.assign_activate]
         if not users:
             return 0
-        clock = reference or slaves[0]
         data, wkc = self.dg.fprd(clock.station, SYSTEM_TIME, 8)
         if wkc != 1:
             raise BusError(f"slave {clock.position} ({clock.name}): no DC system time")
@@ -289,3 +337,8 @@ class DistributedClocks:
         offset, delay = u64(slave.offset), u32(slave.delay_ns)
         self.dg.write_checked(slave.station, SYSTEM_TIME_OFFSET, offset, "DC offset", who)
         self.dg.write_checked(slave.station, SYSTEM_TIME_DELAY, delay, "DC delay", who)
+        if self._reference_loop is not None and self._reference_loop[0] == slave.station:
+            # The reference lost its loop settings with the reset.
+            _, speed, depth = self._reference_loop
+            self.dg.write_checked(slave.station, FILTER_DEPTH, bytes([depth]), "DC filter", who)
+            self.dg.write_checked(slave.station, SPEED_COUNTER_START, u16(speed), "DC speed", who)
