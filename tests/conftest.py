@@ -7,9 +7,11 @@ from pathlib import Path
 
 import pytest
 
+from ether_ros.sim.proof import SimProcess
 from ether_ros.testing.netns import VethPair, can_create_veth
 
 REPO = Path(__file__).resolve().parent.parent
+LAELAPS = REPO / "config" / "laelaps.yaml"
 
 
 @pytest.fixture(scope="session")
@@ -38,3 +40,13 @@ def veth_ns(veth_allowed: bool) -> Iterator[VethPair]:
         pytest.fail("creating a network namespace needs root; run the tests as root")
     with VethPair.create(netns=True) as pair:
         yield pair
+
+
+@pytest.fixture(scope="module")
+def sim_iface(veth_allowed: bool) -> Iterator[str]:
+    """The master-side interface of the simulated Laelaps bus (config/laelaps.yaml), run in its
+    own process and network namespace; one simulator serves every test of a module."""
+    if not veth_allowed:
+        pytest.fail("creating a network namespace needs root; run the tests as root")
+    with VethPair.create(netns=True) as veth, SimProcess(LAELAPS, veth.slave, veth.netns):
+        yield veth.master

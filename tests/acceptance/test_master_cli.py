@@ -4,8 +4,6 @@ the simulator in its own network namespace over a veth pair."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -14,22 +12,11 @@ import yaml
 
 from ether_ros.sim.proof import SimProcess
 from ether_ros.testing.netns import VethPair
+from user_commands import LAELAPS, REPO, ether_ros
 
 pytestmark = pytest.mark.netns
 
-REPO = Path(__file__).resolve().parents[2]
-LAELAPS = REPO / "config" / "laelaps.yaml"
 LEGS = ["hind_right_leg", "hind_left_leg", "front_left_leg", "front_right_leg"]
-
-
-def ether_ros(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "ether_ros.cli.main", *args],
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        check=False,
-    )
 
 
 @pytest.fixture

@@ -4,45 +4,20 @@ process and network namespace, over a real veth pair, run the way a user runs th
 from __future__ import annotations
 
 import asyncio
-import subprocess
-import sys
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
-from ether_ros.sim.proof import SimProcess
-from ether_ros.testing.netns import VethPair, can_create_veth
 from ether_ros.tools.recording import read_recording
+from user_commands import LAELAPS, ether_ros
 
 pytestmark = pytest.mark.netns
 
-REPO = Path(__file__).resolve().parents[2]
-LAELAPS = REPO / "config" / "laelaps.yaml"
 
-
-@pytest.fixture(scope="module")
-def iface() -> Iterator[str]:
-    if not can_create_veth():
-        pytest.fail("creating a network namespace needs root; run the tests as root")
-    with VethPair.create(netns=True) as veth, SimProcess(LAELAPS, veth.slave, veth.netns):
-        yield veth.master
-
-
-def ether_ros(*args: str, timeout: float = 180) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "ether_ros.cli.main", *args],
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        cwd=REPO,
-    )
-
-
-def test_record_then_plot(iface: str, tmp_path: Path) -> None:
+def test_record_then_plot(sim_iface: str, tmp_path: Path) -> None:
     out_file = tmp_path / "run.mcap"
     out = ether_ros(
-        "record", str(LAELAPS), "--interface", iface, "--seconds", "1.5", "-o", str(out_file)
+        "record", str(LAELAPS), "--interface", sim_iface, "--seconds", "1.5", "-o", str(out_file)
     )
     assert out.returncode == 0, out.stderr
     rec = read_recording(out_file)
@@ -66,14 +41,14 @@ def test_record_then_plot(iface: str, tmp_path: Path) -> None:
     assert len(names) == 8
 
 
-def test_trot_experiment_records_the_ramps(iface: str, tmp_path: Path) -> None:
+def test_trot_experiment_records_the_ramps(sim_iface: str, tmp_path: Path) -> None:
     out_file = tmp_path / "trot.mcap"
     out = ether_ros(
         "experiment",
         "trot",
         str(LAELAPS),
         "--interface",
-        iface,
+        sim_iface,
         "--record",
         str(out_file),
         "--transition",
@@ -91,13 +66,13 @@ def test_trot_experiment_records_the_ramps(iface: str, tmp_path: Path) -> None:
     assert knee.max() - knee.min() > 5  # degrees: the simulated leg stepped
 
 
-def test_frequency_experiment_prints_the_table(iface: str) -> None:
+def test_frequency_experiment_prints_the_table(sim_iface: str) -> None:
     out = ether_ros(
         "experiment",
         "frequency",
         str(LAELAPS),
         "--interface",
-        iface,
+        sim_iface,
         "--from-us",
         "400",
         "--step-us",
@@ -114,13 +89,13 @@ def test_frequency_experiment_prints_the_table(iface: str) -> None:
     assert "shortest loop time" in out.stdout or "no round ran" in out.stdout
 
 
-def test_top_on_a_standalone_bus(iface: str) -> None:
+def test_top_on_a_standalone_bus(sim_iface: str) -> None:
     from textual.widgets import DataTable, Static
 
     from ether_ros.master.bus import Bus
     from ether_ros.tools.live import BusLiveSource, TopApp
 
-    bus = Bus.open(str(LAELAPS), interface=iface)
+    bus = Bus.open(str(LAELAPS), interface=sim_iface)
     bus.start()
 
     async def run() -> None:

@@ -7,8 +7,6 @@ import contextlib
 import io
 import json
 import subprocess
-import sys
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -16,32 +14,9 @@ import pytest
 
 from ether_ros.cli.main import main
 from ether_ros.config.esi import load_esi
-from ether_ros.sim.proof import SimProcess
-from ether_ros.testing.netns import VethPair, can_create_veth
+from user_commands import LAELAPS, REPO, ether_ros
 
 pytestmark = pytest.mark.netns
-
-REPO = Path(__file__).resolve().parents[2]
-LAELAPS = REPO / "config" / "laelaps.yaml"
-
-
-@pytest.fixture(scope="module")
-def iface() -> Iterator[str]:
-    if not can_create_veth():
-        pytest.fail("creating a network namespace needs root; run the tests as root")
-    with VethPair.create(netns=True) as veth, SimProcess(LAELAPS, veth.slave, veth.netns):
-        yield veth.master
-
-
-def ether_ros(*args: str) -> subprocess.CompletedProcess[str]:
-    """The command in its own process, exactly as a user runs it."""
-    return subprocess.run(
-        [sys.executable, "-m", "ether_ros.cli.main", *args],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        cwd=REPO,
-    )
 
 
 def cli(*args: str) -> subprocess.CompletedProcess[str]:
@@ -59,24 +34,26 @@ def ok_json(*args: str) -> Any:
     return json.loads(out.stdout)
 
 
-def test_states_and_state_requests(iface: str) -> None:
-    states = ok_json("states", "-i", iface)
+def test_states_and_state_requests(sim_iface: str) -> None:
+    states = ok_json("states", "-i", sim_iface)
     assert [s["position"] for s in states] == [0, 1, 2, 3]
-    assert ok_json("states", "-i", iface, "-p", "2", "PREOP")[0]["state"] == "PREOP"
-    assert ok_json("states", "-i", iface, "-p", "2", "INIT")[0]["state"] == "INIT"
-    named = ok_json("states", "-i", iface, "-c", str(LAELAPS), "-p", "front_left_leg")
+    assert ok_json("states", "-i", sim_iface, "-p", "2", "PREOP")[0]["state"] == "PREOP"
+    assert ok_json("states", "-i", sim_iface, "-p", "2", "INIT")[0]["state"] == "INIT"
+    named = ok_json("states", "-i", sim_iface, "-c", str(LAELAPS), "-p", "front_left_leg")
     assert named[0]["position"] == 2 and named[0]["name"] == "front_left_leg"
 
 
-def test_upload_and_download_by_index_and_by_name(iface: str) -> None:
-    vendor = ok_json("upload", "-i", iface, "-p", "0", "0x1018:1")
+def test_upload_and_download_by_index_and_by_name(sim_iface: str) -> None:
+    vendor = ok_json("upload", "-i", sim_iface, "-p", "0", "0x1018:1")
     assert vendor["value"] == 0x0A12 and vendor["name"] == "Vendor ID"
     cfg = ["-c", str(LAELAPS)]
-    ok_json("download", "-i", iface, "-p", "1", "0x7030:3", "4", *cfg)
-    got = ok_json("upload", "-i", iface, "-p", "1", "a_ellipse100", *cfg)
+    ok_json("download", "-i", sim_iface, "-p", "1", "0x7030:3", "4", *cfg)
+    got = ok_json("upload", "-i", sim_iface, "-p", "1", "a_ellipse100", *cfg)
     assert (got["index"], got["subindex"], got["value"]) == (0x7030, 3, 4)
-    ok_json("download", "-i", iface, "-p", "1", "TrajectoryParameters.a_ellipse100", "0", *cfg)
-    assert ok_json("upload", "-i", iface, "-p", "1", "0x7030:03", "--type", "int16")["value"] == 0
+    ok_json("download", "-i", sim_iface, "-p", "1", "TrajectoryParameters.a_ellipse100", "0", *cfg)
+    assert (
+        ok_json("upload", "-i", sim_iface, "-p", "1", "0x7030:03", "--type", "int16")["value"] == 0
+    )
 
 
 @pytest.mark.parametrize(
@@ -96,36 +73,38 @@ def test_upload_and_download_by_index_and_by_name(iface: str) -> None:
         (["reg-write", "-p", "0", "0x1800", "zz"], "is not hex bytes"),
     ],
 )
-def test_bad_requests_are_one_line_errors(iface: str, args: list[str], message: str) -> None:
-    out = cli(*args, "-i", iface)
+def test_bad_requests_are_one_line_errors(sim_iface: str, args: list[str], message: str) -> None:
+    out = cli(*args, "-i", sim_iface)
     assert out.returncode == 2
     assert message in out.stderr and out.stderr.count("\n") == 1, out.stderr
 
 
-def test_registers(iface: str) -> None:
+def test_registers(sim_iface: str) -> None:
     # 0x1800: process data RAM no SyncManager covers on this device, free to scribble on.
-    al = ok_json("reg-read", "-i", iface, "-p", "0", "0x0130", "--type", "uint16")
+    al = ok_json("reg-read", "-i", sim_iface, "-p", "0", "0x0130", "--type", "uint16")
     assert al["value"] & 0x0F in (1, 2, 3, 4, 8)
-    ok_json("reg-write", "-i", iface, "-p", "3", "0x1800", "a55a")
-    assert ok_json("reg-read", "-i", iface, "-p", "3", "0x1800", "2")["hex"] == "a55a"
-    ok_json("reg-write", "-i", iface, "-p", "3", "0x1800", "-2", "--type", "int16")
-    assert ok_json("reg-read", "-i", iface, "-p", "3", "0x1800", "--type", "int16")["value"] == -2
+    ok_json("reg-write", "-i", sim_iface, "-p", "3", "0x1800", "a55a")
+    assert ok_json("reg-read", "-i", sim_iface, "-p", "3", "0x1800", "2")["hex"] == "a55a"
+    ok_json("reg-write", "-i", sim_iface, "-p", "3", "0x1800", "-2", "--type", "int16")
+    assert (
+        ok_json("reg-read", "-i", sim_iface, "-p", "3", "0x1800", "--type", "int16")["value"] == -2
+    )
 
 
-def test_sii_pdos_and_dictionary(iface: str, tmp_path: Path) -> None:
-    sii = ok_json("sii-read", "-i", iface, "-p", "0")
+def test_sii_pdos_and_dictionary(sim_iface: str, tmp_path: Path) -> None:
+    sii = ok_json("sii-read", "-i", sim_iface, "-p", "0")
     assert (sii["vendor_id"], sii["product_code"]) == (0x0A12, 0x00A986FD)
     raw = tmp_path / "sii.bin"
-    ok_json("sii-read", "-i", iface, "-p", "0", "--raw", "-o", str(raw))
+    ok_json("sii-read", "-i", sim_iface, "-p", "0", "--raw", "-o", str(raw))
     assert raw.stat().st_size >= 128
 
-    pdos = ok_json("pdos", "-i", iface, "-p", "0")[0]
+    pdos = ok_json("pdos", "-i", sim_iface, "-p", "0")[0]
     assert pdos["source"] == "coe"
     assert [p["index"] for p in pdos["rx_pdos"]] == [0x1600]
     assert sum(e["bit_length"] for e in pdos["rx_pdos"][0]["entries"]) == 38 * 8
     assert sum(e["bit_length"] for e in pdos["tx_pdos"][0]["entries"]) == 22 * 8
 
-    sdos = ok_json("sdos", "-i", iface, "-p", "0")[0]
+    sdos = ok_json("sdos", "-i", sim_iface, "-p", "0")[0]
     assert sdos["source"] == "sdo-info"
     by_index = {o["index"]: o for o in sdos["objects"]}
     traj = by_index[0x7030]
@@ -136,9 +115,9 @@ def test_sii_pdos_and_dictionary(iface: str, tmp_path: Path) -> None:
     ]
 
 
-def test_xml_from_sii_describes_the_same_device(iface: str, tmp_path: Path) -> None:
+def test_xml_from_sii_describes_the_same_device(sim_iface: str, tmp_path: Path) -> None:
     out = tmp_path / "leg.xml"
-    assert ether_ros("xml", "-i", iface, "-p", "0", "-o", str(out)).returncode == 0
+    assert ether_ros("xml", "-i", sim_iface, "-p", "0", "-o", str(out)).returncode == 0
     generated = load_esi(out)[0]
     shipped = load_esi(REPO / "devices" / "laelaps_ii_leg.xml")[0]
     assert (generated.vendor_id, generated.product_code, generated.revision) == (
@@ -156,13 +135,13 @@ def test_xml_from_sii_describes_the_same_device(iface: str, tmp_path: Path) -> N
     assert generated.assign_activate == shipped.assign_activate
 
 
-def test_graph_and_master(iface: str) -> None:
-    out = cli("graph", "-i", iface)
+def test_graph_and_master(sim_iface: str) -> None:
+    out = cli("graph", "-i", sim_iface)
     assert out.returncode == 0
     assert "master -> slave0;" in out.stdout and "slave2 -> slave3;" in out.stdout
-    topo = ok_json("graph", "-i", iface)
+    topo = ok_json("graph", "-i", sim_iface)
     assert [n["parent"] for n in topo] == [None, 0, 1, 2]
-    stats = ok_json("master", "-i", iface, "--probes", "10")
+    stats = ok_json("master", "-i", sim_iface, "--probes", "10")
     assert stats["slaves"] == 4
     assert stats["round_trip_us"]["probes"] == 10
     assert stats["interface_stats"]["operstate"] in ("up", "unknown")

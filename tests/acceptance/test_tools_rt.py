@@ -3,23 +3,13 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import pytest
 
 from ether_ros.testing.netns import VethPair
+from user_commands import ether_ros
 
 pytestmark = pytest.mark.netns
-
-
-def ether_ros(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "ether_ros.cli.main", *args],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
 
 
 def test_check_on_this_host_with_a_veth(veth: VethPair) -> None:

@@ -3,11 +3,9 @@ to a checked command. Every invalid command raises CommandError with a reason; n
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pytest
 
-from ether_ros.config import load_bus_config
+from bus_specs import spec_of
 from ether_ros.console.commands import (
     CommandError,
     ConsoleContext,
@@ -24,10 +22,7 @@ from ether_ros.console.commands import (
     WriteOp,
     parse_command,
 )
-from ether_ros.ros import bridge
 from ether_ros.ros.layout import BusSpec
-
-REPO = Path(__file__).resolve().parents[2]
 
 # Table 6.1 standing pose: centre (0, 599) mm, a = b = 0, 1 Hz, flat.
 STANDING = {
@@ -39,14 +34,6 @@ STANDING = {
     "phase_deg": 0.0,
     "FlatnessParam100": 0.0,
 }
-
-
-def spec_of(config: str) -> BusSpec:
-    cfg = load_bus_config(REPO / "config" / config)
-    slaves = tuple(
-        bridge.slave_spec(s.name, i, s.esi.type_name, s.layout) for i, s in enumerate(cfg.slaves)
-    )
-    return BusSpec(cfg.bus.name, cfg.bus.cycle_us, slaves)
 
 
 @pytest.fixture(scope="module")

@@ -2,26 +2,16 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pytest
 
-from ether_ros.config import load_bus_config
+from bus_specs import spec_of
 from ether_ros.console.commands import ConsoleContext
 from ether_ros.console.completion import complete
-from ether_ros.ros import bridge
-from ether_ros.ros.layout import BusSpec
-
-REPO = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")
 def ctx() -> ConsoleContext:
-    cfg = load_bus_config(REPO / "config" / "laelaps.yaml")
-    slaves = tuple(
-        bridge.slave_spec(s.name, i, s.esi.type_name, s.layout) for i, s in enumerate(cfg.slaves)
-    )
-    return ConsoleContext(BusSpec(cfg.bus.name, cfg.bus.cycle_us, slaves))
+    return ConsoleContext(spec_of("laelaps.yaml"))
 
 
 def test_commands_slaves_and_variables(ctx: ConsoleContext) -> None:

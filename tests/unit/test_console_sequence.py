@@ -7,21 +7,10 @@ from pathlib import Path
 
 import pytest
 
-from ether_ros.config import load_bus_config
+from bus_specs import spec_of
 from ether_ros.console.commands import CommandError, ConsoleContext, Control, Wait, Write
 from ether_ros.console.sequence import find_sequence, load_sequence, parse_sequence
-from ether_ros.ros import bridge
 from ether_ros.ros.layout import BusSpec
-
-REPO = Path(__file__).resolve().parents[2]
-
-
-def spec_of(config: str) -> BusSpec:
-    cfg = load_bus_config(REPO / "config" / config)
-    slaves = tuple(
-        bridge.slave_spec(s.name, i, s.esi.type_name, s.layout) for i, s in enumerate(cfg.slaves)
-    )
-    return BusSpec(cfg.bus.name, cfg.bus.cycle_us, slaves)
 
 
 @pytest.fixture(scope="module")

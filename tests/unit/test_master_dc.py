@@ -167,12 +167,12 @@ def _cycles(bus: ManualBus, seconds: float, write_reference: bool) -> Callable[[
 
 
 def test_reference_filter_spans_at_most_a_quarter_of_the_loop_time_constant() -> None:
-    assert reference_filter_depth(400_000) == 6  # 64 cycles = 25.6 ms of a 200 ms loop
+    assert reference_filter_depth(400_000) == 6  # 64 cycles = 25.6 ms of a 160 ms loop
     assert reference_filter_depth(1_000_000) == 5
     assert reference_filter_depth(125_000) == 8  # capped
     assert reference_filter_depth(100_000_000) == 0
     for cycle in (250_000, 400_000, 1_000_000, 4_000_000):
-        assert (1 << reference_filter_depth(cycle)) * cycle <= 50_000_000
+        assert (1 << reference_filter_depth(cycle)) * cycle <= 40_000_000
     with pytest.raises(ValueError):
         reference_filter_depth(0)
 
@@ -182,7 +182,7 @@ def test_reference_loop_settings_reach_the_reference(manual_bus: ManualBus) -> N
     dc.configure_reference_loop(manual_bus.slaves[0], 400_000)
     start, _ = manual_bus.dg.fprd(0x1001, 0x0930, 2)
     depth, _ = manual_bus.dg.fprd(0x1001, 0x0934, 1)
-    assert struct.unpack("<H", start)[0] == 0x4000 and depth[0] == 6
+    assert struct.unpack("<H", start)[0] == 0x7FFF and depth[0] == 6
     # The others keep the ESC defaults.
     start, _ = manual_bus.dg.fprd(0x1002, 0x0930, 2)
     depth, _ = manual_bus.dg.fprd(0x1002, 0x0934, 1)

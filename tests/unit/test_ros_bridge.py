@@ -8,22 +8,16 @@ from pathlib import Path
 
 import pytest
 
+from bus_specs import spec_of
 from ether_ros.config import load_bus_config
 from ether_ros.ros import bridge
-from ether_ros.ros.layout import BusSpec, parse_address
+from ether_ros.ros.layout import parse_address
 
 REPO = Path(__file__).resolve().parents[2]
 
 
 def load(name: str):  # type: ignore[no-untyped-def]
     return load_bus_config(REPO / "config" / name)
-
-
-def spec(cfg) -> BusSpec:  # type: ignore[no-untyped-def]
-    slaves = tuple(
-        bridge.slave_spec(s.name, i, s.esi.type_name, s.layout) for i, s in enumerate(cfg.slaves)
-    )
-    return BusSpec(cfg.bus.name, cfg.bus.cycle_us, slaves)
 
 
 @pytest.mark.parametrize("config", ["laelaps.yaml", "generic_io.yaml", "mixed.yaml"])
@@ -43,7 +37,7 @@ def test_area_decoder_matches_the_layout_codec(config: str) -> None:
 
 
 def test_spec_names_types_and_ranges() -> None:
-    leg = spec(load("laelaps.yaml")).slave("front_left_leg")
+    leg = spec_of("laelaps.yaml").slave("front_left_leg")
     assert leg.position == 2 and leg.device == "LaelapsII_Leg"
     b = leg.output("b_ellipse100")
     assert (b.type, b.index, b.subindex, b.minimum, b.maximum) == (
@@ -60,7 +54,7 @@ def test_spec_names_types_and_ranges() -> None:
 
 
 def test_resolve_write_by_name_position_all_and_text() -> None:
-    s = spec(load("laelaps.yaml"))
+    s = spec_of("laelaps.yaml")
     [(slave, var, value)] = bridge.resolve_write(s, "", 3, False, "Kp100_knee", 8000.0, "")
     assert (slave.name, var.name, value) == ("front_right_leg", "Kp100_knee", 8000.0)
     writes = bridge.resolve_write(s, "", -1, True, "0x7030:04", 0.0, "0x4")
@@ -86,7 +80,7 @@ def test_resolve_write_by_name_position_all_and_text() -> None:
 )
 def test_resolve_write_refuses_with_the_reason(args: tuple, reason: str) -> None:  # type: ignore[type-arg]
     with pytest.raises(bridge.WriteRejected) as err:
-        bridge.resolve_write(spec(load("laelaps.yaml")), *args)
+        bridge.resolve_write(spec_of("laelaps.yaml"), *args)
     assert reason in str(err.value)
 
 

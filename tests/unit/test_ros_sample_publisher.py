@@ -17,7 +17,7 @@ from ether_ros.master.plan import layout_image
 from ether_ros.master.samples import FLAG_LOST, FLAG_WATCHDOG, SAMPLE_DTYPE, Samples
 from ether_ros.ros import bridge
 from ether_ros.ros.layout import BusSpec
-from ether_ros.ros.sample_publisher import Rates, SamplePublisher, joint_maps
+from ether_ros.ros.sample_publisher import Rates, SamplePublisher
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -63,7 +63,7 @@ def rig() -> tuple[FakeBus, dict[str, Sink], SamplePublisher]:
     )
     sinks = {t: Sink() for t in ("pdo_raw", "pdo_in", "pdo_out", "joint_states")}
     pub = SamplePublisher(
-        bus, spec, sinks, joint_maps(cfg), Rates(2, 10), lambda: True, max_backlog=100
+        bus, spec, sinks, cfg.joint_specs(), Rates(2, 10), lambda: True, max_backlog=100
     )
     return bus, sinks, pub
 

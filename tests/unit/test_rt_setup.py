@@ -19,6 +19,16 @@ def snapshot(root: Path) -> dict[str, str]:
     return {str(p.relative_to(root)): p.read_text() for p in sorted(root.rglob("*")) if p.is_file()}
 
 
+def setup_args(root: Path) -> list[str]:
+    """`ether-ros rt setup` on the host tree `root` for RT CPU 3 and NIC enp5s0 (a dry run)."""
+    return ["rt", "setup", "--root", str(root), "--cpu", "3", "--interface", "enp5s0"]
+
+
+def apply_setup(root: Path, undo_file: Path) -> int:
+    """`rt setup` applied to `root`, writing the undo record to `undo_file`; the exit code."""
+    return main([*setup_args(root), "--apply", "--undo-file", str(undo_file)])
+
+
 @pytest.fixture
 def stock(tmp_path: Path) -> Path:
     root = tmp_path / "host"
@@ -28,7 +38,7 @@ def stock(tmp_path: Path) -> Path:
 
 def test_dry_run_changes_nothing(stock: Path, capsys: pytest.CaptureFixture[str]) -> None:
     before = snapshot(stock)
-    assert main(["rt", "setup", "--root", str(stock), "--cpu", "3", "--interface", "enp5s0"]) == 0
+    assert main(setup_args(stock)) == 0
     out = capsys.readouterr().out
     assert "would write 3 > /proc/irq/40/smp_affinity_list (now 0-3)" in out
     assert "would write -1 > /proc/sys/kernel/sched_rt_runtime_us" in out
@@ -38,7 +48,7 @@ def test_dry_run_changes_nothing(stock: Path, capsys: pytest.CaptureFixture[str]
 def test_apply_then_undo_restores_every_file(stock: Path, tmp_path: Path) -> None:
     before = snapshot(stock)
     undo_file = tmp_path / "undo.json"
-    args = ["rt", "setup", "--root", str(stock), "--cpu", "3", "--interface", "enp5s0"]
+    args = setup_args(stock)
     assert main([*args, "--apply", "--undo-file", str(undo_file)]) == 0
 
     assert (stock / "proc/irq/40/smp_affinity_list").read_text() == "3"
@@ -88,24 +98,7 @@ def test_refuses_to_leave_no_housekeeping_cpu(
 ) -> None:
     (stock / "sys/devices/system/cpu/isolated").write_text("0-2\n")
     before = snapshot(stock)
-    assert (
-        main(
-            [
-                "rt",
-                "setup",
-                "--root",
-                str(stock),
-                "--cpu",
-                "3",
-                "--interface",
-                "enp5s0",
-                "--apply",
-                "--undo-file",
-                str(stock / "u.json"),
-            ]
-        )
-        == 2
-    )
+    assert apply_setup(stock, undo_file=stock / "u.json") == 2
     assert "no housekeeping CPU" in capsys.readouterr().err
     assert snapshot(stock) == before
 
@@ -115,24 +108,7 @@ def test_unreadable_value_is_left_alone(stock: Path, tmp_path: Path) -> None:
     (stock / "proc/sys/kernel/sched_rt_runtime_us").unlink()
     (stock / "proc/sys/kernel/sched_rt_runtime_us").mkdir()
     undo_file = tmp_path / "undo.json"
-    assert (
-        main(
-            [
-                "rt",
-                "setup",
-                "--root",
-                str(stock),
-                "--cpu",
-                "3",
-                "--interface",
-                "enp5s0",
-                "--apply",
-                "--undo-file",
-                str(undo_file),
-            ]
-        )
-        == 0
-    )
+    assert apply_setup(stock, undo_file=undo_file) == 0
     paths = [c.get("path") for c in json.loads(undo_file.read_text())["changes"]]
     assert "/proc/sys/kernel/sched_rt_runtime_us" not in paths
 
@@ -142,24 +118,7 @@ def test_existing_undo_file_is_not_overwritten(
 ) -> None:
     undo_file = tmp_path / "undo.json"
     undo_file.write_text("{}")
-    assert (
-        main(
-            [
-                "rt",
-                "setup",
-                "--root",
-                str(stock),
-                "--cpu",
-                "3",
-                "--interface",
-                "enp5s0",
-                "--apply",
-                "--undo-file",
-                str(undo_file),
-            ]
-        )
-        == 2
-    )
+    assert apply_setup(stock, undo_file=undo_file) == 2
     assert "exists" in capsys.readouterr().err
 
 
@@ -197,7 +156,7 @@ def test_irq_threads_go_above_the_rt_thread_and_come_back(tmp_path: Path) -> Non
     shutil.copytree(DATA / "preempt_rt", root)
     before = snapshot(root)
     undo_file = tmp_path / "undo.json"
-    args = ["rt", "setup", "--root", str(root), "--cpu", "3", "--interface", "enp5s0"]
+    args = setup_args(root)
     # The tuned host's IRQ threads run at 90: above an RT thread at 80, nothing to do there.
     assert main([*args, "--apply", "--undo-file", str(undo_file)]) == 0
     assert "irq/40" not in undo_file.read_text()

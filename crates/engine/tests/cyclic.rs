@@ -4,13 +4,15 @@
 use std::collections::VecDeque;
 use std::io;
 use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant};
 
-use ether_ros_engine::plan::{CyclicDatagram, DcMode, DcPlan, Order, Policy, RtPlan};
+use ether_ros_engine::plan::{DcMode, DcPlan, Order};
 use ether_ros_engine::{
     flags, now_ns, Engine, Error, Link, Plan, Received, Request, SampleRecord, RECORD_LEN,
 };
 use ether_ros_wire::{self as wire, reg, Command};
+
+mod common;
+use common::{counter, wait_for};
 
 /// What the fake bus does and saw.
 #[derive(Default)]
@@ -125,23 +127,10 @@ fn engine() -> (Engine, Arc<Mutex<Bus>>) {
 }
 
 fn plan(order: Order, mode: DcMode) -> Plan {
-    let mut datagrams = vec![];
-    if mode == DcMode::RefFollowsMaster {
-        datagrams.push(CyclicDatagram::DcWriteRef { station: 0x1001 });
-    }
-    if mode != DcMode::Off {
-        datagrams.push(CyclicDatagram::DcSync { station: 0x1001 });
-    }
-    datagrams.push(CyclicDatagram::Lrw {
-        address: 0x1_0000,
-        length: 12,
-        image_offset: 0,
-        expected_wkc: 6,
-    });
     Plan {
         cycle_ns: 1_000_000,
         order,
-        datagrams,
+        datagrams: common::cyclic_datagrams(mode, 12, 6),
         image_len: 12,
         output_ranges: vec![(0, 4), (6, 4)],
         initial_image: vec![1; 12],
@@ -151,42 +140,15 @@ fn plan(order: Order, mode: DcMode) -> Plan {
             time_offset_ns: 0,
             sync0_shift_ns: 0,
         },
-        rt: RtPlan {
-            policy: Policy::Other,
-            priority: 0,
-            cpu: None,
-            runtime_ns: 0,
-            lock_memory: false,
-        },
+        rt: common::non_rt(),
         watchdog_ns: 0,
         ring_capacity: 100_000,
-    }
-}
-
-/// Poll `cond` for up to 10 s (generous: this is about behaviour, not speed).
-fn wait_for(mut cond: impl FnMut() -> bool, what: &str) {
-    let start = Instant::now();
-    while !cond() {
-        assert!(
-            start.elapsed() < Duration::from_secs(10),
-            "timed out waiting for {what}"
-        );
-        std::thread::sleep(Duration::from_millis(1));
     }
 }
 
 fn records(e: &Engine) -> Vec<SampleRecord> {
     let (r, _, _) = e.drain_samples(usize::MAX);
     r.chunks(RECORD_LEN).map(SampleRecord::decode).collect()
-}
-
-fn counter(e: &Engine, name: &str) -> u64 {
-    e.stats()
-        .counters
-        .iter()
-        .find(|(n, _)| *n == name)
-        .unwrap()
-        .1
 }
 
 #[test]

@@ -14,13 +14,16 @@ use std::io;
 use std::process::Command as Process;
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
-use ether_ros_engine::plan::{CyclicDatagram, DcMode, DcPlan, Order, Policy, RtPlan};
+use ether_ros_engine::plan::{DcMode, DcPlan, Order, Policy, RtPlan};
 use ether_ros_engine::{
     now_ns, Engine, Error, InProcessLink, Link, Plan, RawSocketLink, Received, Request,
 };
 use ether_ros_wire::{self as wire, Command, MAX_FRAME_LEN};
+
+mod common;
+use common::{counter, wait_for};
 
 // ------------------------------------------------------------------ the counting allocator
 
@@ -283,23 +286,10 @@ fn spawn_far_end(ifname: &str, stop: Arc<AtomicBool>) -> std::thread::JoinHandle
 // ------------------------------------------------------------------ the audit
 
 fn plan(order: Order, dc: DcMode, rt: RtPlan) -> Plan {
-    let mut datagrams = vec![];
-    if dc == DcMode::RefFollowsMaster {
-        datagrams.push(CyclicDatagram::DcWriteRef { station: 0x1001 });
-    }
-    if dc != DcMode::Off {
-        datagrams.push(CyclicDatagram::DcSync { station: 0x1001 });
-    }
-    datagrams.push(CyclicDatagram::Lrw {
-        address: 0x1_0000,
-        length: 8,
-        image_offset: 0,
-        expected_wkc: 3,
-    });
     Plan {
         cycle_ns: 250_000,
         order,
-        datagrams,
+        datagrams: common::cyclic_datagrams(dc, 8, 3),
         image_len: 8,
         output_ranges: vec![(0, 4), (6, 2)],
         initial_image: vec![0; 8],
@@ -330,37 +320,13 @@ fn start(engine: &Engine, order: Order, dc: DcMode) -> &'static str {
     match engine.start_cyclic(plan(order, dc, fifo)) {
         Ok(()) => "fifo",
         Err(Error::Realtime(_)) => {
-            let other = RtPlan {
-                policy: Policy::Other,
-                lock_memory: false,
-                ..fifo
-            };
             engine
-                .start_cyclic(plan(order, dc, other))
+                .start_cyclic(plan(order, dc, common::non_rt()))
                 .expect("start with policy other");
             "other"
         }
         Err(e) => panic!("start_cyclic: {e}"),
     }
-}
-
-fn wait_for(mut cond: impl FnMut() -> bool, what: &str) {
-    let start = Instant::now();
-    while !cond() {
-        assert!(
-            start.elapsed() < Duration::from_secs(10),
-            "timed out waiting for {what}"
-        );
-        std::thread::sleep(Duration::from_micros(500));
-    }
-}
-
-fn counter(e: &Engine, name: &str) -> u64 {
-    e.stats()
-        .counters
-        .iter()
-        .find(|(n, _)| *n == name)
-        .map_or(0, |c| c.1)
 }
 
 /// Drive every path the RT loop serves for `cycles` cycles, from this (non-RT) thread.

@@ -28,6 +28,18 @@ impl PdoMap {
     pub fn bytes(&self) -> usize {
         (self.bits as usize).div_ceil(8)
     }
+
+    /// Place the next entry right after the ones already mapped.
+    fn append(&mut self, index: u16, subindex: u8, bits: u16, entry: Option<usize>) {
+        self.items.push(MapItem {
+            index,
+            subindex,
+            bits,
+            offset: self.bits,
+            entry,
+        });
+        self.bits += bits as u32;
+    }
 }
 
 /// Why a mapping is not usable.
@@ -64,14 +76,7 @@ pub fn from_od(od: &ObjectDictionary, assign: u16) -> Option<Result<PdoMap, Mapp
                 }
                 Some(pos)
             };
-            map.items.push(MapItem {
-                index,
-                subindex,
-                bits,
-                offset: map.bits,
-                entry,
-            });
-            map.bits += bits as u32;
+            map.append(index, subindex, bits, entry);
         }
     }
     Some(Ok(map))
@@ -88,14 +93,7 @@ pub fn from_entries(od: &ObjectDictionary, entries: &[(u16, u8, u16)]) -> PdoMap
             od.position(index, subindex)
                 .filter(|&p| od.entry_at(p).bit_length == bits)
         };
-        map.items.push(MapItem {
-            index,
-            subindex,
-            bits,
-            offset: map.bits,
-            entry,
-        });
-        map.bits += bits as u32;
+        map.append(index, subindex, bits, entry);
     }
     map
 }

@@ -11,7 +11,7 @@ use std::thread::JoinHandle;
 
 use ether_ros_wire as wire;
 
-use crate::network::Network;
+use crate::network::{monotonic_ns, Network};
 
 /// Receive timeout when the line is idle (µs).
 const IDLE_POLL_US: libc::suseconds_t = 1_000;
@@ -182,16 +182,6 @@ impl DelayQueue {
         }
         errors
     }
-}
-
-fn monotonic_ns() -> u64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: clock_gettime writes into the timespec we own.
-    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
-    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
 }
 
 /// Wait until the socket is readable or `timeout_ns` passed (ns resolution, unlike poll()).

@@ -24,7 +24,7 @@ const DRIFTS_PPM: [f64; 4] = [50.0, -7.5, 25.0, -3.0];
 const SYSTEM_TIME: u16 = 0x0910;
 /// What `python/ether_ros/master/dc.py` writes to the reference's 0x0930 and 0x0934 for a
 /// 400 µs cycle.
-const REFERENCE_SPEED_COUNTER_START: u16 = 0x4000;
+const REFERENCE_SPEED_COUNTER_START: u16 = 0x7FFF;
 const REFERENCE_FILTER_DEPTH: u8 = 6;
 const SYSTEM_TIME_DIFF: u16 = 0x092C;
 

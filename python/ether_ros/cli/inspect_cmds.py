@@ -116,12 +116,16 @@ def _write(args: argparse.Namespace, text: str) -> None:
 # ---- handlers: each returns the JSON value and prints text unless --json ------------------
 
 
+def _print_slave_heading(slave: dict[str, Any]) -> None:
+    print(f"=== slave {slave['position']} ({slave['name']}), from the {slave['source']}")
+
+
 def cmd_pdos(ins: Any, args: argparse.Namespace) -> Any:
     result = [ins.pdos(f.position) for f in ins.selected(args.position)]
     if args.json:
         return result
     for slave in result:
-        print(f"=== slave {slave['position']} ({slave['name']}), from the {slave['source']}")
+        _print_slave_heading(slave)
         for sm in slave["sync_managers"]:
             print(
                 f"SM{sm['index']}: start 0x{sm['start']:04X}, {sm['length']} bytes, control "
@@ -148,7 +152,7 @@ def cmd_sdos(ins: Any, args: argparse.Namespace) -> Any:
     if args.json:
         return result
     for slave in result:
-        print(f"=== slave {slave['position']} ({slave['name']}), from the {slave['source']}")
+        _print_slave_heading(slave)
         for obj in slave["objects"]:
             print(f'SDO 0x{obj["index"]:04X} {obj["object_code"]} "{obj["name"]}"')
             for e in obj["entries"]:
@@ -159,16 +163,19 @@ def cmd_sdos(ins: Any, args: argparse.Namespace) -> Any:
     return None
 
 
-def cmd_upload(ins: Any, args: argparse.Namespace) -> Any:
-    ref, data, value = ins.upload(args.position, args.object, args.type)
-    entry = {
+def _object_ref_json(ref: Any) -> dict[str, Any]:
+    """The object entry an upload or download addressed, for ``--json`` output."""
+    return {
         "index": ref.index,
         "subindex": ref.subindex,
         "name": ref.name,
         "type": ref.dtype.name if ref.dtype else None,
-        "value": value,
-        "hex": data.hex(),
     }
+
+
+def cmd_upload(ins: Any, args: argparse.Namespace) -> Any:
+    ref, data, value = ins.upload(args.position, args.object, args.type)
+    entry = {**_object_ref_json(ref), "value": value, "hex": data.hex()}
     if args.json:
         return entry
     shown = value.hex(" ") if isinstance(value, bytes) else value
@@ -180,13 +187,7 @@ def cmd_upload(ins: Any, args: argparse.Namespace) -> Any:
 
 def cmd_download(ins: Any, args: argparse.Namespace) -> Any:
     ref, data = ins.download(args.position, args.object, args.value, args.type)
-    entry = {
-        "index": ref.index,
-        "subindex": ref.subindex,
-        "name": ref.name,
-        "type": ref.dtype.name if ref.dtype else None,
-        "hex": data.hex(),
-    }
+    entry = {**_object_ref_json(ref), "hex": data.hex()}
     if args.json:
         return entry
     name = f" {ref.name}" if ref.name else ""

@@ -37,7 +37,7 @@ def register(subparsers: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ether_ros.errors import EtherRosError
-    from ether_ros.tools.bus_source import BusSampleSource, bus_info, joint_specs
+    from ether_ros.tools.bus_source import BusSampleSource, bus_info
     from ether_ros.tools.recording import Recorder, RecordingWriter
     from ether_ros.tools.session import load_config, running_bus
 
@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
     decimation = args.decimation or config.ros.decoded_decimation
     with running_bus(config, args.interface) as bus:
         writer = RecordingWriter(
-            args.output, bus_info(bus), joint_specs(bus), metadata={"command": "record"}
+            args.output, bus_info(bus), bus.config.joint_specs(), metadata={"command": "record"}
         )
         recorder = Recorder(BusSampleSource(bus, decimation, args.raw_decimation), writer)
         recorder.start()

@@ -9,6 +9,7 @@ name things the device has and that the values fit their types. Every error is a
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -221,6 +222,40 @@ class BusConfig(_Model):
                 return s
         known = ", ".join(s.name for s in self.slaves)
         raise ConfigError(f"no slave named {name!r} (slaves: {known})")
+
+    def joint_specs(self) -> list[JointSpec]:
+        """Every slave's ``joints``, in bus order, each with the slave it reads from."""
+        return [
+            JointSpec(
+                name=j.name,
+                slave=s.name,
+                position=j.position,
+                position_scale=float(j.position_scale),
+                position_offset=float(j.position_offset),
+                velocity=j.velocity,
+                velocity_scale=float(j.velocity_scale),
+                effort=j.effort,
+                effort_scale=float(j.effort_scale),
+            )
+            for s in self.slaves
+            for j in s.joints
+        ]
+
+
+@dataclass(frozen=True)
+class JointSpec:
+    """One ROS joint read from a slave's inputs (``joint_states`` on the node and in
+    recordings): position = raw × scale + offset, velocity and effort = raw × scale, in SI."""
+
+    name: str
+    slave: str
+    position: str
+    position_scale: float = 1.0
+    position_offset: float = 0.0
+    velocity: str | None = None
+    velocity_scale: float = 1.0
+    effort: str | None = None
+    effort_scale: float = 1.0
 
 
 # --------------------------------------------------------------------------------------------

@@ -78,31 +78,17 @@ def process_fmmus(area: SlaveArea, sms: list[SyncManager], logical_base: int) ->
     """FMMUs mapping the slave's output and input SyncManagers into the logical image."""
     fmmus: list[Fmmu] = []
     by_dir = {(sm.control & 0x0C): sm for sm in sms if sm.enable}
-    out_sm, in_sm = by_dir.get(0x04), by_dir.get(0x00)
-    if area.output_bytes:
-        if out_sm is None:
-            raise BusError(f"slave {area.position} ({area.name}): outputs but no output SM")
-        fmmus.append(
-            Fmmu(
-                len(fmmus),
-                logical_base + area.output_offset,
-                area.output_bytes,
-                out_sm.start,
-                FMMU_WRITE,
-            )
-        )
-    if area.input_bytes:
-        if in_sm is None:
-            raise BusError(f"slave {area.position} ({area.name}): inputs but no input SM")
-        fmmus.append(
-            Fmmu(
-                len(fmmus),
-                logical_base + area.input_offset,
-                area.input_bytes,
-                in_sm.start,
-                FMMU_READ,
-            )
-        )
+    # Outputs first, then inputs: the FMMU numbers follow this order.
+    directions = (
+        ("output", area.output_bytes, area.output_offset, by_dir.get(0x04), FMMU_WRITE),
+        ("input", area.input_bytes, area.input_offset, by_dir.get(0x00), FMMU_READ),
+    )
+    for what, nbytes, offset, sm, access in directions:
+        if not nbytes:
+            continue
+        if sm is None:
+            raise BusError(f"slave {area.position} ({area.name}): {what}s but no {what} SM")
+        fmmus.append(Fmmu(len(fmmus), logical_base + offset, nbytes, sm.start, access))
     return fmmus
 
 

@@ -64,14 +64,14 @@ MASK64 = 0xFFFFFFFFFFFFFFFF
 EPOCH_2000_S = 946_684_800
 
 # The reference clock's time control loop, when it follows the master's time: the written time
-# carries the master's send jitter (tens of µs on a PC), which the ESC's default loop
-# (speed counter start 0x1000, Δ averaged over 16 compares) passes on as ±100 ppm speed changes
-# that the other slaves must follow. A 4x smaller bandwidth and an average over up to a quarter
-# of the loop's time constant keep the reference steady; the others keep the defaults (their
-# compares carry no jitter).
-REFERENCE_SPEED_COUNTER_START = 0x4000
-# Loop time constant at that setting (the simulated ESC: 50 ms at 0x1000, proportional).
-REFERENCE_LOOP_TAU_NS = 200_000_000
+# carries the master's send jitter (tens of µs on a PC), which the ESC's default loop (speed
+# counter start 0x1000, Δ averaged over 16 compares) passes on as speed changes of tens of ppm
+# that the other slaves must follow. The smallest bandwidth 0x0930 allows (8x below the
+# default) and an average over up to a quarter of the loop's time constant keep the reference
+# steady; the others keep the defaults (their compares carry no jitter).
+REFERENCE_SPEED_COUNTER_START = 0x7FFF
+# Loop time constant at that setting (the simulated ESC: 20 ms at 0x1000, proportional).
+REFERENCE_LOOP_TAU_NS = 20_000_000 * REFERENCE_SPEED_COUNTER_START // 0x1000
 MAX_FILTER_DEPTH = 8
 
 

@@ -51,7 +51,7 @@ from ether_ros.errors import EtherRosError
 from ether_ros.ros import bridge, diagnostics
 from ether_ros.ros.convert import layout_msg
 from ether_ros.ros.layout import BusSpec, LayoutError
-from ether_ros.ros.sample_publisher import Rates, SamplePublisher, joint_maps
+from ether_ros.ros.sample_publisher import Rates, SamplePublisher
 from ether_ros.ros.values import InvalidValue, data_type, to_python
 
 log = logging.getLogger(__name__)
@@ -301,7 +301,7 @@ class EtherRosNode(LifecycleNode):
             bus,
             spec,
             self._pub,
-            joint_maps(self._cfg),
+            self._cfg.joint_specs(),
             self._rates,
             self._feed_watchdog,
             max_backlog=backlog,

@@ -30,45 +30,11 @@ from builtin_interfaces.msg import Time
 from ether_ros_msgs.msg import PdoRaw, SlaveValues
 from sensor_msgs.msg import JointState
 
+from ether_ros.config.bus import JointSpec
 from ether_ros.ros import bridge
 from ether_ros.ros.layout import BusSpec
 
 log = logging.getLogger(__name__)
-
-
-@dataclass
-class JointMap:
-    """One joint of ``joint_states``: SI value = raw * scale + offset."""
-
-    name: str
-    slave: str
-    position: str
-    position_scale: float = 1.0
-    position_offset: float = 0.0
-    velocity: str | None = None
-    velocity_scale: float = 1.0
-    effort: str | None = None
-    effort_scale: float = 1.0
-
-
-def joint_maps(config: Any) -> list[JointMap]:
-    out = []
-    for s in config.slaves:
-        for j in getattr(s, "joints", None) or []:
-            out.append(
-                JointMap(
-                    name=j.name,
-                    slave=s.name,
-                    position=j.position,
-                    position_scale=float(j.position_scale),
-                    position_offset=float(j.position_offset),
-                    velocity=j.velocity,
-                    velocity_scale=float(j.velocity_scale),
-                    effort=j.effort,
-                    effort_scale=float(j.effort_scale),
-                )
-            )
-    return out
 
 
 @dataclass
@@ -99,7 +65,7 @@ class SamplePublisher:
         bus: Any,
         spec: BusSpec,
         publishers: dict[str, Any],
-        joints: list[JointMap],
+        joints: list[JointSpec],
         rates: Rates,
         feed_watchdog: Callable[[], bool],
         max_backlog: int = 5000,

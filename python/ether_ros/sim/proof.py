@@ -30,6 +30,7 @@ from ether_ros.errors import BusError, EtherRosError
 from ether_ros.sim.control import request, socket_path
 from ether_ros.sim.spec import bus_order
 from ether_ros.testing.netns import netns_command
+from ether_ros.tools.trot_table import TROT_A_CM, TROT_B_CM, leg_outputs
 
 INIT, PREOP, SAFEOP, OP = 1, 2, 4, 8
 
@@ -259,35 +260,16 @@ def _preop_hook(
 
 # ---- the trot of thesis Table 6.1 -----------------------------------------------------------
 
-# Per leg: y centre (mm) and phase (deg). FL and HR share phase 180, FR and HL 0: a trot.
-_TABLE_6_1_LEGS = {"front_left": (599, 180), "front_right": (599, 0), "hind_left": (598, 0),
-                   "hind_right": (598, 180)}  # fmt: skip
+# Slave-name prefix → leg of Table 6.1; a name that matches none is driven as front right.
+_LEG_BY_PREFIX = {"front_left": "FL", "front_right": "FR", "hind_left": "HL", "hind_right": "HR"}
 
 
 def table_6_1(
-    slave_name: str, a_cm: int = 5, b_cm: int = 4, transition_s: int = 3
+    slave_name: str, a_cm: int = TROT_A_CM, b_cm: int = TROT_B_CM, transition_s: int = 3
 ) -> dict[str, int]:
     """Output values of Table 6.1 for a leg (matched by name prefix), State_Machine 1."""
-    key = next((k for k in _TABLE_6_1_LEGS if slave_name.startswith(k)), "front_right")
-    y_c, phase = _TABLE_6_1_LEGS[key]
-    return {
-        "State_Machine": 1,
-        "Transition_time": transition_s,
-        "FilterBandwidth": 20,
-        "Kp100_knee": 8000,
-        "Kd1000_knee": 50,
-        "Ki100_knee": 0,
-        "Kp100_hip": 8000,
-        "Kd1000_hip": 50,
-        "Ki100_hip": 0,
-        "x_cntr_traj1000": 0,
-        "y_cntr_traj1000": y_c,
-        "a_ellipse100": a_cm,
-        "b_ellipse100": b_cm,
-        "traj_freq100": 100,
-        "phase_deg": phase,
-        "FlatnessParam100": 0,
-    }
+    leg = next((v for k, v in _LEG_BY_PREFIX.items() if slave_name.startswith(k)), "FR")
+    return leg_outputs(leg, a_cm, b_cm, transition_s)
 
 
 @dataclass

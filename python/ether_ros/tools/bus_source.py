@@ -15,7 +15,6 @@ from ether_ros.tools.recording import (
     BusInfo,
     CycleData,
     CycleTiming,
-    JointSpec,
     SlaveInfo,
     VariableInfo,
 )
@@ -50,27 +49,6 @@ def bus_info(bus: Any) -> BusInfo:
         device = getattr(s.device, "type_name", "") if s.device is not None else ""
         slaves.append(SlaveInfo(s.name, s.position, str(device), inputs, outputs))
     return BusInfo(str(bus.config.bus.name), int(bus.config.bus.cycle_us), tuple(slaves))
-
-
-def joint_specs(bus: Any) -> list[JointSpec]:
-    """The ``joints`` of the bus configuration, for ``/joint_states`` in recordings."""
-    specs = []
-    for s in bus.config.slaves:
-        for j in getattr(s, "joints", None) or []:
-            specs.append(
-                JointSpec(
-                    j.name,
-                    s.name,
-                    j.position,
-                    j.position_scale,
-                    j.position_offset,
-                    j.velocity,
-                    j.velocity_scale,
-                    j.effort,
-                    j.effort_scale,
-                )
-            )
-    return specs
 
 
 def split_samples(samples: Any) -> tuple[Any, Any]:

@@ -24,34 +24,13 @@ from typing import Any
 import numpy as np
 
 from ether_ros.errors import EtherRosError
-from ether_ros.tools.bus_source import BusSampleSource, bus_info, joint_specs, split_samples
+from ether_ros.tools.bus_source import BusSampleSource, bus_info, split_samples
 from ether_ros.tools.recording import FLAG_LATE, FLAG_LOST, Recorder, RecordingWriter
+from ether_ros.tools.trot_table import TROT_A_CM, TROT_B_CM, leg_outputs
 
 
 class ExperimentError(EtherRosError):
     """An experiment cannot run as asked: names the parameter or slave."""
-
-
-# Table 6.1, per leg. Phases: FL 180, FR 0, HL 0, HR 180 (diagonal pairs move together);
-# centre height 599 mm for the front legs, 598 mm for the hind legs.
-LEG_PHASE_DEG = {"FL": 180, "FR": 0, "HL": 0, "HR": 180}
-LEG_Y_CENTRE_MM = {"FL": 599, "FR": 599, "HL": 598, "HR": 598}
-TROT_COMMON: dict[str, int] = {
-    "x_cntr_traj1000": 0,
-    "a_ellipse100": 0,
-    "b_ellipse100": 0,
-    "traj_freq100": 100,
-    "FlatnessParam100": 0,
-    "Kp100_knee": 8000,
-    "Kd1000_knee": 50,
-    "Ki100_knee": 0,
-    "Kp100_hip": 8000,
-    "Kd1000_hip": 50,
-    "Ki100_hip": 0,
-    "FilterBandwidth": 20,
-}
-TROT_A_CM = 5
-TROT_B_CM = 4
 
 
 def leg_of(slave_name: str) -> str:
@@ -127,21 +106,14 @@ def trot(
     if not legs:
         raise ExperimentError("no slave has the Laelaps II trajectory outputs (a_ellipse100)")
     for name, leg in legs.items():
-        values: dict[str, object] = dict(TROT_COMMON)
-        values.update(
-            y_cntr_traj1000=LEG_Y_CENTRE_MM[leg],
-            phase_deg=LEG_PHASE_DEG[leg],
-            Transition_time=plan.transition_s,
-            State_Machine=1,
-        )
-        bus.write_many(name, values)
+        bus.write_many(name, leg_outputs(leg, 0, 0, plan.transition_s))
     recorder = None
     writer = None
     if record is not None:
         writer = RecordingWriter(
             record,
             bus_info(bus),
-            joint_specs(bus),
+            bus.config.joint_specs(),
             metadata={
                 "experiment": "trot",
                 "transition_s": str(plan.transition_s),
@@ -304,22 +276,14 @@ def frequency(
         try:
             for s in bus.slaves:  # standing, as in the thesis (a = b = 0)
                 if s.layout is not None and s.layout.has("a_ellipse100"):
-                    leg = leg_of(s.name)
-                    values: dict[str, object] = dict(TROT_COMMON)
-                    values.update(
-                        y_cntr_traj1000=LEG_Y_CENTRE_MM[leg],
-                        phase_deg=LEG_PHASE_DEG[leg],
-                        Transition_time=0,
-                        State_Machine=1,
-                    )
-                    bus.write_many(s.name, values)
+                    bus.write_many(s.name, leg_outputs(leg_of(s.name), 0, 0, 0))
             bus.samples()  # start counting from here: bring-up cycles are not the round's
             if record is not None:
                 path = _round_path(Path(record), cycle_us)
                 writer = RecordingWriter(
                     path,
                     bus_info(bus),
-                    joint_specs(bus),
+                    bus.config.joint_specs(),
                     metadata={"experiment": "frequency", "cycle_us": str(cycle_us)},
                 )
                 source = _CountingSource(

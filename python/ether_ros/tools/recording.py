@@ -29,6 +29,7 @@ from typing import IO, Any, Protocol
 
 import numpy as np
 
+from ether_ros.config.bus import JointSpec
 from ether_ros.errors import EtherRosError
 from ether_ros.tools.msgdefs import DEFINITIONS
 
@@ -125,21 +126,6 @@ class CycleData:
     raw_in: bytes = b""
     raw_out: bytes = b""
     expected_wkc: int = 0
-
-
-@dataclass(frozen=True)
-class JointSpec:
-    """One ROS joint read from a slave's inputs: value × scale (+ offset) → SI units."""
-
-    name: str
-    slave: str
-    position: str | None = None
-    position_scale: float = 1.0
-    position_offset: float = 0.0
-    velocity: str | None = None
-    velocity_scale: float = 1.0
-    effort: str | None = None
-    effort_scale: float = 1.0
 
 
 # ---- writing -------------------------------------------------------------------------------

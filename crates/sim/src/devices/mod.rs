@@ -4,6 +4,7 @@ pub mod generic_io;
 pub mod laelaps_leg;
 pub mod leg_kinematics;
 pub mod leg_physics;
+pub mod od_slots;
 pub mod trajectory;
 
 use crate::device::DeviceApp;
