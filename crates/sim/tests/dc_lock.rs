@@ -248,12 +248,9 @@ fn reference_follows_master_locks_without_saturating() {
     // The others follow the reference, whose speed keeps being trimmed (by a few ppm: the
     // written time's jitter): their corrections stay near the master's rate − their drift.
     assert!(percentile_abs(&run.follower_diffs, 1.0) < 2_000);
-    for pos in 1..DRIFTS_PPM.len() {
+    for (pos, drift) in DRIFTS_PPM.iter().enumerate().skip(1) {
         let learned = net.slaves[pos].dc.correction_ppm();
-        assert!(
-            (learned + DRIFTS_PPM[pos]).abs() < 20.0,
-            "slave {pos}: {learned} ppm"
-        );
+        assert!((learned + drift).abs() < 20.0, "slave {pos}: {learned} ppm");
     }
 }
 
@@ -268,8 +265,8 @@ fn master_follows_reference_followers_lock_to_the_nanosecond() {
     // Nobody writes the reference: it runs free.
     assert_eq!(net.slaves[0].dc.correction_ppm(), 0.0);
     assert!(percentile_abs(&run.follower_diffs, 1.0) <= 5);
-    for pos in 1..DRIFTS_PPM.len() {
-        let expected = DRIFTS_PPM[0] - DRIFTS_PPM[pos];
+    for (pos, drift) in DRIFTS_PPM.iter().enumerate().skip(1) {
+        let expected = DRIFTS_PPM[0] - drift;
         let learned = net.slaves[pos].dc.correction_ppm();
         assert!(
             (learned - expected).abs() < 0.5,

@@ -47,7 +47,9 @@ def run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, _interrupt)
     node: EtherRosNode | None = None
     try:
-        node = EtherRosNode(args.config, args.interface, node_name=args.node_name)
+        node = EtherRosNode(
+            args.config, args.interface, node_name=args.node_name, command_node=True
+        )
         if not args.inactive:
             ok, message = node.run_command("start")
             if not ok:
