@@ -189,6 +189,21 @@ def test_reference_loop_settings_reach_the_reference(manual_bus: ManualBus) -> N
     assert struct.unpack("<H", start)[0] == 0x1000 and depth[0] == 4
 
 
+def test_a_reset_reference_gets_its_loop_settings_again(manual_bus: ManualBus) -> None:
+    dc = DistributedClocks(manual_bus.dg, manual_bus.master_time)
+    dc.measure(manual_bus.slaves, len(manual_bus.slaves))
+    reference = manual_bus.slaves[0]
+    dc.configure_reference_loop(reference, 1_000_000)
+    manual_bus.net.fault("reset", slave=0)
+    assert manual_bus.dg.apwr(0, 0x0010, u16(reference.station)) == 1
+    start, _ = manual_bus.dg.fprd(reference.station, 0x0930, 2)
+    assert struct.unpack("<H", start)[0] == 0x1000  # power-on default
+    dc.resync_slave(None, reference)
+    start, _ = manual_bus.dg.fprd(reference.station, 0x0930, 2)
+    depth, _ = manual_bus.dg.fprd(reference.station, 0x0934, 1)
+    assert struct.unpack("<H", start)[0] == 0x7FFF and depth[0] == 5
+
+
 def test_time_difference_sign_matches_the_slave() -> None:
     # A slave's 0x092C is local − received: a received time ahead of the slave reads negative.
     from ether_ros._native import Engine, SimNetwork
