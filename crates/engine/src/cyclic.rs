@@ -243,7 +243,7 @@ impl Cyclic {
                 Order::SendAtWake => {
                     // Nothing in the frame depends on the previous reply, so the frame goes
                     // first and the reply is read after: the earliest, steadiest send instant.
-                    let t = self.build_and_send(planned, t_wake);
+                    let t = self.build_and_send(t_wake);
                     self.send_mailbox();
                     self.receive(0, false);
                     if let Some(prev) = self.cycle.checked_sub(1) {
@@ -252,7 +252,7 @@ impl Cyclic {
                     t
                 }
                 Order::SendThenWait => {
-                    let t = self.build_and_send(planned, t_wake);
+                    let t = self.build_and_send(t_wake);
                     self.send_mailbox();
                     self.receive(planned + window, true);
                     self.receive(0, false);
@@ -432,7 +432,7 @@ impl Cyclic {
 
     /// Fill the cyclic frame (outputs or the safe image, DC time, fresh index) and send it.
     /// Returns the time the frame was handed to the link.
-    fn build_and_send(&mut self, planned: i64, t_wake: i64) -> i64 {
+    fn build_and_send(&mut self, t_wake: i64) -> i64 {
         let plan = &self.ex.plan;
         let panic = self.shared.panic.load(Ordering::Acquire);
         let stale = plan.watchdog_ns > 0
@@ -481,14 +481,16 @@ impl Cyclic {
         if let Some(slot) = self.layout.dc_sync {
             self.frame[slot.data..slot.data + 8].fill(0);
         }
-        if let Some(d) = self.layout.dc_write {
-            // The master's system time at the planned send instant.
-            let t = (planned + plan.dc.time_offset_ns) as u64;
-            self.frame[d..d + 8].copy_from_slice(&t.to_le_bytes());
-        }
         // The round trip starts as the frame is handed to the link (a synchronous in-process
         // link answers before `send` returns); execution time ends when `send` returned.
         let t_handed = now_ns();
+        if let Some(d) = self.layout.dc_write {
+            // The master's system time as the frame leaves, not at the planned wake-up: the
+            // reference clock's drift loop then sees the transit time only, without this
+            // cycle's wake-up and build jitter.
+            let t = (t_handed + plan.dc.time_offset_ns) as u64;
+            self.frame[d..d + 8].copy_from_slice(&t.to_le_bytes());
+        }
         let sent = self.link.send(&self.frame[..self.layout.len]);
         let t_sent = now_ns();
         self.send_ns = (t_sent - t_handed).max(0) as u64;
