@@ -13,7 +13,14 @@ from typing import Any
 
 from ether_ros.errors import ConfigError
 
-COUNTERS = ("cycles", "lost_frames", "late_frames", "unmatched_frames", "wkc_errors")
+COUNTERS = (
+    "cycles",
+    "lost_frames",
+    "late_frames",
+    "unmatched_frames",
+    "wkc_errors",
+    "overruns",
+)
 HISTOGRAMS = (
     ("wake_latency", "wake-up latency"),
     ("exec", "execution time"),
