@@ -18,8 +18,8 @@ build: bootstrap
 	@$(PY) -c "import ether_ros._native as n; print('[build] ether_ros._native', n.__version__)"
 
 lint: bootstrap
-	$(VENV)/bin/ruff check python tests bench scripts
-	$(VENV)/bin/ruff format --check python tests bench scripts
+	$(VENV)/bin/ruff check --no-cache python tests bench scripts
+	$(VENV)/bin/ruff format --no-cache --check python tests bench scripts
 	$(VENV)/bin/mypy
 	cargo fmt --all -- --check
 	cargo clippy --workspace --all-targets -q -- -D warnings

@@ -304,8 +304,9 @@ def _sum(rounds: list[dict[str, Any]], key: str) -> int:
 
 def run(report: Report) -> None:
     try:
-        import ether_ros._native  # noqa: F401
         import pysoem  # noqa: F401
+
+        import ether_ros._native  # noqa: F401
     except ImportError as e:
         raise BenchSkipped(f"needs ether_ros._native and pysoem: {e}") from None
     rounds, seconds = (1, 5.0) if report.quick else (3, 20.0)

@@ -14,9 +14,9 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-import ether_ros._native as _native
 import pytest
 
+import ether_ros._native as _native
 from ether_ros.errors import LinkError
 from ether_ros.master.samples import (
     FLAG_ACYCLIC,

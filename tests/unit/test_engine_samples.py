@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import struct
 
-import ether_ros._native as _native
 import numpy as np
 import pytest
 
+import ether_ros._native as _native
 from ether_ros.master.samples import (
     FLAGS,
     RECORD_LEN,

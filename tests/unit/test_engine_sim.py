@@ -8,10 +8,10 @@ import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
-import ether_ros._native as _native
 import numpy as np
 import pytest
 
+import ether_ros._native as _native
 from ether_ros.config import load_bus_config
 from ether_ros.master.samples import FLAG_DC_ADJUSTED, FLAG_LOST, decode_samples
 from ether_ros.sim.network import build_network

@@ -10,8 +10,8 @@ import time
 from typing import Any
 
 import pytest
-from ether_ros._native import SimNetwork
 
+from ether_ros._native import SimNetwork
 from ether_ros.testing.netns import VethPair
 
 MASTER_MAC = bytes([0x02, 0, 0, 0, 0, 1])
