@@ -12,15 +12,19 @@ service):
 
 Topics, services and parameters are listed in docs/ros.md, next to the thesis's Table 4.3.
 
-Threads: the ROS executor (services, the write subscription, timers) and the sample publisher
-thread (:mod:`ether_ros.ros.sample_publisher`) are plain Python threads; the engine's real-time
-thread never waits for either. Panic has its own callback group, so it is served even while a
-transition or an SDO transfer is in progress.
+Threads: the ROS executors and the sample publisher thread
+(:mod:`ether_ros.ros.sample_publisher`) are plain Python threads; the engine's real-time thread
+never waits for any of them. With ``command_node=True`` (``ether-ros run``) the command path
+(writes and panic) has a node and an executor thread of its own (see ``spin``); otherwise panic
+has its own callback group. Either way it is served even while a transition or an SDO transfer
+is in progress.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import os
 import threading
 import time
 from collections.abc import Callable
@@ -29,15 +33,14 @@ from typing import Any
 
 import rclpy
 import rclpy.executors
-from rclpy.executors import ExternalShutdownException
-from rclpy.experimental.events_executor import EventsExecutor
-from rclpy.node import Node
 from diagnostic_msgs.msg import DiagnosticArray
 from ether_ros_msgs.msg import BusLayout, PdoRaw, SlaveValues, WriteResult, WriteVariable
 from ether_ros_msgs.srv import Command, SdoRead, SdoWrite, WriteVariables
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.executors import ExternalShutdownException
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import (
     DurabilityPolicy,
@@ -93,6 +96,9 @@ _RUNTIME_PARAMETERS = {
 
 BusOpener = Callable[..., Any]
 
+# Nice value of the command executor's thread (see ``spin``).
+COMMAND_THREAD_NICE = -10
+
 
 def _open_bus(config: Any, interface: str | None = None, link: Any = None) -> Any:
     from ether_ros.master.bus import Bus
@@ -128,7 +134,7 @@ class EtherRosNode(LifecycleNode):
         super().__init__(name, namespace=cfg.ros.namespace or None, context=context)
         # The command path (``pdo_listener``, ``write_variables``, ``panic``) optionally lives on
         # a second, plain node ``<name>_commands`` in the same namespace, so the topic and
-        # service names do not change; ``spin`` serves it with rclpy's C++ events executor in
+        # service names do not change; ``spin`` serves it with a single-threaded executor in
         # a thread of its own, which takes a command to the bus several times faster than the
         # multi-threaded executor that rebuilds its wait set in Python for every message.
         self.command_node: Node | None = None
@@ -703,16 +709,16 @@ def _flatten(prefix: str, value: Any, out: dict[str, Any]) -> None:
 
 def spin(node: EtherRosNode, threads: int = 4) -> None:
     """Run the node until shutdown (Ctrl-C / SIGTERM): the lifecycle node on a multi-threaded
-    executor in this thread, its command node (if any) on an events executor in another."""
+    executor in this thread, its command node (if any) on a single-threaded executor in another."""
     executor = rclpy.executors.MultiThreadedExecutor(num_threads=threads, context=node.context)
     executor.add_node(node)
     commands: Any = None
     command_thread: threading.Thread | None = None
     if node.command_node is not None:
-        commands = EventsExecutor(context=node.context)
+        commands = rclpy.executors.SingleThreadedExecutor(context=node.context)
         commands.add_node(node.command_node)
         command_thread = threading.Thread(
-            target=_spin_quietly, args=(commands,), name="ether_ros-commands", daemon=True
+            target=_serve_commands, args=(commands,), name="ether_ros-commands", daemon=True
         )
         command_thread.start()
     try:
@@ -725,8 +731,16 @@ def spin(node: EtherRosNode, threads: int = 4) -> None:
         executor.shutdown()
 
 
-def _spin_quietly(executor: Any) -> None:
-    try:
-        executor.spin()
-    except (ExternalShutdownException, KeyboardInterrupt):
-        pass  # the context was shut down: the node is going away
+def _serve_commands(executor: Any) -> None:
+    # Ahead of the node's other Python threads (and other processes) for the CPU, so a command
+    # waiting for the CPU on a loaded machine is not queued behind the sample publishing.
+    with contextlib.suppress(OSError):  # not root / no CAP_SYS_NICE: normal priority
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), COMMAND_THREAD_NICE)
+    while True:
+        try:
+            executor.spin()  # returns once the executor is shut down
+            return
+        except (ExternalShutdownException, KeyboardInterrupt):
+            return  # the context was shut down: the node is going away
+        except Exception:  # one failing command must not end the command path
+            log.exception("serving a command failed")
