@@ -11,12 +11,17 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
+import sys
+import tempfile
+import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+from report import BenchSkipped
 
 BENCH = Path(__file__).resolve().parent
 C_DIR = BENCH / "c"
@@ -284,3 +289,72 @@ class CpuSample:
             if share > busiest_share:
                 busiest, busiest_share = name, share
         return total, busiest, busiest_share
+
+
+def ether_ros_exe() -> str:
+    """The `ether-ros` command of this venv (or on PATH)."""
+    exe = Path(sys.executable).parent / "ether-ros"
+    if exe.exists():
+        return str(exe)
+    found = shutil.which("ether-ros")
+    if found is None:
+        raise BenchSkipped("the ether-ros command is not installed (make build)")
+    return found
+
+
+@contextmanager
+def simulator(
+    config: Path, interface: str, netns: str | None, cpu: int | None = None
+) -> Iterator[subprocess.Popen[str]]:
+    """`ether-ros sim CONFIG` on ``interface`` (in ``netns``) until the block ends; with ``cpu``,
+    all its threads are pinned to that CPU (taskset)."""
+    taskset = shutil.which("taskset") if cpu is not None else None
+    pin = [taskset, "-c", str(cpu)] if taskset else []
+    cmd = [
+        *netns_prefix(netns), *pin, ether_ros_exe(), "sim", str(config),
+        "--interface", interface, "--no-control",
+    ]  # fmt: skip
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        first: list[str] = []
+        ready = threading.Event()
+
+        def wait_ready() -> None:
+            assert proc.stdout is not None
+            first.append(proc.stdout.readline())
+            ready.set()
+
+        threading.Thread(target=wait_ready, daemon=True).start()
+        if not ready.wait(60) or "ready" not in first[0]:
+            proc.kill()
+            err = proc.stderr.read() if proc.stderr else ""
+            raise ToolError(f"the simulator did not start: {first[:1]} {err.strip()[-800:]}")
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.terminate()
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        for stream in (proc.stdout, proc.stderr):
+            if stream is not None:
+                stream.close()
+
+
+def run_worker(script: Path, mode: str, args: list[str], timeout: float) -> dict[str, Any]:
+    """Run ``script mode *args OUT`` in its own process (a fresh interpreter, so its scheduling
+    and memory locking stay its own) and return the JSON it wrote to OUT."""
+    with tempfile.TemporaryDirectory(prefix=f"bench_{mode}_") as tmp:
+        out = Path(tmp) / f"{mode}.json"
+        cmd = [sys.executable, str(script), mode, *args, str(out)]
+        try:
+            r = subprocess.run(cmd, capture_output=True, text=True, check=False, timeout=timeout)
+        except subprocess.TimeoutExpired as e:
+            raise ToolError(f"the {mode} worker hung") from e
+        if r.returncode != 0 or not out.exists():
+            detail = (r.stderr.strip() or r.stdout.strip())[-800:]
+            raise ToolError(f"the {mode} worker failed ({r.returncode}): {detail}")
+        result: dict[str, Any] = json.loads(out.read_text())
+        return result

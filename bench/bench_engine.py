@@ -32,8 +32,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from baseline import LatencyHistogram, ToolError, cyclictest, rtt_probe
-from bench_sim import simulator
+from baseline import LatencyHistogram, ToolError, cyclictest, rtt_probe, simulator
 from ether_ros.testing.netns import VethPair
 from report import BenchSkipped, Report, us
 

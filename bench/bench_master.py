@@ -26,14 +26,11 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shutil
 import statistics
 import subprocess
 import sys
 import tempfile
-import threading
-from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import AbstractContextManager
 from pathlib import Path
 from typing import Any
 
@@ -41,7 +38,14 @@ BENCH = Path(__file__).resolve().parent
 if str(BENCH) not in sys.path:  # when run as the pysoem worker script
     sys.path.insert(0, str(BENCH))
 
-from baseline import ToolError, echo_responder, netns_prefix, rtt_probe  # noqa: E402
+from baseline import (  # noqa: E402
+    ToolError,
+    echo_responder,
+    ether_ros_exe,
+    rtt_probe,
+    run_worker,
+    simulator,
+)
 from ether_ros.testing.netns import VethPair  # noqa: E402
 from report import BenchSkipped, Report  # noqa: E402
 
@@ -61,16 +65,6 @@ RATIO_TARGET = 1.0
 
 # ---------------------------------------------------------------------------------------------
 # shared with bench_sweep
-
-
-def ether_ros_exe() -> str:
-    exe = Path(sys.executable).parent / "ether-ros"
-    if exe.exists():
-        return str(exe)
-    found = shutil.which("ether-ros")
-    if found is None:
-        raise BenchSkipped("the ether-ros command is not installed (make build)")
-    return found
 
 
 def write_config(directory: Path, cycle_order: str = "send_at_wake") -> Path:
@@ -97,44 +91,11 @@ def write_config(directory: Path, cycle_order: str = "send_at_wake") -> Path:
     return path
 
 
-@contextmanager
 def pinned_simulator(
     config: Path, interface: str, netns: str | None, cpu: int = SIM_CPU
-) -> Iterator[subprocess.Popen[str]]:
+) -> AbstractContextManager[subprocess.Popen[str]]:
     """`ether-ros sim CONFIG` on ``interface`` (in ``netns``), all its threads on ``cpu``."""
-    taskset = shutil.which("taskset")
-    pin = [taskset, "-c", str(cpu)] if taskset else []
-    cmd = [
-        *netns_prefix(netns), *pin, ether_ros_exe(), "sim", str(config),
-        "--interface", interface, "--no-control",
-    ]  # fmt: skip
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        first: list[str] = []
-        ready = threading.Event()
-
-        def wait_ready() -> None:
-            assert proc.stdout is not None
-            first.append(proc.stdout.readline())
-            ready.set()
-
-        threading.Thread(target=wait_ready, daemon=True).start()
-        if not ready.wait(60) or "ready" not in first[0]:
-            proc.kill()
-            err = proc.stderr.read() if proc.stderr else ""
-            raise ToolError(f"the simulator did not start: {first[:1]} {err.strip()[-800:]}")
-        yield proc
-    finally:
-        if proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-        for stream in (proc.stdout, proc.stderr):
-            if stream is not None:
-                stream.close()
+    return simulator(config, interface, netns, cpu=cpu)
 
 
 def bench_cycle(
@@ -262,23 +223,8 @@ def pysoem_worker(config: Path, interface: str, cycle_us: int, seconds: float, o
 
 
 def run_pysoem(config: Path, interface: str, cycle_us: int, seconds: float) -> dict[str, Any]:
-    with tempfile.TemporaryDirectory(prefix="bench_master_") as tmp:
-        out = Path(tmp) / "pysoem.json"
-        cmd = [
-            sys.executable, str(Path(__file__).resolve()), "pysoem", str(config), interface,
-            str(cycle_us), f"{seconds:g}", str(out),
-        ]  # fmt: skip
-        try:
-            r = subprocess.run(
-                cmd, capture_output=True, text=True, check=False, timeout=seconds + 120
-            )
-        except subprocess.TimeoutExpired as e:
-            raise ToolError("the pysoem worker hung") from e
-        if r.returncode != 0 or not out.exists():
-            detail = (r.stderr.strip() or r.stdout.strip())[-800:]
-            raise ToolError(f"the pysoem worker failed ({r.returncode}): {detail}")
-        result: dict[str, Any] = json.loads(out.read_text())
-        return result
+    args = [str(config), interface, str(cycle_us), f"{seconds:g}"]
+    return run_worker(Path(__file__).resolve(), "pysoem", args, timeout=seconds + 120)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -18,11 +18,7 @@ added median round trip.
 
 from __future__ import annotations
 
-import shutil
 import statistics
-import subprocess
-import sys
-import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -33,8 +29,8 @@ from baseline import (
     RttResult,
     ToolError,
     echo_responder,
-    netns_prefix,
     rtt_probe,
+    simulator,
 )
 from ether_ros.testing.netns import VethPair
 from report import BenchSkipped, Report, us
@@ -49,50 +45,6 @@ RESPONDER_PRIORITY = 70
 PROBE_PRIORITY = 75
 CPU_TARGET = 0.25
 ADDED_RTT_TARGET_NS = 10_000
-
-
-def _ether_ros_exe() -> str:
-    exe = Path(sys.executable).parent / "ether-ros"
-    if exe.exists():
-        return str(exe)
-    found = shutil.which("ether-ros")
-    if found is None:
-        raise BenchSkipped("the ether-ros command is not installed (make build)")
-    return found
-
-
-@contextmanager
-def simulator(config: Path, interface: str, netns: str | None) -> Iterator[subprocess.Popen[str]]:
-    """Run `ether-ros sim CONFIG` on ``interface`` until the block ends."""
-    cmd = [
-        *netns_prefix(netns), _ether_ros_exe(), "sim", str(config),
-        "--interface", interface, "--no-control",
-    ]  # fmt: skip
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        ready = threading.Event()
-        first: list[str] = []
-
-        def wait_ready() -> None:
-            assert proc.stdout is not None
-            line = proc.stdout.readline()
-            first.append(line)
-            ready.set()
-
-        threading.Thread(target=wait_ready, daemon=True).start()
-        if not ready.wait(60) or "ready" not in first[0]:
-            proc.kill()
-            err = proc.stderr.read() if proc.stderr else ""
-            raise ToolError(f"the simulator did not start: {first[:1]} {err.strip()[-800:]}")
-        yield proc
-    finally:
-        if proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
 
 
 @contextmanager

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -32,7 +31,7 @@ BENCH = Path(__file__).resolve().parent
 if str(BENCH) not in sys.path:  # when run as the diagnosis worker script
     sys.path.insert(0, str(BENCH))
 
-from baseline import ToolError, rtt_probe  # noqa: E402
+from baseline import ToolError, rtt_probe, run_worker  # noqa: E402
 from bench_master import (  # noqa: E402
     IMAGE,
     MASTER_CPU,
@@ -131,23 +130,8 @@ def diagnose_worker(config: Path, interface: str, cycle_us: int, seconds: float,
 
 
 def diagnose(config: Path, interface: str, cycle_us: int, seconds: float) -> dict[str, Any]:
-    with tempfile.TemporaryDirectory(prefix="bench_sweep_") as tmp:
-        out = Path(tmp) / "diagnosis.json"
-        cmd = [
-            sys.executable, str(Path(__file__).resolve()), "diagnose", str(config), interface,
-            str(cycle_us), f"{seconds:g}", str(out),
-        ]  # fmt: skip
-        try:
-            r = subprocess.run(
-                cmd, capture_output=True, text=True, check=False, timeout=seconds + 180
-            )
-        except subprocess.TimeoutExpired as e:
-            raise ToolError("the diagnosis worker hung") from e
-        if r.returncode != 0 or not out.exists():
-            detail = (r.stderr.strip() or r.stdout.strip())[-800:]
-            raise ToolError(f"the diagnosis worker failed ({r.returncode}): {detail}")
-        result: dict[str, Any] = json.loads(out.read_text())
-        return result
+    args = [str(config), interface, str(cycle_us), f"{seconds:g}"]
+    return run_worker(Path(__file__).resolve(), "diagnose", args, timeout=seconds + 180)
 
 
 def _diagnosis_text(d: dict[str, Any], cycle_us: int, seconds: float) -> str:
