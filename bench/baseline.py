@@ -151,6 +151,8 @@ class RttResult:
     rate_hz: float
     elapsed_s: float
     rtt_ns: dict[str, float]
+    # Answered, but later than the probe's -l threshold (0 when none was given).
+    over: int = 0
 
     @classmethod
     def parse(cls, output: str) -> RttResult:
@@ -164,6 +166,7 @@ class RttResult:
                 rate_hz=float(d["rate_hz"]),
                 elapsed_s=float(d["elapsed_s"]),
                 rtt_ns={k: float(v) for k, v in d["rtt_ns"].items()},
+                over=int(d.get("over", 0)),
             )
         except (ValueError, KeyError, IndexError) as e:
             raise ToolError(f"unexpected rtt output ({e}): {output[-300:]!r}") from e
@@ -212,6 +215,7 @@ def rtt_probe(
     priority: int = 0,
     cpu: int | None = None,
     netns: str | None = None,
+    over_us: int | None = None,
 ) -> RttResult:
     """Send LRW frames out of ``interface`` and measure the answers (see bench/c/rtt.c).
 
@@ -229,6 +233,8 @@ def rtt_probe(
         cmd += ["-n", str(frames)]
     if cpu is not None:
         cmd += ["-c", str(cpu)]
+    if over_us is not None:
+        cmd += ["-l", str(over_us)]
     result = subprocess.run(cmd, capture_output=True, text=True, check=False, timeout=600)
     if result.returncode != 0:
         raise ToolError(f"rtt failed ({result.returncode}): {result.stderr.strip()}")

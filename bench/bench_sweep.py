@@ -129,6 +129,10 @@ def diagnose_worker(config: Path, interface: str, cycle_us: int, seconds: float,
     return 0
 
 
+def _share(value: float | None) -> str:
+    return "" if value is None else f"{100 * value:.2f} %"
+
+
 def diagnose(config: Path, interface: str, cycle_us: int, seconds: float) -> dict[str, Any]:
     args = [str(config), interface, str(cycle_us), f"{seconds:g}"]
     return run_worker(Path(__file__).resolve(), "diagnose", args, timeout=seconds + 180)
@@ -196,10 +200,13 @@ def run(report: Report) -> None:
                         lrw_bytes=IMAGE,
                         priority=PRIORITY,
                         cpu=MASTER_CPU,
+                        over_us=loop_us,
                     )
                     results[loop_us]["c_probe"] = {
                         "sent": probe.sent,
                         "answered": probe.answered,
+                        # Replies a master cycling at this loop time would have counted lost.
+                        "late_share": (probe.over + probe.lost) / max(probe.sent, 1),
                         "rtt_us": {k: v / 1000 for k, v in probe.rtt_ns.items()},
                     }
                     if sim.poll() is not None:
@@ -225,7 +232,7 @@ def run(report: Report) -> None:
         r = results.get(loop_us)
         if r is None:
             rows.append(
-                [loop_us, _khz(loop_us), *thesis, f"failed: {errors.get(loop_us, '?')}"] + [""] * 8
+                [loop_us, _khz(loop_us), *thesis, f"failed: {errors.get(loop_us, '?')}"] + [""] * 9
             )
             continue
         rtt, wake = r["rtt_us"], r["wake_latency_us"]
@@ -244,6 +251,7 @@ def run(report: Report) -> None:
                 f"{fmt_us(rtt['p50'])} / {fmt_us(rtt['p99'])}",
                 f"{fmt_us(wake['p99'])} / {fmt_us(wake['max'])}",
                 " / ".join(fmt_us(c_rtt.get(p)) for p in ("p50", "p99", "p999", "max")),
+                _share((r.get("c_probe") or {}).get("late_share")),
             ]
         )
     report.text(
@@ -256,7 +264,8 @@ def run(report: Report) -> None:
         "After each step, `bench/c/rtt.c` sends the same "
         f"{IMAGE}-byte LRW through the same simulator at the same rate for {probe_seconds:g} s "
         "(CPU 1, SCHED_FIFO 80, no master): round trips longer than the loop time there are "
-        "replies a master could not have had in time. The master has stopped by then, so the "
+        "replies a master could not have had in time (their share is the last column, to compare "
+        "with ether_ros's lost share). The master has stopped by then, so the "
         "slaves are back in INIT with SYNC0 off: the simulator does somewhat less per frame "
         "than in OP, and this floor is a little optimistic."
     )
@@ -276,6 +285,7 @@ def run(report: Report) -> None:
             "rtt p50 / p99 (µs)",
             "wake-up p99 / max (µs)",
             "C probe via the simulator: rtt p50 / p99 / p99.9 / max (µs)",
+            "C probe: share later than the loop time",
         ],
         rows,
     )

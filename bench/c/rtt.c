@@ -54,13 +54,13 @@ static size_t build_frame(uint8_t *f, unsigned lrw_bytes, uint32_t logical) {
 int main(int argc, char **argv) {
     if (argc < 2) {
         fprintf(stderr, "usage: %s IFACE [-r hz] [-n frames|-d s] [-s bytes] [-t us] [-w n] "
-                        "[-p prio] [-c cpu] [-a logical]\n", argv[0]);
+                        "[-p prio] [-c cpu] [-a logical] [-l over_us]\n", argv[0]);
         return 2;
     }
     const char *ifname = argv[1];
     double rate = 0, duration = 0;
     long frames = 1000, warmup = 100;
-    unsigned lrw_bytes = 240, timeout_us = 100000;
+    unsigned lrw_bytes = 240, timeout_us = 100000, over_us = 0;
     int prio = 0, cpu = -1;
     uint32_t logical = 0;
     for (int i = 2; i + 1 < argc; i += 2) {
@@ -74,6 +74,7 @@ int main(int argc, char **argv) {
         else if (!strcmp(o, "-p")) prio = atoi(v);
         else if (!strcmp(o, "-c")) cpu = atoi(v);
         else if (!strcmp(o, "-a")) logical = (uint32_t)strtoul(v, NULL, 0);
+        else if (!strcmp(o, "-l")) over_us = (unsigned)atoi(v);
         else {
             fprintf(stderr, "unknown option %s\n", o);
             return 2;
@@ -167,11 +168,16 @@ int main(int argc, char **argv) {
     double mean = 0;
     for (long i = 0; i < recorded; i++) mean += (double)rtts[i];
     mean = recorded ? mean / (double)recorded : 0;
+    /* Answers slower than over_us: what a master cycling every over_us could not have had in
+       time (the sorted tail). */
+    long over = 0;
+    if (over_us)
+        while (over < recorded && rtts[recorded - 1 - over] > (uint64_t)over_us * 1000ull) over++;
     printf("{\"sent\": %ld, \"answered\": %ld, \"lost\": %ld, \"unmatched\": %ld, \"late_sends\": %ld, "
-           "\"recorded\": %ld, \"elapsed_s\": %.6f, \"rate_hz\": %.1f, \"lrw_bytes\": %u, "
+           "\"recorded\": %ld, \"over\": %ld, \"over_us\": %u, \"elapsed_s\": %.6f, \"rate_hz\": %.1f, \"lrw_bytes\": %u, "
            "\"rtt_ns\": {\"min\": %llu, \"p50\": %llu, \"p90\": %llu, \"p99\": %llu, "
            "\"p999\": %llu, \"max\": %llu, \"mean\": %.0f}}\n",
-           sent, answered, sent - answered, unmatched, late, recorded, elapsed,
+           sent, answered, sent - answered, unmatched, late, recorded, over, over_us, elapsed,
            elapsed > 0 ? (double)sent / elapsed : 0.0, lrw_bytes,
            (unsigned long long)(recorded ? rtts[0] : 0), (unsigned long long)pct(rtts, (size_t)recorded, 50),
            (unsigned long long)pct(rtts, (size_t)recorded, 90), (unsigned long long)pct(rtts, (size_t)recorded, 99),
