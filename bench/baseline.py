@@ -8,6 +8,7 @@ with argument lists, never through a shell.
 
 from __future__ import annotations
 
+import argparse
 import json
 import shutil
 import subprocess
@@ -347,6 +348,19 @@ def simulator(
         for stream in (proc.stdout, proc.stderr):
             if stream is not None:
                 stream.close()
+
+
+def parse_worker_args(mode: str, argv: list[str] | None) -> argparse.Namespace:
+    """What ``run_worker`` passes a worker: MODE CONFIG INTERFACE CYCLE_US SECONDS OUT."""
+    parser = argparse.ArgumentParser(description=f"{mode} worker of a benchmark (internal)")
+    sub = parser.add_subparsers(dest="cmd", required=True)
+    p = sub.add_parser(mode)
+    p.add_argument("config", type=Path)
+    p.add_argument("interface")
+    p.add_argument("cycle_us", type=int)
+    p.add_argument("seconds", type=float)
+    p.add_argument("out", type=Path)
+    return parser.parse_args(argv)
 
 
 def run_worker(script: Path, mode: str, args: list[str], timeout: float) -> dict[str, Any]:

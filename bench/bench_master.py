@@ -23,7 +23,6 @@ Target: our round trip ≤ 1.0 × pysoem's at p50 and at p99.
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import statistics
@@ -42,6 +41,7 @@ from baseline import (  # noqa: E402
     ToolError,
     echo_responder,
     ether_ros_exe,
+    parse_worker_args,
     rtt_probe,
     run_worker,
     simulator,
@@ -399,15 +399,7 @@ def _ratio(r: float | None) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description="pysoem worker of bench_master (internal)")
-    sub = parser.add_subparsers(dest="cmd", required=True)
-    p = sub.add_parser("pysoem")
-    p.add_argument("config", type=Path)
-    p.add_argument("interface")
-    p.add_argument("cycle_us", type=int)
-    p.add_argument("seconds", type=float)
-    p.add_argument("out", type=Path)
-    args = parser.parse_args(argv)
+    args = parse_worker_args("pysoem", argv)
     return pysoem_worker(args.config, args.interface, args.cycle_us, args.seconds, args.out)
 
 

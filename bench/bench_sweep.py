@@ -20,7 +20,6 @@ the master or the reply was late. Target: zero lost frames at 100 µs.
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import tempfile
@@ -31,7 +30,7 @@ BENCH = Path(__file__).resolve().parent
 if str(BENCH) not in sys.path:  # when run as the diagnosis worker script
     sys.path.insert(0, str(BENCH))
 
-from baseline import ToolError, rtt_probe, run_worker  # noqa: E402
+from baseline import ToolError, parse_worker_args, rtt_probe, run_worker  # noqa: E402
 from bench_master import (  # noqa: E402
     IMAGE,
     MASTER_CPU,
@@ -319,15 +318,7 @@ def run(report: Report) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description="diagnosis worker of bench_sweep (internal)")
-    sub = parser.add_subparsers(dest="cmd", required=True)
-    p = sub.add_parser("diagnose")
-    p.add_argument("config", type=Path)
-    p.add_argument("interface")
-    p.add_argument("cycle_us", type=int)
-    p.add_argument("seconds", type=float)
-    p.add_argument("out", type=Path)
-    args = parser.parse_args(argv)
+    args = parse_worker_args("diagnose", argv)
     return diagnose_worker(args.config, args.interface, args.cycle_us, args.seconds, args.out)
 
 
