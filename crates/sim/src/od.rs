@@ -88,6 +88,44 @@ impl ObjectDictionary {
         }
     }
 
+    /// Add a RECORD object: subindex 0 (the number of entries, read-only) and its PDO-mappable
+    /// entries `(subindex, name, data_type, bit_length)`, all with `access`.
+    pub fn add_record(
+        &mut self,
+        index: u16,
+        name: &str,
+        access: Access,
+        entries: &[(u8, String, u16, u16)],
+    ) {
+        self.add_object(Object {
+            index,
+            name: name.to_string(),
+            object_code: 9,
+        });
+        self.add_entry(Entry {
+            index,
+            subindex: 0,
+            name: "SubIndex 000".to_string(),
+            data_type: dtype::UINT8,
+            bit_length: 8,
+            access: Access::ReadOnly,
+            pdo_mappable: false,
+            value: vec![entries.len() as u8],
+        });
+        for (subindex, entry_name, data_type, bit_length) in entries {
+            self.add_entry(Entry {
+                index,
+                subindex: *subindex,
+                name: entry_name.clone(),
+                data_type: *data_type,
+                bit_length: *bit_length,
+                access,
+                pdo_mappable: true,
+                value: vec![],
+            });
+        }
+    }
+
     pub fn object(&self, index: u16) -> Option<&Object> {
         self.objects.get(&index)
     }

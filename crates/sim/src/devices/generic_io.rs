@@ -156,7 +156,7 @@ impl DeviceApp for GenericIo {
 
 /// Build the generic I/O dictionary (also used by tests elsewhere in the crate).
 pub fn object_dictionary() -> ObjectDictionary {
-    use crate::od::{dtype, Access, Entry, Object};
+    use crate::od::{dtype, Access};
     let mut od = ObjectDictionary::new();
     let objects: [(u16, &str, &str, u16, u16, u8, Access); 4] = [
         (
@@ -197,33 +197,10 @@ pub fn object_dictionary() -> ObjectDictionary {
         ),
     ];
     for (index, object_name, entry_name, data_type, bits, count, access) in objects {
-        od.add_object(Object {
-            index,
-            name: object_name.to_string(),
-            object_code: 9,
-        });
-        od.add_entry(Entry {
-            index,
-            subindex: 0,
-            name: "SubIndex 000".to_string(),
-            data_type: dtype::UINT8,
-            bit_length: 8,
-            access: Access::ReadOnly,
-            pdo_mappable: false,
-            value: vec![count],
-        });
-        for sub in 1..=count {
-            od.add_entry(Entry {
-                index,
-                subindex: sub,
-                name: format!("{entry_name}{sub}"),
-                data_type,
-                bit_length: bits,
-                access,
-                pdo_mappable: true,
-                value: vec![],
-            });
-        }
+        let entries: Vec<_> = (1..=count)
+            .map(|sub| (sub, format!("{entry_name}{sub}"), data_type, bits))
+            .collect();
+        od.add_record(index, object_name, access, &entries);
     }
     od
 }

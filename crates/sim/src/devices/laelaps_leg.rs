@@ -519,7 +519,7 @@ impl DeviceApp for LaelapsLeg {
 /// The Laelaps II dictionary of Tables 4.1/4.2 (the same objects the ESI describes), for tests
 /// and for running the firmware without an ESI.
 pub fn object_dictionary() -> ObjectDictionary {
-    use crate::od::{dtype, Access, Entry, Object};
+    use crate::od::{dtype, Access};
     type Sub = (u8, &'static str, u16, u16);
     let b = |s: u8, n: &'static str| -> Sub { (s, n, dtype::BOOL, 1) };
     let i16e = |s: u8, n: &'static str| -> Sub { (s, n, dtype::INT16, 16) };
@@ -606,38 +606,18 @@ pub fn object_dictionary() -> ObjectDictionary {
     ];
     let mut od = ObjectDictionary::new();
     for (index, name, subs) in objects {
-        od.add_object(Object {
-            index,
-            name: name.to_string(),
-            object_code: 9,
-        });
         let access = if index >= 0x7000 {
             Access::ReadWrite
         } else {
             Access::ReadOnly
         };
-        od.add_entry(Entry {
-            index,
-            subindex: 0,
-            name: "SubIndex 000".to_string(),
-            data_type: dtype::UINT8,
-            bit_length: 8,
-            access: Access::ReadOnly,
-            pdo_mappable: false,
-            value: vec![subs.len() as u8],
-        });
-        for (subindex, entry_name, data_type, bit_length) in subs {
-            od.add_entry(Entry {
-                index,
-                subindex,
-                name: entry_name.to_string(),
-                data_type,
-                bit_length,
-                access,
-                pdo_mappable: true,
-                value: vec![],
-            });
-        }
+        let entries: Vec<_> = subs
+            .into_iter()
+            .map(|(sub, entry_name, data_type, bits)| {
+                (sub, entry_name.to_string(), data_type, bits)
+            })
+            .collect();
+        od.add_record(index, name, access, &entries);
     }
     od
 }
