@@ -119,6 +119,29 @@ def test_write_to_all_slaves_at_once(rig: RosRig) -> None:
         )
 
 
+def test_topic_writes_take_the_native_path_and_others_python_in_order(rig: RosRig) -> None:
+    """Valid pdo_listener writes are applied by the node's native thread (counted in the
+    diagnostics); a text value goes through Python, and a valid write sent right behind it
+    waits for it, so the last value sent is the one that stays."""
+    c = rig.client
+
+    def counter(key: str) -> int:
+        return int(float(c.master_status().get(f"ros_{key}", "0")))
+
+    c.wait_for(lambda _l: c.master_status().get("ros_commands_native") is not None, 5)
+    native, deferred = counter("commands_native"), counter("commands_deferred")
+    result = c.wait_result(c.publish_write("hind_left_leg", "Kd1000_knee", 42))
+    assert result.success and result.message == "wrote hind_left_leg.Kd1000_knee=42"
+    echo(c, "hind_left_leg", "Kd1000_knee", 42.0)
+    first = c.publish_write("hind_left_leg", "Kd1000_knee", "0x20")  # text: Python
+    second = c.publish_write("hind_left_leg", "Kd1000_knee", 33)
+    assert c.wait_result(first).success and c.wait_result(second).success
+    echo(c, "hind_left_leg", "Kd1000_knee", 33.0)
+    c.wait_for(lambda _l: counter("commands_deferred") >= deferred + 2, 5)
+    assert counter("commands_native") >= native + 1
+    assert c.latest.outputs["hind_left_leg"]["Kd1000_knee"] == 33.0
+
+
 @pytest.mark.parametrize(
     ("slave", "variable", "value", "reason"),
     [
@@ -187,6 +210,11 @@ def test_command_watchdog_puts_safe_outputs_on_the_wire(rig: RosRig) -> None:
         c.wait_for(lambda _l: c.master_status().get("ros_watchdog_active") == "1", timeout=5)
         # The next command feeds it again: the commanded outputs are back on the wire.
         assert c.write("front_right_leg", "Kd1000_hip", 5)[0]
+        echo(c, "front_right_leg", "Kp100_hip", 321.0)
+        # The same through the topic, whose writes the native path applies.
+        c.wait_for(lambda _l: c.master_status().get("ros_watchdog_active") == "1", timeout=5)
+        echo(c, "front_right_leg", "Kp100_hip", 0.0)
+        assert c.wait_result(c.publish_write("front_right_leg", "Kd1000_hip", 6)).success
         echo(c, "front_right_leg", "Kp100_hip", 321.0)
     finally:
         assert c.set_parameter("command_timeout_ms", 0)[0]

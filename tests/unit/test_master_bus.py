@@ -4,7 +4,7 @@ bring-up to OP, process data both ways, validation before the wire, SDO in OP, s
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -134,3 +134,72 @@ def test_pdo_override_on_a_fixed_device_is_refused_by_name() -> None:
     message = r"slave 1 \(hind_left_leg\): .* cannot change its PDO"
     with Bus.open(cfg, link=net, drift_frames=100) as bus, pytest.raises(BusError, match=message):
         bus.start()
+
+
+def _wait_for(what: str, check: Callable[[], bool]) -> None:
+    deadline = time.monotonic() + 10
+    while not check():
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.02)
+
+
+def test_writers_of_different_variables_keep_each_others_values() -> None:
+    cfg = _config("mixed.yaml")
+    with Bus.open(cfg, link=_network(cfg), drift_frames=100) as bus:
+        bus.start()
+        io = bus.slave("io_box")
+        assert io.area is not None and io.layout is not None
+        # A second writer (like the native ROS command path) sets DigitalOutput1 in the engine
+        # directly, behind the Bus's back.
+        dout1 = io.layout.variable("DigitalOutput1")
+        bus.engine.write_output_fields([(io.area.output_offset * 8 + dout1.bit_offset, 1, 1)])
+        # Then Python writes other variables of the same slave. Writing the slave's whole area
+        # from the Bus's own copy would put DigitalOutput1 back to 0.
+        bus.write_many("io_box", {"DigitalOutput3": True, "AnalogOutput1": 1000})
+        bus.write("io_box", "DigitalOutput8", True)
+        outputs = bus.outputs("io_box")
+        assert outputs["DigitalOutput1"] is True and bus.read("io_box", "DigitalOutput1") is True
+        assert outputs["DigitalOutput3"] is True and outputs["DigitalOutput8"] is True
+        assert outputs["AnalogOutput1"] == 1000 and outputs["DigitalOutput2"] is False
+        begin = io.area.output_offset
+        image = bytes(bus.engine.outputs())
+        assert image[begin] == 0b1000_0101
+        assert image[begin + 1 : begin + 3] == (1000).to_bytes(2, "little")
+
+        # Both writers' values reach the slave (its firmware echoes outputs to inputs).
+        def echoed() -> bool:
+            inputs = bus.inputs("io_box")
+            digital = all(inputs[f"DigitalInput{n}"] is True for n in (1, 3, 8))
+            return digital and float(inputs["AnalogInput1"]) > 900
+
+        _wait_for("the echo of both writers' outputs", echoed)
+        assert bus.read("io_box", "DigitalInput2") is False
+
+
+def test_write_all_is_one_masked_write_and_a_bad_value_changes_nothing(bus: Bus) -> None:
+    bus.start()
+    legs = [s.name for s in bus.slaves]
+    bus.write_many("front_left_leg", {"Kp100_knee": -7, "Red_LED": True})
+    before = bytes(bus.engine.outputs())
+    with pytest.raises(ProcessValueError, match="bool"):
+        bus.write_all("Blue_LED", 2)
+    assert bytes(bus.engine.outputs()) == before
+    assert bus.write_all("Blue_LED", True) == 4
+    for leg in legs:
+        assert bus.read(leg, "Blue_LED") is True
+    # Neighbouring bits and variables stay as they were.
+    assert bus.outputs("front_left_leg")["Red_LED"] is True
+    assert bus.read("front_left_leg", "Kp100_knee") == -7
+    assert bus.outputs("hind_left_leg")["Red_LED"] is False
+
+
+def test_engine_refuses_bad_output_fields_by_name(bus: Bus) -> None:
+    bus.start()
+    before = bytes(bus.engine.outputs())
+    with pytest.raises(ValueError, match=r"output field #1 .*1\.\.=64"):
+        bus.engine.write_output_fields([(0, 1, 1), (8, 65, 0)])
+    assert bus.layout is not None
+    past_outputs = bus.layout.output_bytes * 8
+    with pytest.raises(ValueError, match="outside the output ranges"):
+        bus.engine.write_output_fields([(past_outputs, 8, 1)])
+    assert bytes(bus.engine.outputs()) == before

@@ -52,6 +52,16 @@ impl SeqBuffer {
         self.seq.store(s.wrapping_add(2), Ordering::Release);
     }
 
+    /// Copy the bytes at `offset` into `dst` without checking the version. Only for the single
+    /// writer (while it holds whatever serialises writers): nobody else changes the bytes, so
+    /// it reads them consistently, e.g. to change some bits and write the bytes back.
+    pub fn read_as_writer(&self, offset: usize, dst: &mut [u8]) {
+        let cells = &self.data[offset..offset + dst.len()];
+        for (d, cell) in dst.iter_mut().zip(cells) {
+            *d = cell.load(Ordering::Relaxed);
+        }
+    }
+
     /// Copy the whole buffer into `dst` once. Returns the version copied, or `None` when a write
     /// overlapped (then `dst` holds garbage and must not be used).
     pub fn try_read(&self, dst: &mut [u8]) -> Option<u64> {

@@ -8,6 +8,7 @@
 
 pub mod clock;
 pub mod cyclic;
+pub mod fields;
 pub mod frames;
 pub mod handover;
 pub mod link;
@@ -22,6 +23,7 @@ use std::time::Duration;
 
 pub use clock::now_ns;
 use cyclic::{Cyclic, Exchange, Shared};
+pub use fields::OutputField;
 pub use frames::Request;
 use frames::{build_request_frame, reply_datagrams, reply_matches};
 use handover::mailbox_state;
@@ -82,8 +84,9 @@ pub struct Engine {
     exchange: Mutex<Option<Arc<Exchange>>>,
     /// Serialises `transact` callers: the mailbox has one slot.
     acyclic: Mutex<()>,
-    /// Serialises writers of the output buffer (the seqlock allows one writer).
-    output_writer: Mutex<()>,
+    /// Serialises writers of the output buffer (the seqlock allows one writer); holds the
+    /// scratch bytes `write_output_fields` merges fields into, reused from call to call.
+    output_writer: Mutex<Vec<u8>>,
     /// Serialises consumers of the sample ring.
     drain: Mutex<()>,
     description: String,
@@ -114,7 +117,7 @@ impl Engine {
             state: Mutex::new(LinkState::Idle(link)),
             exchange: Mutex::new(None),
             acyclic: Mutex::new(()),
-            output_writer: Mutex::new(()),
+            output_writer: Mutex::new(Vec::new()),
             drain: Mutex::new(()),
             description,
         }
@@ -382,6 +385,56 @@ impl Engine {
         {
             let _w = lock(&self.output_writer);
             ex.outputs.write(offset, data);
+        }
+        self.feed_watchdog();
+        Ok(())
+    }
+
+    /// Write several output fields at once: they reach the wire in the same cycle (one seqlock
+    /// write over the byte span they cover) and bits outside the fields keep their value, so
+    /// writers of different variables never undo each other. Every field must lie inside the
+    /// plan's output ranges and be well formed (bit_length 1..=64, raw fits), else nothing is
+    /// written (Error::Invalid naming the bad field). Feeds the watchdog like write_outputs.
+    pub fn write_output_fields(&self, fields: &[OutputField]) -> Result<()> {
+        if fields.is_empty() {
+            return Ok(());
+        }
+        let ex = self.exchange()?;
+        let (mut first, mut end) = (usize::MAX, 0);
+        for (i, f) in fields.iter().enumerate() {
+            let describe = || {
+                format!(
+                    "output field #{i} (bit offset {}, {} bit(s), raw {:#x})",
+                    f.bit_offset, f.bit_length, f.raw
+                )
+            };
+            if let Some(why) = f.form_error() {
+                return Err(Error::Invalid(format!("{}: {why}", describe())));
+            }
+            let (a, b) = f.byte_span().expect("checked by form_error");
+            if !ex.output_runs.iter().any(|&(o, l)| a >= o && b <= o + l) {
+                return Err(Error::Invalid(format!(
+                    "{} covers image bytes {a}..{b}, outside the output ranges (offset, length) \
+                     {:?} of the {}-byte image",
+                    describe(),
+                    ex.plan.output_ranges,
+                    ex.plan.image_len
+                )));
+            }
+            first = first.min(a);
+            end = end.max(b);
+        }
+        {
+            // Holding the writer lock makes us the buffer's only writer, so the bytes read here
+            // are current and nobody changes them before the write below.
+            let mut scratch = lock(&self.output_writer);
+            scratch.clear();
+            scratch.resize(end - first, 0);
+            ex.outputs.read_as_writer(first, &mut scratch);
+            for f in fields {
+                f.apply(&mut scratch, first);
+            }
+            ex.outputs.write(first, &scratch);
         }
         self.feed_watchdog();
         Ok(())

@@ -7,7 +7,8 @@ use std::sync::{Arc, Mutex};
 
 use ether_ros_engine::plan::{DcMode, DcPlan, Order};
 use ether_ros_engine::{
-    flags, now_ns, Engine, Error, Link, Plan, Received, Request, SampleRecord, RECORD_LEN,
+    flags, now_ns, Engine, Error, Link, OutputField, Plan, Received, Request, SampleRecord,
+    RECORD_LEN,
 };
 use ether_ros_wire::{self as wire, reg, Command};
 
@@ -274,6 +275,158 @@ fn cyclic_exchanges_outputs_inputs_and_samples() {
             )
             .is_ok());
     }
+}
+
+fn field(bit_offset: usize, bit_length: u32, raw: u64) -> OutputField {
+    OutputField {
+        bit_offset,
+        bit_length,
+        raw,
+    }
+}
+
+#[test]
+fn output_fields_change_only_their_bits() {
+    let (e, bus) = engine();
+    // No process image before the first start.
+    assert!(matches!(
+        e.write_output_fields(&[field(0, 1, 1)]),
+        Err(Error::State(_))
+    ));
+    e.start_cyclic(plan(Order::SendAtWake, DcMode::Off))
+        .unwrap();
+    e.write_outputs(0, &[0xFF, 0x00, 0xFF, 0x00]).unwrap();
+    e.write_outputs(6, &[0x00; 4]).unwrap();
+    // Two fields in one call: 3 bits at bit 1 of byte 0 (clears 0b1110 of 0xFF) and a 12-bit
+    // value straddling bytes 1 and 2 from bit 4 of byte 1.
+    e.write_output_fields(&[field(1, 3, 0b010), field(12, 12, 0xABC)])
+        .unwrap();
+    assert_eq!(&e.outputs().unwrap()[..4], &[0xF5, 0xC0, 0xAB, 0x00]);
+    // 1 bit, 16 and 32 bits at odd offsets in the second range; the rest stays.
+    e.write_output_fields(&[field(48 + 7, 1, 1)]).unwrap();
+    e.write_output_fields(&[field(48 + 9, 16, 0xFFFF)]).unwrap();
+    assert_eq!(&e.outputs().unwrap()[6..10], &[0x80, 0xFE, 0xFF, 0x01]);
+    e.write_output_fields(&[field(48, 32, 0x0403_0201)])
+        .unwrap();
+    assert_eq!(&e.outputs().unwrap()[6..10], &[1, 2, 3, 4]);
+    // An empty list writes nothing and is fine.
+    e.write_output_fields(&[]).unwrap();
+    wait_for(
+        || bus.lock().unwrap().outputs_seen.last() == Some(&[0xF5, 0xC0, 0xAB, 0x00, 1, 2, 3, 4]),
+        "fields on the wire",
+    );
+    e.stop_cyclic();
+}
+
+#[test]
+fn a_bad_output_field_writes_nothing() {
+    let (e, _bus) = engine();
+    let mut p = plan(Order::SendAtWake, DcMode::Off);
+    p.image_len = 16;
+    p.initial_image = vec![1; 16];
+    p.safe_image = vec![0xEE; 16];
+    p.output_ranges = vec![(0, 4), (6, 4), (12, 4)];
+    p.datagrams = common::cyclic_datagrams(DcMode::Off, 16, 6);
+    e.start_cyclic(p).unwrap();
+    let before = e.outputs().unwrap();
+    let cases = [
+        // Reaches from output byte 3 into input byte 4.
+        (field(30, 4, 0), "image bytes 3..5"),
+        // Wholly inside the inputs.
+        (field(33, 1, 1), "image bytes 4..5"),
+        // Past the end of the image.
+        (field(120, 16, 1), "image bytes 15..17"),
+        // Malformed.
+        (field(0, 0, 0), "1..=64"),
+        (field(0, 65, 0), "1..=64"),
+        (field(0, 3, 8), "does not fit in 3 bit(s)"),
+        (field(usize::MAX - 3, 8, 0), "overflows"),
+    ];
+    for (bad, why) in cases {
+        // The good field before the bad one must not be written either.
+        let err = e
+            .write_output_fields(&[field(0, 8, 0x55), field(96, 32, 0xFFFF_FFFF), bad])
+            .unwrap_err();
+        assert!(
+            matches!(err, Error::Invalid(ref m) if m.contains("output field #2") && m.contains(why)),
+            "{bad:?}: {err:?}"
+        );
+        assert_eq!(e.outputs().unwrap(), before, "{bad:?} wrote something");
+    }
+    let err = e.write_output_fields(&[field(30, 4, 0)]).unwrap_err();
+    assert!(
+        matches!(err, Error::Invalid(ref m) if m.contains("[(0, 4), (6, 4), (12, 4)]")),
+        "{err:?}"
+    );
+    // A field of a whole range, and one bridging two ranges through the gap, are refused
+    // only in the second case.
+    e.write_output_fields(&[field(96, 32, 7)]).unwrap();
+    assert!(e.write_output_fields(&[field(72, 32, 0)]).is_err());
+    e.stop_cyclic();
+}
+
+#[test]
+fn concurrent_field_writers_keep_each_others_bits() {
+    let (e, bus) = engine();
+    e.start_cyclic(plan(Order::SendAtWake, DcMode::Off))
+        .unwrap();
+    e.write_outputs(0, &[0; 4]).unwrap();
+    e.write_outputs(6, &[0; 4]).unwrap();
+    let e = Arc::new(e);
+    const ROUNDS: u64 = 20_000;
+    // Writer A owns bits 0..12 and the pair (bytes 6..8, bytes 8..10), which it always
+    // writes equal in one call; writer B owns bits 12..32. Without the masked write under the
+    // lock, one writer's stale copy of the other's bits would come back.
+    let a = {
+        let e = e.clone();
+        std::thread::spawn(move || {
+            for k in 1..=ROUNDS {
+                let v = k & 0xFFF;
+                let pair = k & 0xFFFF;
+                e.write_output_fields(&[field(0, 12, v), field(48, 16, pair), field(64, 16, pair)])
+                    .unwrap();
+            }
+        })
+    };
+    let b = {
+        let e = e.clone();
+        std::thread::spawn(move || {
+            for k in 1..=ROUNDS {
+                e.write_output_fields(&[field(12, 20, k)]).unwrap();
+            }
+        })
+    };
+    while !(a.is_finished() && b.is_finished()) {
+        let out = e.outputs().unwrap();
+        assert_eq!(out[6..8], out[8..10], "a torn write was read");
+    }
+    a.join().unwrap();
+    b.join().unwrap();
+    let out = e.outputs().unwrap();
+    let low = u32::from_le_bytes(out[0..4].try_into().unwrap()) as u64;
+    assert_eq!(low & 0xFFF, ROUNDS & 0xFFF, "writer A's bits");
+    assert_eq!(low >> 12, ROUNDS, "writer B's bits");
+    assert_eq!(out[6..8], (ROUNDS as u16).to_le_bytes());
+    let want = out[..4].to_vec();
+    wait_for(
+        || {
+            bus.lock()
+                .unwrap()
+                .outputs_seen
+                .last()
+                .map(|o| o[..4].to_vec())
+                == Some(want.clone())
+        },
+        "the final fields on the wire",
+    );
+    // Every frame carried writer A's pair from one call (the same cycle).
+    assert!(bus
+        .lock()
+        .unwrap()
+        .outputs_seen
+        .iter()
+        .all(|o| o[4..6] == o[6..8]));
+    e.stop_cyclic();
 }
 
 #[test]

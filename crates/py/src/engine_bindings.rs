@@ -6,7 +6,9 @@
 use std::sync::{Arc, Mutex, Weak};
 
 use ether_ros_engine::plan::{CyclicDatagram, DcMode, DcPlan, Order, Policy, RtPlan};
-use ether_ros_engine::{flags, Engine, Error, InProcessLink, Plan, Request, Responder, RECORD_LEN};
+use ether_ros_engine::{
+    flags, Engine, Error, InProcessLink, OutputField, Plan, Request, Responder, RECORD_LEN,
+};
 use ether_ros_sim::network::Network;
 use ether_ros_wire::{Command, MAX_FRAME_LEN};
 use pyo3::exceptions::{PyException, PyValueError};
@@ -338,7 +340,7 @@ fn _close_all_engines(py: Python<'_>) {
 /// The master's engine: the link, acyclic datagrams, and the cyclic real-time thread.
 #[pyclass(name = "Engine", module = "ether_ros._native", frozen)]
 pub struct PyEngine {
-    inner: Arc<Engine>,
+    pub(crate) inner: Arc<Engine>,
 }
 
 impl Drop for PyEngine {
@@ -445,6 +447,23 @@ impl PyEngine {
     fn write_outputs(&self, py: Python<'_>, offset: usize, data: Vec<u8>) -> PyResult<()> {
         self.inner
             .write_outputs(offset, &data)
+            .map_err(|e| to_py(py, e))
+    }
+
+    /// Write output variables `[(bit_offset, bit_length, raw), ...]` in one go: only their bits
+    /// change, all reach the wire in the same cycle, and a bad field writes nothing (see
+    /// docs/engine.md); feeds the watchdog.
+    fn write_output_fields(&self, py: Python<'_>, fields: Vec<(usize, u32, u64)>) -> PyResult<()> {
+        let fields: Vec<OutputField> = fields
+            .into_iter()
+            .map(|(bit_offset, bit_length, raw)| OutputField {
+                bit_offset,
+                bit_length,
+                raw,
+            })
+            .collect();
+        let engine = self.inner.clone();
+        py.detach(move || engine.write_output_fields(&fields))
             .map_err(|e| to_py(py, e))
     }
 

@@ -3,6 +3,7 @@
 
 use pyo3::prelude::*;
 
+mod command_bindings;
 mod engine_bindings;
 mod sim_bindings;
 
@@ -11,5 +12,6 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     sim_bindings::register(m)?;
     engine_bindings::register(m)?;
+    command_bindings::register(m)?;
     Ok(())
 }

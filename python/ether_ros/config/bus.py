@@ -106,6 +106,9 @@ class RosConfig(_Model):
     raw_decimation: int = Field(default=1, ge=1)
     decoded_decimation: int = Field(default=10, ge=1)
     snapshot_period_ms: int = Field(default=100, ge=0)
+    # SCHED_FIFO priority of the native thread that serves pdo_listener (0: normal scheduling);
+    # capped below rt.priority so commands never delay a cycle.
+    command_priority: int = Field(default=50, ge=0, le=98)
 
 
 class PdoAssign(_Model):

@@ -26,7 +26,13 @@ from typing import Any
 
 from ether_ros.config import types as dt
 from ether_ros.config.esi import EsiDevice
-from ether_ros.config.process import ProcessLayout, ProcessValueError, ProcessVariable, Value
+from ether_ros.config.process import (
+    ProcessLayout,
+    ProcessValueError,
+    ProcessVariable,
+    Value,
+    write_bits,
+)
 from ether_ros.errors import BusError, ConfigError, EtherRosError, LinkError
 from ether_ros.master import bringup
 from ether_ros.master.al import AlState, AlStateMachine, AlStatus, al_code_text
@@ -82,7 +88,11 @@ class Bus:
         )
         self.dc_reference: Slave | None = None
         self._acyclic = threading.RLock()
-        self._output_lock = threading.Lock()  # read-modify-write of the output image
+        # Serialises output writes so the mirror below changes in the engine's order.
+        self._output_lock = threading.Lock()
+        # Python's copy of the output image: what the plan starts from, and what reads of outputs
+        # return while not running. While running the engine's buffer is the truth (other
+        # writers, e.g. a native command thread, change it too).
         self._outputs = bytearray()
         self._safe = b""
         self._running = False
@@ -396,28 +406,31 @@ class Bus:
         self.write_many(slave, {variable: value})
 
     def write_many(self, slave: str | int, values: Mapping[str, object]) -> None:
-        """Set several outputs of one slave at once (they reach the wire in the same cycle)."""
+        """Set several outputs of one slave at once (they reach the wire in the same cycle).
+
+        Only the bits of these variables change: the engine merges them into its output buffer
+        (``write_output_fields``), so a write never undoes another writer's variables."""
         s = self.slave(slave)
         area = s.area
         if s.layout is None or area is None or not area.output_bytes:
             raise BusError(f"{s}: has no outputs")
-        begin, end = area.output_offset, area.output_offset + area.output_bytes
+        variables: list[ProcessVariable] = []
         for name in values:
             var = self._variable(s, name)
             if var.direction != "output":
                 raise ProcessValueError(f"{s}: variable {name!r} is an input, not an output")
-        with self._output_lock:
-            current = bytes(self._outputs[begin:end])
+            variables.append(var)
+        fields: list[tuple[int, int, int]] = []
+        for var, value in zip(variables, values.values(), strict=True):
             try:
-                new = s.layout.pack_outputs(values, base=current)
+                fields.append(_output_field(s, var, var.encode(value)))
             except ProcessValueError as exc:
                 raise ProcessValueError(f"{s}: {exc}") from None
-            self._outputs[begin:end] = new
-            if self._running:
-                self.engine.write_outputs(begin, bytes(new))
+        self._write_fields(fields)
 
     def write_all(self, variable: str, value: object) -> int:
-        """Set ``variable`` on every slave that has it as an output; returns how many."""
+        """Set ``variable`` on every slave that has it as an output; returns how many. All of
+        them reach the wire in the same cycle, and a bad value changes nothing."""
         targets = [
             s
             for s in self.slaves
@@ -427,12 +440,31 @@ class Bus:
         ]
         if not targets:
             raise ProcessValueError(f"no slave has an output variable {variable!r}")
-        # Validate everything first so a bad value changes nothing.
+        # Encode everything first so a bad value changes nothing.
+        fields: list[tuple[int, int, int]] = []
         for s in targets:
-            s.layout.variable(variable).encode(value)  # type: ignore[union-attr]
-        for s in targets:
-            self.write(s.name, variable, value)
+            var = s.layout.variable(variable)  # type: ignore[union-attr]
+            fields.append(_output_field(s, var, var.encode(value)))
+        self._write_fields(fields)
         return len(targets)
+
+    def _write_fields(self, fields: list[tuple[int, int, int]]) -> None:
+        """Write validated output fields (image bit offset, bit length, raw) to the engine when
+        running, and to the mirror."""
+        with self._output_lock:
+            if self._running:
+                self.engine.write_output_fields(fields)
+            for bit_offset, bit_length, raw in fields:
+                write_bits(self._outputs, bit_offset, bit_length, raw)
+
+    def _output_area(self, s: Slave) -> bytes:
+        """The slave's outputs as commanded: the engine's buffer while running (other writers
+        may have changed it), else the mirror."""
+        assert s.area is not None
+        begin, end = s.area.output_offset, s.area.output_offset + s.area.output_bytes
+        if self._running:
+            return bytes(self.engine.outputs())[begin:end]
+        return bytes(self._outputs[begin:end])
 
     def _input_area(self, s: Slave) -> bytes:
         assert self.layout is not None
@@ -453,8 +485,7 @@ class Bus:
         var = self._variable(s, variable)
         assert s.layout is not None and s.area is not None
         if var.direction == "output":
-            begin = s.area.output_offset
-            return s.layout.read(self._outputs[begin : begin + s.area.output_bytes], var)
+            return s.layout.read(self._output_area(s), var)
         return s.layout.read(self._input_area(s), var)
 
     def inputs(self, slave: str | int) -> dict[str, Value]:
@@ -467,8 +498,7 @@ class Bus:
         s = self.slave(slave)
         if s.layout is None or s.area is None:
             return {}
-        begin = s.area.output_offset
-        return s.layout.unpack(self._outputs[begin : begin + s.area.output_bytes], "output")
+        return s.layout.unpack(self._output_area(s), "output")
 
     def samples(self, max_samples: int = 65536) -> Samples:
         """Drain the engine's per-cycle sample ring: ``records`` (the structured array of
@@ -612,6 +642,12 @@ class Bus:
         wkc = self.dg.apwr(s.position, 0x0010, station_address(s.position).to_bytes(2, "little"))
         if wkc != 1:
             raise BusError(f"{s}: re-assigning its station address failed")
+
+
+def _output_field(s: Slave, var: ProcessVariable, raw: int) -> tuple[int, int, int]:
+    """The image bit field (bit offset, bit length, raw) of output ``var`` of slave ``s``."""
+    assert s.area is not None
+    return (s.area.output_offset * 8 + var.bit_offset, var.bit_length, raw)
 
 
 def _slave_state(s: Slave, st: AlStatus) -> SlaveState:

@@ -271,6 +271,15 @@ def _has_input(slave: SlaveSpec, ref: str) -> bool:
     return True
 
 
+def describe_writes(writes: list[tuple[SlaveSpec, VariableSpec, float]]) -> str:
+    """The answer to an applied write (the native command path words it the same way)."""
+    if not writes:
+        return "nothing to write"
+    shown = ", ".join(f"{s.name}.{v.name}={value:g}" for s, v, value in writes[:8])
+    more = f" (+{len(writes) - 8} more)" if len(writes) > 8 else ""
+    return f"wrote {shown}{more}"
+
+
 def apply_writes(bus: Any, writes: list[tuple[SlaveSpec, VariableSpec, float]]) -> None:
     """Put checked writes into the output image, one ``write_many`` per slave so a slave's
     values reach the wire in the same cycle."""

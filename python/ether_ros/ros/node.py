@@ -14,10 +14,12 @@ Topics, services and parameters are listed in docs/ros.md, next to the thesis's 
 
 Threads: the ROS executors and the sample publisher thread
 (:mod:`ether_ros.ros.sample_publisher`) are plain Python threads; the engine's real-time thread
-never waits for any of them. With ``command_node=True`` (``ether-ros run``) the command path
-(writes and panic) has a node and an executor thread of its own (see ``spin``); otherwise panic
-has its own callback group. Either way it is served even while a transition or an SDO transfer
-is in progress.
+never waits for any of them. ``pdo_listener`` is served by a native thread
+(:mod:`ether_ros.ros.native_commands`) that writes valid requests into the engine without
+Python and hands the rest to ``_on_write_topic``. With ``command_node=True`` (``ether-ros run``)
+the other command services (write_variables, panic) have a node and an executor thread of their
+own (see ``spin``); otherwise panic has its own callback group. Either way they are served even
+while a transition or an SDO transfer is in progress.
 """
 
 from __future__ import annotations
@@ -57,6 +59,7 @@ from ether_ros.errors import EtherRosError
 from ether_ros.ros import bridge, diagnostics
 from ether_ros.ros.convert import layout_msg
 from ether_ros.ros.layout import BusSpec, LayoutError
+from ether_ros.ros.native_commands import CommandPathError, NativeCommandPath
 from ether_ros.ros.sample_publisher import Rates, SamplePublisher
 from ether_ros.ros.values import InvalidValue, data_type, to_python
 
@@ -128,6 +131,7 @@ class EtherRosNode(LifecycleNode):
         node_name: str | None = None,
         context: Any = None,
         command_node: bool = False,
+        native_commands: bool = True,
     ) -> None:
         cfg = load_config(str(config_path), interface)
         name = node_name or cfg.ros.node_name
@@ -182,13 +186,29 @@ class EtherRosNode(LifecycleNode):
         self._result_pub = self.create_publisher(WriteResult, "write_results", QOS_COMMANDS)
 
         commands: Node = self.command_node or self
-        commands.create_subscription(
-            WriteVariable,
-            "pdo_listener",
-            self._on_write_topic,
-            QOS_COMMANDS,
-            callback_group=None if self.command_node else self._writes_group,
-        )
+        # pdo_listener: the native path (see ether_ros.ros.native_commands); the Python
+        # subscription only if it cannot start (or native_commands=False, for comparison).
+        self._native: NativeCommandPath | None = None
+        if native_commands:
+            try:
+                self._native = NativeCommandPath(
+                    self,
+                    "pdo_listener",
+                    QOS_COMMANDS,
+                    self._result_pub,
+                    self._on_write_topic,
+                    command_priority(cfg),
+                )
+            except CommandPathError as exc:
+                self.get_logger().warning(f"{exc}; pdo_listener is served by Python instead")
+        if self._native is None:
+            commands.create_subscription(
+                WriteVariable,
+                "pdo_listener",
+                self._on_write_topic,
+                QOS_COMMANDS,
+                callback_group=None if self.command_node else self._writes_group,
+            )
         commands.create_service(
             WriteVariables,
             "write_variables",
@@ -318,6 +338,8 @@ class EtherRosNode(LifecycleNode):
         try:
             with self._bus_lock:
                 bus.start()
+                if self._native is not None:
+                    self._native.attach(bus, spec)
         except EtherRosError as exc:
             self._stop_bus()
             return self._fail("activate", exc)
@@ -376,6 +398,8 @@ class EtherRosNode(LifecycleNode):
             self._samples = None
 
     def _stop_bus(self) -> None:
+        if self._native is not None:
+            self._native.detach()  # before the bus stops: no native write after this
         with self._bus_lock:
             if self._bus is not None:
                 try:
@@ -385,6 +409,8 @@ class EtherRosNode(LifecycleNode):
 
     def _release(self) -> None:
         self._stop_publishing()
+        if self._native is not None:
+            self._native.detach()
         with self._bus_lock:
             bus, self._bus, self._spec = self._bus, None, None
             if bus is not None:
@@ -398,6 +424,9 @@ class EtherRosNode(LifecycleNode):
 
     def destroy_node(self) -> None:
         self._release()
+        if self._native is not None:
+            self._native.close()
+            self._native = None
         if self.command_node is not None:
             self.command_node.destroy_node()
             self.command_node = None
@@ -469,6 +498,17 @@ class EtherRosNode(LifecycleNode):
                 "working_counter": c.wkc,
             }
             dc_error = samples.take_dc_error()
+            commands = self.command_path_counters()
+            if commands:
+                ros_numbers["commands_native"] = commands["applied"]
+                ros_numbers["commands_deferred"] = commands["deferred"]
+                ros_numbers["commands_refused_queue_full"] = commands["overflowed"]
+                ros_numbers["commands_rcl_errors"] = commands["rcl_errors"]
+                if commands["delivery_count"]:
+                    ros_numbers["command_delivery_mean_ns"] = (
+                        commands["delivery_sum_ns"] / commands["delivery_count"]
+                    )
+                    ros_numbers["command_delivery_max_ns"] = commands["delivery_max_ns"]
         statuses.append(
             diagnostics.master_status(name, lifecycle, stats, ros_numbers, self._panic, dc_error)
         )
@@ -486,12 +526,21 @@ class EtherRosNode(LifecycleNode):
         commands are fresh (or always, when ``command_timeout_ms`` is 0). If this process stalls
         or the commands stop, the engine puts the safe outputs on the wire by itself."""
         timeout_ms = self._param_ms("command_timeout_ms")
-        if timeout_ms and (time.monotonic() - self._last_command) * 1000.0 > timeout_ms:
+        if timeout_ms and (time.monotonic() - self._last_command_time()) * 1000.0 > timeout_ms:
             return False
         bus = self._bus
         if bus is not None:
             bus.feed_watchdog()
         return True
+
+    def _last_command_time(self) -> float:
+        """time.monotonic() of the last write, through Python or the native path."""
+        native = self._native.last_command_ns() / 1e9 if self._native is not None else 0.0
+        return max(self._last_command, native)
+
+    def command_path_counters(self) -> dict[str, int]:
+        """The native command path's counters (empty when Python serves pdo_listener)."""
+        return self._native.counters() if self._native is not None else {}
 
     # ------------------------------------------------------------------------ writes
     def _write(self, requests: list[WriteVariable]) -> tuple[bool, str]:
@@ -522,11 +571,7 @@ class EtherRosNode(LifecycleNode):
                 bridge.apply_writes(bus, writes)
             except EtherRosError as exc:
                 return False, str(exc)
-        if not writes:
-            return True, "nothing to write"
-        shown = ", ".join(f"{s.name}.{v.name}={value:g}" for s, v, value in writes[:8])
-        more = f" (+{len(writes) - 8} more)" if len(writes) > 8 else ""
-        return True, f"wrote {shown}{more}"
+        return True, bridge.describe_writes(writes)
 
     def _on_write_topic(self, msg: WriteVariable) -> None:
         ok, message = self._write([msg])
@@ -671,6 +716,21 @@ class EtherRosNode(LifecycleNode):
         except (EtherRosError, ValueError, InvalidValue) as exc:
             resp.success, resp.message = False, str(exc)
         return resp
+
+
+def command_priority(cfg: Any) -> int:
+    """SCHED_FIFO priority of the native command thread: ``ros.command_priority``, kept below
+    the engine's real-time thread so a burst of commands never delays a cycle (0: normal). An
+    engine without real-time scheduling (policy ``other``) gets no real-time command thread
+    either, since it would then run ahead of the cyclic loop."""
+    wanted = int(cfg.ros.command_priority)
+    realtime = cfg.bus.realtime
+    if not wanted or realtime.policy == "other":
+        return 0
+    if realtime.policy == "deadline":
+        return wanted  # SCHED_DEADLINE runs ahead of every SCHED_FIFO thread
+    cap = int(realtime.priority) - 1
+    return min(wanted, cap) if cap >= 1 else 0
 
 
 def config_parameters(cfg: Any) -> dict[str, Any]:

@@ -1,0 +1,21 @@
+//! The ROS 2 command path in native code.
+//!
+//! A `WriteVariable` published on `pdo_listener` used to go through the Python executor, which
+//! on a busy node (publishing process data every cycle) waits for the GIL and costs milliseconds.
+//! Here a native thread waits on the subscription through rcl (the library rclpy has already
+//! loaded; see [`rcl`]), takes the message in its serialized form, decodes it ([`cdr`]), resolves
+//! it against a table of the bus's output variables built by Python ([`table`]) and writes the
+//! value straight into the engine's output buffer ([`receiver`]). Python is never on this path.
+//!
+//! Only requests that are certainly valid take the fast path; anything else (text values,
+//! unknown names, values out of range, malformed data) is handed to the node's Python code,
+//! which owns every error message, so both paths accept exactly the same writes.
+
+pub mod cdr;
+pub mod rcl;
+pub mod receiver;
+pub mod table;
+
+pub use cdr::{decode_write_variable, encode_write_result, CdrError, WriteRequest};
+pub use receiver::{CommandReceiver, ReceiverCounters, ReceiverHandles};
+pub use table::{CommandTable, Kind, Resolution, SlaveEntry, VariableEntry};

@@ -1,0 +1,198 @@
+//! Python bindings of the native ROS command path (`ether_ros_commands`): `CommandTable`, the
+//! bus's output variables as the fast path resolves them, and `CommandReceiver`, the thread that
+//! takes `WriteVariable` messages from rcl and writes them into the engine. See
+//! docs/ros.md ("The command path") and `ether_ros.ros.native_commands`, their only user.
+
+use std::time::Duration;
+
+use ether_ros_commands::{
+    decode_write_variable, CommandReceiver, CommandTable, Kind, ReceiverHandles, Resolution,
+    SlaveEntry, VariableEntry,
+};
+use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::{PyBytes, PyDict};
+
+use crate::engine_bindings::PyEngine;
+
+/// (name, index, subindex, image bit offset, bit length, kind, minimum, maximum)
+type VariableRow = (String, u16, u8, usize, u32, String, f64, f64);
+/// (name, position, output variables)
+type SlaveRow = (String, i64, Vec<VariableRow>);
+/// ([(bit offset, bit length, raw)], answer): what the native path writes and answers.
+type Applied = (Vec<(usize, u32, u64)>, String);
+
+/// The output variables of a bus, for the native command path.
+#[pyclass(name = "CommandTable", module = "ether_ros._native", frozen)]
+pub struct PyCommandTable {
+    table: CommandTable,
+}
+
+#[pymethods]
+impl PyCommandTable {
+    /// `slaves`: (name, position, [(name, index, subindex, bit offset in the image, bit length,
+    /// kind, minimum, maximum)]) with kind one of bool, int, uint, real32, real64.
+    #[new]
+    fn new(slaves: Vec<SlaveRow>) -> PyResult<Self> {
+        let mut entries = Vec::with_capacity(slaves.len());
+        for (name, position, rows) in slaves {
+            let mut outputs = Vec::with_capacity(rows.len());
+            for (var, index, subindex, bit_offset, bit_length, kind, minimum, maximum) in rows {
+                let kind = Kind::parse(&kind).ok_or_else(|| {
+                    PyValueError::new_err(format!(
+                        "slave '{name}': variable '{var}' has the unknown kind '{kind}'"
+                    ))
+                })?;
+                outputs.push(VariableEntry {
+                    name: var,
+                    index,
+                    subindex,
+                    bit_offset,
+                    bit_length,
+                    kind,
+                    minimum,
+                    maximum,
+                });
+            }
+            entries.push(SlaveEntry {
+                name,
+                position,
+                outputs,
+            });
+        }
+        let table = CommandTable::new(entries).map_err(PyValueError::new_err)?;
+        Ok(PyCommandTable { table })
+    }
+
+    /// Resolve a serialized `WriteVariable` as the native path would: ([(bit offset, bit length,
+    /// raw)], answer) when it applies it itself, None when it leaves it to Python. ValueError
+    /// if the bytes are not a WriteVariable.
+    fn resolve(&self, data: &[u8]) -> PyResult<Option<Applied>> {
+        let request =
+            decode_write_variable(data).map_err(|e| PyValueError::new_err(e.to_string()))?;
+        let (mut fields, mut answer) = (Vec::new(), String::new());
+        Ok(
+            match self.table.resolve(&request, &mut fields, &mut answer) {
+                Resolution::Apply => Some((
+                    fields
+                        .iter()
+                        .map(|f| (f.bit_offset, f.bit_length, f.raw))
+                        .collect(),
+                    answer,
+                )),
+                Resolution::Defer => None,
+            },
+        )
+    }
+}
+
+/// The native command thread (see the module doc); it runs from construction until `stop` and
+/// writes to an engine while one is attached.
+#[pyclass(name = "CommandReceiver", module = "ether_ros._native", frozen)]
+pub struct PyCommandReceiver {
+    inner: CommandReceiver,
+}
+
+#[pymethods]
+impl PyCommandReceiver {
+    #[new]
+    #[pyo3(signature = (*, librcl, librcutils, context, subscription, results, priority))]
+    fn new(
+        py: Python<'_>,
+        librcl: String,
+        librcutils: String,
+        context: usize,
+        subscription: usize,
+        results: usize,
+        priority: i32,
+    ) -> PyResult<Self> {
+        let handles = ReceiverHandles {
+            librcl,
+            librcutils,
+            context,
+            subscription,
+            results,
+        };
+        let inner = py
+            .detach(move || CommandReceiver::start(handles, priority))
+            .map_err(PyRuntimeError::new_err)?;
+        Ok(PyCommandReceiver { inner })
+    }
+
+    /// Write valid requests into `engine` from now on, resolved with `table`.
+    fn attach(&self, engine: PyRef<'_, PyEngine>, table: PyRef<'_, PyCommandTable>) {
+        self.inner.attach(engine.inner.clone(), table.table.clone());
+    }
+
+    /// Stop writing to the engine (every request goes to Python); returns once no write is in
+    /// progress.
+    fn detach(&self, py: Python<'_>) {
+        py.detach(|| self.inner.detach());
+    }
+
+    fn is_attached(&self) -> bool {
+        self.inner.is_attached()
+    }
+
+    /// Stop and join the thread (idempotent).
+    fn stop(&self, py: Python<'_>) {
+        py.detach(|| self.inner.stop());
+    }
+
+    fn is_running(&self) -> bool {
+        self.inner.is_running()
+    }
+
+    /// The oldest request left to Python (serialized WriteVariable), or None after `timeout`
+    /// seconds. Call `deferred_done()` once it is handled.
+    fn next_deferred<'py>(&self, py: Python<'py>, timeout: f64) -> Option<Bound<'py, PyBytes>> {
+        let timeout = Duration::from_secs_f64(timeout.clamp(0.0, 3600.0));
+        py.detach(|| self.inner.next_deferred(timeout))
+            .map(|data| PyBytes::new(py, &data))
+    }
+
+    fn deferred_done(&self) {
+        self.inner.deferred_done();
+    }
+
+    /// CLOCK_MONOTONIC ns of the last write applied natively (0: none yet).
+    fn last_command_ns(&self) -> i64 {
+        self.inner.last_command_ns()
+    }
+
+    fn last_error(&self) -> String {
+        self.inner.last_error()
+    }
+
+    /// How the thread is scheduled ("SCHED_FIFO 50", or "normal: ..." saying why).
+    fn scheduling(&self) -> String {
+        self.inner.scheduling()
+    }
+
+    fn counters<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let c = self.inner.counters();
+        let d = PyDict::new(py);
+        for (key, value) in [
+            ("received", c.received),
+            ("applied", c.applied),
+            ("deferred", c.deferred),
+            ("overflowed", c.overflowed),
+            ("undecodable", c.undecodable),
+            ("rcl_errors", c.rcl_errors),
+            ("publish_errors", c.publish_errors),
+            ("delivery_last_ns", c.delivery_last_ns),
+            ("delivery_max_ns", c.delivery_max_ns),
+            ("delivery_sum_ns", c.delivery_sum_ns),
+            ("delivery_count", c.delivery_count),
+        ] {
+            d.set_item(key, value)?;
+        }
+        Ok(d)
+    }
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PyCommandTable>()?;
+    m.add_class::<PyCommandReceiver>()?;
+    Ok(())
+}

@@ -1,0 +1,213 @@
+"""The node's command path for ``pdo_listener``: a native thread, not the Python executor.
+
+A ``WriteVariable`` taken by the Python executor waits for the GIL, which the sample publisher
+holds most of the time on a node that publishes every cycle; that cost milliseconds per command.
+Here the subscription is served by ``ether_ros._native.CommandReceiver`` (crates/commands): a
+thread that waits on the rcl subscription itself, decodes the message, and — when it is
+certainly valid — writes it into the engine's output buffer and answers on ``write_results``
+without touching Python. Every other request (text values, unknown names, values out of range)
+is handed to :meth:`EtherRosNode._on_write_topic` in order, through a Python thread here, so all
+refusals and their wording stay in one place (``bridge.resolve_write``).
+
+The rcl objects are created with rclpy's low-level API so no executor ever waits on (and takes
+from) the same subscription; they are marked in use while the thread runs, so rclpy cannot
+destroy them under it.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from ether_ros_msgs.msg import WriteVariable
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+from rclpy.qos import QoSProfile
+from rclpy.serialization import deserialize_message
+from rclpy.type_support import check_is_valid_msg_type
+
+from ether_ros import _native
+from ether_ros.errors import EtherRosError
+from ether_ros.ros.layout import BusSpec
+
+log = logging.getLogger(__name__)
+
+# How long the Python thread waits for a deferred request before looking at its stop flag.
+_POLL_S = 0.1
+
+
+class CommandPathError(EtherRosError):
+    """The native command path could not be set up (names what is missing)."""
+
+
+def loaded_library(stem: str, maps: str | Path = "/proc/self/maps") -> str:
+    """The path of ``<stem>.so`` as loaded into this process (rclpy loads librcl and
+    librcutils from the ROS installation or the wheels)."""
+    name = f"{stem}.so"
+    for line in Path(maps).read_text().splitlines():
+        path = line.split(maxsplit=5)[-1] if line.count(" ") >= 5 else ""
+        if Path(path).name == name or Path(path).name.startswith(name + "."):
+            return path
+    raise CommandPathError(f"{name} is not loaded in this process (is rclpy imported?)")
+
+
+def _kind(variable: Any) -> str | None:
+    """The native encoding of a bus ``ProcessVariable``, None if it is not a number."""
+    t = variable.dtype
+    if t.kind in ("bool", "int", "uint"):
+        return str(t.kind)
+    if t.kind == "real":
+        return {32: "real32", 64: "real64"}.get(int(variable.bit_length))
+    return None
+
+
+def command_table(bus: Any, spec: BusSpec) -> Any:
+    """The bus's output variables as ``_native.CommandTable`` rows: where each one is in the
+    process image (from the bus's layout) and the range the node accepts (from ``spec``, the
+    same ``VariableSpec`` the Python path checks against)."""
+    rows: list[tuple[str, int, list[_native.VariableRow]]] = []
+    for s, slave in zip(spec.slaves, bus.slaves, strict=True):
+        if s.name != slave.name:
+            raise CommandPathError(f"layout order differs: {s.name} vs {slave.name}")
+        area, layout = slave.area, slave.layout
+        if area is None or layout is None or not s.outputs:
+            rows.append((s.name, s.position, []))
+            continue
+        variables = []
+        for v, pv in zip(s.outputs, layout.outputs, strict=True):
+            kind = _kind(pv)
+            if kind is None:
+                continue  # not a number: every write goes to Python (which refuses it)
+            variables.append(
+                (
+                    pv.name,
+                    pv.index,
+                    pv.subindex,
+                    int(area.output_offset) * 8 + int(pv.bit_offset),
+                    int(pv.bit_length),
+                    kind,
+                    float(v.minimum),
+                    float(v.maximum),
+                )
+            )
+        rows.append((s.name, s.position, variables))
+    return _native.CommandTable(rows)
+
+
+# Fast DDS names its receive threads "dds.shm.<port>" and "dds.udp.<port>" (2.14, Jazzy).
+_MIDDLEWARE_RECEIVERS = ("dds.shm.", "dds.udp.")
+
+
+def raise_middleware_receivers(priority: int, tasks: str | Path = "/proc/self/task") -> list[str]:
+    """Give the middleware's receive threads of this process SCHED_FIFO ``priority``.
+
+    A command reaches the native thread through one of them (it takes the sample off the shared
+    memory or socket and wakes the waiting thread); at normal priority it waits behind the
+    node's Python threads for a CPU. Returns the threads changed; without CAP_SYS_NICE none is,
+    and the command path just has a longer tail."""
+    if priority <= 0:
+        return []
+    changed = []
+    for task in Path(tasks).iterdir():
+        try:
+            name = (task / "comm").read_text().strip()
+            if name.startswith(_MIDDLEWARE_RECEIVERS):
+                os.sched_setscheduler(int(task.name), os.SCHED_FIFO, os.sched_param(priority))
+                changed.append(name)
+        except (OSError, ValueError):
+            continue  # thread gone, or not permitted
+    return changed
+
+
+class NativeCommandPath:
+    """``pdo_listener`` for one node: the native receiver plus the Python thread that handles
+    what it defers (``handle_deferred`` gets the deserialized ``WriteVariable``)."""
+
+    def __init__(
+        self,
+        node: Any,
+        topic: str,
+        qos: QoSProfile,
+        results_publisher: Any,
+        handle_deferred: Callable[[WriteVariable], None],
+        priority: int,
+    ) -> None:
+        self._handle_deferred = handle_deferred
+        check_is_valid_msg_type(WriteVariable)  # loads the type support the subscription needs
+        with node.handle:
+            self._subscription = _rclpy.Subscription(
+                node.handle, WriteVariable, topic, qos.get_c_qos_profile()
+            )
+        # Held "in use" until close(): rclpy defers destroying them (node destruction,
+        # shutdown) until then, so the native thread never sees a freed object.
+        self._in_use = [node.context.handle, self._subscription, results_publisher.handle]
+        for handle in self._in_use:
+            handle.__enter__()
+        try:
+            self.receiver = _native.CommandReceiver(
+                librcl=loaded_library("librcl"),
+                librcutils=loaded_library("librcutils"),
+                context=node.context.handle.pointer,
+                subscription=self._subscription.pointer,
+                results=results_publisher.handle.pointer,
+                priority=priority,
+            )
+        except (RuntimeError, CommandPathError) as exc:
+            self._release()
+            raise CommandPathError(f"starting the native command path: {exc}") from None
+        # The same priority for the middleware threads that deliver the commands.
+        self.boosted = raise_middleware_receivers(priority)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(
+            target=self._serve_deferred, name="ether_ros-deferred", daemon=True
+        )
+        self._thread.start()
+
+    @property
+    def topic(self) -> str:
+        return str(self._subscription.get_topic_name())
+
+    def attach(self, bus: Any, spec: BusSpec) -> None:
+        """Write valid requests into ``bus``'s engine from now on."""
+        self.receiver.attach(bus.engine, command_table(bus, spec))
+
+    def detach(self) -> None:
+        """No more native writes (returns once none is in progress)."""
+        self.receiver.detach()
+
+    def last_command_ns(self) -> int:
+        return int(self.receiver.last_command_ns())
+
+    def counters(self) -> dict[str, int]:
+        return dict(self.receiver.counters())
+
+    def close(self) -> None:
+        """Stop both threads and release the subscription (idempotent)."""
+        if self._stop.is_set():
+            return
+        self._stop.set()
+        self.receiver.stop()
+        self._thread.join(timeout=5)
+        self._release()
+
+    def _release(self) -> None:
+        for handle in reversed(self._in_use):
+            handle.__exit__(None, None, None)
+        self._in_use = []
+        self._subscription.destroy_when_not_in_use()
+
+    def _serve_deferred(self) -> None:
+        while not self._stop.is_set():
+            data = self.receiver.next_deferred(_POLL_S)
+            if data is None:
+                continue
+            try:
+                message = deserialize_message(data, WriteVariable)
+                self._handle_deferred(message)
+            except Exception:  # one bad request must not end the command path
+                log.exception("handling a deferred write failed")
+            finally:
+                self.receiver.deferred_done()
