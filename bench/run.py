@@ -64,6 +64,8 @@ def load(name: str, path: Path) -> ModuleType:
     if spec is None or spec.loader is None:
         raise ImportError(f"cannot import {path}")
     module = importlib.util.module_from_spec(spec)
+    # Registered before it runs, as a normal import would be (dataclasses look their module up).
+    sys.modules[spec.name] = module
     spec.loader.exec_module(module)
     if not callable(getattr(module, "run", None)):
         raise ImportError(f"{path.name} has no run(report) function")

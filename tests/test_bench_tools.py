@@ -104,3 +104,17 @@ def test_rtt_probe_counts_every_answer_from_the_echo(veth_ns: VethPair) -> None:
 def test_rtt_probe_reports_losses_without_a_responder(veth: VethPair) -> None:
     r = rtt_probe(veth.master, frames=5, warmup=0, timeout_us=2000)
     assert r.sent == 5 and r.answered == 0 and r.lost == 5
+
+
+def test_first_frames_matches_each_command_to_the_first_frame_sent_after_it() -> None:
+    from bench_ros import Sent, first_frames
+
+    sent = [Sent(seq, 1000 + seq, 0, 100 * seq, 100 * seq + 5) for seq in range(1, 5)]
+    changes = [
+        (50, 1001),  # carries command 1's value before command 1 was published: not its frame
+        (120, 1001),  # command 1 on the wire
+        (330, 1003),  # command 2 was replaced by 3 before any frame carried it
+        (900, 1099),  # a value nobody sent
+    ]
+    frames = first_frames(sent, changes)
+    assert frames == {1: (120, False), 2: (330, True), 3: (330, False)}  # 4 never reached it

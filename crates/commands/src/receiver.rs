@@ -120,7 +120,11 @@ impl CommandReceiver {
     /// engine's RT thread by the caller); without CAP_SYS_NICE the thread runs with normal
     /// scheduling and `scheduling()` says why. Fails when the libraries or the rcl objects are
     /// not usable, before any message is taken.
-    pub fn start(handles: ReceiverHandles, priority: i32) -> Result<CommandReceiver, String> {
+    pub fn start(
+        handles: ReceiverHandles,
+        priority: i32,
+        cpus: Vec<usize>,
+    ) -> Result<CommandReceiver, String> {
         if handles.context == 0 || handles.subscription == 0 {
             return Err("the rcl context and subscription must be given".into());
         }
@@ -146,7 +150,7 @@ impl CommandReceiver {
                     rcl,
                     results: handles.results,
                 };
-                worker.run(&handles, priority, ready_tx);
+                worker.run(&handles, priority, &cpus, ready_tx);
             })
             .map_err(|e| format!("cannot start the command thread: {e}"))?;
         match ready_rx.recv() {
@@ -222,7 +226,7 @@ impl CommandReceiver {
         lock(&self.shared.last_error).clone()
     }
 
-    /// How the thread is scheduled ("SCHED_FIFO 50", or "normal: <why not>").
+    /// How the thread is scheduled ("SCHED_FIFO 50 on CPUs [0]", or "normal: <why not>").
     pub fn scheduling(&self) -> String {
         lock(&self.shared.scheduling).clone()
     }
@@ -276,9 +280,14 @@ impl Worker {
         self,
         handles: &ReceiverHandles,
         priority: i32,
+        cpus: &[usize],
         ready: mpsc::Sender<Result<(), String>>,
     ) {
-        *lock(&self.shared.scheduling) = set_priority(priority);
+        let mut scheduling = set_priority(priority);
+        if let Some(placement) = set_affinity(cpus) {
+            scheduling.push_str(&placement);
+        }
+        *lock(&self.shared.scheduling) = scheduling;
         // SAFETY: Python keeps the context and the subscription alive (and marked in use) until
         // it has stopped this thread.
         let waiter = unsafe {
@@ -437,6 +446,30 @@ struct Scratch {
     fields: Vec<ether_ros_engine::OutputField>,
     answer: String,
     result: Vec<u8>,
+}
+
+/// Keep the calling thread on `cpus` (none given: wherever the process may run); describe it.
+fn set_affinity(cpus: &[usize]) -> Option<String> {
+    if cpus.is_empty() {
+        return None;
+    }
+    // SAFETY: the cpu_set_t is a plain bitmap initialised by CPU_ZERO; CPU_SET is bounded below.
+    let r = unsafe {
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        libc::CPU_ZERO(&mut set);
+        for &cpu in cpus.iter().filter(|&&c| c < libc::CPU_SETSIZE as usize) {
+            libc::CPU_SET(cpu, &mut set);
+        }
+        libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set)
+    };
+    Some(if r == 0 {
+        format!(" on CPUs {cpus:?}")
+    } else {
+        format!(
+            " (CPUs {cpus:?} refused: {})",
+            std::io::Error::last_os_error()
+        )
+    })
 }
 
 /// Ask for SCHED_FIFO `priority` for the calling thread; describe what it got.

@@ -96,7 +96,8 @@ pub struct PyCommandReceiver {
 #[pymethods]
 impl PyCommandReceiver {
     #[new]
-    #[pyo3(signature = (*, librcl, librcutils, context, subscription, results, priority))]
+    #[pyo3(signature = (*, librcl, librcutils, context, subscription, results, priority, cpus=Vec::new()))]
+    #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
         librcl: String,
@@ -105,6 +106,7 @@ impl PyCommandReceiver {
         subscription: usize,
         results: usize,
         priority: i32,
+        cpus: Vec<usize>,
     ) -> PyResult<Self> {
         let handles = ReceiverHandles {
             librcl,
@@ -114,7 +116,7 @@ impl PyCommandReceiver {
             results,
         };
         let inner = py
-            .detach(move || CommandReceiver::start(handles, priority))
+            .detach(move || CommandReceiver::start(handles, priority, cpus))
             .map_err(PyRuntimeError::new_err)?;
         Ok(PyCommandReceiver { inner })
     }
@@ -164,7 +166,7 @@ impl PyCommandReceiver {
         self.inner.last_error()
     }
 
-    /// How the thread is scheduled ("SCHED_FIFO 50", or "normal: ..." saying why).
+    /// How the thread is scheduled ("SCHED_FIFO 50 on CPUs [0]", or "normal: ..." saying why).
     fn scheduling(&self) -> String {
         self.inner.scheduling()
     }

@@ -101,8 +101,11 @@ def command_table(bus: Any, spec: BusSpec) -> Any:
 _MIDDLEWARE_RECEIVERS = ("dds.shm.", "dds.udp.")
 
 
-def raise_middleware_receivers(priority: int, tasks: str | Path = "/proc/self/task") -> list[str]:
-    """Give the middleware's receive threads of this process SCHED_FIFO ``priority``.
+def raise_middleware_receivers(
+    priority: int, cpus: set[int] | None = None, tasks: str | Path = "/proc/self/task"
+) -> list[str]:
+    """Give the middleware's receive threads of this process SCHED_FIFO ``priority`` and keep
+    them on ``cpus`` (the command thread's CPUs).
 
     A command reaches the native thread through one of them (it takes the sample off the shared
     memory or socket and wakes the waiting thread); at normal priority it waits behind the
@@ -115,11 +118,25 @@ def raise_middleware_receivers(priority: int, tasks: str | Path = "/proc/self/ta
         try:
             name = (task / "comm").read_text().strip()
             if name.startswith(_MIDDLEWARE_RECEIVERS):
+                if cpus:
+                    os.sched_setaffinity(int(task.name), cpus)
                 os.sched_setscheduler(int(task.name), os.SCHED_FIFO, os.sched_param(priority))
                 changed.append(name)
         except (OSError, ValueError):
             continue  # thread gone, or not permitted
     return changed
+
+
+def housekeeping_cpus(rt_cpu: int | None) -> set[int]:
+    """The CPUs this process may use other than the real-time thread's: where the command path
+    runs. Empty (no pinning) when the RT thread is not pinned or no other CPU is left.
+
+    Keeping the command path off the RT thread's CPU means it never waits for a cycle there,
+    and on a virtual machine the wake-ups along the path (middleware thread, command thread)
+    stay on the same CPUs instead of crossing to the RT CPU (measured in docs/benchmarks.md)."""
+    if rt_cpu is None:
+        return set()
+    return set(os.sched_getaffinity(0)) - {rt_cpu}
 
 
 class NativeCommandPath:
@@ -134,6 +151,7 @@ class NativeCommandPath:
         results_publisher: Any,
         handle_deferred: Callable[[WriteVariable], None],
         priority: int,
+        cpus: set[int] | None = None,
     ) -> None:
         self._handle_deferred = handle_deferred
         check_is_valid_msg_type(WriteVariable)  # loads the type support the subscription needs
@@ -154,12 +172,13 @@ class NativeCommandPath:
                 subscription=self._subscription.pointer,
                 results=results_publisher.handle.pointer,
                 priority=priority,
+                cpus=sorted(cpus or ()),
             )
         except (RuntimeError, CommandPathError) as exc:
             self._release()
             raise CommandPathError(f"starting the native command path: {exc}") from None
         # The same priority for the middleware threads that deliver the commands.
-        self.boosted = raise_middleware_receivers(priority)
+        self.boosted = raise_middleware_receivers(priority, cpus)
         self._stop = threading.Event()
         self._thread = threading.Thread(
             target=self._serve_deferred, name="ether_ros-deferred", daemon=True

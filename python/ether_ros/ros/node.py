@@ -59,7 +59,11 @@ from ether_ros.errors import EtherRosError
 from ether_ros.ros import bridge, diagnostics
 from ether_ros.ros.convert import layout_msg
 from ether_ros.ros.layout import BusSpec, LayoutError
-from ether_ros.ros.native_commands import CommandPathError, NativeCommandPath
+from ether_ros.ros.native_commands import (
+    CommandPathError,
+    NativeCommandPath,
+    housekeeping_cpus,
+)
 from ether_ros.ros.sample_publisher import Rates, SamplePublisher
 from ether_ros.ros.values import InvalidValue, data_type, to_python
 
@@ -198,6 +202,7 @@ class EtherRosNode(LifecycleNode):
                     self._result_pub,
                     self._on_write_topic,
                     command_priority(cfg),
+                    housekeeping_cpus(cfg.bus.realtime.cpu),
                 )
             except CommandPathError as exc:
                 self.get_logger().warning(f"{exc}; pdo_listener is served by Python instead")

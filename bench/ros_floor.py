@@ -1,0 +1,171 @@
+"""Worker processes of the ROS benchmark (bench_ros.py), each a fresh interpreter so that nothing
+else in the benchmark process (the rig's ROS client, the wire sniffer) shares its GIL or caches:
+
+- ``publish``: the command sender. Publishes ``WriteVariable`` on ``pdo_listener`` in the pattern
+  it is told on stdin (one line ``GAP_S COUNT FIRST_SEQ DITHER_S [SENDER]``: COUNT values, one
+  every GAP_S seconds on an absolute schedule, each moved later by a random 0..DITHER_S; SENDER
+  ``python`` builds each message when it is due and calls ``publish()`` from a normal thread,
+  ``controller`` publishes messages serialized beforehand from a SCHED_FIFO 60 thread, as a
+  real-time controller would) and answers
+  with one JSON line per pattern: for every value
+  ``[seq, value, t_construct, t_publish, t_returned]`` — ``time.time_ns()`` before building
+  the message, right before ``publish()`` and right after it returns. ``end`` sends a message
+  with variable ``__end__`` (tells the floor subscriber to stop); ``quit`` or EOF ends.
+- ``subscribe``: the DDS floor. A minimal low-level rclpy wait set on ``pdo_listener``; stamps
+  ``time.time_ns()`` right after ``rcl_wait`` returns (before taking) and after the take, and
+  keeps the middleware's ``received_timestamp`` of the sample (when DDS in this process had
+  it, before this thread woke); on ``__end__`` prints
+  ``{request_id: [t_woken, t_taken, t_received]}`` as JSON and exits.
+
+Both print ``ready`` once set up (the publisher: once its writer matched a reader). The ROS
+domain comes from the environment (``ROS_DOMAIN_ID``, set by the benchmark).
+
+    python bench/ros_floor.py publish SLAVE VARIABLE
+    python bench/ros_floor.py subscribe
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import sys
+import time
+from typing import Any
+
+END = "__end__"
+RT_CPU = 1  # config/laelaps.yaml: bus.realtime.cpu
+CONTROLLER_PRIORITY = 60  # below the engine's RT thread (80), above the node's command path (50)
+MATCH_TIMEOUT_S = 30.0
+
+
+def publish(slave: str, variable: str) -> int:
+    import rclpy
+    from ether_ros_msgs.msg import WriteVariable
+    from rclpy.serialization import serialize_message
+
+    from ether_ros.ros.node import QOS_COMMANDS
+
+    rclpy.init()
+    node = rclpy.create_node("bench_command_sender")
+    pub = node.create_publisher(WriteVariable, "pdo_listener", QOS_COMMANDS)
+    deadline = time.monotonic() + MATCH_TIMEOUT_S
+    while pub.get_subscription_count() < 1:
+        if time.monotonic() > deadline:
+            print("no subscriber matched", file=sys.stderr, flush=True)
+            return 1
+        time.sleep(0.05)
+    time.sleep(0.5)  # let discovery traffic settle before anything is timed
+    print("ready", flush=True)
+    for line in sys.stdin:
+        words = line.split()
+        if not words or words[0] == "quit":
+            break
+        if words[0] == "end":
+            pub.publish(WriteVariable(slave=slave, variable=END))
+            print("[]", flush=True)
+            continue
+        gap_ns, count, first = int(float(words[0]) * 1e9), int(words[1]), int(words[2])
+        dither_ns = int(float(words[3]) * 1e9) if len(words) > 3 else 0
+        controller = len(words) > 4 and words[4] == "controller"
+        everywhere = set(os.sched_getaffinity(0))
+        rng = random.Random(first)  # the same offsets for the same command
+        stamps: list[list[int]] = []
+        ready: list[bytes] = []
+        if controller:
+            ready = [serialize_message(command(slave, variable, first + i)) for i in range(count)]
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(CONTROLLER_PRIORITY))
+            # A controller runs on the housekeeping CPUs, not on the EtherCAT RT thread's.
+            os.sched_setaffinity(0, (everywhere - {RT_CPU}) or everywhere)
+        start = time.monotonic_ns() + gap_ns
+        for i in range(count):
+            # An absolute schedule: a late send does not push the later ones back. Each send is
+            # moved by a random part of the dither (the receiver's cycle), so that its phase to
+            # that cycle is uniform rather than fixed by when the pattern started.
+            due = start + i * gap_ns + int(rng.random() * dither_ns)
+            delay = due - time.monotonic_ns()
+            if delay > 0:
+                time.sleep(delay / 1e9)
+            seq = first + i
+            value = command_value(seq)
+            t_construct = time.time_ns()
+            msg: Any = ready[i] if controller else command(slave, variable, seq)
+            t_publish = time.time_ns()
+            pub.publish(msg)  # bytes: published as they are (rclpy's publish_raw)
+            t_returned = time.time_ns()
+            stamps.append([seq, value, t_construct, t_publish, t_returned])
+        if controller:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+            os.sched_setaffinity(0, everywhere)
+        print(json.dumps(stamps), flush=True)
+    node.destroy_node()
+    rclpy.try_shutdown()
+    return 0
+
+
+def command(slave: str, variable: str, seq: int) -> Any:
+    from ether_ros_msgs.msg import WriteVariable
+
+    msg = WriteVariable(slave=slave, variable=variable, value=float(command_value(seq)))
+    msg.request_id = seq
+    return msg
+
+
+def command_value(seq: int) -> int:
+    """The value sent as command number ``seq``: distinct for the first 20000 numbers (7919 is
+    prime to 20000), within int16, and never 0 or a small number a config might start with."""
+    return 1000 + (seq * 7919) % 20000
+
+
+def subscribe() -> int:
+    import rclpy
+    from ether_ros_msgs.msg import WriteVariable
+    from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+
+    from ether_ros.ros.node import QOS_COMMANDS
+
+    rclpy.init()
+    node = rclpy.create_node("bench_floor_subscriber")
+    # The callback is never called: nothing spins this node; the loop below takes directly.
+    sub = node.create_subscription(WriteVariable, "pdo_listener", lambda _m: None, QOS_COMMANDS)
+    wait_set = _rclpy.WaitSet(1, 0, 0, 0, 0, 0, node.context.handle)
+    seen: dict[int, list[int]] = {}
+    print("ready", flush=True)
+    while True:
+        wait_set.clear_entities()
+        wait_set.add_subscription(sub.handle)
+        wait_set.wait(200_000_000)
+        t_woken = time.time_ns()
+        taken = sub.handle.take_message(WriteVariable, False)
+        t_taken = time.time_ns()
+        if taken is None:
+            continue
+        msg, info = taken[0], taken[1]
+        if msg.variable == END:
+            break
+        # received_timestamp: when the middleware in this process received the sample (the
+        # system clock, as time.time_ns()), before this thread was woken.
+        t_received = int(info.get("received_timestamp") or 0)
+        seen.setdefault(int(msg.request_id), [t_woken, t_taken, t_received])
+    print(json.dumps(seen), flush=True)
+    node.destroy_node()
+    rclpy.try_shutdown()
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description="worker of the ROS benchmark (internal)")
+    sub = parser.add_subparsers(dest="cmd", required=True)
+    p = sub.add_parser("publish")
+    p.add_argument("slave")
+    p.add_argument("variable")
+    sub.add_parser("subscribe")
+    args = parser.parse_args(argv)
+    if args.cmd == "publish":
+        return publish(args.slave, args.variable)
+    return subscribe()
+
+
+if __name__ == "__main__":
+    sys.exit(main())
