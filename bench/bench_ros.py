@@ -71,6 +71,7 @@ VARIANTS = (("publishing", "node publishing at 2.5 kHz"), ("quiet", "node not pu
 # The issue's target for a command: on the wire within one cycle + this.
 TARGET_MARGIN_NS = 200_000
 FLOOR_DOMAIN_OFFSET = 5  # RosRig's domain is offset 0, _one_run's 3 and 4
+PYTHON_DOMAIN_OFFSET = 6  # the node with --python-commands
 
 
 def _percentile(values: list[float], q: float) -> float:
@@ -645,6 +646,53 @@ def _topic_to_wire(report: Report, samples: int) -> None:
     report.value("sniffer_min_read_delay_ns", read_delay)
     report.value("sniffer_frames", sniffer.frames)
     report.value("sniffer_dropped", sniffer.dropped)
+    _python_command_path(report, samples, node)
+
+
+def _python_command_path(
+    report: Report, samples: int, native: dict[tuple[str, str], Timings]
+) -> None:
+    """The same senders against a node whose pdo_listener is served by the Python executor
+    (`ether-ros run --python-commands`, the path before the native one): what the native
+    command thread saves, in the same run."""
+    from ether_ros.ros.rig import RosRig, domain_for
+
+    patterns = [p for p in PATTERNS if p[0] != "sparse"]
+    sent: dict[str, list[Sent]] = {}
+    dither = _cycle_ns() / 1e9
+    domain = domain_for(os.getpid(), PYTHON_DOMAIN_OFFSET)
+    rig = RosRig(CONFIG, domain_id=domain, node_args=["--python-commands"])
+    with rig, contextlib.ExitStack() as stack:
+        rig.client.wait_for_node()
+        rig.client.layout(timeout=10)
+        assert rig.veth is not None
+        sniffer = WireSniffer(rig.veth.slave, _variable_offset())
+        stack.callback(sniffer.close)
+        sender = CommandSender(rig.domain_id)
+        stack.callback(sender.close)
+        for pattern, _, gap, kind in patterns:
+            sent[pattern] = sender.send(gap, samples, dither, kind)
+        time.sleep(0.1)
+        sniffer.close()
+    frames = first_frames([s for values in sent.values() for s in values], sniffer.changes)
+    rows = []
+    for pattern, _, _, _ in patterns:
+        python = _wire_path(sent[pattern], frames)
+        fast = native["publishing", pattern]
+        ratios = [
+            _percentile(python.call_to_end, q) / max(_percentile(fast.call_to_end, q), 1.0)
+            for q in (0.5, 0.99)
+        ]
+        rows.append([pattern, _cell(fast.call_to_end), _cell(python.call_to_end),
+                     f"{ratios[0]:.1f}× / {ratios[1]:.1f}×"])  # fmt: skip
+        _record(report, f"python_path_{pattern}_call_to_wire", python.call_to_end)
+    report.text("### The native command path against the Python executor (µs, p50 / p99 / max)")
+    report.text(
+        "call → wire with the node publishing at 2.5 kHz: the native command thread (rows above) "
+        "and the same node with `--python-commands` (pdo_listener on the Python executor, as "
+        "before the native path), the same senders, measured in this run."
+    )
+    report.table(["pattern", "native", "Python executor", "Python / native p50 / p99"], rows)
 
 
 def _one_run(seconds: float, publish: bool) -> dict[str, float]:

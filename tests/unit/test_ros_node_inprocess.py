@@ -71,3 +71,31 @@ def test_start_write_echo_and_panic(setup: tuple[EtherRosNode, EtherRosClient, o
     assert net.slave_info(0)["al_state_name"] == "OP"  # type: ignore[attr-defined]
     assert client.command("stop")[0] and node.lifecycle_state() == "inactive"
     assert net.slave_info(0)["al_state_name"] != "OP"  # type: ignore[attr-defined]
+
+
+def test_pdo_listener_served_by_python_when_asked() -> None:
+    """``native_commands=False`` (``ether-ros run --python-commands``): the Python executor
+    serves pdo_listener; writes still reach the slave and invalid ones are refused."""
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_for(os.getpid(), 7))
+    net = build_network(load_bus_config(CONFIG))
+    node = EtherRosNode(CONFIG, link=net, context=context, native_commands=False)
+    executor = MultiThreadedExecutor(num_threads=4, context=context)
+    executor.add_node(node)
+    thread = threading.Thread(target=executor.spin, daemon=True)
+    thread.start()
+    client = EtherRosClient(context=context)
+    try:
+        assert client.command("start")[0]
+        assert node.command_path_counters() == {}
+        result = client.wait_result(client.publish_write("hind_right_leg", "Kp100_knee", 6000))
+        assert result.success and result.message == "wrote hind_right_leg.Kp100_knee=6000"
+        echo(client, 6000.0)
+        result = client.wait_result(client.publish_write("hind_right_leg", "Kp100_knee", 1e6))
+        assert not result.success and "outside" in result.message
+    finally:
+        client.close()
+        executor.shutdown(timeout_sec=2)
+        node.destroy_node()
+        context.try_shutdown()
+        thread.join(5)

@@ -26,6 +26,12 @@ def register(subparsers: Any) -> None:
         help="leave the node unconfigured; the caller drives the lifecycle transitions",
     )
     p.add_argument("--node-name", help="override ros.node_name")
+    p.add_argument(
+        "--python-commands",
+        action="store_true",
+        help="serve pdo_listener from the Python executor instead of the native command thread "
+        "(slower; for comparison and diagnosis)",
+    )
     p.set_defaults(func=run)
 
 
@@ -48,7 +54,11 @@ def run(args: argparse.Namespace) -> int:
     node: EtherRosNode | None = None
     try:
         node = EtherRosNode(
-            args.config, args.interface, node_name=args.node_name, command_node=True
+            args.config,
+            args.interface,
+            node_name=args.node_name,
+            command_node=True,
+            native_commands=not args.python_commands,
         )
         if not args.inactive:
             ok, message = node.run_command("start")

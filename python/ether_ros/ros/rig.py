@@ -53,6 +53,7 @@ class RosRig:
         raw: bool = False,
         log_dir: str | Path | None = None,
         client_options: dict[str, Any] | None = None,
+        node_args: list[str] | None = None,
     ) -> None:
         self.config = str(Path(config).resolve())
         self.inactive = inactive
@@ -61,6 +62,7 @@ class RosRig:
         self.node_name = node_name
         self.raw = raw
         self.client_options = dict(client_options or {})
+        self.node_args = list(node_args or [])  # more `ether-ros run` options
         self._tmp = tempfile.TemporaryDirectory(prefix="ether_ros_rig_")
         self.dir = Path(log_dir) if log_dir is not None else Path(self._tmp.name)
         self.veth: VethPair | None = None
@@ -124,6 +126,7 @@ class RosRig:
         ]
         if self.inactive if inactive is None else inactive:
             cmd.append("--inactive")
+        cmd += self.node_args
         with open(self.node_log, "ab") as log:
             self.node_proc = subprocess.Popen(
                 cmd, stdout=log, stderr=subprocess.STDOUT, env=self.env
