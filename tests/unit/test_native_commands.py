@@ -315,3 +315,28 @@ def test_detached_every_request_goes_to_python(rig: tuple[Rig, list[WriteVariabl
     assert r.path.counters()["applied"] == 0
     r.path.close()
     assert not r.path.receiver.is_running()
+
+
+def test_garbage_never_crashes_the_resolver(mixed_bus: tuple[Bus, BusSpec]) -> None:
+    """Bytes from the wire are untrusted: every mutation of a valid message is either decoded
+    and resolved like any request, or refused with ValueError naming what is wrong."""
+    import random
+
+    bus, spec = mixed_bus
+    table = command_table(bus, spec)
+    good = serialize_message(request("front_left_leg", "Kp100_knee", 12.0, request_id=3))
+    rng = random.Random(4)
+    outcomes = {"applied": 0, "deferred": 0, "refused": 0}
+    for _ in range(3000):
+        data = bytearray(good)
+        for _ in range(rng.randint(1, 4)):
+            data[rng.randrange(len(data))] = rng.randrange(256)
+        data = data[: rng.randint(0, len(data))] if rng.random() < 0.3 else data
+        try:
+            out = table.resolve(bytes(data))
+        except ValueError as exc:
+            assert "field" in str(exc) or "encapsulation" in str(exc), exc
+            outcomes["refused"] += 1
+            continue
+        outcomes["deferred" if out is None else "applied"] += 1
+    assert all(outcomes.values()), outcomes
