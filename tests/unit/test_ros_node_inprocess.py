@@ -5,10 +5,12 @@ pair with separate processes."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import threading
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 import rclpy
@@ -26,12 +28,16 @@ pytestmark = [pytest.mark.ros]
 CONFIG = Path(__file__).resolve().parents[2] / "config" / "laelaps.yaml"
 
 
-@pytest.fixture(scope="module")
-def setup() -> Iterator[tuple[EtherRosNode, EtherRosClient, object]]:
+@contextlib.contextmanager
+def running_node(
+    domain_offset: int, **options: Any
+) -> Iterator[tuple[EtherRosNode, EtherRosClient, object]]:
+    """The node on the in-process simulator, spun by an executor thread, and a client; all in a
+    ROS context of their own."""
     context = Context()
-    rclpy.init(context=context, domain_id=domain_for(os.getpid(), 2))
+    rclpy.init(context=context, domain_id=domain_for(os.getpid(), domain_offset))
     net = build_network(load_bus_config(CONFIG))
-    node = EtherRosNode(CONFIG, link=net, context=context)
+    node = EtherRosNode(CONFIG, link=net, context=context, **options)
     executor = MultiThreadedExecutor(num_threads=4, context=context)
     executor.add_node(node)
     thread = threading.Thread(target=executor.spin, daemon=True)
@@ -45,6 +51,12 @@ def setup() -> Iterator[tuple[EtherRosNode, EtherRosClient, object]]:
         node.destroy_node()
         context.try_shutdown()
         thread.join(5)
+
+
+@pytest.fixture(scope="module")
+def setup() -> Iterator[tuple[EtherRosNode, EtherRosClient, object]]:
+    with running_node(2) as running:
+        yield running
 
 
 def echo(client: EtherRosClient, value: float) -> None:
@@ -76,16 +88,7 @@ def test_start_write_echo_and_panic(setup: tuple[EtherRosNode, EtherRosClient, o
 def test_pdo_listener_served_by_python_when_asked() -> None:
     """``native_commands=False`` (``ether-ros run --python-commands``): the Python executor
     serves pdo_listener; writes still reach the slave and invalid ones are refused."""
-    context = Context()
-    rclpy.init(context=context, domain_id=domain_for(os.getpid(), 7))
-    net = build_network(load_bus_config(CONFIG))
-    node = EtherRosNode(CONFIG, link=net, context=context, native_commands=False)
-    executor = MultiThreadedExecutor(num_threads=4, context=context)
-    executor.add_node(node)
-    thread = threading.Thread(target=executor.spin, daemon=True)
-    thread.start()
-    client = EtherRosClient(context=context)
-    try:
+    with running_node(7, native_commands=False) as (node, client, _net):
         assert client.command("start")[0]
         assert node.command_path_counters() == {}
         result = client.wait_result(client.publish_write("hind_right_leg", "Kp100_knee", 6000))
@@ -93,9 +96,3 @@ def test_pdo_listener_served_by_python_when_asked() -> None:
         echo(client, 6000.0)
         result = client.wait_result(client.publish_write("hind_right_leg", "Kp100_knee", 1e6))
         assert not result.success and "outside" in result.message
-    finally:
-        client.close()
-        executor.shutdown(timeout_sec=2)
-        node.destroy_node()
-        context.try_shutdown()
-        thread.join(5)
