@@ -32,10 +32,11 @@ import os
 import random
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 END = "__end__"
-RT_CPU = 1  # config/laelaps.yaml: bus.realtime.cpu
+CONFIG = Path(__file__).resolve().parent.parent / "config" / "laelaps.yaml"  # as bench_ros.py
 CONTROLLER_PRIORITY = 60  # below the engine's RT thread (80), above the node's command path (50)
 MATCH_TIMEOUT_S = 30.0
 
@@ -45,8 +46,11 @@ def publish(slave: str, variable: str) -> int:
     from ether_ros_msgs.msg import WriteVariable
     from rclpy.serialization import serialize_message
 
+    from ether_ros.config import load_bus_config
+    from ether_ros.ros.native_commands import housekeeping_cpus
     from ether_ros.ros.node import QOS_COMMANDS
 
+    rt_cpu = load_bus_config(CONFIG).bus.realtime.cpu
     rclpy.init()
     node = rclpy.create_node("bench_command_sender")
     pub = node.create_publisher(WriteVariable, "pdo_listener", QOS_COMMANDS)
@@ -70,6 +74,7 @@ def publish(slave: str, variable: str) -> int:
         dither_ns = int(float(words[3]) * 1e9) if len(words) > 3 else 0
         controller = len(words) > 4 and words[4] == "controller"
         everywhere = set(os.sched_getaffinity(0))
+        housekeeping = housekeeping_cpus(rt_cpu)
         rng = random.Random(first)  # the same offsets for the same command
         stamps: list[list[int]] = []
         ready: list[bytes] = []
@@ -77,7 +82,7 @@ def publish(slave: str, variable: str) -> int:
             ready = [serialize_message(command(slave, variable, first + i)) for i in range(count)]
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(CONTROLLER_PRIORITY))
             # A controller runs on the housekeeping CPUs, not on the EtherCAT RT thread's.
-            os.sched_setaffinity(0, (everywhere - {RT_CPU}) or everywhere)
+            os.sched_setaffinity(0, housekeeping or everywhere)
         start = time.monotonic_ns() + gap_ns
         for i in range(count):
             # An absolute schedule: a late send does not push the later ones back. Each send is

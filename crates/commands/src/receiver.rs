@@ -68,6 +68,25 @@ pub struct ReceiverCounters {
     pub delivery_count: u64,
 }
 
+impl ReceiverCounters {
+    /// (name, value) of every counter, named as the fields.
+    pub fn pairs(&self) -> [(&'static str, u64); 11] {
+        [
+            ("received", self.received),
+            ("applied", self.applied),
+            ("deferred", self.deferred),
+            ("overflowed", self.overflowed),
+            ("undecodable", self.undecodable),
+            ("rcl_errors", self.rcl_errors),
+            ("publish_errors", self.publish_errors),
+            ("delivery_last_ns", self.delivery_last_ns),
+            ("delivery_max_ns", self.delivery_max_ns),
+            ("delivery_sum_ns", self.delivery_sum_ns),
+            ("delivery_count", self.delivery_count),
+        ]
+    }
+}
+
 #[derive(Default)]
 struct Counters {
     received: AtomicU64,
@@ -187,10 +206,6 @@ impl CommandReceiver {
     /// Stop writing to the engine; returns once no write is in progress.
     pub fn detach(&self) {
         *lock(&self.shared.target) = None;
-    }
-
-    pub fn is_attached(&self) -> bool {
-        lock(&self.shared.target).is_some()
     }
 
     pub fn is_running(&self) -> bool {
@@ -387,9 +402,12 @@ impl Worker {
                 .store(now_ns(), Ordering::Release);
         }
         c.applied.fetch_add(1, Ordering::Relaxed);
-        let answer = std::mem::take(&mut scratch.answer);
-        self.answer(request.request_id, true, &answer, scratch);
-        scratch.answer = answer;
+        self.answer(
+            request.request_id,
+            true,
+            &scratch.answer,
+            &mut scratch.result,
+        );
     }
 
     fn defer(&self, data: &[u8], request_id: u32, scratch: &mut Scratch) {
@@ -404,7 +422,7 @@ impl Worker {
                 request_id,
                 false,
                 "refused: the node's queue of requests for Python is full",
-                scratch,
+                &mut scratch.result,
             );
             return;
         }
@@ -418,19 +436,14 @@ impl Worker {
             .fetch_add(1, Ordering::Relaxed);
     }
 
-    fn answer(&self, request_id: u32, success: bool, message: &str, scratch: &mut Scratch) {
+    /// Publish a WriteResult, serialized into `buffer` (reused).
+    fn answer(&self, request_id: u32, success: bool, message: &str, buffer: &mut Vec<u8>) {
         if self.results == 0 {
             return;
         }
-        encode_write_result(&mut scratch.result, request_id, success, message);
+        encode_write_result(buffer, request_id, success, message);
         // SAFETY: Python keeps the write_results publisher alive until this thread is stopped.
-        let r = unsafe {
-            publish_serialized(
-                &self.rcl,
-                self.results as *const c_void,
-                &mut scratch.result,
-            )
-        };
+        let r = unsafe { publish_serialized(&self.rcl, self.results as *const c_void, buffer) };
         if let Err(e) = r {
             self.failed(
                 &self.shared.counters.publish_errors,

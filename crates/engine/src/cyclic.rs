@@ -50,6 +50,22 @@ pub struct Exchange {
 }
 
 impl Exchange {
+    /// Ok when image bytes `begin..end` lie inside one output run, else the refusal naming
+    /// `what` and the ranges a write may touch.
+    pub fn check_output_span(&self, begin: usize, end: usize, what: &str) -> Result<(), String> {
+        if self
+            .output_runs
+            .iter()
+            .any(|&(o, l)| begin >= o && end <= o + l)
+        {
+            return Ok(());
+        }
+        Err(format!(
+            "{what} is outside the output ranges (offset, length) {:?} of the {}-byte image",
+            self.plan.output_ranges, self.plan.image_len
+        ))
+    }
+
     pub fn new(plan: Plan, layout: &FrameLayout) -> Exchange {
         Exchange {
             output_runs: layout.outputs.clone(),

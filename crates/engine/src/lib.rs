@@ -369,19 +369,12 @@ impl Engine {
     pub fn write_outputs(&self, offset: usize, data: &[u8]) -> Result<()> {
         let ex = self.exchange()?;
         let end = offset.saturating_add(data.len());
-        let inside = ex
-            .output_runs
-            .iter()
-            .any(|&(o, l)| offset >= o && end <= o + l);
-        if !inside {
-            return Err(Error::Invalid(format!(
-                "write of {} byte(s) at image offset {offset} is outside the output ranges \
-                 (offset, length) {:?} of the {}-byte image",
-                data.len(),
-                ex.plan.output_ranges,
-                ex.plan.image_len
-            )));
-        }
+        ex.check_output_span(
+            offset,
+            end,
+            &format!("write of {} byte(s) at image offset {offset}", data.len()),
+        )
+        .map_err(Error::Invalid)?;
         {
             let _w = lock(&self.output_writer);
             ex.outputs.write(offset, data);
@@ -412,15 +405,12 @@ impl Engine {
                 return Err(Error::Invalid(format!("{}: {why}", describe())));
             }
             let (a, b) = f.byte_span().expect("checked by form_error");
-            if !ex.output_runs.iter().any(|&(o, l)| a >= o && b <= o + l) {
-                return Err(Error::Invalid(format!(
-                    "{} covers image bytes {a}..{b}, outside the output ranges (offset, length) \
-                     {:?} of the {}-byte image",
-                    describe(),
-                    ex.plan.output_ranges,
-                    ex.plan.image_len
-                )));
-            }
+            ex.check_output_span(
+                a,
+                b,
+                &format!("{} covers image bytes {a}..{b}, which", describe()),
+            )
+            .map_err(Error::Invalid)?;
             first = first.min(a);
             end = end.max(b);
         }

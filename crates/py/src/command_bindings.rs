@@ -132,10 +132,6 @@ impl PyCommandReceiver {
         py.detach(|| self.inner.detach());
     }
 
-    fn is_attached(&self) -> bool {
-        self.inner.is_attached()
-    }
-
     /// Stop and join the thread (idempotent).
     fn stop(&self, py: Python<'_>) {
         py.detach(|| self.inner.stop());
@@ -172,21 +168,8 @@ impl PyCommandReceiver {
     }
 
     fn counters<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let c = self.inner.counters();
         let d = PyDict::new(py);
-        for (key, value) in [
-            ("received", c.received),
-            ("applied", c.applied),
-            ("deferred", c.deferred),
-            ("overflowed", c.overflowed),
-            ("undecodable", c.undecodable),
-            ("rcl_errors", c.rcl_errors),
-            ("publish_errors", c.publish_errors),
-            ("delivery_last_ns", c.delivery_last_ns),
-            ("delivery_max_ns", c.delivery_max_ns),
-            ("delivery_sum_ns", c.delivery_sum_ns),
-            ("delivery_count", c.delivery_count),
-        ] {
+        for (key, value) in self.inner.counters().pairs() {
             d.set_item(key, value)?;
         }
         Ok(d)

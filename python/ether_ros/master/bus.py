@@ -644,10 +644,15 @@ class Bus:
             raise BusError(f"{s}: re-assigning its station address failed")
 
 
+def output_bit_offset(s: Slave, var: ProcessVariable) -> int:
+    """Where output ``var`` of slave ``s`` starts in the process image, in bits."""
+    assert s.area is not None
+    return int(s.area.output_offset) * 8 + int(var.bit_offset)
+
+
 def _output_field(s: Slave, var: ProcessVariable, raw: int) -> tuple[int, int, int]:
     """The image bit field (bit offset, bit length, raw) of output ``var`` of slave ``s``."""
-    assert s.area is not None
-    return (s.area.output_offset * 8 + var.bit_offset, var.bit_length, raw)
+    return (output_bit_offset(s, var), var.bit_length, raw)
 
 
 def _slave_state(s: Slave, st: AlStatus) -> SlaveState:

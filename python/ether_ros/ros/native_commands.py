@@ -31,6 +31,7 @@ from rclpy.type_support import check_is_valid_msg_type
 
 from ether_ros import _native
 from ether_ros.errors import EtherRosError
+from ether_ros.master.bus import output_bit_offset
 from ether_ros.ros.layout import BusSpec
 
 log = logging.getLogger(__name__)
@@ -86,7 +87,7 @@ def command_table(bus: Any, spec: BusSpec) -> Any:
                     pv.name,
                     pv.index,
                     pv.subindex,
-                    int(area.output_offset) * 8 + int(pv.bit_offset),
+                    output_bit_offset(slave, pv),
                     int(pv.bit_length),
                     kind,
                     float(v.minimum),
@@ -178,16 +179,12 @@ class NativeCommandPath:
             self._release()
             raise CommandPathError(f"starting the native command path: {exc}") from None
         # The same priority for the middleware threads that deliver the commands.
-        self.boosted = raise_middleware_receivers(priority, cpus)
+        raise_middleware_receivers(priority, cpus)
         self._stop = threading.Event()
         self._thread = threading.Thread(
             target=self._serve_deferred, name="ether_ros-deferred", daemon=True
         )
         self._thread.start()
-
-    @property
-    def topic(self) -> str:
-        return str(self._subscription.get_topic_name())
 
     def attach(self, bus: Any, spec: BusSpec) -> None:
         """Write valid requests into ``bus``'s engine from now on."""
