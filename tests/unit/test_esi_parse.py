@@ -222,3 +222,23 @@ def test_missing_esi_file_and_wrong_root(tmp_path: Path) -> None:
     p.write_text("<Foo/>")
     with pytest.raises(ConfigError, match=r"root\.xml:1: <Foo>: root element must be"):
         load_esi(p)
+
+
+def test_profile_numbers_and_state_machine_timeouts(tmp_path: Path) -> None:
+    (leg,) = load_esi(LEG)
+    assert leg.profile_numbers == (5001,)
+    assert leg.timeouts.safeop_op_ms == 10000  # ETG.2000 default: the ESI gives none
+    text = MINIMAL.replace(
+        "<Name>Dev</Name>",
+        "<Name>Dev</Name><Info><StateMachine><Timeout><PreopTimeout>#x7D0</PreopTimeout>"
+        "<SafeopOpTimeout>9000</SafeopOpTimeout></Timeout></StateMachine></Info>"
+        "<Profile><ChannelInfo><ProfileNo>402</ProfileNo></ChannelInfo>"
+        "<ChannelInfo><ProfileNo>402</ProfileNo></ChannelInfo></Profile>",
+        1,
+    )
+    p = tmp_path / "drive.xml"
+    p.write_text(text)
+    (dev,) = load_esi(p)
+    assert dev.profile_numbers == (402, 402)
+    assert (dev.timeouts.preop_ms, dev.timeouts.safeop_op_ms) == (2000, 9000)
+    assert dev.timeouts.back_to_safeop_ms == 200

@@ -148,6 +148,18 @@ class EepromDesc:
 
 
 @dataclass(frozen=True)
+class StateMachineTimeouts:
+    """``<Info><StateMachine><Timeout>`` of a device, in milliseconds (ETG.2000 defaults when the
+    ESI gives none): how long a master waits for a transition, and how long a slave may keep a
+    SAFEOP->OP request pending while it waits for valid outputs."""
+
+    preop_ms: int = 3000
+    safeop_op_ms: int = 10000
+    back_to_init_ms: int = 5000
+    back_to_safeop_ms: int = 200
+
+
+@dataclass(frozen=True)
 class EsiDevice:
     """One ``<Device>`` of an ESI file."""
 
@@ -168,6 +180,10 @@ class EsiDevice:
     tx_pdos: tuple[Pdo, ...]
     objects: tuple[OdObject, ...]
     eeprom: EepromDesc
+    # Device profile numbers (``<Profile><ProfileNo>``, one per ``<ChannelInfo>`` of a
+    # multi-channel device): 402 is a CiA 402 drive, 5001 a modular device (MDP).
+    profile_numbers: tuple[int, ...] = ()
+    timeouts: StateMachineTimeouts = field(default_factory=StateMachineTimeouts)
     source: str = ""  # file the device came from
     line: int = 0
     _od: dict[tuple[int, int], OdEntry] = field(default_factory=dict, repr=False, compare=False)
@@ -475,6 +491,26 @@ def _parse_device(
         if pdo.sm is not None and not 0 <= pdo.sm < len(sms):
             raise ctx.error(el, "PDO names a SyncManager the device does not have", pdo.sm)
 
+    profile_numbers: list[int] = []
+    for prof in _children(dev, "Profile"):
+        for holder in (prof, *_children(prof, "ChannelInfo")):
+            no = _child(holder, "ProfileNo")
+            if no is not None:
+                profile_numbers.append(_int(ctx, no))
+
+    timeouts = StateMachineTimeouts()
+    info = _child(dev, "Info")
+    sm_el = _child(info, "StateMachine") if info is not None else None
+    to_el = _child(sm_el, "Timeout") if sm_el is not None else None
+    if to_el is not None:
+        d = StateMachineTimeouts()
+        timeouts = StateMachineTimeouts(
+            preop_ms=_opt_int(ctx, to_el, "PreopTimeout", d.preop_ms),
+            safeop_op_ms=_opt_int(ctx, to_el, "SafeopOpTimeout", d.safeop_op_ms),
+            back_to_init_ms=_opt_int(ctx, to_el, "BackToInitTimeout", d.back_to_init_ms),
+            back_to_safeop_ms=_opt_int(ctx, to_el, "BackToSafeopTimeout", d.back_to_safeop_ms),
+        )
+
     eeprom = EepromDesc()
     ee = _child(dev, "Eeprom")
     if ee is not None:
@@ -510,6 +546,8 @@ def _parse_device(
         tx_pdos=tuple(tx),
         objects=tuple(objects),
         eeprom=eeprom,
+        profile_numbers=tuple(profile_numbers),
+        timeouts=timeouts,
         source=str(ctx.path),
         line=_line(dev),
     )
