@@ -21,7 +21,9 @@
 //! | `dc_supported` | bool | the ESC has distributed clocks (feature bits 2/3 in 0x0008; default True) |
 //! | `dc_required` | bool | PREOP->SAFEOP refuses (0x0030) unless SYNC0 is active with a cycle time (default False) |
 //! | `mailbox` | dict{rx_offset, rx_size, tx_offset, tx_size} or None | standard mailbox (SM0 = rx, master->slave; SM1 = tx), used when SII words 0x18..=0x1B are zero |
-//! | `pdram_kib` | int | process-data RAM size in KiB (register 0x0006), 1..=60, default 8 |
+//! | `pdram_kib` | int | process-data RAM size in KiB (register 0x0006), 1..=60; default the chip's (ET1100 8, ET1200 1, LAN9252 4) |
+//! | `esc` | str | slave controller chip whose registers the ESC presents: "et1100" (default), "et1200", "lan9252" |
+//! | `safeop_op_timeout_ms` | int | how long a SAFEOP->OP request waits for valid outputs before it is refused (ESI `<SafeopOpTimeout>`, default 10000) |
 
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
@@ -30,6 +32,7 @@ use pyo3::exceptions::{PyIndexError, PyOSError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList};
 
+use ether_ros_sim::chip::EscChip;
 use ether_ros_sim::esc::Esc;
 use ether_ros_sim::faults::Rng;
 use ether_ros_sim::od::{Access, Entry, Object};
@@ -86,6 +89,8 @@ fn parse_spec(spec: &Bound<'_, PyDict>) -> PyResult<SlaveSpec> {
         "dc_required",
         "mailbox",
         "pdram_kib",
+        "esc",
+        "safeop_op_timeout_ms",
     ];
     for k in spec.keys() {
         let k: String = k
@@ -213,6 +218,12 @@ fn parse_spec(spec: &Bound<'_, PyDict>) -> PyResult<SlaveSpec> {
             return Err(bad_key("pdram_kib", "int 1..=60"));
         }
         s.pdram_kib = k;
+    }
+    if let Some(name) = get::<String>(spec, "esc", "str")? {
+        s.esc = EscChip::from_name(&name).map_err(|e| bad_key("esc", &e))?;
+    }
+    if let Some(ms) = get::<u32>(spec, "safeop_op_timeout_ms", "int >= 0")? {
+        s.safeop_op_timeout_ms = ms;
     }
     Ok(s)
 }

@@ -24,10 +24,6 @@ pub const MEM_SIZE: usize = 0x1_0000;
 pub const REGISTER_END: usize = 0x1000;
 pub const N_FMMU: usize = 8;
 pub const N_SM: usize = 8;
-/// ESC type reported in 0x0000 (ET1100 family) and revision/build.
-const ESC_TYPE: u8 = 0x11;
-const ESC_REVISION: u8 = 0x00;
-const ESC_BUILD: u16 = 0x0002;
 /// Default watchdog divider (100 µs units) and process-data watchdog time (100 ms).
 const DEFAULT_WD_DIVIDER: u16 = 0x09C2;
 const DEFAULT_WD_TIME: u16 = 0x03E8;
@@ -120,6 +116,8 @@ pub struct Esc {
     outputs_since_safeop: bool,
     outputs_received: bool,
     pub refuse_op: bool,
+    /// Host time at which a SAFEOP->OP request arrived that waits for valid outputs.
+    op_pending_since: Option<u64>,
     pub mailbox_stalled: bool,
     pub counters: SlaveCounters,
 }
@@ -162,7 +160,12 @@ impl Esc {
         let (def_out, def_in) = if mailbox.is_some() { (2, 3) } else { (0, 1) };
         let out_sm = find(3).unwrap_or(def_out).min(N_SM - 1);
         let in_sm = find(4).unwrap_or(def_in).min(N_SM - 1);
-        let pdram_kib = spec.pdram_kib.clamp(1, 60);
+        let chip = spec.esc.profile();
+        let pdram_kib = if spec.pdram_kib == 0 {
+            chip.ram_kib
+        } else {
+            spec.pdram_kib.clamp(1, 60)
+        };
         let dc = DcClock::new(now, 0, spec.drift_ppm);
         let mut esc = Esc {
             position,
@@ -200,6 +203,7 @@ impl Esc {
             outputs_since_safeop: false,
             outputs_received: false,
             refuse_op: false,
+            op_pending_since: None,
             mailbox_stalled: false,
             counters: SlaveCounters::default(),
             spec,
@@ -247,16 +251,15 @@ impl Esc {
     }
 
     fn power_on_registers(&mut self) {
-        self.mem[0] = ESC_TYPE;
-        self.mem[1] = ESC_REVISION;
-        self.put16(0x0002, ESC_BUILD);
-        self.mem[reg::FMMU_COUNT as usize] = N_FMMU as u8;
-        self.mem[reg::SM_COUNT as usize] = N_SM as u8;
+        let chip = self.spec.esc.profile();
+        self.mem[reg::TYPE as usize] = chip.type_code;
+        self.mem[reg::TYPE as usize + 1] = chip.revision;
+        self.put16(0x0002, chip.build);
+        self.mem[reg::FMMU_COUNT as usize] = chip.fmmus;
+        self.mem[reg::SM_COUNT as usize] = chip.sync_managers;
         self.mem[reg::RAM_SIZE as usize] = ((self.pdram_end - REGISTER_END) / 1024) as u8;
-        // Ports 0 and 1 MII, ports 2 and 3 not implemented.
-        self.mem[reg::PORT_DESC as usize] = 0x0F;
-        let features: u16 = if self.spec.dc_supported { 0x000C } else { 0 };
-        self.put16(reg::FEATURES, features);
+        self.mem[reg::PORT_DESC as usize] = chip.port_descriptor;
+        self.put16(reg::FEATURES, chip.features(self.spec.dc_supported));
         self.put16(reg::WATCHDOG_DIVIDER, DEFAULT_WD_DIVIDER);
         self.put16(reg::WATCHDOG_TIME_PDI, DEFAULT_WD_TIME);
         self.put16(reg::WATCHDOG_TIME_PD, DEFAULT_WD_TIME);
@@ -327,6 +330,16 @@ impl Esc {
     }
 
     /// DL control bit 24: the alias may be used for configured-address commands.
+    /// FMMUs the chip has (0x0004); the registers of the others read 0 and ignore writes.
+    fn fmmu_count(&self) -> usize {
+        (self.mem[reg::FMMU_COUNT as usize] as usize).min(N_FMMU)
+    }
+
+    /// SyncManagers the chip has (0x0005).
+    fn sm_count(&self) -> usize {
+        (self.mem[reg::SM_COUNT as usize] as usize).min(N_SM)
+    }
+
     pub fn alias_enabled(&self) -> bool {
         self.mem[0x0103] & 1 != 0
     }
@@ -570,6 +583,8 @@ impl Esc {
                     let lo = sii_cmd.unwrap_or(0) & 0x00ff;
                     sii_cmd = Some(lo | ((v as u16) << 8));
                 }
+                0x0600..=0x067F if (r - 0x0600) / 16 >= self.fmmu_count() => {}
+                0x0800..=0x083F if (r - 0x0800) / 8 >= self.sm_count() => {}
                 0x0800..=0x083F => {
                     let k = (r - 0x0800) / 8;
                     match (r - 0x0800) % 8 {
@@ -876,7 +891,18 @@ impl Esc {
             return;
         }
         let cur = self.al_state;
+        // Any new request replaces a SAFEOP->OP request still waiting for outputs.
+        let was_pending = self.op_pending_since.take();
         if requested == cur {
+            self.update_al_registers();
+            return;
+        }
+        if (cur, requested) == (SAFEOP, OP) && !self.refuse_op && self.waits_for_outputs() {
+            // As real slave stacks do: the request stays pending (AL status SAFEOP, no error)
+            // until the first valid outputs arrive or the ESI's SAFEOP->OP timeout runs out.
+            // Masters that request OP first and start the cyclic exchange afterwards
+            // (ethercrab) depend on this.
+            self.op_pending_since = Some(was_pending.unwrap_or(self.now));
             self.update_al_registers();
             return;
         }
@@ -1054,10 +1080,42 @@ impl Esc {
         if self.refuse_op {
             return Err(SYNCHRONIZATION_ERROR);
         }
-        if self.out_map.bytes() > 0 && !self.outputs_since_safeop {
+        if self.waits_for_outputs() {
             return Err(NO_VALID_OUTPUTS);
         }
         Ok(())
+    }
+
+    /// The slave has outputs but none arrived since SAFEOP.
+    fn waits_for_outputs(&self) -> bool {
+        self.out_map.bytes() > 0 && !self.outputs_since_safeop
+    }
+
+    /// Is a SAFEOP->OP request waiting for outputs? (for tests and `slave_info`)
+    pub fn op_request_pending(&self) -> bool {
+        self.op_pending_since.is_some()
+    }
+
+    /// A pending SAFEOP->OP request: go to OP once outputs arrived, refuse it when the
+    /// timeout ran out (AL status 0x0019 "no valid outputs", emergency 0xA001).
+    fn resolve_pending_op(&mut self) {
+        let Some(since) = self.op_pending_since else {
+            return;
+        };
+        if self.al_state != reg::al::SAFEOP || self.al_error {
+            self.op_pending_since = None;
+            return;
+        }
+        if !self.waits_for_outputs() {
+            self.op_pending_since = None;
+            self.enter_state(reg::al::OP);
+            return;
+        }
+        let timeout = u64::from(self.spec.safeop_op_timeout_ms) * 1_000_000;
+        if self.now.saturating_sub(since) > timeout {
+            self.op_pending_since = None;
+            self.fail_with_emergency(reg::al_code::NO_VALID_OUTPUTS, EMERGENCY_SAFEOP_TO_OP);
+        }
     }
 
     // ------------------------------------------------------------------ mailbox
@@ -1262,6 +1320,9 @@ impl Esc {
         }
         self.sync0_next = sync_local.map(|n| n.wrapping_add(offset));
         self.check_watchdog();
+        // Time passes for a pending SAFEOP->OP request too (its timeout), before the frame's
+        // datagrams read the AL status.
+        self.resolve_pending_op();
     }
 
     fn watchdog_ns(&self) -> u64 {
@@ -1303,6 +1364,7 @@ impl Esc {
         if !self.sync0_active() {
             self.latch_outputs();
         }
+        self.resolve_pending_op();
         self.service_mailbox();
     }
 

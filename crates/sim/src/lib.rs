@@ -1,6 +1,7 @@
 //! The virtual EtherCAT network: a line of virtual slave controllers (ESCs) that process real
 //! frames, with device applications (firmware models) and fault injection.
 
+pub mod chip;
 pub mod coe;
 pub mod dc;
 pub mod device;

@@ -226,8 +226,10 @@ impl Network {
         if self.faults.maybe_corrupt(&mut self.rng, frame) {
             self.stats.frames_corrupted += 1;
         }
-        // The return path marks the frame: flip the locally administered bit of the source.
-        frame[6] ^= 0x02;
+        // Every frame that passed an EtherCAT processing unit has the locally administered bit
+        // of its source MAC set (SOURCE_MAC[1] = 1, ESC datasheet section I, "Frame
+        // processing"): set, not toggled, so a master may send with it set already.
+        frame[6] |= 0x02;
         self.stats.frames_answered += 1;
         true
     }

@@ -1,6 +1,7 @@
 //! Description of one virtual slave, built by the Python front from the bus config and the ESI
 //! (see `docs/simulator.md` for the dict keys that map onto these fields).
 
+use crate::chip::EscChip;
 use crate::od::{Entry, Object};
 
 /// Standard (or bootstrap) mailbox placement.
@@ -32,7 +33,13 @@ pub struct SlaveSpec {
     pub dc_required: bool,
     /// Standard mailbox; when None it is taken from SII words 0x18..=0x1B (if non-zero).
     pub mailbox: Option<MailboxSpec>,
+    /// Process-data RAM in KiB; 0 means the chip's own size (register 0x0006).
     pub pdram_kib: u8,
+    /// The slave controller chip whose registers the ESC presents.
+    pub esc: EscChip,
+    /// How long a SAFEOP->OP request stays pending while the slave waits for valid outputs
+    /// (the ESI's `<SafeopOpTimeout>`), before it is refused with AL status 0x0019.
+    pub safeop_op_timeout_ms: u32,
 }
 
 impl Default for SlaveSpec {
@@ -54,7 +61,9 @@ impl Default for SlaveSpec {
             dc_supported: true,
             dc_required: false,
             mailbox: None,
-            pdram_kib: 8,
+            pdram_kib: 0,
+            esc: EscChip::Et1100,
+            safeop_op_timeout_ms: 10_000,
         }
     }
 }

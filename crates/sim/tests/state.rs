@@ -101,12 +101,20 @@ fn op_needs_valid_outputs_and_exchanges_process_data_in_free_run() {
     assert_eq!(xfer(&mut net, Command::Lrw, 0x1_0000, &[0; 12]).1, 0);
     to_safeop(&mut net, station(0), 0x1_0000);
     to_safeop(&mut net, station(1), 0x1_0006);
+    // OP requested before any outputs: the request stays pending (SAFEOP, no error) until
+    // the SAFEOP->OP timeout, then it is refused with 0x0019.
     fpwr(&mut net, station(0), 0x0120, &[8, 0]);
+    assert_eq!(al_status(&mut net, station(0)), (0x04, 0), "pending");
+    assert!(net.slaves[0].op_request_pending());
+    net.advance_clock(9_000_000_000);
+    assert_eq!(al_status(&mut net, station(0)), (0x04, 0), "still pending");
+    net.advance_clock(1_100_000_000);
     assert_eq!(
         al_status(&mut net, station(0)),
         (0x14, 0x0019),
-        "no outputs written yet"
+        "no outputs within the SAFEOP->OP timeout"
     );
+    assert!(!net.slaves[0].op_request_pending());
     fpwr(&mut net, station(0), 0x0120, &[0x14, 0]);
     // In SAFEOP the inputs are valid and outputs accepted: WKC 3 per slave.
     let mut frame = [0u8; 12];
@@ -135,6 +143,45 @@ fn op_needs_valid_outputs_and_exchanges_process_data_in_free_run() {
     assert_eq!(al_status(&mut net, station(1)), (2, 0));
     fpwr(&mut net, station(0), 0x0120, &[1, 0]);
     assert_eq!(al_status(&mut net, station(0)), (1, 0));
+}
+
+#[test]
+fn op_requested_before_outputs_is_entered_when_the_first_outputs_arrive() {
+    let mut net = net_with(1);
+    assign_addresses(&mut net);
+    let st = station(0);
+    to_preop(&mut net, st);
+    to_safeop(&mut net, st, 0x1_0000);
+    // As ethercrab does it: request OP first, then start the cyclic exchange.
+    fpwr(&mut net, st, 0x0120, &[8, 0]);
+    assert_eq!(al_status(&mut net, st), (0x04, 0));
+    // Another request replaces the pending one...
+    fpwr(&mut net, st, 0x0120, &[2, 0]);
+    assert_eq!(al_status(&mut net, st), (0x02, 0));
+    assert!(!net.slaves[0].op_request_pending());
+    to_safeop(&mut net, st, 0x1_0000);
+    fpwr(&mut net, st, 0x0120, &[8, 0]);
+    net.advance_clock(5_000_000_000);
+    // ...and the first outputs complete it, within the same frame.
+    xfer(&mut net, Command::Lrw, 0x1_0000, &[0; 6]);
+    assert_eq!(al_status(&mut net, st), (0x08, 0));
+}
+
+#[test]
+fn esi_timeout_bounds_the_pending_request() {
+    let mut spec = io_spec();
+    spec.safeop_op_timeout_ms = 50;
+    let mut net = ether_ros_sim::Network::with_manual_clock(1_000_000_000);
+    net.add_slave(spec).unwrap();
+    assign_addresses(&mut net);
+    let st = station(0);
+    to_preop(&mut net, st);
+    to_safeop(&mut net, st, 0x1_0000);
+    fpwr(&mut net, st, 0x0120, &[8, 0]);
+    net.advance_clock(40_000_000);
+    assert_eq!(al_status(&mut net, st), (0x04, 0));
+    net.advance_clock(20_000_000);
+    assert_eq!(al_status(&mut net, st), (0x14, 0x0019));
 }
 
 fn to_op(net: &mut ether_ros_sim::Network, st: u16) {

@@ -144,6 +144,8 @@ class Joint(_Model):
 
 class SimConfig(_Model):
     device: Literal["laelaps_leg", "generic_io", "none"] | None = None
+    # The slave controller chip whose registers the virtual slave presents (docs/simulator.md).
+    esc: Literal["et1100", "et1200", "lan9252"] = "et1100"
     params: dict[str, float] = Field(default_factory=dict)
     drift_ppm: float = Field(default=0.0, ge=-1000.0, le=1000.0)
     delay_ns: int = Field(default=0, ge=0, le=1_000_000)

@@ -43,6 +43,7 @@ def device_spec(
     serial: int = 0,
     drift_ppm: float = 0.0,
     delay_ns: int = 500,
+    esc: str = "et1100",
 ) -> dict[str, Any]:
     """The ``add_slave`` spec of one slave running ``device``."""
     objects = [(o.index, o.name, o.object_code) for o in device.objects]
@@ -79,7 +80,8 @@ def device_spec(
         "dc_supported": device.dc_supported,
         "dc_required": device.dc_required,
         "mailbox": mailbox_spec(device),
-        "pdram_kib": 8,
+        "esc": esc,
+        "safeop_op_timeout_ms": device.timeouts.safeop_op_ms,
     }
 
 
@@ -101,6 +103,7 @@ def slave_spec(slave: SlaveConfig, position: int) -> dict[str, Any]:
         serial=serial,
         drift_ppm=slave.sim.drift_ppm,
         delay_ns=slave.sim.delay_ns,
+        esc=slave.sim.esc,
     )
 
 

@@ -133,7 +133,7 @@ pub fn try_xfer(
     }
     assert_eq!(
         buf[6],
-        wire::MASTER_MAC[0] ^ 0x02,
+        wire::MASTER_MAC[0] | 0x02,
         "source MAC marked by the return path"
     );
     let addr = u32::from_le_bytes(buf[slot.header + 2..slot.header + 6].try_into().unwrap());
