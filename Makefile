@@ -23,6 +23,7 @@ lint: bootstrap
 	$(VENV)/bin/mypy
 	cargo fmt --all -- --check
 	cargo clippy --workspace --all-targets -q -- -D warnings
+	cd tests/ethercrab_probe && cargo fmt -- --check && cargo clippy --release --locked -q -- -D warnings
 
 test-rust:
 	cargo test --workspace -q
