@@ -24,7 +24,7 @@ from pydantic import (
 )
 
 from ether_ros.config import types as dt
-from ether_ros.config.esi import EsiDevice, load_esi
+from ether_ros.config.esi import EsiDevice, esi_files, load_esi
 from ether_ros.config.process import ProcessLayout, ProcessValueError
 from ether_ros.config.yamlsrc import KeyPath, SourceMap, load_yaml
 from ether_ros.errors import ConfigError
@@ -319,7 +319,7 @@ def _resolve(cfg: BusConfig, file: Path, smap: SourceMap) -> None:
     for i, item in enumerate(cfg.esi):
         p = (base / item).resolve() if not Path(item).is_absolute() else Path(item)
         if p.is_dir():
-            files = sorted(p.glob("*.xml"))
+            files = esi_files(p)
             if not files:
                 raise smap.error(("esi", i), "directory holds no *.xml ESI files", item)
         elif p.is_file():
@@ -444,6 +444,13 @@ def _resolve_slave(
         if len(set(chosen)) != len(chosen):
             raise err((*at, "pdo_assign", kind), "PDO assigned twice", chosen)
         for p in pdos:
+            if p.index in chosen:
+                clash = sorted(set(p.excludes) & set(chosen))
+                if clash:
+                    raise err((*at, "pdo_assign", kind),
+                              f"PDO {p.index:#06x} excludes {', '.join(f'{x:#06x}' for x in clash)}"
+                              " (ESI <Exclude>): assign one of them",
+                              [f"{x:#06x}" for x in chosen])  # fmt: skip
             if p.mandatory and p.index not in chosen and p.sm is not None:
                 raise err((*at, "pdo_assign", kind), f"PDO {p.index:#06x} is mandatory",
                           [f"{x:#06x}" for x in chosen])  # fmt: skip

@@ -100,6 +100,8 @@ class Pdo:
     fixed: bool = False
     mandatory: bool = False
     excludes: tuple[int, ...] = ()
+    # A virtual PDO exists only to be configured (PDO configuration), not in the default image.
+    virtual: bool = False
 
     @property
     def bit_length(self) -> int:
@@ -148,6 +150,28 @@ class EepromDesc:
 
 
 @dataclass(frozen=True)
+class EsiModule:
+    """One ``<Module>`` of a modular device (MDP 5001): what a slot can hold."""
+
+    type_name: str
+    ident: int  # ModuleIdent: the value the device reports for this module in 0xF050
+    name: str
+    rx_pdos: tuple[Pdo, ...] = ()
+    tx_pdos: tuple[Pdo, ...] = ()
+
+
+@dataclass(frozen=True)
+class EsiSlot:
+    """One ``<Slot>`` of a modular device: which modules it takes and which it holds by default."""
+
+    name: str
+    min_instances: int
+    max_instances: int
+    module_idents: tuple[int, ...]
+    default_ident: int | None
+
+
+@dataclass(frozen=True)
 class StateMachineTimeouts:
     """``<Info><StateMachine><Timeout>`` of a device, in milliseconds (ETG.2000 defaults when the
     ESI gives none): how long a master waits for a transition, and how long a slave may keep a
@@ -184,6 +208,11 @@ class EsiDevice:
     # multi-channel device): 402 is a CiA 402 drive, 5001 a modular device (MDP).
     profile_numbers: tuple[int, ...] = ()
     timeouts: StateMachineTimeouts = field(default_factory=StateMachineTimeouts)
+    # Modular devices (MDP 5001): the modules of the file and the device's slots.
+    modules: tuple[EsiModule, ...] = ()
+    slots: tuple[EsiSlot, ...] = ()
+    # Names of the ``<AlternativeSmMapping>`` entries (alternative PDO-to-SM assignments).
+    alternative_sm_mappings: tuple[str, ...] = ()
     source: str = ""  # file the device came from
     line: int = 0
     _od: dict[tuple[int, int], OdEntry] = field(default_factory=dict, repr=False, compare=False)
@@ -328,6 +357,13 @@ def _attr_bool(el: etree._Element, attr: str, default: bool = False) -> bool:
     return raw.strip().lower() in ("1", "true", "yes")
 
 
+# Largest object, entry or array the parser accepts: a CoE object is at most 65535 bytes (the
+# SDO size field of segmented transfers is 32 bits, but no ESC mailbox or EEPROM holds more), an
+# array has at most 255 elements (subindex 1..255).
+MAX_OBJECT_BITS = 8 * 65535
+MAX_SUBINDEX = 255
+
+
 @dataclass
 class _TypeDef:
     """A ``<DataType>`` of the dictionary."""
@@ -346,10 +382,7 @@ def load_esi(path: str | Path) -> list[EsiDevice]:
     ctx = _Ctx(p)
     if not p.is_file():
         raise ConfigError(f"{p}: ESI file not found")
-    try:
-        tree = etree.parse(str(p), etree.XMLParser(remove_comments=True, resolve_entities=False))
-    except etree.XMLSyntaxError as exc:
-        raise ConfigError(f"{p}:{exc.lineno}: not well-formed XML: {exc.msg}") from None
+    tree = _parse_xml(p)
     root = tree.getroot()
     if _local(root) != "EtherCATInfo":
         raise ctx.error(root, "root element must be <EtherCATInfo>", _local(root))
@@ -369,8 +402,9 @@ def load_esi(path: str | Path) -> list[EsiDevice]:
     devices_el = _child(desc, "Devices")
     if devices_el is None:
         raise ctx.error(desc, "missing <Devices>")
+    modules = _parse_modules(ctx, desc)
     devices = [
-        _parse_device(ctx, d, vendor_id, vendor_name, groups)
+        _parse_device(ctx, d, vendor_id, vendor_name, groups, modules)
         for d in _children(devices_el, "Device")
     ]
     if not devices:
@@ -378,13 +412,92 @@ def load_esi(path: str | Path) -> list[EsiDevice]:
     return devices
 
 
+def _parse_xml(path: Path) -> etree._ElementTree:
+    """Parse without entity expansion, DTD loading or network access (a hostile ESI must not
+    grow without bounds or reach out), and refuse any document type declaration: no vendor ESI
+    has one, and it is the way in for entity attacks."""
+    parser = etree.XMLParser(
+        remove_comments=True,
+        resolve_entities=False,
+        load_dtd=False,
+        no_network=True,
+        huge_tree=False,
+    )
+    try:
+        tree = etree.parse(str(path), parser)
+    except etree.XMLSyntaxError as exc:
+        raise ConfigError(f"{path}:{exc.lineno}: not well-formed XML: {exc.msg}") from None
+    if tree.docinfo.doctype or tree.docinfo.internalDTD is not None:
+        raise ConfigError(
+            f"{path}:1: <!DOCTYPE>: document type declarations (DTD, entities) are not"
+            " supported in an ESI"
+        )
+    return tree
+
+
+def _parse_modules(ctx: _Ctx, desc: etree._Element) -> dict[int, EsiModule]:
+    """``<Descriptions><Modules>`` of a modular device file, by ModuleIdent."""
+    modules: dict[int, EsiModule] = {}
+    mods_el = _child(desc, "Modules")
+    if mods_el is None:
+        return modules
+    for m in _children(mods_el, "Module"):
+        type_el = _child(m, "Type")
+        if type_el is None or not _text(type_el):
+            raise ctx.error(m, "module without <Type>")
+        ident = _attr_int(ctx, type_el, "ModuleIdent", None)
+        if ident is None:
+            raise ctx.error(type_el, "missing attribute ModuleIdent")
+        od = {(e.index, e.subindex): e for o in _parse_dictionary(ctx, m) for e in o.entries}
+        modules[ident] = EsiModule(
+            type_name=_text(type_el),
+            ident=ident,
+            name=_text(_child(m, "Name")) or _text(type_el),
+            rx_pdos=tuple(_parse_pdo(ctx, x, "rx", od) for x in _children(m, "RxPdo")),
+            tx_pdos=tuple(_parse_pdo(ctx, x, "tx", od) for x in _children(m, "TxPdo")),
+        )
+    return modules
+
+
+def _parse_slots(
+    ctx: _Ctx, dev: etree._Element, modules: dict[int, EsiModule]
+) -> tuple[EsiSlot, ...]:
+    slots_el = _child(dev, "Slots")
+    if slots_el is None:
+        return ()
+    slots: list[EsiSlot] = []
+    for sl in _children(slots_el, "Slot"):
+        idents: list[int] = []
+        default: int | None = None
+        for mi in _children(sl, "ModuleIdent"):
+            ident = _int(ctx, mi)
+            if modules and ident not in modules:
+                raise ctx.error(mi, "slot names a module the file does not describe", f"{ident:#x}")
+            idents.append(ident)
+            if _attr_bool(mi, "Default"):
+                default = ident
+        # Slots may also accept whole classes of modules (<ModuleClass>): those add no ident.
+        slots.append(
+            EsiSlot(
+                name=_text(_child(sl, "Name")),
+                min_instances=_attr_int(ctx, sl, "MinInstances", 0) or 0,
+                max_instances=_attr_int(ctx, sl, "MaxInstances", 1) or 0,
+                module_idents=tuple(idents),
+                default_ident=default,
+            )
+        )
+    return tuple(slots)
+
+
 def load_esi_paths(paths: Iterable[str | Path]) -> list[EsiDevice]:
-    """All devices of the given ESI files and directories (``*.xml`` in them, sorted)."""
+    """All devices of the given ESI files and directories (``*.xml`` in them, sorted; a
+    directory's dictionary files — root ``<Dictionary>``, referenced by a ``DictionaryFile`` —
+    are not ESI files of their own and are passed over)."""
     out: list[EsiDevice] = []
     for item in paths:
         p = Path(item)
         if p.is_dir():
-            for f in sorted(p.glob("*.xml")):
+            for f in esi_files(p):
                 out.extend(load_esi(f))
         elif p.is_file():
             out.extend(load_esi(p))
@@ -393,12 +506,29 @@ def load_esi_paths(paths: Iterable[str | Path]) -> list[EsiDevice]:
     return out
 
 
+def esi_files(directory: Path) -> list[Path]:
+    """The ESI files of a directory: ``*.xml`` sorted, without dictionary files (root
+    ``<Dictionary>``, referenced by a device's ``DictionaryFile``)."""
+    return [f for f in sorted(directory.glob("*.xml")) if _root_name(f) != "Dictionary"]
+
+
+def _root_name(path: Path) -> str:
+    """The root element's name, read without parsing the whole file."""
+    try:
+        for _, el in etree.iterparse(str(path), events=("start",), resolve_entities=False):
+            return _local(el)
+    except etree.XMLSyntaxError:
+        pass
+    return ""
+
+
 def _parse_device(
     ctx: _Ctx,
     dev: etree._Element,
     vendor_id: int,
     vendor_name: str,
     groups: dict[str, str],
+    modules: dict[int, EsiModule],
 ) -> EsiDevice:
     type_el = _child(dev, "Type")
     if type_el is None:
@@ -477,7 +607,7 @@ def _parse_device(
                 )
             )
 
-    objects = _parse_dictionary(ctx, dev)
+    objects = _parse_dictionary(ctx, dev, _dictionary_file_of(ctx, dev))
     od = {(e.index, e.subindex): e for o in objects for e in o.entries}
     rx = [_parse_pdo(ctx, p, "rx", od) for p in _children(dev, "RxPdo")]
     tx = [_parse_pdo(ctx, p, "tx", od) for p in _children(dev, "TxPdo")]
@@ -548,6 +678,11 @@ def _parse_device(
         eeprom=eeprom,
         profile_numbers=tuple(profile_numbers),
         timeouts=timeouts,
+        modules=tuple(modules.values()) if _child(dev, "Slots") is not None else (),
+        slots=_parse_slots(ctx, dev, modules),
+        alternative_sm_mappings=tuple(
+            _text(_child(a, "Name")) for a in _children(dev, "AlternativeSmMapping")
+        ),
         source=str(ctx.path),
         line=_line(dev),
     )
@@ -592,6 +727,11 @@ def _parse_pdo(
         code = 0
         if type_el is not None:
             t = dt.esi_type(type_name)
+            odent = od.get((idx, sub))
+            if t is None and odent is not None and odent.type_name == type_name:
+                # A vendor type name (a DataType of the dictionary) that the mapped object uses
+                # too: the object knows its basic type.
+                t = dt.BY_CODE.get(odent.data_type)
             if t is None:
                 raise ctx.error(type_el, "unknown data type", type_name)
             if t.bit_length and t.bit_length != bits:
@@ -612,16 +752,49 @@ def _parse_pdo(
         sm=sm,
         fixed=_attr_bool(el, "Fixed"),
         mandatory=_attr_bool(el, "Mandatory"),
-        excludes=tuple(parse_esi_int(_text(x)) for x in _children(el, "Exclude")),
+        excludes=tuple(_int(ctx, x) for x in _children(el, "Exclude")),
+        virtual=_attr_bool(el, "Virtual"),
     )
 
 
-def _parse_dictionary(ctx: _Ctx, dev: etree._Element) -> list[OdObject]:
+def _dictionary_file_of(ctx: _Ctx, dev: etree._Element) -> tuple[_Ctx, etree._Element] | None:
+    """A ``<Profile><DictionaryFile>``: the dictionary kept in a file of its own, next to the
+    ESI (its first ``<Dictionary>`` element is used)."""
+    for prof in _children(dev, "Profile"):
+        ref = _child(prof, "DictionaryFile")
+        if ref is None:
+            continue
+        name = _text(ref)
+        target = (ctx.path.parent / name).resolve()
+        if not name or ctx.path.parent.resolve() not in target.parents:
+            raise ctx.error(ref, "DictionaryFile must name a file next to the ESI", name)
+        if not target.is_file():
+            raise ctx.error(ref, "DictionaryFile not found", str(target))
+        root = _parse_xml(target).getroot()
+        found = (
+            root
+            if _local(root) == "Dictionary"
+            else next(
+                (e for e in root.iter() if isinstance(e.tag, str) and _local(e) == "Dictionary"),
+                None,
+            )
+        )
+        if found is None:
+            raise ctx.error(ref, "DictionaryFile holds no <Dictionary>", name)
+        return _Ctx(target), found
+    return None
+
+
+def _parse_dictionary(
+    ctx: _Ctx, dev: etree._Element, external: tuple[_Ctx, etree._Element] | None = None
+) -> list[OdObject]:
     dictionary = None
     for prof in _children(dev, "Profile"):
         dictionary = _child(prof, "Dictionary")
         if dictionary is not None:
             break
+    if dictionary is None and external is not None:
+        ctx, dictionary = external
     if dictionary is None:
         return []
     typedefs: dict[str, _TypeDef] = {}
@@ -635,9 +808,15 @@ def _parse_dictionary(ctx: _Ctx, dev: etree._Element) -> list[OdObject]:
             array = None
             if ai is not None:
                 array = (_opt_int(ctx, ai, "LBound", 0), _int(ctx, ai, name="Elements"))
+                if array[1] < 0 or array[1] > 0xFFFF or array[0] < 0:
+                    raise ctx.error(ai, "array bounds out of range (0..65535 elements)", array)
+            bit_size = _opt_int(ctx, d, "BitSize", 0)
+            if not 0 <= bit_size <= MAX_OBJECT_BITS:
+                raise ctx.error(d, f"BitSize out of range (0..{MAX_OBJECT_BITS})", bit_size)
+            _check_subitem_extent(ctx, d, bit_size)
             typedefs[name] = _TypeDef(
                 name=name,
-                bit_size=_opt_int(ctx, d, "BitSize", 0),
+                bit_size=bit_size,
                 base_type=_text(_child(d, "BaseType")),
                 subitems=list(_children(d, "SubItem")),
                 array=array,
@@ -655,6 +834,24 @@ def _parse_dictionary(ctx: _Ctx, dev: etree._Element) -> list[OdObject]:
         seen.add(obj.index)
         objects.append(obj)
     return objects
+
+
+def _check_subitem_extent(ctx: _Ctx, d: etree._Element, bit_size: int) -> None:
+    """A subitem that ends beyond its DataType's BitSize is an inconsistent ESI (gaps between
+    subitems are fine: vendors align entries with BitOffs)."""
+    if not bit_size:
+        return
+    for si in _children(d, "SubItem"):
+        offs = _child(si, "BitOffs")
+        if offs is None:
+            continue
+        end = _int(ctx, offs) + _opt_int(ctx, si, "BitSize", 0)
+        if end > bit_size:
+            raise ctx.error(
+                si,
+                f"subitem ends at bit {end}, beyond its DataType's BitSize {bit_size}",
+                _text(_child(si, "Name")),
+            )
 
 
 def _flags(el: etree._Element | None, access: str, mapping: str) -> tuple[str, str]:
@@ -711,6 +908,8 @@ def _parse_object(ctx: _Ctx, o: etree._Element, typedefs: dict[str, _TypeDef]) -
     if type_el is None or not type_name:
         raise ctx.error(o, "object without <Type>", f"{index:#06x}")
     bit_size = _opt_int(ctx, o, "BitSize", 0)
+    if not 0 <= bit_size <= MAX_OBJECT_BITS:
+        raise ctx.error(o, f"BitSize out of range (0..{MAX_OBJECT_BITS})", bit_size)
     access, mapping = _flags(o, "ro", "")
     info = _child(o, "Info")
     td = typedefs.get(type_name)
@@ -738,29 +937,23 @@ def _parse_object(ctx: _Ctx, o: etree._Element, typedefs: dict[str, _TypeDef]) -
     object_code = 9
 
     def add(sub: int, ename: str, tname: str, bits: int, el: etree._Element, pos: int) -> None:
-        t = dt.esi_type(tname)
-        if t is None:
-            inner = typedefs.get(tname)
-            t = dt.esi_type(inner.base_type) if inner is not None else None
-            if t is None:
-                raise ctx.error(el, "unknown data type", tname)
-        if not bits:
-            bits = t.bit_length
+        if not 0 <= sub <= MAX_SUBINDEX:
+            raise ctx.error(el, f"subindex out of range (0..{MAX_SUBINDEX})", sub)
+        code, bits = _entry_type(ctx, el, tname, bits, typedefs)
         a, m = _flags(el, access, mapping)
         sub_info_el = info_by_name.get(ename)
         if sub_info_el is None and pos < len(info_subs):
             sub_info_el = info_subs[pos]
         sub_info = None if sub_info_el is None else _child(sub_info_el, "Info")
         entries.append(
-            OdEntry(
-                index, sub, ename, t.code, tname, bits, a, m, _default(ctx, sub_info, bits, t.code)
-            )
+            OdEntry(index, sub, ename, code, tname, bits, a, m, _default(ctx, sub_info, bits, code))
         )
 
     if td.array is not None and not td.subitems:
         # An array type used directly: subindex 0 holds the count, elements follow.
         object_code = 8
         lb, n = td.array
+        _check_array(ctx, td.el, lb, n)
         entries.append(
             OdEntry(index, 0, "SubIndex 000", dt.UINT8.code, "USINT", 8, "ro", "", bytes([n]))
         )
@@ -777,17 +970,20 @@ def _parse_object(ctx: _Ctx, o: etree._Element, typedefs: dict[str, _TypeDef]) -
             stype = _text(_child(si, "Type"))
             sbits = _opt_int(ctx, si, "BitSize", 0)
             inner = typedefs.get(stype)
-            if inner is not None and inner.array is not None:
-                # "Elements" of an array: one subindex per element.
+            sub_el = _child(si, "SubIdx")
+            if inner is not None and inner.array is not None and sub_el is None:
+                # "Elements" of an array object (no SubIdx of its own): one subindex per
+                # element. An array-typed subitem *with* a SubIdx is one subindex holding the
+                # whole array (e.g. an ARRAY [0..511] OF BYTE inside a record).
                 object_code = 8
                 lb, n = inner.array
+                _check_array(ctx, si, lb, n)
                 ebits = sbits // n if sbits and n else 0
                 for k in range(n):
                     sub = lb + k
                     add(sub, f"SubIndex {sub:03d}", inner.base_type, ebits, si, pos)
                     pos += 1
                 continue
-            sub_el = _child(si, "SubIdx")
             sub = pos if sub_el is None else _int(ctx, sub_el)
             add(sub, sname, stype, sbits, si, pos)
             pos += 1
@@ -795,3 +991,41 @@ def _parse_object(ctx: _Ctx, o: etree._Element, typedefs: dict[str, _TypeDef]) -
     if len(set(subs)) != len(subs):
         raise ctx.error(o, "duplicate subindex in object", f"{index:#06x}")
     return OdObject(index, name, object_code, type_name, bit_size or td.bit_size, tuple(entries))
+
+
+def _check_array(ctx: _Ctx, el: etree._Element, lower: int, elements: int) -> None:
+    if lower + elements - 1 > MAX_SUBINDEX:
+        raise ctx.error(
+            el,
+            f"array of {elements} elements from subindex {lower} does not fit in subindices"
+            f" 1..{MAX_SUBINDEX}",
+        )
+
+
+def _entry_type(
+    ctx: _Ctx, el: etree._Element, tname: str, bits: int, typedefs: dict[str, _TypeDef]
+) -> tuple[int, int]:
+    """(data type code, bit length) of one subindex of type ``tname``. Basic types give their
+    code; a byte array or string gives OCTET_STRING/STRING sized by BitSize; any other
+    structured type (a nested record, an array of words) is one opaque value (code 0) of its
+    BitSize, read and written as bytes."""
+    if not 0 <= bits <= MAX_OBJECT_BITS:
+        raise ctx.error(el, f"BitSize out of range (0..{MAX_OBJECT_BITS})", bits)
+    t = dt.esi_type(tname)
+    if t is not None:
+        return t.code, bits or t.bit_length
+    inner = typedefs.get(tname)
+    if inner is None:
+        raise ctx.error(el, "unknown data type", tname)
+    size = bits or inner.bit_size
+    if inner.array is not None:
+        elem = dt.esi_type(inner.base_type)
+        if elem is not None and elem.bit_length == 8 and elem.kind in ("uint", "int"):
+            return dt.OCTET_STRING.code, size
+        return 0, size
+    if inner.subitems:
+        return 0, size
+    base = dt.esi_type(inner.base_type)
+    if base is None:
+        raise ctx.error(el, "unknown data type", tname)
+    return base.code, size or base.bit_length

@@ -50,6 +50,11 @@ REAL64 = DataType(0x0011, "real64", 64, "real")
 INT64 = DataType(0x0015, "int64", 64, "int")
 UINT24 = DataType(0x0016, "uint24", 24, "uint")
 UINT64 = DataType(0x001B, "uint64", 64, "uint")
+UNICODE_STRING = DataType(0x000B, "unicode_string", 0, "bytes")
+# BITARR8/16/32 (ETG.1000.6 0x2D..0x2F): bit arrays, handled as unsigned integers.
+BITARR8 = DataType(0x002D, "bitarr8", 8, "uint")
+BITARR16 = DataType(0x002E, "bitarr16", 16, "uint")
+BITARR32 = DataType(0x002F, "bitarr32", 32, "uint")
 # BIT1..BIT8 (ETG.1000.6 0x30..0x37): unsigned bit fields.
 BITS = {n: DataType(0x002F + n, f"bit{n}", n, "uint") for n in range(1, 9)}
 
@@ -64,6 +69,10 @@ ALL_TYPES: tuple[DataType, ...] = (
     REAL32,
     STRING,
     OCTET_STRING,
+    UNICODE_STRING,
+    BITARR8,
+    BITARR16,
+    BITARR32,
     INT24,
     REAL64,
     INT64,
@@ -112,8 +121,16 @@ _ESI_NAMES: dict[str, DataType] = {
     "STRING": STRING,
     "VISIBLE_STRING": STRING,
     "OCTET_STRING": OCTET_STRING,
+    "UNICODE_STRING": UNICODE_STRING,
+    "BITARR8": BITARR8,
+    "BITARR16": BITARR16,
+    "BITARR32": BITARR32,
 }
-_SIZED = re.compile(r"^(STRING|OCTET_STRING|ARRAY OF BYTE)\s*\(\s*(\d+)\s*\)$")
+_SIZED = re.compile(
+    r"^(STRING|VISIBLE_STRING|OCTET_STRING|UNICODE_STRING|ARRAY OF BYTE)\s*\(\s*(\d+)\s*\)$"
+)
+# "ARRAY [0..511] OF BYTE", the spelling several vendors use for byte arrays.
+_BYTE_ARRAY = re.compile(r"^ARRAY\s*\[\s*\d+\s*\.\.\s*\d+\s*\]\s*OF\s*(BYTE|USINT|UINT8)$")
 _BITN = re.compile(r"^BIT([1-8])$")
 
 
@@ -126,7 +143,12 @@ def esi_type(name: str) -> DataType | None:
     if m := _BITN.match(key):
         return BITS[int(m.group(1))]
     if m := _SIZED.match(key):
-        return STRING if m.group(1) == "STRING" else OCTET_STRING
+        kind = m.group(1)
+        if kind in ("STRING", "VISIBLE_STRING"):
+            return STRING
+        return UNICODE_STRING if kind == "UNICODE_STRING" else OCTET_STRING
+    if _BYTE_ARRAY.match(key):
+        return OCTET_STRING
     return None
 
 
