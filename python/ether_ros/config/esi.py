@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from lxml import etree
 
@@ -427,7 +428,8 @@ def _parse_xml(path: Path) -> etree._ElementTree:
         tree = etree.parse(str(path), parser)
     except etree.XMLSyntaxError as exc:
         raise ConfigError(f"{path}:{exc.lineno}: not well-formed XML: {exc.msg}") from None
-    if tree.docinfo.doctype or tree.docinfo.internalDTD is not None:
+    info: Any = tree.docinfo
+    if info.doctype or info.internalDTD is not None:
         raise ConfigError(
             f"{path}:1: <!DOCTYPE>: document type declarations (DTD, entities) are not"
             " supported in an ESI"
