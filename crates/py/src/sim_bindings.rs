@@ -22,6 +22,7 @@
 //! | `dc_required` | bool | PREOP->SAFEOP refuses (0x0030) unless SYNC0 is active with a cycle time (default False) |
 //! | `mailbox` | dict{rx_offset, rx_size, tx_offset, tx_size} or None | standard mailbox (SM0 = rx, master->slave; SM1 = tx), used when SII words 0x18..=0x1B are zero |
 //! | `pdram_kib` | int | process-data RAM size in KiB (register 0x0006), 1..=60; default the chip's (ET1100 8, ET1200 1, LAN9252 4) |
+//! | `loopback_links` | list[(out_index, out_sub, in_index, in_sub)] | output → input pairs of the `loopback` model (built by `ether_ros.sim.spec.loopback_pairs`) |
 //! | `esc` | str | slave controller chip whose registers the ESC presents: "et1100" (default), "et1200", "lan9252" |
 //! | `safeop_op_timeout_ms` | int | how long a SAFEOP->OP request waits for valid outputs before it is refused (ESI `<SafeopOpTimeout>`, default 10000) |
 
@@ -91,6 +92,7 @@ fn parse_spec(spec: &Bound<'_, PyDict>) -> PyResult<SlaveSpec> {
         "pdram_kib",
         "esc",
         "safeop_op_timeout_ms",
+        "loopback_links",
     ];
     for k in spec.keys() {
         let k: String = k
@@ -224,6 +226,13 @@ fn parse_spec(spec: &Bound<'_, PyDict>) -> PyResult<SlaveSpec> {
     }
     if let Some(ms) = get::<u32>(spec, "safeop_op_timeout_ms", "int >= 0")? {
         s.safeop_op_timeout_ms = ms;
+    }
+    if let Some(links) = get::<Vec<(u16, u8, u16, u8)>>(
+        spec,
+        "loopback_links",
+        "list of (out_index, out_subindex, in_index, in_subindex)",
+    )? {
+        s.loopback_links = links;
     }
     Ok(s)
 }

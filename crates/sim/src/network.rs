@@ -104,7 +104,7 @@ impl Network {
     /// Append a slave at the end of the line; returns its position. The device model is
     /// created from the spec's `device` and `params`.
     pub fn add_slave(&mut self, spec: SlaveSpec) -> Result<usize, String> {
-        let device = crate::devices::create(&spec.device, &spec.params)?;
+        let device = crate::devices::create(&spec.device, &spec.params, &spec.loopback_links)?;
         let pos = self.slaves.len();
         let now = self.now();
         let mut esc = Esc::new(spec, pos, now);

@@ -40,6 +40,8 @@ pub struct SlaveSpec {
     /// How long a SAFEOP->OP request stays pending while the slave waits for valid outputs
     /// (the ESI's `<SafeopOpTimeout>`), before it is refused with AL status 0x0019.
     pub safeop_op_timeout_ms: u32,
+    /// Output → input pairs of the `loopback` device model.
+    pub loopback_links: Vec<crate::devices::loopback::Link>,
 }
 
 impl Default for SlaveSpec {
@@ -64,6 +66,7 @@ impl Default for SlaveSpec {
             pdram_kib: 0,
             esc: EscChip::Et1100,
             safeop_op_timeout_ms: 10_000,
+            loopback_links: Vec::new(),
         }
     }
 }

@@ -33,10 +33,15 @@ def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "sim",
         help="run a simulated EtherCAT bus on a network interface",
-        description="Run the slaves of CONFIG as virtual EtherCAT slaves answering frames on"
-        " INTERFACE until SIGINT/SIGTERM. Prints one line when ready.",
+        description="Run the slaves of CONFIG (or COUNT slaves of one device of an ESI file) as"
+        " virtual EtherCAT slaves answering frames on INTERFACE until SIGINT/SIGTERM. Prints"
+        " one line when ready.",
     )
-    p.add_argument("config", type=Path, help="bus configuration (YAML)")
+    p.add_argument("config", type=Path, nargs="?", help="bus configuration (YAML)")
+    p.add_argument("--esi", type=Path, help="run slaves of this ESI file instead of a config")
+    p.add_argument("--device", help="with --esi: the device <Type> (needed when the file has"
+                   " several)")  # fmt: skip
+    p.add_argument("--count", type=int, default=1, help="with --esi: how many slaves (default 1)")
     p.add_argument("--interface", "-i", help="network interface (default: bus.interface)")
     p.add_argument("--control", type=Path, help="control socket path (default:"
                    " /run/ether_ros/sim-INTERFACE.sock)")  # fmt: skip
@@ -82,7 +87,18 @@ def run_sim(args: argparse.Namespace) -> int:
     from ether_ros.sim.control import ControlServer, socket_path
     from ether_ros.sim.network import build_network, handle_request, slave_names
 
-    cfg = load_bus_config(args.config, interface=args.interface)
+    if (args.config is None) == (args.esi is None):
+        raise ConfigError("give a bus configuration or --esi FILE (one of them)")
+    if args.esi is not None:
+        from ether_ros.config.from_esi import bus_config_for_esi
+
+        if not args.interface:
+            raise ConfigError("--esi needs --interface")
+        cfg = bus_config_for_esi(args.esi, args.device, args.count, interface=args.interface)
+    else:
+        if args.device is not None or args.count != 1:
+            raise ConfigError("--device and --count go with --esi")
+        cfg = load_bus_config(args.config, interface=args.interface)
     iface = cfg.bus.interface
     if not iface:
         raise ConfigError(f"{args.config}: no interface: give --interface or bus.interface")

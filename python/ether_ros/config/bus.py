@@ -34,6 +34,13 @@ SIM_DEVICES = ("laelaps_leg", "generic_io", "none")
 SIM_DEVICE_FOR_ESI = {"LaelapsII_Leg": "laelaps_leg", "GenericIO": "generic_io"}
 
 
+def default_sim_device(esi: EsiDevice) -> str:
+    """The simulator's firmware model for a device when the config names none: the model
+    written for it, else the generic ``loopback`` (outputs copied to matching inputs), so that
+    any ESI runs on the simulator."""
+    return SIM_DEVICE_FOR_ESI.get(esi.type_name, "loopback")
+
+
 def _parse_int(value: Any) -> Any:
     """Integers may be written as YAML ints (``0x0A12`` is an int in YAML 1.1) or strings
     ``"0x0A12"`` / ``"#x0A12"`` / ``"2578"``. Anything else is left for pydantic to reject."""
@@ -143,7 +150,7 @@ class Joint(_Model):
 
 
 class SimConfig(_Model):
-    device: Literal["laelaps_leg", "generic_io", "none"] | None = None
+    device: Literal["laelaps_leg", "generic_io", "loopback", "none"] | None = None
     # The slave controller chip whose registers the virtual slave presents (docs/simulator.md).
     esc: Literal["et1100", "et1200", "lan9252"] = "et1100"
     params: dict[str, float] = Field(default_factory=dict)
@@ -199,7 +206,7 @@ class SlaveConfig(_Model):
         """The simulator device model: ``sim.device`` or the default for the ESI type."""
         if self.sim.device is not None:
             return self.sim.device
-        return SIM_DEVICE_FOR_ESI.get(self.esi.type_name, "none")
+        return default_sim_device(self.esi)
 
 
 class BusConfig(_Model):

@@ -18,7 +18,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
@@ -38,8 +38,16 @@ INIT, PREOP, SAFEOP, OP = 1, 2, 4, 8
 class SimProcess:
     """``ether-ros sim`` in its own process; a context manager that stops it on exit."""
 
-    def __init__(self, config: Path, interface: str, netns: str | None = None) -> None:
-        self.config = Path(config)
+    def __init__(
+        self,
+        config: Path | None,
+        interface: str,
+        netns: str | None = None,
+        extra: Sequence[str] = (),
+    ) -> None:
+        """``config`` is the bus YAML; None with ``extra`` such as ``["--esi", FILE]``."""
+        self.config = None if config is None else Path(config)
+        self.extra = tuple(extra)
         self.interface = interface
         self.netns = netns
         self.control = socket_path(interface)
@@ -48,7 +56,8 @@ class SimProcess:
         self.returncode: int | None = None
 
     def start(self, timeout: float = 30.0) -> SimProcess:
-        argv = [sys.executable, "-m", "ether_ros.cli.main", "sim", str(self.config),
+        config = [] if self.config is None else [str(self.config)]
+        argv = [sys.executable, "-m", "ether_ros.cli.main", "sim", *config, *self.extra,
                 "--interface", self.interface, "--control", str(self.control)]  # fmt: skip
         self.proc = subprocess.Popen(
             netns_command(self.netns, argv),

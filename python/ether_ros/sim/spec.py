@@ -11,7 +11,7 @@ from __future__ import annotations
 from typing import Any
 
 from ether_ros.config.bus import BusConfig, SlaveConfig
-from ether_ros.config.esi import EsiDevice
+from ether_ros.config.esi import EsiDevice, Pdo, PdoEntry
 from ether_ros.config.sii import build_sii
 from ether_ros.errors import ConfigError
 
@@ -31,6 +31,43 @@ def mailbox_spec(device: EsiDevice) -> dict[str, int] | None:
         "tx_offset": inp.start,
         "tx_size": inp.default_size,
     }
+
+
+def loopback_pairs(device: EsiDevice) -> list[tuple[int, int, int, int]]:
+    """Output → input links of the ``loopback`` model: each output entry (of any RxPDO, in the
+    ESI's order, each entry once) with the first input entry not yet taken (of any TxPDO) of
+    the same data type and bit length."""
+    outputs = _pdo_entries(device.rx_pdos)
+    free = _pdo_entries(device.tx_pdos)
+    pairs: list[tuple[int, int, int, int]] = []
+    for out in outputs:
+        for k, inp in enumerate(free):
+            if (inp.data_type, inp.bit_length) == (out.data_type, out.bit_length):
+                pairs.append((out.index, out.subindex, inp.index, inp.subindex))
+                del free[k]
+                break
+    return pairs
+
+
+def _pdo_entries(pdos: tuple[Pdo, ...]) -> list[PdoEntry]:
+    seen: set[tuple[int, int]] = set()
+    out: list[PdoEntry] = []
+    for p in pdos:
+        for e in p.entries:
+            if not e.is_padding and (e.index, e.subindex) not in seen:
+                seen.add((e.index, e.subindex))
+                out.append(e)
+    return out
+
+
+def _process_entries(device: EsiDevice) -> list[tuple[Any, ...]]:
+    """Dictionary entries for PDO entries the ESI's dictionary lacks (a device without CoE has
+    no dictionary at all): the simulated slave needs a place to keep their values."""
+    rows: list[tuple[Any, ...]] = []
+    for e in _pdo_entries((*device.rx_pdos, *device.tx_pdos)):
+        if device.od_entry(e.index, e.subindex) is None:
+            rows.append((e.index, e.subindex, e.name, e.data_type, e.bit_length, "rw", True, None))
+    return rows
 
 
 def device_spec(
@@ -63,6 +100,11 @@ def device_spec(
         for o in device.objects
         for e in o.entries
     ]
+    entries += _process_entries(device)
+    known = {o[0] for o in objects}
+    objects += sorted(
+        {(r[0], f"Process data {r[0]:#06x}", 7) for r in entries if r[0] not in known}
+    )
     return {
         "name": name,
         "vendor_id": device.vendor_id,
@@ -81,6 +123,7 @@ def device_spec(
         "dc_required": device.dc_required,
         "mailbox": mailbox_spec(device),
         "esc": esc,
+        "loopback_links": loopback_pairs(device) if sim_device == "loopback" else [],
         "safeop_op_timeout_ms": device.timeouts.safeop_op_ms,
     }
 

@@ -2,6 +2,7 @@
 
 pub mod generic_io;
 pub mod laelaps_leg;
+pub mod loopback;
 pub mod leg_kinematics;
 pub mod leg_physics;
 pub mod od_slots;
@@ -10,11 +11,16 @@ pub mod trajectory;
 use crate::device::DeviceApp;
 
 /// Device kinds `create` knows, for error messages and documentation.
-pub const KINDS: &[&str] = &["laelaps_leg", "generic_io", "none"];
+pub const KINDS: &[&str] = &["laelaps_leg", "generic_io", "loopback", "none"];
 
 /// Create a device application by its config name. `params` come from the bus config
-/// (`sim.params` of a slave); unknown names are an error naming the kind.
-pub fn create(kind: &str, params: &[(String, f64)]) -> Result<Option<Box<dyn DeviceApp>>, String> {
+/// (`sim.params` of a slave); unknown names are an error naming the kind. `links` are the
+/// output → input pairs of the `loopback` model (ignored by the others).
+pub fn create(
+    kind: &str,
+    params: &[(String, f64)],
+    links: &[loopback::Link],
+) -> Result<Option<Box<dyn DeviceApp>>, String> {
     match kind {
         "none" | "" => {
             if let Some((name, _)) = params.first() {
@@ -29,6 +35,14 @@ pub fn create(kind: &str, params: &[(String, f64)]) -> Result<Option<Box<dyn Dev
             Ok(Some(Box::new(laelaps_leg::LaelapsLeg::new(config))))
         }
         "generic_io" => Ok(Some(Box::new(generic_io::GenericIo::from_params(params)?))),
+        "loopback" => {
+            if let Some((name, _)) = params.first() {
+                return Err(format!(
+                    "simulated device kind 'loopback' takes no parameters, got '{name}'"
+                ));
+            }
+            Ok(Some(Box::new(loopback::Loopback::new(links))))
+        }
         other => Err(format!(
             "unknown simulated device kind '{other}' (known: {})",
             KINDS.join(", ")
