@@ -21,6 +21,7 @@ from typing import Any
 import pytest
 
 from ether_ros.config import BusConfig, ProcessLayout, load_bus_config
+from ether_ros.config.from_esi import bus_config_for_esi
 from ether_ros.sim.proof import SimProcess
 from ether_ros.sim.spec import bus_order
 from ether_ros.testing.netns import VethPair
@@ -130,3 +131,28 @@ def test_generic_io_free_run_loops_outputs_back(probe: Path) -> None:
 def test_mixed_bus(probe: Path) -> None:
     cfg = load_bus_config(REPO / "config" / "mixed.yaml")
     _run_config(probe, REPO / "config" / "mixed.yaml", *_dc_args(cfg))
+
+
+CORPUS = REPO / "tests" / "data" / "esi"
+
+
+@pytest.mark.parametrize(
+    ("file", "device", "dc"),
+    [
+        ("servo_vendor_style.xml", "CorpusServo", True),
+        ("modular_coupler.xml", "CorpusModular", False),
+    ],
+)
+def test_esi_corpus_device(probe: Path, file: str, device: str, dc: bool) -> None:
+    """A device of the ESI corpus, run without a bus config (`ether-ros sim --esi`), reaches OP
+    under ethercrab: SII, CoE PDO assignment and (for the servo) DC as a vendor file describes
+    them, independently of our master."""
+    esi = CORPUS / file
+    cfg = bus_config_for_esi(esi, device, 2, interface="unused0")
+    extra = ["--cycle-us", "1000", *(["--dc", "--shift-us", "0"] if dc else [])]
+    sim_args = ["--esi", str(esi), "--device", device, "--count", "2"]
+    with VethPair.create(netns=True) as veth, SimProcess(None, veth.slave, veth.netns, sim_args):
+        result = run_probe(probe, veth.master, cfg, *extra)
+    check_identity_and_sizes(result, cfg)
+    if dc:
+        assert all(s["dc"] not in ("RefOnly", "None") for s in result["slaves"])

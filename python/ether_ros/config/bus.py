@@ -29,8 +29,7 @@ from ether_ros.config.process import ProcessLayout, ProcessValueError
 from ether_ros.config.yamlsrc import KeyPath, SourceMap, load_yaml
 from ether_ros.errors import ConfigError
 
-# Device models the simulator knows (crates/sim/src/devices), and the default per ESI type.
-SIM_DEVICES = ("laelaps_leg", "generic_io", "none")
+# The default simulator device model per ESI type (crates/sim/src/devices).
 SIM_DEVICE_FOR_ESI = {"LaelapsII_Leg": "laelaps_leg", "GenericIO": "generic_io"}
 
 
