@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from ether_ros.config import ProcessLayout, load_esi
+from ether_ros.config import ProcessLayout, load_bus_config, load_esi
 from ether_ros.config import types as dt
 from ether_ros.config.esi import EsiDevice
 from ether_ros.errors import ConfigError
@@ -236,8 +236,6 @@ def _corpus_config(tmp_path: Path, slaves: str) -> Path:
 
 
 def test_config_picks_devices_and_revisions_from_the_corpus(tmp_path: Path) -> None:
-    from ether_ros.config import load_bus_config
-
     cfg = load_bus_config(
         _corpus_config(
             tmp_path,
@@ -262,3 +260,38 @@ def test_assigning_pdos_that_exclude_each_other_is_refused(tmp_path: Path) -> No
     )
     with pytest.raises(ConfigError, match=r"PDO 0x1600 excludes 0x1601 \(ESI <Exclude>\)"):
         load_bus_config(path)
+
+
+def test_the_simulator_refuses_a_device_its_chip_cannot_carry(tmp_path: Path) -> None:
+    """The servo's four SyncManagers fit an ET1200; a fifth one does not, and a config that asks
+    for it gets one line naming the config, the slave and what does not fit."""
+    from dataclasses import replace
+
+    from ether_ros._native import SimNetwork
+    from ether_ros.config.esi import SyncManagerDesc
+    from ether_ros.sim.network import build_network
+    from ether_ros.sim.spec import device_spec
+
+    servo = one("servo_vendor_style.xml")
+    SimNetwork().add_slave(device_spec(servo, name="ok", esc="et1200"))
+    fifth = SyncManagerDesc(
+        number=4, role="", start=0x1300, default_size=0, control=0, enable=False
+    )
+    wide = replace(servo, sync_managers=(*servo.sync_managers, fifth))
+    with pytest.raises(
+        ValueError,
+        match=r"slave 'wide': cannot emulate: the device describes 5 SyncManagers, the ET1200 h",
+    ):
+        SimNetwork().add_slave(device_spec(wide, name="wide", esc="et1200"))
+    SimNetwork().add_slave(device_spec(wide, name="wide", esc="et1100"))
+
+    cfg = load_bus_config(
+        _corpus_config(
+            tmp_path, "  - {name: drive, position: 0, device: CorpusServo, sim: {esc: lan9252}}\n"
+        )
+    )
+    cfg.slaves[0]._esi = wide  # the same device with the fifth SyncManager
+    with pytest.raises(
+        ConfigError, match=r"corpus.yaml: slave 'drive': cannot emulate: .* LAN9252 has 4"
+    ):
+        build_network(cfg)

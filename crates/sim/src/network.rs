@@ -102,8 +102,10 @@ impl Network {
     }
 
     /// Append a slave at the end of the line; returns its position. The device model is
-    /// created from the spec's `device` and `params`.
+    /// created from the spec's `device` and `params`; a device the chosen chip cannot carry
+    /// is refused with the reason (`SlaveSpec::check_emulatable`).
     pub fn add_slave(&mut self, spec: SlaveSpec) -> Result<usize, String> {
+        spec.check_emulatable()?;
         let device = crate::devices::create(&spec.device, &spec.params, &spec.loopback_links)?;
         let pos = self.slaves.len();
         let now = self.now();

@@ -70,3 +70,176 @@ impl Default for SlaveSpec {
         }
     }
 }
+
+/// SII category of the FMMU usage list (one byte per FMMU the device uses).
+const SII_CATEGORY_FMMU: u16 = 40;
+/// SII categories of the TxPDOs (inputs) and RxPDOs (outputs).
+const SII_CATEGORY_TXPDO: u16 = 50;
+const SII_CATEGORY_RXPDO: u16 = 51;
+
+impl SlaveSpec {
+    /// Whether the chosen chip can carry the device the SII describes, checked the way the
+    /// hardware would fail: more SyncManagers or FMMUs than the chip has, or a SyncManager
+    /// window outside its process RAM (a buffered SyncManager takes three buffers of its
+    /// length, ESC datasheet section I, "3-buffer mode"). The error names what does not fit.
+    pub fn check_emulatable(&self) -> Result<(), String> {
+        let chip = self.esc.profile();
+        let chip_name = self.esc.name().to_uppercase();
+        let sms = crate::sii::sync_managers(&self.sii);
+        if sms.len() > chip.sync_managers as usize {
+            return Err(format!(
+                "cannot emulate: the device describes {} SyncManagers, the {chip_name} has {}",
+                sms.len(),
+                chip.sync_managers
+            ));
+        }
+        let fmmus: usize = crate::sii::categories(&self.sii)
+            .iter()
+            .filter(|(kind, _)| *kind == SII_CATEGORY_FMMU)
+            .map(|(_, data)| {
+                data.iter()
+                    .filter(|&&usage| usage != 0 && usage != 0xFF)
+                    .count()
+            })
+            .sum();
+        if fmmus > chip.fmmus as usize {
+            return Err(format!(
+                "cannot emulate: the device uses {fmmus} FMMUs, the {chip_name} has {}",
+                chip.fmmus
+            ));
+        }
+        let ram_kib = if self.pdram_kib == 0 {
+            chip.ram_kib
+        } else {
+            self.pdram_kib
+        };
+        let ram_end = 0x1000 + 1024 * u32::from(ram_kib);
+        let rx = crate::sii::pdos(&self.sii, SII_CATEGORY_RXPDO);
+        let tx = crate::sii::pdos(&self.sii, SII_CATEGORY_TXPDO);
+        for (n, sm) in sms.iter().enumerate() {
+            if sm.kind == 0 {
+                continue;
+            }
+            // A process-data SyncManager without a default length is as long as its PDOs.
+            let pdos = match sm.kind {
+                3 => &rx,
+                4 => &tx,
+                _ => &Vec::new(),
+            };
+            let pdo_bits: u32 = pdos
+                .iter()
+                .filter(|p| usize::from(p.sync_manager) == n)
+                .flat_map(|p| p.entries.iter().map(|e| u32::from(e.2)))
+                .sum();
+            let len = u32::from(sm.len).max(pdo_bits.div_ceil(8));
+            let buffered = sm.control & 0x03 == 0;
+            let end = u32::from(sm.start) + len * if buffered { 3 } else { 1 };
+            if u32::from(sm.start) < 0x1000 || end > ram_end {
+                return Err(format!(
+                    "cannot emulate: SyncManager {n} (0x{:04X}, {len} bytes{}) does not fit the \
+                     {chip_name}'s {ram_kib} KiB process RAM (0x1000..0x{ram_end:04X})",
+                    sm.start,
+                    if buffered { " x 3 buffers" } else { "" },
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A minimal SII: 64 words of header, then the given categories and the end marker.
+    fn sii(categories: &[(u16, Vec<u8>)]) -> Vec<u8> {
+        let mut image = vec![0u8; 128];
+        for (kind, data) in categories {
+            image.extend_from_slice(&kind.to_le_bytes());
+            image.extend_from_slice(&((data.len() / 2) as u16).to_le_bytes());
+            image.extend_from_slice(data);
+        }
+        image.extend_from_slice(&[0xFF, 0xFF]);
+        image
+    }
+
+    fn sm(start: u16, len: u16, control: u8, kind: u8) -> Vec<u8> {
+        let [s0, s1] = start.to_le_bytes();
+        let [l0, l1] = len.to_le_bytes();
+        vec![s0, s1, l0, l1, control, 0, 1, kind]
+    }
+
+    fn spec(esc: EscChip, sms: &[Vec<u8>], fmmus: &[u8]) -> SlaveSpec {
+        let mut cats = vec![(41, sms.concat())];
+        if !fmmus.is_empty() {
+            let mut f = fmmus.to_vec();
+            f.resize(f.len().div_ceil(2) * 2, 0);
+            cats.push((40, f));
+        }
+        SlaveSpec {
+            esc,
+            sii: sii(&cats),
+            ..SlaveSpec::default()
+        }
+    }
+
+    #[test]
+    fn a_small_device_fits_every_chip() {
+        let sms = [
+            sm(0x1000, 128, 0x26, 1),
+            sm(0x1080, 128, 0x22, 2),
+            sm(0x1100, 32, 0x64, 3),
+            sm(0x1180, 32, 0x20, 4),
+        ];
+        for chip in [EscChip::Et1100, EscChip::Et1200, EscChip::Lan9252] {
+            spec(chip, &sms, &[1, 2, 3]).check_emulatable().unwrap();
+        }
+    }
+
+    #[test]
+    fn too_many_sync_managers_or_fmmus_are_refused_with_the_counts() {
+        let sms: Vec<Vec<u8>> = (0..6).map(|n| sm(0x1000 + n * 0x40, 8, 0x64, 0)).collect();
+        spec(EscChip::Et1100, &sms, &[]).check_emulatable().unwrap();
+        let e = spec(EscChip::Et1200, &sms, &[])
+            .check_emulatable()
+            .unwrap_err();
+        assert_eq!(
+            e,
+            "cannot emulate: the device describes 6 SyncManagers, the ET1200 has 4"
+        );
+        let e = spec(EscChip::Lan9252, &[], &[1, 2, 3, 3])
+            .check_emulatable()
+            .unwrap_err();
+        assert_eq!(
+            e,
+            "cannot emulate: the device uses 4 FMMUs, the LAN9252 has 3"
+        );
+    }
+
+    #[test]
+    fn a_buffered_sync_manager_needs_three_buffers_of_ram() {
+        // 300 bytes of outputs at 0x1100: 900 bytes buffered, beyond the ET1200's 1 KiB.
+        let sms = [sm(0x1100, 300, 0x64, 3)];
+        spec(EscChip::Et1100, &sms, &[]).check_emulatable().unwrap();
+        let e = spec(EscChip::Et1200, &sms, &[])
+            .check_emulatable()
+            .unwrap_err();
+        assert!(
+            e.contains("SyncManager 0 (0x1100, 300 bytes x 3 buffers)"),
+            "{e}"
+        );
+        assert!(
+            e.contains("ET1200's 1 KiB process RAM (0x1000..0x1400)"),
+            "{e}"
+        );
+        // A mailbox SyncManager (one buffer) of the same size fits.
+        spec(EscChip::Et1200, &[sm(0x1100, 300, 0x26, 1)], &[])
+            .check_emulatable()
+            .unwrap();
+        // Below 0x1000 is the register space, never process RAM.
+        let e = spec(EscChip::Et1100, &[sm(0x0F00, 8, 0x26, 1)], &[])
+            .check_emulatable()
+            .unwrap_err();
+        assert!(e.contains("does not fit"), "{e}");
+    }
+}

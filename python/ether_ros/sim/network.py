@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 from ether_ros.config.bus import BusConfig
+from ether_ros.errors import ConfigError
 from ether_ros.sim.spec import bus_order, network_specs
 
 
@@ -15,7 +16,10 @@ def build_network(cfg: BusConfig, seed: int = 1) -> Any:
 
     net = SimNetwork(seed=seed)
     for spec in network_specs(cfg):
-        net.add_slave(spec)
+        try:
+            net.add_slave(spec)
+        except ValueError as exc:  # the simulator cannot emulate this device: say why
+            raise ConfigError(f"{cfg.source}: {exc}") from None
     return net
 
 
