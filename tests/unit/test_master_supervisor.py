@@ -8,7 +8,9 @@ from typing import Any
 
 from ether_ros.errors import BusError, LinkError
 from ether_ros.master.al import AlState, AlStatus, SlaveRef
-from ether_ros.master.supervisor import BusEvent, Supervisor, counter
+from ether_ros.master.events import BusEvent
+from ether_ros.master.supervisor import Supervisor, counter
+from ether_ros.topology import Link, line
 
 
 class FakeSlave:
@@ -29,10 +31,11 @@ class FakeSlave:
 
 
 class FakeBus:
-    def __init__(self) -> None:
-        self.slaves = [FakeSlave(0, "a"), FakeSlave(1, "b")]
+    def __init__(self, names: tuple[str, ...] = ("a", "b"), tree: list[Link] | None = None) -> None:
+        self.slaves = [FakeSlave(k, name) for k, name in enumerate(names)]
+        self.tree = tree if tree is not None else line(len(names))
         self.wkc_errors = 0
-        self.statuses = [AlStatus(AlState.OP, False, 0)] * 2
+        self.statuses = [AlStatus(AlState.OP, False, 0)] * len(names)
         self.link_up = True
         self.refuse = False
         self.recover_calls = 0
@@ -113,3 +116,27 @@ def test_link_lost_and_restored() -> None:
     bus.link_up = True
     sup.check()
     assert bus.kinds() == ["link_lost", "link_restored", "slave_recovered", "slave_recovered"]
+
+
+def test_a_cable_pulled_behind_a_junction_is_located() -> None:
+    # coupler ─1─ io_a;  coupler ─2─ junction ─1─ io_b
+    tree = [Link(None, 0), Link(0, 1), Link(0, 2), Link(2, 1)]
+    bus = FakeBus(("coupler", "io_a", "junction", "io_b"), tree)
+    bus.refuse = True  # recovery cannot reach them either
+    sup = Supervisor(bus, retry_s=0)  # type: ignore[arg-type]
+    silent = AlStatus(0, False, 0, answered=False)
+    bus.statuses[2] = bus.statuses[3] = silent
+    sup.check()
+    branch = [e for e in bus.events if e.kind == "branch_lost"]
+    assert [e.message for e in branch] == [
+        "link lost behind slave 'coupler' port 2: slaves junction, io_b unreachable"
+    ]
+    assert branch[0].slave == "junction"
+    assert bus.slaves[3].last_problem == branch[0].message
+    assert sup.branch_problems() == [branch[0].message]
+    sup.check()
+    assert bus.kinds().count("branch_lost") == 1, "reported once"
+    bus.statuses[2] = bus.statuses[3] = AlStatus(AlState.OP, False, 0)
+    sup.check()
+    assert bus.kinds().count("branch_restored") == 1
+    assert sup.branch_problems() == []
