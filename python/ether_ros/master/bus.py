@@ -52,7 +52,7 @@ from ether_ros.master.scan import (
 )
 from ether_ros.master.slave import Slave
 from ether_ros.master.supervisor import Supervisor
-from ether_ros.topology import Link
+from ether_ros.topology import Link, line
 
 log = logging.getLogger(__name__)
 
@@ -156,8 +156,16 @@ class Bus:
         """The tree of ``found`` (kept in ``self.tree``), checked against the configured one
         when the configuration describes it, then the identities; returns each configured
         slave's position."""
-        self.tree = bus_tree(found)
-        if getattr(self.config, "declares_topology", False):
+        declared = getattr(self.config, "declares_topology", False)
+        try:
+            self.tree = bus_tree(found)
+        except BusError as exc:
+            if declared:
+                raise
+            # A configuration of a line does not depend on the ports: carry on as one.
+            log.warning("%s; taking the bus for a line", exc)
+            self.tree = line(len(found))
+        if declared:
             names = [s.name for s in self.config.by_position()]
             match_topology(self.tree, self.config.tree(), names)
         expected = [_expected(s, i) for i, s in enumerate(self.config.slaves)]
