@@ -54,7 +54,15 @@ class FakeBus:
                     raise LinkError("no answer")
                 return list(bus.statuses)
 
-        self.engine, self.al = Engine(), Al()
+        # DL status per station: every port open with communication unless a test closes one.
+        self.dl_status: dict[int, int] = {}
+
+        class Dg:
+            def fprd(self, station: int, ado: int, length: int) -> tuple[bytes, int]:
+                assert ado == 0x0110
+                return bus.dl_status.get(station, 0xAA00).to_bytes(2, "little"), 1
+
+        self.engine, self.al, self.dg = Engine(), Al(), Dg()
 
     def emit(self, event: BusEvent) -> None:
         self.events.append(event)
@@ -126,6 +134,13 @@ def test_a_cable_pulled_behind_a_junction_is_located() -> None:
     sup = Supervisor(bus, retry_s=0)  # type: ignore[arg-type]
     silent = AlStatus(0, False, 0, answered=False)
     bus.statuses[2] = bus.statuses[3] = silent
+    # The coupler still has a link on port 2: the junction is there but silent (power-cycled,
+    # its station address gone), not cut off.
+    sup.check()
+    assert "branch_lost" not in bus.kinds()
+    assert bus.slaves[3].last_problem == "does not answer"
+    # Cable out: the coupler's port 2 loop is closed, no communication.
+    bus.dl_status[0x1001] = 0xAA00 & ~(0x2000) | 0x1000
     sup.check()
     branch = [e for e in bus.events if e.kind == "branch_lost"]
     assert [e.message for e in branch] == [

@@ -9,9 +9,10 @@ What it sees and does:
   attempt every ``retry_s`` (backing off to ``max_retry_s``) — INIT, mailbox, PREOP
   configuration, DC re-sync, SAFEOP, OP — and ``slave_recovered`` when it is back in OP;
 - no answer at all (cable pulled): ``link_lost`` once, ``link_restored`` when frames return;
-- a branch that stopped answering while the slave it hangs on still answers (a cable pulled
-  behind a junction): ``branch_lost`` once, naming the slave and port and the slaves cut off,
-  ``branch_restored`` when they answer again;
+- a branch that stopped answering while the slave it hangs on still answers and shows no link
+  on that port in its DL status (a cable pulled behind a junction): ``branch_lost`` once,
+  naming the slave and port and the slaves cut off, ``branch_restored`` when they answer
+  again;
 - CoE emergency messages in the slaves' mailboxes (polled every ``emergency_period_s``):
   ``emergency``, one per message.
 """
@@ -26,9 +27,11 @@ from typing import Any, Protocol
 
 from ether_ros.errors import EtherRosError
 from ether_ros.master.al import AlState, AlStateMachine
+from ether_ros.master.datagrams import DatagramService
 from ether_ros.master.events import BusEvent
+from ether_ros.master.scan import DL_STATUS
 from ether_ros.master.slave import Slave
-from ether_ros.topology import Link, behind, cut_branches
+from ether_ros.topology import Link, behind, cut_branches, open_ports
 
 log = logging.getLogger(__name__)
 
@@ -38,6 +41,7 @@ class SupervisedBus(Protocol):
 
     engine: Any
     layout: Any
+    dg: DatagramService
     al: AlStateMachine
     slaves: list[Slave]
     tree: list[Link]
@@ -184,9 +188,17 @@ class Supervisor:
         for first, silent in cut_branches(bus.tree, heard):
             link = bus.tree[first]
             assert link.parent is not None
+            if first in self.cut_branches:
+                current[first] = self.cut_branches[first]
+                continue
+            if not self._port_closed(by_position[link.parent], link.port):
+                continue  # still cabled: the slave is there but silent (e.g. power-cycled)
             cut_off = [by_position[k] for k in silent]
             message = branch_message(by_position[link.parent], link.port, cut_off)
             current[first] = (by_position[first], message)
+            for s in cut_off:
+                if s.lost:  # found silent before the cut was located
+                    s.last_problem = message
         for first, (slave, message) in current.items():
             if first not in self.cut_branches:
                 self._emit("branch_lost", slave, message)
@@ -194,6 +206,16 @@ class Supervisor:
             if first not in current:
                 self._emit("branch_restored", slave, f"answering again (was: {message})")
         self.cut_branches = current
+
+    def _port_closed(self, parent: Slave, port: int) -> bool:
+        """The parent's DL status (0x0110) shows no link on ``port``: the cable is out (a
+        slave that only lost its station address still has its link up)."""
+        try:
+            with self.bus._acyclic:
+                data, wkc = self.bus.dg.fprd(parent.station, DL_STATUS, 2)
+        except EtherRosError:
+            return False
+        return wkc == 1 and not open_ports(int.from_bytes(data, "little")) & (1 << port)
 
     def _cut_behind(self, s: Slave) -> str:
         """The broken-cable report that covers ``s`` ('' when none does)."""
