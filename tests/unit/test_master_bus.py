@@ -203,3 +203,16 @@ def test_engine_refuses_bad_output_fields_by_name(bus: Bus) -> None:
     with pytest.raises(ValueError, match="outside the output ranges"):
         bus.engine.write_output_fields([(past_outputs, 8, 1)])
     assert bytes(bus.engine.outputs()) == before
+
+
+def test_branched_bus_to_op_with_delays_per_branch() -> None:
+    cfg = _config("branched.yaml")
+    with Bus.open(cfg, link=_network(cfg), drift_frames=100) as b:
+        assert b.tree == cfg.tree()
+        b.start()
+        assert all(s.state == "OP" for s in b.states())
+        # Where the frame enters each slave after the coupler (tests/unit/test_topology.py).
+        # Clock drifts of a few ppm over these µs move a latch by well under a ns.
+        delays = [s.dc.delay_ns for s in b.slaves if s.dc is not None]
+        expected = [0, 450, 1050, 3000, 3700, 4750, 5900]
+        assert all(abs(d - e) <= 2 for d, e in zip(delays, expected, strict=True)), delays

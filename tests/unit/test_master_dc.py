@@ -1,5 +1,6 @@
-"""DC arithmetic: loop times, line delays, offsets, SYNC0 start time, AssignActivate bytes; and
-the DC bring-up against the in-process simulator on its manual clock, in both modes."""
+"""DC arithmetic (delays per branch: tests/unit/test_topology.py): offsets, SYNC0 start time,
+AssignActivate bytes; and the DC bring-up against the in-process simulator on its manual
+clock, in both modes."""
 
 from __future__ import annotations
 
@@ -22,13 +23,12 @@ from ether_ros.master.dc import (
     assign_activate_bytes,
     decode_time_diff,
     diff32,
-    line_delays,
-    loop_times,
     reference_filter_depth,
     sync0_start_time,
     system_time_offsets,
 )
 from ether_ros.sim.spec import bus_order, slave_spec
+from ether_ros.topology import line
 
 REPO = Path(__file__).resolve().parents[2]
 LAELAPS = REPO / "config" / "laelaps.yaml"
@@ -40,24 +40,6 @@ CYCLE_NS = 400_000
 def test_diff32_handles_wraparound() -> None:
     assert diff32(10, 5) == 5
     assert diff32(3, 0xFFFF_FFFE) == 5
-
-
-def test_line_of_four_gives_cumulative_half_loop_differences() -> None:
-    # Frame enters each slave at port 0 and comes back at port 1; each hop (cable + pass-through)
-    # is 700 ns one way, the last slave turns the frame round internally.
-    hop = 700
-    n = 4
-    port0 = [1000 + i * hop for i in range(n)]
-    # back at slave i after going down and back through the rest of the line
-    port1 = [port0[i] + 2 * hop * (n - 1 - i) for i in range(n)]
-    loops = loop_times(port0, port1, [i < n - 1 for i in range(n)])
-    assert loops == [4200, 2800, 1400, 0]
-    assert line_delays(loops) == [0, 700, 1400, 2100]
-
-
-def test_loop_time_uses_32bit_wrap_and_last_slave_is_zero() -> None:
-    loops = loop_times([0xFFFF_FF00, 50], [0x0000_0100, 999], [True, False])
-    assert loops == [0x200, 0]
 
 
 def test_offsets_make_every_system_time_equal_to_master_plus_delay() -> None:
@@ -139,7 +121,7 @@ def manual_bus() -> Iterator[ManualBus]:
 
 def _bring_up(bus: ManualBus) -> DistributedClocks:
     dc = DistributedClocks(bus.dg, bus.master_time, drift_frames=3000)
-    dc.measure(bus.slaves, len(bus.slaves))
+    dc.measure(bus.slaves, line(len(bus.slaves)))
     dc.configure_reference_loop(bus.slaves[0], CYCLE_NS)
     # Static drift compensation, 16 FRMW per frame, frames 100 µs apart.
     frames = 3000 // 16
@@ -191,7 +173,7 @@ def test_reference_loop_settings_reach_the_reference(manual_bus: ManualBus) -> N
 
 def test_a_reset_reference_gets_its_loop_settings_again(manual_bus: ManualBus) -> None:
     dc = DistributedClocks(manual_bus.dg, manual_bus.master_time)
-    dc.measure(manual_bus.slaves, len(manual_bus.slaves))
+    dc.measure(manual_bus.slaves, line(len(manual_bus.slaves)))
     reference = manual_bus.slaves[0]
     dc.configure_reference_loop(reference, 1_000_000)
     manual_bus.net.fault("reset", slave=0)
@@ -223,7 +205,7 @@ def test_time_difference_sign_matches_the_slave() -> None:
 
 def test_offsets_from_the_master_clock_put_every_slave_on_it(manual_bus: ManualBus) -> None:
     dc = DistributedClocks(manual_bus.dg, manual_bus.master_time, drift_frames=0)
-    dc.measure(manual_bus.slaves, len(manual_bus.slaves))
+    dc.measure(manual_bus.slaves, line(len(manual_bus.slaves)))
     delays = [s.delay_ns for s in manual_bus.slaves]
     assert delays == [0, 500, 1000, 1500]
     # Right after the offsets (the manual clock stands still), each slave's system time is the

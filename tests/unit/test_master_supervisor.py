@@ -8,7 +8,9 @@ from typing import Any
 
 from ether_ros.errors import BusError, LinkError
 from ether_ros.master.al import AlState, AlStatus, SlaveRef
-from ether_ros.master.supervisor import BusEvent, Supervisor, counter
+from ether_ros.master.events import BusEvent
+from ether_ros.master.supervisor import Supervisor, counter
+from ether_ros.topology import Link, line
 
 
 class FakeSlave:
@@ -29,10 +31,11 @@ class FakeSlave:
 
 
 class FakeBus:
-    def __init__(self) -> None:
-        self.slaves = [FakeSlave(0, "a"), FakeSlave(1, "b")]
+    def __init__(self, names: tuple[str, ...] = ("a", "b"), tree: list[Link] | None = None) -> None:
+        self.slaves = [FakeSlave(k, name) for k, name in enumerate(names)]
+        self.tree = tree if tree is not None else line(len(names))
         self.wkc_errors = 0
-        self.statuses = [AlStatus(AlState.OP, False, 0)] * 2
+        self.statuses = [AlStatus(AlState.OP, False, 0)] * len(names)
         self.link_up = True
         self.refuse = False
         self.recover_calls = 0
@@ -51,7 +54,15 @@ class FakeBus:
                     raise LinkError("no answer")
                 return list(bus.statuses)
 
-        self.engine, self.al = Engine(), Al()
+        # DL status per station: every port open with communication unless a test closes one.
+        self.dl_status: dict[int, int] = {}
+
+        class Dg:
+            def fprd(self, station: int, ado: int, length: int) -> tuple[bytes, int]:
+                assert ado == 0x0110
+                return bus.dl_status.get(station, 0xAA00).to_bytes(2, "little"), 1
+
+        self.engine, self.al, self.dg = Engine(), Al(), Dg()
 
     def emit(self, event: BusEvent) -> None:
         self.events.append(event)
@@ -113,3 +124,34 @@ def test_link_lost_and_restored() -> None:
     bus.link_up = True
     sup.check()
     assert bus.kinds() == ["link_lost", "link_restored", "slave_recovered", "slave_recovered"]
+
+
+def test_a_cable_pulled_behind_a_junction_is_located() -> None:
+    # coupler ─1─ io_a;  coupler ─2─ junction ─1─ io_b
+    tree = [Link(None, 0), Link(0, 1), Link(0, 2), Link(2, 1)]
+    bus = FakeBus(("coupler", "io_a", "junction", "io_b"), tree)
+    bus.refuse = True  # recovery cannot reach them either
+    sup = Supervisor(bus, retry_s=0)  # type: ignore[arg-type]
+    silent = AlStatus(0, False, 0, answered=False)
+    bus.statuses[2] = bus.statuses[3] = silent
+    # The coupler still has a link on port 2: the junction is there but silent (power-cycled,
+    # its station address gone), not cut off.
+    sup.check()
+    assert "branch_lost" not in bus.kinds()
+    assert bus.slaves[3].last_problem == "does not answer"
+    # Cable out: the coupler's port 2 loop is closed, no communication.
+    bus.dl_status[0x1001] = 0xAA00 & ~(0x2000) | 0x1000
+    sup.check()
+    branch = [e for e in bus.events if e.kind == "branch_lost"]
+    assert [e.message for e in branch] == [
+        "link lost behind slave 'coupler' port 2: slaves junction, io_b unreachable"
+    ]
+    assert branch[0].slave == "junction"
+    assert bus.slaves[3].last_problem == branch[0].message
+    assert sup.branch_problems() == [branch[0].message]
+    sup.check()
+    assert bus.kinds().count("branch_lost") == 1, "reported once"
+    bus.statuses[2] = bus.statuses[3] = AlStatus(AlState.OP, False, 0)
+    sup.check()
+    assert bus.kinds().count("branch_restored") == 1
+    assert sup.branch_problems() == []

@@ -26,18 +26,19 @@ from ether_ros.sim.network import build_network
 pytestmark = [pytest.mark.ros]
 
 CONFIG = Path(__file__).resolve().parents[2] / "config" / "laelaps.yaml"
+BRANCHED = CONFIG.with_name("branched.yaml")
 
 
 @contextlib.contextmanager
 def running_node(
-    domain_offset: int, **options: Any
+    domain_offset: int, config: Path = CONFIG, **options: Any
 ) -> Iterator[tuple[EtherRosNode, EtherRosClient, object]]:
     """The node on the in-process simulator, spun by an executor thread, and a client; all in a
     ROS context of their own."""
     context = Context()
     rclpy.init(context=context, domain_id=domain_for(os.getpid(), domain_offset))
-    net = build_network(load_bus_config(CONFIG))
-    node = EtherRosNode(CONFIG, link=net, context=context, **options)
+    net = build_network(load_bus_config(config))
+    node = EtherRosNode(config, link=net, context=context, **options)
     executor = MultiThreadedExecutor(num_threads=4, context=context)
     executor.add_node(node)
     thread = threading.Thread(target=executor.spin, daemon=True)
@@ -96,3 +97,28 @@ def test_pdo_listener_served_by_python_when_asked() -> None:
         echo(client, 6000.0)
         result = client.wait_result(client.publish_write("hind_right_leg", "Kp100_knee", 1e6))
         assert not result.success and "outside" in result.message
+
+
+def test_a_cable_pulled_on_a_branch_shows_in_the_diagnostics() -> None:
+    """config/branched.yaml: the cable on the coupler's port 2 is pulled; the node's
+    diagnostics name where, and the slaves cut off say why they are lost."""
+    message = (
+        "link lost behind slave 'coupler' port 2: slaves junction, leg, io_3, io_4 unreachable"
+    )
+    with running_node(9, config=BRANCHED) as (_node, client, net):
+        assert client.command("start")[0]
+        net.fault("link", up=False, at=0, port=2)  # type: ignore[attr-defined]
+
+        def reported(latest: Any) -> Any:
+            diag = latest.diagnostics
+            if diag is None:
+                return None
+            by_name = {s.name.rsplit(": ", 1)[-1]: s for s in diag.status}
+            master, io_4 = by_name.get("master"), by_name.get("slave io_4")
+            if master is None or io_4 is None or master.message != message:
+                return None
+            return io_4
+
+        io_4 = client.wait_for(reported, timeout=15.0)
+        assert io_4.message == message
+        net.fault("link", up=True, at=0, port=2)  # type: ignore[attr-defined]

@@ -14,7 +14,7 @@ from ether_ros.config import load_bus_config
 from ether_ros.config.esi import load_esi
 from ether_ros.config.sii import build_sii, parse_sii
 from ether_ros.sim.network import build_network
-from ether_ros.tools.bus_inspect import InspectError, Inspector, _parent, esi_from_sii
+from ether_ros.tools.bus_inspect import InspectError, Inspector, esi_from_sii
 
 REPO = Path(__file__).resolve().parents[2]
 GENERIC = REPO / "config" / "generic_io.yaml"
@@ -73,15 +73,14 @@ def test_typed_round_trip_and_errors(inspector: Inspector) -> None:
     assert [s["state"] for s in inspector.request_state("preop")] == ["PREOP", "PREOP"]
 
 
-def test_parent_of_each_slave_from_open_ports() -> None:
-    def nodes(ports: list[int]) -> list[dict[str, Any]]:
-        return [{"open_ports": list(range(n))} for n in ports]
-
-    line = nodes([2, 2, 2, 1])
-    assert [_parent(line, i) for i in range(1, 4)] == [0, 1, 2]
-    # 0 is a junction (3 ports): 1-2 hang off its first branch, 3 off the second.
-    tree = nodes([3, 2, 1, 1])
-    assert [_parent(tree, i) for i in range(1, 4)] == [0, 1, 0]
+def test_topology_from_the_scans_dl_status(inspector: Inspector) -> None:
+    # The tree builder itself: tests/unit/test_topology.py.
+    nodes = inspector.topology()
+    assert [(n["parent"], n["port"], n["open_ports"]) for n in nodes] == [
+        (None, 0, [0, 1]),
+        (0, 1, [0]),
+    ]
+    assert 'slave0 -> slave1 [label="port 1"];' in inspector.graph_dot()
 
 
 def test_esi_from_sii_round_trips_the_shipped_device(tmp_path: Path) -> None:

@@ -17,7 +17,8 @@
 //! | `device` | str | firmware model for `devices::create` ("none" default, "laelaps_leg", "generic_io") |
 //! | `params` | dict[str, float] | device parameters |
 //! | `drift_ppm` | float | clock drift of the slave's local clock (default 0) |
-//! | `delay_ns` | int | propagation delay from the previous slave (or the master) to this one (default 500) |
+//! | `delay_ns` | int | one-way delay of the link into this slave's port 0: cable + the upstream slave's forwarding (default 500) |
+//! | `upstream` | (parent_index, port) or None | where port 0 is connected: port 1..=3 of an earlier slave; None: port 1 of the previous slave (a line). Slaves are added in the frame's visiting order |
 //! | `dc_supported` | bool | the ESC has distributed clocks (feature bits 2/3 in 0x0008; default True) |
 //! | `dc_required` | bool | PREOP->SAFEOP refuses (0x0030) unless SYNC0 is active with a cycle time (default False) |
 //! | `mailbox` | dict{rx_offset, rx_size, tx_offset, tx_size} or None | standard mailbox (SM0 = rx, master->slave; SM1 = tx), used when SII words 0x18..=0x1B are zero |
@@ -86,6 +87,7 @@ fn parse_spec(spec: &Bound<'_, PyDict>) -> PyResult<SlaveSpec> {
         "params",
         "drift_ppm",
         "delay_ns",
+        "upstream",
         "dc_supported",
         "dc_required",
         "mailbox",
@@ -196,6 +198,7 @@ fn parse_spec(spec: &Bound<'_, PyDict>) -> PyResult<SlaveSpec> {
     if let Some(d) = get::<u64>(spec, "delay_ns", "int >= 0")? {
         s.delay_ns = d;
     }
+    s.upstream = get::<(usize, u8)>(spec, "upstream", "(parent index, port) or None")?;
     if let Some(v) = get::<bool>(spec, "dc_supported", "bool")? {
         s.dc_supported = v;
     }
@@ -382,7 +385,7 @@ impl SimNetwork {
     }
 
     /// Inject a fault: drop(rate, burst=1, outbound=False), corrupt(rate, bytes=1), delay(us), reset(slave),
-    /// refuse_op(slave, on=True), link(up, at=None), drift_step(slave, ppm),
+    /// refuse_op(slave, on=True), link(up, at=None, port=None), drift_step(slave, ppm),
     /// stall_mailbox(slave, on=True), seed(seed), clear(). `slave`/`at` are positions;
     /// `pos` and `enable` are accepted as other names for `slave`/`at` and `on`.
     #[pyo3(signature = (kind, **kwargs))]
@@ -398,7 +401,7 @@ impl SimNetwork {
             "delay" => &["us"],
             "reset" => &["slave"],
             "refuse_op" | "stall_mailbox" => &["slave", "on"],
-            "link" => &["up", "at"],
+            "link" => &["up", "at", "port"],
             "drift_step" => &["slave", "ppm"],
             "seed" => &["seed"],
             "clear" => &[],
@@ -474,13 +477,29 @@ impl SimNetwork {
                 }
             }
             "link" => {
+                // `at` alone: the link into that slave's port 0 (in a line, the one between
+                // `at - 1` and `at`); with `port`: the link on that port of `at`.
                 let up: bool = need(kw(kwargs, "up", kind)?, kind, "up")?;
+                let port = kw::<u8>(kwargs, "port", kind)?;
                 match kw::<usize>(kwargs, "at", kind)? {
+                    None if port.is_some() => {
+                        return Err(PyValueError::new_err(
+                            "fault 'link': 'port' needs 'at' (the slave whose port it is)",
+                        ))
+                    }
                     None => net.faults.link_down = !up,
                     Some(pos) => {
-                        slave(&mut net, pos)?;
-                        net.faults.link_break_at = if up { None } else { Some(pos) };
-                        net.update_topology();
+                        let name = slave(&mut net, pos)?.spec.name.clone();
+                        let target = match port {
+                            None | Some(0) => pos,
+                            Some(p) => net.slave_on_port(pos, p).ok_or_else(|| {
+                                PyValueError::new_err(format!(
+                                    "fault 'link': nothing is connected to port {p} of slave \
+                                     {pos} ('{name}')"
+                                ))
+                            })?,
+                        };
+                        net.set_link_cut(target, !up);
                     }
                 }
             }
@@ -521,6 +540,8 @@ impl SimNetwork {
         d.set_item("al_error", s.al_error)?;
         d.set_item("al_status_code", s.al_code)?;
         d.set_item("station_address", s.station_address())?;
+        d.set_item("upstream", s.spec.upstream)?;
+        d.set_item("open_ports", s.open_ports)?;
         d.set_item("alias", s.alias())?;
         d.set_item("dc_local_time", local)?;
         d.set_item("dc_system_time", local.wrapping_add(offset))?;
@@ -652,7 +673,7 @@ impl SimNetwork {
         if f.delay_us > 0 {
             faults.append("delay")?;
         }
-        if f.link_down || f.link_break_at.is_some() {
+        if f.link_down || !f.cut_links.is_empty() {
             faults.append("link")?;
         }
         d.set_item("active_faults", faults)?;

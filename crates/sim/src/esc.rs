@@ -104,10 +104,11 @@ pub struct Esc {
     pub al_code: u16,
     /// Host time of the current frame at this slave (frame time + propagation delay).
     pub now: u64,
-    /// Sum of propagation delays downstream of this slave, set per frame by the network.
-    pub downstream_delay_ns: u64,
-    /// Port 1 has a link to a next slave.
-    pub port1_open: bool,
+    /// Bit p set when port p has a link and is open (set by the network's topology).
+    pub open_ports: u8,
+    /// Per port: ns after the frame's arrival at port 0 at which it comes back into that port
+    /// (None: the port is closed). Latched by a write to 0x0900.
+    pub port_return_ns: [Option<u64>; 4],
     pub sync0_next: Option<u64>,
     sync0_cycle: u64,
     app_next_step: u64,
@@ -193,8 +194,8 @@ impl Esc {
             al_error: false,
             al_code: 0,
             now,
-            downstream_delay_ns: 0,
-            port1_open: false,
+            open_ports: 1,
+            port_return_ns: [None; 4],
             sync0_next: None,
             sync0_cycle: 0,
             app_next_step: 0,
@@ -301,16 +302,20 @@ impl Esc {
         self.get16(reg::SII_CONTROL) & sii::ERR_NOT_LOADED == 0
     }
 
-    /// DL status (0x0110) from the line position and link state.
+    /// DL status (0x0110) from the ports' link state: per port p, a link is bit 4+p and an
+    /// open port with communication bit 9+2p; a port without a link has its loop closed
+    /// (bit 8+2p). Bit 1: PDI watchdog not expired.
     pub fn update_dl_status(&mut self) {
-        let mut s: u16 = 0x0002 | 0x0010 | 0x0200 | 0x1000 | 0x4000;
+        let mut s: u16 = 0x0002;
         if self.eeprom_loaded() {
             s |= 0x0001;
         }
-        if self.port1_open {
-            s |= 0x0020 | 0x0800;
-        } else {
-            s |= 0x0400;
+        for p in 0..4 {
+            if self.open_ports & (1 << p) != 0 {
+                s |= (1 << (4 + p)) | (1 << (9 + 2 * p));
+            } else {
+                s |= 1 << (8 + 2 * p);
+            }
         }
         self.put16(reg::DL_STATUS, s);
     }
@@ -691,11 +696,15 @@ impl Esc {
         if !self.spec.dc_supported {
             return;
         }
+        // Port 0 latches at the processing unit's entry; every other open port when the
+        // frame comes back into it from its branch. Closed ports keep their old value.
         let t0 = self.dc.local(self.now);
         self.put32(reg::DC_RECEIVE_TIME_PORT0, t0 as u32);
-        if self.port1_open {
-            let t1 = self.dc.local(self.now + 2 * self.downstream_delay_ns);
-            self.put32(reg::DC_RECEIVE_TIME_PORT0 + 4, t1 as u32);
+        for p in 1..4u16 {
+            if let Some(back) = self.port_return_ns[p as usize] {
+                let t = self.dc.local(self.now + back);
+                self.put32(reg::DC_RECEIVE_TIME_PORT0 + 4 * p, t as u32);
+            }
         }
         self.put64(reg::DC_RECEIVE_TIME_PU, t0);
     }

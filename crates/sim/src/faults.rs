@@ -54,9 +54,10 @@ pub struct Faults {
     pub delay_us: u64,
     /// The master's link is down: no frame comes back.
     pub link_down: bool,
-    /// The link between slave `k − 1` and slave `k` is down: slaves from `k` on are unreachable
-    /// and slave `k − 1` closes its port 1.
-    pub link_break_at: Option<usize>,
+    /// Slaves whose port-0 link (to their parent, or the master) is down: they and everything
+    /// behind them are unreachable, and the parent closes the port. In a line, a cut at slave
+    /// `k` is the break between `k − 1` and `k`.
+    pub cut_links: Vec<usize>,
 }
 
 impl Faults {

@@ -1,4 +1,4 @@
-//! The virtual EtherCAT network: a line of virtual slave controllers (ESCs) that process real
+//! The virtual EtherCAT network: a tree of virtual slave controllers (ESCs) that process real
 //! frames, with device applications (firmware models) and fault injection.
 
 pub mod chip;
@@ -16,6 +16,7 @@ pub mod runner;
 pub mod sii;
 pub mod sm;
 pub mod spec;
+pub mod topology;
 
 pub use network::Network;
 pub use spec::{MailboxSpec, SlaveSpec};

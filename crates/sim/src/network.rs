@@ -1,13 +1,15 @@
-//! A line of virtual ESCs processing EtherCAT frames as the hardware does: the frame passes
-//! slave 0, 1, …, n−1 and comes back through the same slaves; every datagram is handled at each
-//! slave on the way out (the processing direction), with the working-counter rules of
-//! ETG.1000.4 / the ESC datasheet.
+//! A tree of virtual ESCs processing EtherCAT frames as the hardware does: the frame walks the
+//! slaves depth first in port order (0 → 3 → 1 → 2, see `topology`) and comes back to the
+//! master; every datagram is handled at each slave's processing unit (the pass after port 0),
+//! with the working-counter rules of ETG.1000.4 / the ESC datasheet. A line is the tree where
+//! each slave hangs on port 1 of the previous one.
 
 use ether_ros_wire::{self as wire, Command};
 
 use crate::esc::Esc;
 use crate::faults::{Faults, Rng};
 use crate::spec::SlaveSpec;
+use crate::topology::{self, Node, Walk};
 
 /// Most datagrams a frame can carry (each takes at least 12 bytes of a 1500-byte payload).
 const MAX_DATAGRAMS: usize = 128;
@@ -48,6 +50,8 @@ pub struct Network {
     pub faults: Faults,
     pub rng: Rng,
     pub stats: NetStats,
+    /// The frame's path through the tree, recomputed when slaves or links change.
+    walk: Walk,
     scratch: Vec<u8>,
 }
 
@@ -76,6 +80,7 @@ impl Network {
             faults: Faults::default(),
             rng: Rng::new(1),
             stats: NetStats::default(),
+            walk: Walk::default(),
             scratch: Vec::with_capacity(wire::MAX_FRAME_LEN),
         }
     }
@@ -101,13 +106,16 @@ impl Network {
         }
     }
 
-    /// Append a slave at the end of the line; returns its position. The device model is
-    /// created from the spec's `device` and `params`; a device the chosen chip cannot carry
-    /// is refused with the reason (`SlaveSpec::check_emulatable`).
-    pub fn add_slave(&mut self, spec: SlaveSpec) -> Result<usize, String> {
+    /// Append a slave; returns its index. It hangs on `spec.upstream` (default: port 1 of the
+    /// previous slave), and slaves must be added in the order the frame visits them (their
+    /// auto-increment order). The device model is created from the spec's `device` and
+    /// `params`; a device the chosen chip cannot carry is refused with the reason
+    /// (`SlaveSpec::check_emulatable`).
+    pub fn add_slave(&mut self, mut spec: SlaveSpec) -> Result<usize, String> {
         spec.check_emulatable()?;
-        let device = crate::devices::create(&spec.device, &spec.params, &spec.loopback_links)?;
         let pos = self.slaves.len();
+        spec.upstream = self.check_upstream(&spec, pos)?;
+        let device = crate::devices::create(&spec.device, &spec.params, &spec.loopback_links)?;
         let now = self.now();
         let mut esc = Esc::new(spec, pos, now);
         esc.device = device;
@@ -115,8 +123,90 @@ impl Network {
             d.reset(&mut esc.od);
         }
         self.slaves.push(esc);
+        if let Some(next) = topology::listed_out_of_order(&self.nodes()) {
+            let esc = self.slaves.pop().expect("just pushed");
+            let (parent, port) = esc.spec.upstream.expect("not the first slave");
+            return Err(format!(
+                "slave '{}' on port {port} of '{}': the frame reaches it before '{}' (ports \
+                 are visited in the order 0, 3, 1, 2), so it must be listed before it",
+                esc.spec.name, self.slaves[parent].spec.name, self.slaves[next].spec.name
+            ));
+        }
         self.update_topology();
         Ok(pos)
+    }
+
+    /// The upstream connection of slave `pos` (default: the previous slave's port 1), checked:
+    /// an earlier slave, a port its chip has, not already taken.
+    fn check_upstream(&self, spec: &SlaveSpec, pos: usize) -> Result<Option<(usize, u8)>, String> {
+        if pos == 0 {
+            return match spec.upstream {
+                None => Ok(None),
+                Some(_) => Err(format!(
+                    "slave '{}': the first slave is connected to the master, not to a slave",
+                    spec.name
+                )),
+            };
+        }
+        let (parent, port) = spec.upstream.unwrap_or((pos - 1, 1));
+        let Some(p) = self.slaves.get(parent) else {
+            return Err(format!(
+                "slave '{}': parent index {parent} is not an earlier slave (0..{})",
+                spec.name,
+                pos - 1
+            ));
+        };
+        let ports = p.spec.esc.profile().ports;
+        if port == 0 || port >= ports {
+            return Err(format!(
+                "slave '{}': '{}' ({}) has no port {port} to connect to (ports 1..{})",
+                spec.name,
+                p.spec.name,
+                p.spec.esc.name(),
+                ports - 1
+            ));
+        }
+        if let Some(other) = self
+            .slaves
+            .iter()
+            .find(|s| s.spec.upstream == Some((parent, port)))
+        {
+            return Err(format!(
+                "slave '{}': port {port} of '{}' is taken by '{}'",
+                spec.name, p.spec.name, other.spec.name
+            ));
+        }
+        Ok(Some((parent, port)))
+    }
+
+    /// The slaves as the topology walk sees them.
+    fn nodes(&self) -> Vec<Node> {
+        self.slaves
+            .iter()
+            .enumerate()
+            .map(|(k, s)| Node {
+                ports: s.spec.esc.profile().ports,
+                delay_ns: s.spec.delay_ns,
+                upstream: s.spec.upstream,
+                link_down: self.faults.cut_links.contains(&k),
+            })
+            .collect()
+    }
+
+    /// Index of the slave on `port` of slave `parent` (None: nothing attached there).
+    pub fn slave_on_port(&self, parent: usize, port: u8) -> Option<usize> {
+        self.slaves
+            .iter()
+            .position(|s| s.spec.upstream == Some((parent, port)))
+    }
+
+    /// Cut (or mend) the link into slave `k`'s port 0.
+    pub fn set_link_cut(&mut self, k: usize, cut: bool) {
+        self.faults.cut_links.retain(|&c| c != k);
+        if cut {
+            self.faults.cut_links.push(k);
+        }
+        self.update_topology();
     }
 
     /// Power-cycle one slave: registers back to their defaults, device reset.
@@ -137,20 +227,20 @@ impl Network {
         true
     }
 
-    /// Number of slaves a frame reaches (a broken link hides the rest of the line).
-    fn reach(&self) -> usize {
-        self.faults
-            .link_break_at
-            .map_or(self.slaves.len(), |k| k.min(self.slaves.len()))
-    }
-
-    /// Recompute port states from the line and the link faults.
+    /// Recompute the frame's walk and every slave's port states from the tree and the cut
+    /// links.
     pub fn update_topology(&mut self) {
-        let reach = self.reach();
-        for (i, s) in self.slaves.iter_mut().enumerate() {
-            s.port1_open = i + 1 < reach;
+        self.walk = Walk::compute(&self.nodes());
+        for (k, s) in self.slaves.iter_mut().enumerate() {
+            s.open_ports = self.walk.open_ports[k];
+            s.port_return_ns = self.walk.port_return[k];
             s.update_dl_status();
         }
+    }
+
+    /// Slaves the frame reaches, in auto-increment order.
+    pub fn visit_order(&self) -> &[usize] {
+        &self.walk.order
     }
 
     /// Advance every slave's application to now (device steps, SYNC0, watchdog, mailbox) —
@@ -162,10 +252,8 @@ impl Network {
 
     pub fn poll_at(&mut self, now: u64) {
         self.stats.polls += 1;
-        let mut cum = 0u64;
-        for s in self.slaves.iter_mut() {
-            cum += s.spec.delay_ns;
-            s.advance(now + cum);
+        for (k, s) in self.slaves.iter_mut().enumerate() {
+            s.advance(now + self.walk.arrival[k]);
             s.service_mailbox();
         }
     }
@@ -207,14 +295,9 @@ impl Network {
                 None => self.stats.unknown_commands += 1,
             }
         }
-        let reach = self.reach();
-        let delays: u64 = self.slaves[..reach].iter().map(|s| s.spec.delay_ns).sum();
-        let mut cum = 0u64;
-        for k in 0..reach {
+        for &k in &self.walk.order {
             let esc = &mut self.slaves[k];
-            cum += esc.spec.delay_ns;
-            esc.downstream_delay_ns = delays - cum;
-            esc.advance(now + cum);
+            esc.advance(now + self.walk.arrival[k]);
             esc.before_frame();
             for s in &slots[..n] {
                 process_datagram(esc, frame, s, &mut self.scratch);

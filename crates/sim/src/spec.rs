@@ -28,7 +28,12 @@ pub struct SlaveSpec {
     pub device: String,
     pub params: Vec<(String, f64)>,
     pub drift_ppm: f64,
+    /// One-way delay of the link into this slave's port 0 (cable and the upstream slave's
+    /// forwarding), ns.
     pub delay_ns: u64,
+    /// Where port 0 is connected: `(index of the parent slave, parent's port 1..=3)`. None:
+    /// the previous slave's port 1 (a line), or the master for the first slave.
+    pub upstream: Option<(usize, u8)>,
     pub dc_supported: bool,
     pub dc_required: bool,
     /// Standard mailbox; when None it is taken from SII words 0x18..=0x1B (if non-zero).
@@ -60,6 +65,7 @@ impl Default for SlaveSpec {
             params: Vec::new(),
             drift_ppm: 0.0,
             delay_ns: 500,
+            upstream: None,
             dc_supported: true,
             dc_required: false,
             mailbox: None,

@@ -412,12 +412,10 @@ fn faults_drop_refuse_reset_and_break_the_link() {
     assert!(try_xfer(&mut net, Command::Brd, 0, &[0; 2]).is_none());
     assert!(try_xfer(&mut net, Command::Brd, 0, &[0; 2]).is_some());
     // Link break after slave 0: only slave 0 answers, and closes its port 1.
-    net.faults.link_break_at = Some(1);
-    net.update_topology();
+    net.set_link_cut(1, true);
     assert_eq!(xfer(&mut net, Command::Brd, 0, &[0; 2]).1, 1);
     assert_eq!(fprd(&mut net, station(0), 0x0110, 2).0[1] & 0x04, 0x04);
-    net.faults.link_break_at = None;
-    net.update_topology();
+    net.set_link_cut(1, false);
     net.faults.link_down = true;
     assert!(try_xfer(&mut net, Command::Brd, 0, &[0; 2]).is_none());
     net.faults.link_down = false;

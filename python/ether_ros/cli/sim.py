@@ -19,7 +19,8 @@ _FAULT_HELP = {
     "delay": "answer every frame US microseconds late",
     "reset": "power-cycle a slave (it falls back to INIT)",
     "refuse-op": "make a slave refuse SAFEOP->OP (--off to stop)",
-    "link": "pull (down) or plug (up) the cable; --at SLAVE breaks the link before that slave",
+    "link": "pull (down) or plug (up) the cable; --at SLAVE breaks the link before that slave,"
+    " --at SLAVE --port P the one on its port P",
     "drift-step": "change a slave's clock drift by PPM",
     "stall-mailbox": "a slave stops answering mailbox requests (--off to stop)",
     "clear": "remove all faults",
@@ -74,6 +75,12 @@ def register(subparsers: Any) -> None:
     k = kinds.add_parser("link", help=_FAULT_HELP["link"])
     k.add_argument("state", choices=["up", "down"])
     k.add_argument("--at", help="slave name or position: break the link in front of it")
+    k.add_argument(
+        "--port",
+        type=int,
+        choices=[0, 1, 2, 3],
+        help="with --at: break the link on this port of that slave instead (a branch)",
+    )
     k = kinds.add_parser("drift-step", help=_FAULT_HELP["drift-step"])
     k.add_argument("slave", help="slave name or position")
     k.add_argument("ppm", type=float)
@@ -165,6 +172,8 @@ def fault_request(args: argparse.Namespace) -> dict[str, Any]:
         req.update(up=args.state == "up")
         if args.at is not None:
             req.update(at=args.at)
+        if args.port is not None:
+            req.update(port=args.port)
     elif name == "drift-step":
         req.update(slave=args.slave, ppm=args.ppm)
     return req

@@ -28,6 +28,7 @@ from ether_ros.config.esi import EsiDevice, esi_files, load_esi
 from ether_ros.config.process import ProcessLayout, ProcessValueError
 from ether_ros.config.yamlsrc import KeyPath, SourceMap, load_yaml
 from ether_ros.errors import ConfigError
+from ether_ros.topology import Link, visit_order
 
 # The default simulator device model per ESI type (crates/sim/src/devices).
 SIM_DEVICE_FOR_ESI = {"LaelapsII_Leg": "laelaps_leg", "GenericIO": "generic_io"}
@@ -158,6 +159,13 @@ class SimConfig(_Model):
     serial: HexInt | None = Field(default=None, ge=0, le=0xFFFFFFFF)
 
 
+class ConnectedTo(_Model):
+    """Where a slave's port 0 is cabled: port ``port`` of the slave named ``slave``."""
+
+    slave: Identifier
+    port: int = Field(ge=1, le=3)
+
+
 class SlaveConfig(_Model):
     name: Identifier
     position: int | None = Field(default=None, ge=0, le=65534)
@@ -171,6 +179,8 @@ class SlaveConfig(_Model):
     safe_outputs: dict[str, int | float | bool] = Field(default_factory=dict)
     joints: list[Joint] = Field(default_factory=list)
     sim: SimConfig = Field(default_factory=SimConfig)
+    # Default: port 1 of the slave before it (a line); the first slave is on the master.
+    connected_to: ConnectedTo | None = None
     _esi: EsiDevice | None = PrivateAttr(default=None)
     _layout: ProcessLayout | None = PrivateAttr(default=None)
     _safe_image: bytes = PrivateAttr(default=b"")
@@ -233,6 +243,28 @@ class BusConfig(_Model):
                 return s
         known = ", ".join(s.name for s in self.slaves)
         raise ConfigError(f"no slave named {name!r} (slaves: {known})")
+
+    @property
+    def declares_topology(self) -> bool:
+        """True when some slave says where it is connected (``connected_to``)."""
+        return any(s.connected_to is not None for s in self.slaves)
+
+    def by_position(self) -> list[SlaveConfig]:
+        """The slaves sorted by position (every slave has one unless addressed by alias)."""
+        return sorted(self.slaves, key=lambda s: s.position if s.position is not None else 0)
+
+    def tree(self) -> list[Link]:
+        """The expected tree by position: ``connected_to``, or port 1 of the slave before."""
+        ordered = self.by_position()
+        index = {s.name: k for k, s in enumerate(ordered)}
+        return [
+            Link(None, 0)
+            if k == 0
+            else Link(index[s.connected_to.slave], s.connected_to.port)
+            if s.connected_to is not None
+            else Link(k - 1, 1)
+            for k, s in enumerate(ordered)
+        ]
 
     def joint_specs(self) -> list[JointSpec]:
         """Every slave's ``joints``, in bus order, each with the slave it reads from."""
@@ -376,6 +408,8 @@ def _resolve(cfg: BusConfig, file: Path, smap: SourceMap) -> None:
         i = next(i for i, s in enumerate(cfg.slaves) if s.position is None and s.alias is None)
         raise err(("slaves", i), "give position (or alias) for every slave, or for none", None,
                   show=False)  # fmt: skip
+    if cfg.declares_topology:
+        _check_topology(cfg, err)
     ref = cfg.bus.dc.reference
     if ref is not None and cfg.bus.dc.enabled:
         slave = next((s for s in cfg.slaves if s.position == ref), None)
@@ -394,6 +428,45 @@ def _resolve(cfg: BusConfig, file: Path, smap: SourceMap) -> None:
                 f"slave {s.name} ({s.esi.type_name}) requires distributed clocks (slaves[{i}])",
                 False,
             )
+
+
+def _check_topology(cfg: BusConfig, err: Any) -> None:
+    """``connected_to``: every slave placed, on an earlier slave's free port, and positions in
+    the order a frame visits them (depth first, ports 0 → 3 → 1 → 2)."""
+    where = {s.name: i for i, s in enumerate(cfg.slaves)}
+    for i, s in enumerate(cfg.slaves):
+        if s.position is None:
+            raise err(("slaves", i), "connected_to needs every slave to have a position", None,
+                      show=False)  # fmt: skip
+    positions = sorted(s.position or 0 for s in cfg.slaves)
+    if positions != list(range(len(positions))):
+        raise err(("slaves",), f"connected_to needs positions 0..{len(positions) - 1} without"
+                  f" gaps, got {positions}", None, show=False)  # fmt: skip
+    taken: dict[tuple[str, int], str] = {}
+    for i, s in enumerate(cfg.slaves):
+        link = s.connected_to
+        if link is None:
+            continue
+        at = ("slaves", i, "connected_to")
+        if link.slave not in where:
+            raise err((*at, "slave"), "no slave by this name", link.slave)
+        parent = cfg.slaves[where[link.slave]]
+        if (parent.position or 0) >= (s.position or 0):
+            raise err((*at, "slave"), f"'{link.slave}' is at position {parent.position}, not"
+                      f" before this slave (position {s.position}): a frame reaches a slave"
+                      " after the one it hangs on", link.slave)  # fmt: skip
+        if (link.slave, link.port) in taken:
+            raise err((*at, "port"), f"port {link.port} of '{link.slave}' is taken by"
+                      f" '{taken[(link.slave, link.port)]}'", link.port)  # fmt: skip
+        taken[(link.slave, link.port)] = s.name
+    names = [s.name for s in cfg.by_position()]
+    order = visit_order(cfg.tree())
+    for pos, visited in enumerate(order):
+        if visited != pos:
+            i = where[names[pos]]
+            raise err(("slaves", i, "position"), f"the frame reaches '{names[visited]}' (position"
+                      f" {visited}) before '{names[pos]}': ports are visited 0, 3, 1, 2, depth"
+                      " first, and positions follow that order", pos)  # fmt: skip
 
 
 def _match_device(s: SlaveConfig, devices: list[EsiDevice], at: KeyPath, err: Any) -> EsiDevice:

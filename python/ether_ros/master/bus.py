@@ -38,12 +38,21 @@ from ether_ros.master import bringup
 from ether_ros.master.al import AlState, AlStateMachine, AlStatus, al_code_text
 from ether_ros.master.datagrams import DatagramService
 from ether_ros.master.dc import EPOCH_2000_S, DcSlave, DistributedClocks
+from ether_ros.master.events import BusEvent
 from ether_ros.master.pdo import select_pdos
 from ether_ros.master.plan import DcPlan, ImageLayout, RtPlan, build_plan, layout_image
 from ether_ros.master.samples import Samples, decode_samples
-from ether_ros.master.scan import Expected, FoundSlave, match_configuration, scan
+from ether_ros.master.scan import (
+    Expected,
+    FoundSlave,
+    bus_tree,
+    match_configuration,
+    match_topology,
+    scan,
+)
 from ether_ros.master.slave import Slave
-from ether_ros.master.supervisor import BusEvent, Supervisor
+from ether_ros.master.supervisor import Supervisor
+from ether_ros.topology import Link, line
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +72,8 @@ class SlaveState:
     error: bool
     code: int
     text: str
+    # Why the supervisor considers the slave lost ('' when it is fine).
+    problem: str = ""
 
     def as_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
@@ -77,6 +88,8 @@ class Bus:
         self.dg = DatagramService(engine)
         self.al = AlStateMachine(self.dg)
         self.slaves: list[Slave] = []
+        # Where each slave hangs (by position), as found on the wire.
+        self.tree: list[Link] = []
         self.layout: ImageLayout | None = None
         self.plan: dict[str, Any] | None = None
         self.cycle_ns = int(config.bus.cycle_us * 1000)
@@ -139,11 +152,29 @@ class Bus:
         now = getattr(self.engine, "now_ns", None)
         return (now() if now is not None else _now_monotonic_ns()) + self.time_offset_ns
 
+    def _check_found(self, found: list[FoundSlave]) -> list[int]:
+        """The tree of ``found`` (kept in ``self.tree``), checked against the configured one
+        when the configuration describes it, then the identities; returns each configured
+        slave's position."""
+        declared = getattr(self.config, "declares_topology", False)
+        try:
+            self.tree = bus_tree(found)
+        except BusError as exc:
+            if declared:
+                raise
+            # A configuration of a line does not depend on the ports: carry on as one.
+            log.warning("%s; taking the bus for a line", exc)
+            self.tree = line(len(found))
+        if declared:
+            names = [s.name for s in self.config.by_position()]
+            match_topology(self.tree, self.config.tree(), names)
+        expected = [_expected(s, i) for i, s in enumerate(self.config.slaves)]
+        return match_configuration(found, expected)
+
     def _discover(self) -> None:
         with self._acyclic:
             found = scan(self.dg)
-            expected = [_expected(s, i) for i, s in enumerate(self.config.slaves)]
-            positions = match_configuration(found, expected)
+            positions = self._check_found(found)
             slaves = [
                 self._make_slave(cfg, found[pos])
                 for cfg, pos in zip(self.config.slaves, positions, strict=True)
@@ -253,7 +284,7 @@ class Bus:
             sync0_start = 0
             if self.dc_reference is not None and self.dc_reference.dc is not None:
                 ref = self.dc_reference.dc
-                self.dc.measure(dc_slaves, len(self.slaves))
+                self.dc.measure(dc_slaves, self.tree)
                 self.dc.compensate_drift(ref)
                 sync0_start = self.dc.activate_sync0(
                     dc_slaves, self.cycle_ns, self._sync0_shift_ns, ref
@@ -290,8 +321,7 @@ class Bus:
     def _reset_and_verify(self) -> None:
         """Scan again (slaves may have been power-cycled since ``open``) and check identity."""
         found = scan(self.dg)
-        expected = [_expected(s, i) for i, s in enumerate(self.config.slaves)]
-        positions = match_configuration(found, expected)
+        positions = self._check_found(found)
         by_name = {s.name: s for s in self.slaves}
         for cfg, pos in zip(self.config.slaves, positions, strict=True):
             s = by_name[cfg.name]
@@ -633,12 +663,21 @@ class Bus:
             self.al.transition([s.ref], AlState.OP)
 
     def _readdress(self, s: Slave) -> None:
-        """A slave that lost its station address (power cycle) gets it again by position."""
-        from ether_ros.master.scan import count_slaves, station_address
+        """A slave that lost its station address (power cycle) gets it again by position —
+        only if the slave now at that position has no other address: on a tree, a cable pulled
+        on one branch moves the slaves of later branches up to lower positions."""
+        from ether_ros.master.scan import STATION_ADDRESS, count_slaves, station_address
 
         count = count_slaves(self.dg)
         if count <= s.position:
             raise BusError(f"{s}: not on the bus ({count} slaves answer)")
+        data, wkc = self.dg.aprd(s.position, STATION_ADDRESS, 2)
+        current = int.from_bytes(data, "little") if wkc == 1 else 0
+        if current not in (0, s.station):
+            raise BusError(
+                f"{s}: position {s.position} now holds station 0x{current:04X}: the slave is"
+                " not where it was (a branch before it is cut off?)"
+            )
         wkc = self.dg.apwr(s.position, 0x0010, station_address(s.position).to_bytes(2, "little"))
         if wkc != 1:
             raise BusError(f"{s}: re-assigning its station address failed")
@@ -664,6 +703,7 @@ def _slave_state(s: Slave, st: AlStatus) -> SlaveState:
         error=st.error,
         code=st.code,
         text=al_code_text(st.code) if st.error else "",
+        problem=s.last_problem if s.lost else "",
     )
 
 

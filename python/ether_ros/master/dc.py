@@ -4,10 +4,13 @@ Steps (ETG.1000.4 §9 / ESC datasheet "Distributed Clocks"):
 
 1. A broadcast write to 0x0900 makes every slave latch the local time at which the frame passed
    each port (0x0900..0x090F, 32 bit) and at its processing unit (0x0918, 64 bit).
-2. In a line, the frame enters slave *i* on port 0 and comes back through port 1; the time
-   between the two latches is how long the frame spent further down the line. Half the
-   difference of that "loop time" between neighbours is the cable + pass-through delay between
-   them, and the sum from the reference clock is each slave's propagation delay (0x0928).
+2. The frame enters a slave on port 0 and comes back into each open port after the branch
+   behind it (ports in the order 0 → 3 → 1 → 2). On a tree, a slave C on port p of its DC
+   parent P (``tree_delays``): the frame reached P, spent ``t_P[prev] − t_P[0]`` in P's
+   earlier branches (prev: P's open port before p), then crossed the link to C, C's own
+   branches (``t_C[last] − t_C[0]``) and the link back before ``t_P[p]``; so C's propagation
+   delay (0x0928) is P's + the earlier branches + half of (branch time − C's own). In a line
+   this is half the difference of neighbours' loop times.
 3. System time offset (0x0920) makes every slave's system time (local + offset) read the same
    value at the same instant: the master's time when the latch frame passed the reference, plus
    the propagation delay to that slave.
@@ -27,7 +30,7 @@ from __future__ import annotations
 
 import logging
 import struct
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 from ether_ros.errors import BusError
@@ -40,6 +43,7 @@ from ether_ros.master.datagrams import (
     u32,
     u64,
 )
+from ether_ros.topology import PORT_ORDER, Link, forwarding_ports, used_ports
 
 log = logging.getLogger(__name__)
 
@@ -85,23 +89,39 @@ def signed64(value: int) -> int:
     return value - (1 << 64) if value & (1 << 63) else value
 
 
-def loop_times(port0: Sequence[int], port1: Sequence[int], has_next: Sequence[bool]) -> list[int]:
-    """Per slave: ns between the frame entering (port 0) and coming back (port 1); 0 for the last
-    slave of the line, whose port 1 is closed and loops the frame back internally."""
-    return [
-        diff32(p1, p0) if nxt else 0 for p0, p1, nxt in zip(port0, port1, has_next, strict=True)
-    ]
+def tree_delays(tree: Sequence[Link], times: Mapping[int, Sequence[int]]) -> dict[int, int]:
+    """Propagation delay from the first DC slave to every DC slave, on a tree.
 
-
-def line_delays(loops: Sequence[int]) -> list[int]:
-    """Propagation delay from the first slave in ``loops`` to each one (a line topology).
-
-    Between neighbours the frame crosses the same cable and pass-through twice (out and back),
-    so the one-way delay is half the difference of their loop times.
+    ``tree``: where each slave hangs (by position, every slave of the bus); ``times``: for the
+    DC slaves (by position), their receive times at ports 0..3 (0x0900..0x090C, 32 bit) from
+    one broadcast. A slave's DC parent is the nearest DC slave towards the master, and the
+    branch it sits in is the parent's port towards it. The frame's way out and back over a
+    link take equally long (the spec's assumption). A DC slave without a DC slave before it
+    (the reference, or one on a branch of a slave without DC that does not lead through the
+    reference) gets 0.
     """
-    delays = [0] * len(loops)
-    for i in range(1, len(loops)):
-        delays[i] = delays[i - 1] + max(0, loops[i - 1] - loops[i]) // 2
+    delays: dict[int, int] = {}
+    for c in sorted(times):
+        link = tree[c]
+        while link.parent is not None and link.parent not in times:
+            link = tree[link.parent]
+        parent, port = link.parent, link.port
+        if parent is None:
+            delays[c] = 0
+            continue
+        t_p, t_c = times[parent], times[c]
+        # The parent's open port the frame came back through just before it left through
+        # `port` (port 0 itself when this is the parent's first branch).
+        before = [
+            q
+            for q in forwarding_ports(used_ports(tree, parent))
+            if PORT_ORDER.index(q) < PORT_ORDER.index(port)
+        ]
+        prev = before[-1] if before else 0
+        own = forwarding_ports(used_ports(tree, c))
+        inside = diff32(t_c[own[-1]], t_c[0]) if own else 0
+        branch = diff32(t_p[port], t_p[prev])
+        delays[c] = delays[parent] + diff32(t_p[prev], t_p[0]) + max(0, branch - inside) // 2
     return delays
 
 
@@ -193,8 +213,9 @@ class DistributedClocks:
         # (station, 0x0930, 0x0934) given to the reference, to give again after a reset.
         self._reference_loop: tuple[int, int, int] | None = None
 
-    def measure(self, slaves: Sequence[DcSlave], bus_size: int) -> None:
-        """Latch receive times and set delays and offsets on every DC slave (first = reference)."""
+    def measure(self, slaves: Sequence[DcSlave], tree: Sequence[Link]) -> None:
+        """Latch receive times and set delays and offsets on every DC slave (first = reference);
+        ``tree`` is where every slave of the bus hangs (by position)."""
         # The latch happens while the frame passes the reference: take the middle of the
         # broadcast's round trip as the master's time at that moment.
         before = self.master_time()
@@ -211,12 +232,11 @@ class DistributedClocks:
         for s, r1, r2 in zip(slaves, ports, locals_, strict=True):
             if r1.wkc != 1 or r2.wkc != 1:
                 raise BusError(f"slave {s.position} ({s.name}): no answer reading DC receive times")
-        port0 = [struct.unpack_from("<I", r.data, 0)[0] for r in ports]
-        port1 = [struct.unpack_from("<I", r.data, 4)[0] for r in ports]
-        # In a line the last slave on the bus closes the loop; any DC slave before it has a
-        # neighbour on port 1.
-        has_next = [s.position < bus_size - 1 for s in slaves]
-        delays = line_delays(loop_times(port0, port1, has_next))
+        times = {
+            s.position: struct.unpack("<4I", r.data) for s, r in zip(slaves, ports, strict=True)
+        }
+        by_position = tree_delays(tree, times)
+        delays = [by_position[s.position] for s in slaves]
         local_times = [struct.unpack_from("<Q", r.data)[0] for r in locals_]
         offsets = system_time_offsets(send_time, local_times, delays)
         writes: list[Datagram] = []

@@ -6,9 +6,14 @@ Order of work (all in INIT):
    and DC SYNC outputs cleared, ports on automatic loop control, EEPROM owned by EtherCAT.
 3. APWR 0x0010: station addresses 0x1001, 0x1002, ... by position, so later datagrams can
    address a slave by a name that no longer depends on the datagram's path.
-4. Aliases (0x0012), ESC features (0x0008, DC support), SII images.
-5. Identity check against the configuration: vendor, product (and revision if configured),
-   missing and extra slaves — each error names the slave by position and configured name.
+4. Aliases (0x0012), ESC features (0x0008, DC support), DL status (0x0110: which ports have
+   an open link), SII images.
+5. The tree: which slave hangs on which port of which other slave, rebuilt from the open ports
+   in auto-increment order (``bus_tree``; the frame visits slaves depth first in port order).
+6. Checks against the configuration: the tree, when the configuration describes one
+   (``connected_to``), naming the first position where bus and configuration differ; then the
+   identities: vendor, product (and revision if configured), missing and extra slaves — each
+   error names the slave by position and configured name.
 """
 
 from __future__ import annotations
@@ -23,12 +28,14 @@ from ether_ros.master.al import AL_CONTROL, ERROR_FLAG, AlState
 from ether_ros.master.datagrams import Cmd, Datagram, DatagramService, fixed_address, u16
 from ether_ros.master.sii import read_sii
 from ether_ros.master.sm_fmmu import FMMU_BASE, FMMU_LEN, MAX_FMMUS, MAX_SMS, SM_BASE, SM_LEN
+from ether_ros.topology import Link, first_difference, open_ports, tree_from_ports
 
 FIRST_STATION = 0x1001
 STATION_ADDRESS = 0x0010
 STATION_ALIAS = 0x0012
 ESC_TYPE = 0x0000
 ESC_FEATURES = 0x0008
+DL_STATUS = 0x0110
 DL_CONTROL_LOOP = 0x0101  # DL control byte 1: loop control of ports 0..3 (0 = automatic)
 FEATURE_DC = 0x0004
 FEATURE_DC_64 = 0x0008
@@ -49,6 +56,12 @@ class FoundSlave:
     esc_features: int
     sii: bytes
     header: SiiInfo
+    dl_status: int = 0
+
+    @property
+    def open_ports(self) -> int:
+        """Bit p set when port p has an open link (from DL status 0x0110)."""
+        return open_ports(self.dl_status)
 
     @property
     def vendor_id(self) -> int:
@@ -134,12 +147,13 @@ def scan(dg: DatagramService, reset: bool = True) -> list[FoundSlave]:
     info = dg.batch(
         [Datagram(Cmd.FPRD, fixed_address(s, STATION_ALIAS), 2) for s in stations]
         + [Datagram(Cmd.FPRD, fixed_address(s, ESC_TYPE), 10) for s in stations]
+        + [Datagram(Cmd.FPRD, fixed_address(s, DL_STATUS), 2) for s in stations]
     )
     images = read_sii(dg, stations, [f"slave {p}" for p in range(count)])
     found: list[FoundSlave] = []
     for p, s in enumerate(stations):
-        alias_r, esc_r = info[p], info[count + p]
-        if alias_r.wkc != 1 or esc_r.wkc != 1:
+        alias_r, esc_r, dl_r = info[p], info[count + p], info[2 * count + p]
+        if alias_r.wkc != 1 or esc_r.wkc != 1 or dl_r.wkc != 1:
             raise BusError(f"slave {p}: no answer reading its registers")
         try:
             header = parse_sii(images[p])
@@ -155,9 +169,27 @@ def scan(dg: DatagramService, reset: bool = True) -> list[FoundSlave]:
                 esc_features=features,
                 sii=images[p],
                 header=header,
+                dl_status=struct.unpack("<H", dl_r.data)[0],
             )
         )
     return found
+
+
+def bus_tree(found: Sequence[FoundSlave]) -> list[Link]:
+    """Which slave hangs on which port of which other slave (by position), from the open ports
+    of each slave (the frame enters every slave through port 0)."""
+    try:
+        return tree_from_ports([f.open_ports for f in found])
+    except ValueError as exc:
+        raise BusError(str(exc)) from None
+
+
+def match_topology(found: Sequence[Link], expected: Sequence[Link], names: Sequence[str]) -> None:
+    """Raise :class:`BusError` naming the first position where the bus's tree (``found``)
+    differs from the configured one (``expected``; ``names``: configured names by position)."""
+    difference = first_difference(expected, found, names)
+    if difference is not None:
+        raise BusError(f"the bus differs from the configuration: {difference}")
 
 
 def match_configuration(found: Sequence[FoundSlave], expected: Sequence[Expected]) -> list[int]:

@@ -9,6 +9,10 @@ What it sees and does:
   attempt every ``retry_s`` (backing off to ``max_retry_s``) — INIT, mailbox, PREOP
   configuration, DC re-sync, SAFEOP, OP — and ``slave_recovered`` when it is back in OP;
 - no answer at all (cable pulled): ``link_lost`` once, ``link_restored`` when frames return;
+- a branch that stopped answering while the slave it hangs on still answers and shows no link
+  on that port in its DL status (a cable pulled behind a junction): ``branch_lost`` once,
+  naming the slave and port and the slaves cut off, ``branch_restored`` when they answer
+  again;
 - CoE emergency messages in the slaves' mailboxes (polled every ``emergency_period_s``):
   ``emergency``, one per message.
 """
@@ -18,28 +22,43 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from contextlib import AbstractContextManager
+from typing import Any, Protocol
 
 from ether_ros.errors import EtherRosError
-from ether_ros.master.al import AlState
-
-if TYPE_CHECKING:
-    from ether_ros.master.bus import Bus
-    from ether_ros.master.slave import Slave
+from ether_ros.master.al import AlState, AlStateMachine
+from ether_ros.master.datagrams import DatagramService
+from ether_ros.master.events import BusEvent
+from ether_ros.master.scan import DL_STATUS
+from ether_ros.master.slave import Slave
+from ether_ros.topology import Link, behind, cut_branches, open_ports
 
 log = logging.getLogger(__name__)
 
 
-@dataclass(frozen=True)
-class BusEvent:
-    """Something the supervisor noticed. ``kind``: slave_lost, slave_recovered,
-    recovery_failed, wkc_error, link_lost, link_restored, emergency."""
+class SupervisedBus(Protocol):
+    """What the supervisor needs of the bus (``ether_ros.master.bus.Bus``)."""
 
-    kind: str
-    slave: str | None
-    message: str
-    time: float = field(default_factory=time.time)
+    engine: Any
+    layout: Any
+    dg: DatagramService
+    al: AlStateMachine
+    slaves: list[Slave]
+    tree: list[Link]
+
+    @property
+    def _acyclic(self) -> AbstractContextManager[Any]: ...
+
+    def recover_slave(self, s: Slave) -> None: ...
+
+    def emit(self, event: BusEvent) -> None: ...
+
+
+def branch_message(parent: Slave, port: int, cut_off: list[Slave]) -> str:
+    """The report of a cable pulled on ``port`` of ``parent``."""
+    names = ", ".join(s.name for s in cut_off)
+    plural = "slave" if len(cut_off) == 1 else "slaves"
+    return f"link lost behind slave '{parent.name}' port {port}: {plural} {names} unreachable"
 
 
 def counter(stats: dict[str, Any], name: str) -> int:
@@ -55,7 +74,7 @@ def counter(stats: dict[str, Any], name: str) -> int:
 class Supervisor:
     def __init__(
         self,
-        bus: Bus,
+        bus: SupervisedBus,
         period_s: float = 0.05,
         retry_s: float = 0.2,
         max_retry_s: float = 2.0,
@@ -75,6 +94,8 @@ class Supervisor:
         self._backoff: dict[str, float] = {}
         self._last_failure: dict[str, str] = {}
         self.link_lost = False
+        # Broken cables on branches: position of the first silent slave → (it, the report).
+        self.cut_branches: dict[int, tuple[Slave, str]] = {}
         self.events = 0
         self.recoveries = 0
 
@@ -85,6 +106,10 @@ class Supervisor:
         self._stop.set()
         if self._thread.is_alive() and threading.current_thread() is not self._thread:
             self._thread.join(timeout=30)
+
+    def branch_problems(self) -> list[str]:
+        """The current broken-cable reports (for diagnostics)."""
+        return [message for _slave, message in self.cut_branches.values()]
 
     def counters(self) -> dict[str, int]:
         return {"events": self.events, "recoveries": self.recoveries}
@@ -128,6 +153,7 @@ class Supervisor:
         if self.link_lost:
             self.link_lost = False
             self._emit("link_restored", None, "frames come back again")
+        self._locate_cuts([st.answered for st in statuses])
         now = time.monotonic()
         for s, st in zip(bus.slaves, statuses, strict=True):
             ok = st.answered and st.state == AlState.OP and not st.error
@@ -137,7 +163,7 @@ class Supervisor:
                 continue
             if not s.lost:
                 s.lost = True
-                s.last_problem = st.describe()
+                s.last_problem = self._cut_behind(s) or st.describe()
                 self._emit("slave_lost", s, f"{s} left OP: {st.describe()}")
                 self._next_try[s.name] = now
                 self._backoff[s.name] = self.retry_s
@@ -147,6 +173,56 @@ class Supervisor:
         if now >= self._next_emergency_poll:
             self._next_emergency_poll = now + self.emergency_period_s
             self._poll_emergencies()
+
+    def _locate_cuts(self, answered: list[bool]) -> None:
+        """Report each branch that fell silent behind a slave that still answers (once), and
+        each that answers again."""
+        bus = self.bus
+        if len(bus.tree) != len(bus.slaves):
+            return
+        by_position = {s.position: s for s in bus.slaves}
+        heard = [True] * len(bus.tree)
+        for s, ok in zip(bus.slaves, answered, strict=True):
+            heard[s.position] = ok
+        current: dict[int, tuple[Slave, str]] = {}
+        for first, silent in cut_branches(bus.tree, heard):
+            link = bus.tree[first]
+            assert link.parent is not None
+            if first in self.cut_branches:
+                current[first] = self.cut_branches[first]
+                continue
+            if not self._port_closed(by_position[link.parent], link.port):
+                continue  # still cabled: the slave is there but silent (e.g. power-cycled)
+            cut_off = [by_position[k] for k in silent]
+            message = branch_message(by_position[link.parent], link.port, cut_off)
+            current[first] = (by_position[first], message)
+            for s in cut_off:
+                if s.lost:  # found silent before the cut was located
+                    s.last_problem = message
+        for first, (slave, message) in current.items():
+            if first not in self.cut_branches:
+                self._emit("branch_lost", slave, message)
+        for first, (slave, message) in self.cut_branches.items():
+            if first not in current:
+                self._emit("branch_restored", slave, f"answering again (was: {message})")
+        self.cut_branches = current
+
+    def _port_closed(self, parent: Slave, port: int) -> bool:
+        """The parent's DL status (0x0110) shows no link on ``port``: the cable is out (a
+        slave that only lost its station address still has its link up)."""
+        try:
+            with self.bus._acyclic:
+                data, wkc = self.bus.dg.fprd(parent.station, DL_STATUS, 2)
+        except EtherRosError:
+            return False
+        return wkc == 1 and not open_ports(int.from_bytes(data, "little")) & (1 << port)
+
+    def _cut_behind(self, s: Slave) -> str:
+        """The broken-cable report that covers ``s`` ('' when none does)."""
+        for first, (_slave, message) in self.cut_branches.items():
+            if s.position in behind(self.bus.tree, first):
+                return message
+        return ""
 
     def _poll_emergencies(self) -> None:
         for s in self.bus.slaves:

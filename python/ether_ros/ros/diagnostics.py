@@ -3,7 +3,9 @@
 Master status: lifecycle state, cycles, lost/late frames, working-counter errors, watchdog trips,
 panics, overruns, samples dropped (engine ring and ROS side), loop timing (wake-up latency,
 execution time, period, round trip: p50/p99/max) and the largest DC sync error since the last
-report. One status per slave: its AL state and AL status code.
+report; cables found broken on a branch (``link lost behind slave 'coupler' port 2: slaves …
+unreachable``) make it WARN. One status per slave: its AL state and AL status code, and the
+supervisor's reason when the slave is lost (e.g. the broken cable that cut it off).
 """
 
 from __future__ import annotations
@@ -44,6 +46,7 @@ def master_status(
     ros: Mapping[str, float],
     panic: bool,
     dc_error_ns: float,
+    link_problems: Sequence[str] = (),
 ) -> DiagnosticStatus:
     st = DiagnosticStatus()
     st.name = f"{node_name}: master"
@@ -59,6 +62,8 @@ def master_status(
     values.append(("dc_sync_error_max_ns", f"{int(dc_error_ns)}"))
     for key, value in ros.items():
         values.append((f"ros_{key}", f"{value:g}"))
+    for k, problem in enumerate(link_problems):
+        values.append((f"link_problem_{k}", problem))
     st.values = [KeyValue(key=k, value=v) for k, v in values]
     lost = bridge.stat(stats, "lost_frames")
     if lifecycle != "active":
@@ -67,6 +72,8 @@ def master_status(
         st.level, st.message = ERROR, "panic: safe outputs on the wire"
     elif ros.get("watchdog_cycles", 0) and ros.get("watchdog_active", 0):
         st.level, st.message = WARN, "command watchdog expired: safe outputs on the wire"
+    elif link_problems:
+        st.level, st.message = WARN, "; ".join(link_problems)
     elif lost:
         st.level, st.message = WARN, f"running, {int(lost)} frames lost"
     else:
@@ -87,7 +94,12 @@ def slave_statuses(node_name: str, states: Sequence[Any]) -> list[DiagnosticStat
             KeyValue(key="al_error", value=str(bool(s.error)).lower()),
             KeyValue(key="al_status_code", value=f"0x{int(s.code):04x}"),
         ]
-        if s.error:
+        problem = getattr(s, "problem", "")
+        if problem:
+            st.values.append(KeyValue(key="problem", value=problem))
+        if problem and not s.error:
+            st.level, st.message = ERROR, problem
+        elif s.error:
             st.level = ERROR
             st.message = f"{s.state} with error 0x{int(s.code):04x}: {s.text}"
         elif str(s.state).upper() != "OP":

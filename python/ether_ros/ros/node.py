@@ -514,8 +514,12 @@ class EtherRosNode(LifecycleNode):
                         commands["delivery_sum_ns"] / commands["delivery_count"]
                     )
                     ros_numbers["command_delivery_max_ns"] = commands["delivery_max_ns"]
+        supervisor = getattr(bus, "supervisor", None)
+        problems = supervisor.branch_problems() if supervisor is not None else []
         statuses.append(
-            diagnostics.master_status(name, lifecycle, stats, ros_numbers, self._panic, dc_error)
+            diagnostics.master_status(
+                name, lifecycle, stats, ros_numbers, self._panic, dc_error, problems
+            )
         )
         if bus is not None:
             # Not under _bus_lock: reading the AL states is acyclic traffic (a few cycles) and

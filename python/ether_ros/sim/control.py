@@ -61,7 +61,7 @@ FAULTS: dict[str, dict[str, Arg]] = {
     "delay": {"us": Arg(int, 0, 1_000_000)},
     "reset": {"slave": Arg(str)},
     "refuse_op": {"slave": Arg(str), "on": Arg(bool, default=True)},
-    "link": {"up": Arg(bool), "at": Arg(str, default=OMIT)},
+    "link": {"up": Arg(bool), "at": Arg(str, default=OMIT), "port": Arg(int, 0, 3, default=OMIT)},
     "drift_step": {"slave": Arg(str), "ppm": Arg(float, -1000.0, 1000.0)},
     "stall_mailbox": {"slave": Arg(str), "on": Arg(bool, default=True)},
     "seed": {"seed": Arg(int, 0, 2**63 - 1)},

@@ -3,7 +3,8 @@
 The keys are the contract with ``SimNetwork.add_slave`` (documented at the top of
 ``crates/py/src/sim_bindings.rs``): identity, the SII EEPROM image, the CoE dictionary
 (objects and entries with their default values), the firmware model and its parameters, clock
-drift and propagation delay, DC capability, and the standard mailbox.
+drift and propagation delay, where the slave is connected (``upstream``), DC capability, and
+the standard mailbox.
 """
 
 from __future__ import annotations
@@ -166,5 +167,11 @@ def bus_order(cfg: BusConfig) -> list[SlaveConfig]:
 
 
 def network_specs(cfg: BusConfig) -> list[dict[str, Any]]:
-    """Specs for every slave of ``cfg`` in bus order."""
-    return [slave_spec(s, i) for i, s in enumerate(bus_order(cfg))]
+    """Specs for every slave of ``cfg`` in bus order, each connected where ``connected_to``
+    says (default: port 1 of the slave before it)."""
+    specs = [slave_spec(s, i) for i, s in enumerate(bus_order(cfg))]
+    if cfg.declares_topology:
+        for spec, link in zip(specs, cfg.tree(), strict=True):
+            if link.parent is not None:
+                spec["upstream"] = (link.parent, link.port)
+    return specs

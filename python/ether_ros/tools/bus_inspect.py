@@ -24,15 +24,14 @@ from ether_ros.config.esi import EsiDevice
 from ether_ros.config.sii import SiiInfo
 from ether_ros.errors import BusError, EtherRosError, LinkError
 from ether_ros.master.al import AlState, AlStateMachine, AlStatus, SlaveRef, al_code_text
-from ether_ros.master.datagrams import Cmd, Datagram, DatagramService, fixed_address
-from ether_ros.master.scan import FoundSlave, scan
+from ether_ros.master.datagrams import DatagramService
+from ether_ros.master.scan import FoundSlave, bus_tree, scan
 
 
 class InspectError(EtherRosError):
     """An inspection request names something that is not there or does not fit."""
 
 
-DL_STATUS = 0x0110
 ESC_REGISTER_SPACE = 0x1000  # registers; process data RAM follows up to 0xFFFF
 STATE_NAMES = {s.name: s for s in AlState}
 
@@ -556,33 +555,24 @@ class Inspector:
     # ---- topology and link ----------------------------------------------------------------
 
     def topology(self) -> list[dict[str, Any]]:
-        """Each slave with its open ports and its parent (the slave it hangs off)."""
-        replies = self.dg.batch(
-            [Datagram(Cmd.FPRD, fixed_address(f.station, DL_STATUS), 2) for f in self.found]
-        )
-        nodes = []
-        for f, r in zip(self.found, replies, strict=True):
-            if r.wkc != 1:
-                raise BusError(f"slave {f.position}: no answer reading the DL status")
-            (status,) = struct.unpack("<H", r.data[:2])
-            # Per port p: bit 8+2p "loop closed", bit 9+2p "communication established". A port
-            # leads somewhere when it communicates with its loop open.
-            ports = [
-                p for p in range(4) if status >> (9 + 2 * p) & 1 and not status >> (8 + 2 * p) & 1
-            ]
-            nodes.append(
-                {
-                    "position": f.position,
-                    "name": self.name_of(f),
-                    "open_ports": ports,
-                    "parent": None,
-                }
-            )
-        for i in range(1, len(nodes)):
-            nodes[i]["parent"] = _parent(nodes, i)
-        return nodes
+        """Each slave with its open ports (DL status 0x0110, read by the scan), the slave it
+        hangs on (``parent``, None: the master) and that slave's ``port``: the tree the frame
+        walks depth first in port order 0, 3, 1, 2."""
+        tree = bus_tree(self.found)
+        return [
+            {
+                "position": f.position,
+                "name": self.name_of(f),
+                "open_ports": [p for p in range(4) if f.open_ports >> p & 1],
+                "parent": link.parent,
+                "port": link.port,
+            }
+            for f, link in zip(self.found, tree, strict=True)
+        ]
 
     def graph_dot(self) -> str:
+        """The tree as a Graphviz DOT graph; each edge between slaves is labelled with the
+        parent's port it leaves from (every slave is entered on its port 0)."""
         nodes = self.topology()
         lines = [
             "digraph ethercat {",
@@ -596,10 +586,13 @@ class Inspector:
                 f'  slave{n["position"]} [label="{n["position"]}: {n["name"]}\\n'
                 f'0x{f.vendor_id:08X}:0x{f.product_code:08X}"];'
             )
-        if nodes:
-            lines.append("  master -> slave0;")
-        for n in nodes[1:]:
-            lines.append(f"  slave{n['parent']} -> slave{n['position']};")
+        for n in nodes:
+            if n["parent"] is None:
+                lines.append(f"  master -> slave{n['position']};")
+            else:
+                lines.append(
+                    f'  slave{n["parent"]} -> slave{n["position"]} [label="port {n["port"]}"];'
+                )
         lines.append("}")
         return "\n".join(lines) + "\n"
 
@@ -661,24 +654,6 @@ def _sync_mailbox_counter(probe: Any) -> None:
         except EtherRosError as exc:
             if "timed out" not in str(exc):
                 return  # an abort is an answer: the counter was accepted
-
-
-def _parent(nodes: list[dict[str, Any]], i: int) -> int:
-    """Walk back from slave ``i`` to the slave whose port it hangs off: every slave passed
-    that ends a branch (one open port) closes one pending branch, every junction (three or
-    four open ports) opens one or two."""
-    pending = 0
-    for j in range(i - 1, -1, -1):
-        ports = len(nodes[j]["open_ports"])
-        if ports == 1:
-            pending -= 1
-        elif ports == 3:
-            pending += 1
-        elif ports == 4:
-            pending += 2
-        if (pending >= 0 and ports > 1) or j == 0:
-            return j
-    return 0
 
 
 def _check_register(address: int, length: int) -> None:

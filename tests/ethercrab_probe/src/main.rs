@@ -255,13 +255,14 @@ async fn run(args: &Args, report: &mut Report) -> Result<(), String> {
         let id = sd.identity();
         report.slaves.push(format!(
             "{{\"name\":\"{}\",\"vendor_id\":{},\"product_code\":{},\"revision\":{},\
-             \"serial\":{},\"dc\":\"{:?}\"}}",
+             \"serial\":{},\"dc\":\"{:?}\",\"propagation_delay\":{}}}",
             sd.name(),
             id.vendor_id,
             id.product_id,
             id.revision,
             id.serial,
-            sd.dc_support()
+            sd.dc_support(),
+            sd.propagation_delay()
         ));
     }
     if let Some(n) = args.expect_slaves {
