@@ -6,6 +6,7 @@
 //! it. While cyclic, `transact` posts its frame to a one-slot mailbox that the RT thread sends
 //! after the cyclic frame.
 
+mod bpf;
 pub mod clock;
 pub mod cyclic;
 pub mod fields;
@@ -15,6 +16,7 @@ pub mod link;
 pub mod plan;
 pub mod rt;
 pub mod stats;
+pub mod xdp;
 
 use std::sync::atomic::Ordering;
 use std::sync::{mpsc, Arc, Mutex, MutexGuard};
@@ -31,6 +33,7 @@ pub use handover::{flags, SampleRecord, RECORD_LEN};
 pub use link::{InProcessLink, Link, RawSocketLink, Received, Responder};
 pub use plan::Plan;
 use stats::Summary;
+pub use xdp::{LinkOptions, XdpLink, XdpMode};
 
 use ether_ros_wire::MAX_FRAME_LEN;
 

@@ -44,7 +44,7 @@ fn os_error(what: &str, ifname: &str) -> io::Error {
     io::Error::new(e.kind(), format!("{what} on interface '{ifname}': {e}"))
 }
 
-fn set_int_option(
+pub(crate) fn set_int_option(
     fd: libc::c_int,
     level: libc::c_int,
     name: libc::c_int,
