@@ -30,10 +30,10 @@ pub use frames::Request;
 use frames::{build_request_frame, reply_datagrams, reply_matches};
 use handover::mailbox_state;
 pub use handover::{flags, SampleRecord, RECORD_LEN};
-pub use link::{InProcessLink, Link, RawSocketLink, Received, Responder};
+pub use link::{InProcessLink, Link, LinkKind, LinkOptions, RawSocketLink, Received, Responder};
 pub use plan::Plan;
 use stats::Summary;
-pub use xdp::{LinkOptions, XdpLink, XdpMode};
+pub use xdp::{XdpLink, XdpMode};
 
 use ether_ros_wire::MAX_FRAME_LEN;
 
@@ -108,8 +108,23 @@ enum MailboxOutcome {
 impl Engine {
     /// An engine on a raw socket bound to `ifname`.
     pub fn open_interface(ifname: &str) -> Result<Engine> {
-        let link = RawSocketLink::open(ifname).map_err(|e| Error::Link(e.to_string()))?;
-        Ok(Engine::with_link(Box::new(link)))
+        Engine::open_interface_with(ifname, LinkKind::Packet, &LinkOptions::default())
+    }
+
+    /// An engine on `ifname` through the link `kind`.
+    pub fn open_interface_with(
+        ifname: &str,
+        kind: LinkKind,
+        options: &LinkOptions,
+    ) -> Result<Engine> {
+        let link: Box<dyn Link> = match kind {
+            LinkKind::Packet => {
+                RawSocketLink::open_with(ifname, options).map(|l| Box::new(l) as Box<dyn Link>)
+            }
+            LinkKind::Xdp => XdpLink::open(ifname, options).map(|l| Box::new(l) as Box<dyn Link>),
+        }
+        .map_err(|e| Error::Link(e.to_string()))?;
+        Ok(Engine::with_link(link))
     }
 
     /// An engine on any link (in-process simulator, test responders).

@@ -16,7 +16,7 @@ use std::sync::atomic::{AtomicU32, Ordering};
 
 use crate::bpf::{self, bind_queue, Attached, Fd};
 use crate::clock::{now_ns, timespec};
-use crate::link::{set_int_option, Link, Received};
+use crate::link::{set_busy_poll, Link, LinkOptions, Received};
 use ether_ros_wire::MAX_FRAME_LEN;
 
 /// UMEM chunk size: one page, so a chunk never straddles pages.
@@ -27,30 +27,6 @@ const CHUNKS: usize = 2 * RING as usize;
 /// Chunks `[0, RING)` receive (they circulate through the fill and RX rings), chunks
 /// `[RING, 2 RING)` transmit (they circulate through the TX and completion rings).
 const TX_BASE: u64 = RING as u64 * CHUNK as u64;
-
-/// How a link should be opened: which queue, and whether the kernel busy-polls for us.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct LinkOptions {
-    /// `SO_BUSY_POLL` time in µs (0 = off): `recv` spins in the driver for this long before
-    /// sleeping, which trades a CPU for wake-up latency.
-    pub busy_poll_us: u32,
-}
-
-/// Apply the busy-poll options to a socket (both links use them). Returns false when the
-/// kernel refused one (needs CAP_NET_ADMIN for values above `net.core.busy_read`).
-pub(crate) fn set_busy_poll(fd: libc::c_int, options: &LinkOptions) -> bool {
-    if options.busy_poll_us == 0 {
-        return true;
-    }
-    let us = options.busy_poll_us.min(i32::MAX as u32) as libc::c_int;
-    set_int_option(fd, libc::SOL_SOCKET, libc::SO_BUSY_POLL, us)
-        && set_int_option(fd, libc::SOL_SOCKET, SO_PREFER_BUSY_POLL, 1)
-        && set_int_option(fd, libc::SOL_SOCKET, SO_BUSY_POLL_BUDGET, 8)
-}
-
-// Not in every libc version's generic Linux module.
-const SO_PREFER_BUSY_POLL: libc::c_int = 69;
-const SO_BUSY_POLL_BUDGET: libc::c_int = 70;
 
 /// One mapped ring: producer and consumer indexes shared with the kernel, and its entries.
 struct Ring<T> {
