@@ -175,20 +175,51 @@ pub(crate) struct Attached {
     _map: Fd,
 }
 
+// Capability bits (linux/capability.h).
+const CAP_NET_ADMIN: u32 = 12;
+const CAP_SYS_ADMIN: u32 = 21;
+const CAP_BPF: u32 = 39;
+
+/// The capabilities the BPF steps need that this process's effective set lacks, by name.
+fn missing_capabilities() -> String {
+    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+    let effective = status
+        .lines()
+        .find_map(|l| l.strip_prefix("CapEff:"))
+        .and_then(|v| u64::from_str_radix(v.trim(), 16).ok())
+        .unwrap_or(0);
+    let has = |bit: u32| effective & (1u64 << bit) != 0;
+    let mut missing = vec![];
+    if !has(CAP_NET_ADMIN) {
+        missing.push("CAP_NET_ADMIN");
+    }
+    if !has(CAP_BPF) && !has(CAP_SYS_ADMIN) {
+        missing.push("CAP_BPF");
+    }
+    missing.join(" and ")
+}
+
 /// Why a BPF step failed, in words an operator can act on.
 fn explain(step: &str, ifname: &str, e: io::Error) -> io::Error {
     let hint = match e.raw_os_error() {
         Some(libc::EPERM) | Some(libc::EACCES) => {
-            " (the xdp link needs CAP_BPF and CAP_NET_ADMIN, or CAP_SYS_ADMIN on kernels before 5.8)"
+            let missing = missing_capabilities();
+            if missing.is_empty() {
+                " (the xdp link needs CAP_NET_ADMIN and CAP_BPF, or CAP_SYS_ADMIN before \
+                 Linux 5.8; check kernel.unprivileged_bpf_disabled and LSM policy)"
+                    .to_string()
+            } else {
+                format!(" (the xdp link needs CAP_NET_ADMIN and CAP_BPF; missing {missing})")
+            }
         }
-        Some(libc::ENOSYS) => " (this kernel has no bpf() system call)",
+        Some(libc::ENOSYS) => " (this kernel has no bpf() system call)".to_string(),
         Some(libc::EBUSY) | Some(libc::EEXIST) => {
-            " (an XDP program is already attached: another master on this interface?)"
+            " (an XDP program is already attached: another master on this interface?)".to_string()
         }
         Some(libc::EOPNOTSUPP) | Some(libc::EINVAL) if step.starts_with("cannot attach") => {
-            " (the driver has no native XDP support)"
+            " (the driver has no native XDP support)".to_string()
         }
-        _ => "",
+        _ => String::new(),
     };
     io::Error::new(
         e.kind(),
