@@ -10,15 +10,22 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 
+from ether_ros.config import load_bus_config
 from ether_ros.errors import LinkError
+from ether_ros.master import Bus
 from ether_ros.master.link import open_engine
+from ether_ros.sim.proof import SimProcess
 from ether_ros.testing.netns import VethPair, unique_name
 
 pytestmark = pytest.mark.netns
+
+MIXED = Path(__file__).resolve().parents[2] / "config" / "mixed.yaml"
 
 
 def xdp_attached(ifname: str) -> bool:
@@ -107,3 +114,31 @@ def test_nothing_stays_attached_after_sigkill(veth: VethPair) -> None:
     assert not xdp_attached(veth.master), "the XDP program outlived its process"
     # And the queue is free for the next master.
     open_engine(veth.master, "xdp").close()
+
+
+@pytest.mark.parametrize("master_link", ["packet", "xdp"])
+def test_the_simulator_serves_on_xdp(veth_ns: VethPair, master_link: str) -> None:
+    """``ether-ros sim --link xdp``: the simulator's end has its own XDP program (in its
+    namespace); a master on either link brings the mixed bus to OP and exchanges data."""
+    cfg = load_bus_config(MIXED, interface=veth_ns.master, link=master_link)
+    cfg.bus.cycle_us = 1000
+    cfg.bus.realtime.cpu = None
+    cfg.bus.realtime.lock_memory = False
+    cfg.bus.watchdog_ms = 0
+    with SimProcess(MIXED, veth_ns.slave, veth_ns.netns, link="xdp") as sim:
+        attached = subprocess.run(
+            ["ip", "-n", str(veth_ns.netns), "-d", "link", "show", "dev", veth_ns.slave],
+            capture_output=True, text=True, check=True,
+        ).stdout  # fmt: skip
+        assert "prog/xdp" in attached
+        with Bus.open(cfg, drift_frames=300) as bus:
+            bus.start()
+            assert [s.state for s in bus.states()] == ["OP"] * 5
+            bus.write("io_box", "DigitalOutput2", True)
+            deadline = time.monotonic() + 10
+            while bus.read("io_box", "DigitalInput2") is not True:
+                assert time.monotonic() < deadline, "no echo through the xdp simulator"
+                time.sleep(0.02)
+            assert int(bus.stats()["lost_frames"]) < int(bus.stats()["cycles"])
+        stats = sim.request({"op": "stats"})
+        assert stats["frames_answered"] > 100 and stats["send_errors"] == 0, stats
