@@ -14,6 +14,10 @@ row is also given as a ratio against `packet` at the same loop time, measured in
 The C floor sends the same LRW at the same rate through a packet simulator: its round trip and
 the share of replies later than the loop time (or lost) are what the path allows without our
 master.
+
+On veth the xdp link runs in copy mode: a transmitted frame still becomes an skb in the kernel
+(generic AF_XDP transmit) and only the receive side skips the stack, so veth shows what the link
+costs, not what a NIC with native (zero-copy) XDP gains.
 """
 
 from __future__ import annotations
@@ -183,8 +187,11 @@ def run(report: Report) -> None:
         f"4 legs ({IMAGE}-byte LRW + DC datagrams), send_at_wake, SCHED_FIFO {PRIORITY}, memory "
         f"locked, not pinned; one {window:.0f} s send_at_wake window per link and loop time for "
         f"execution, latency, losses and CPU, then {window / 2:.1f} s of send_then_wait for the "
-        "round trip (see the module doc); the simulator uses the master's link. CPU: the engine's RT thread / the whole simulator process, as a "
-        "share of one core. Ratios are against `packet` at the same loop time (below 1: better)."
+        "round trip (see the module doc); the simulator uses the master's link. The round trips "
+        "are not alike: packet's is stamped by the kernel when the reply reaches the socket, "
+        "xdp's when the RT thread has read it (AF_XDP on veth has no receive timestamp), so "
+        "xdp's includes the thread's wake-up from ppoll. CPU: the engine's RT thread / the whole "
+        "simulator process, as a share of one core. Ratios are against `packet` at the same loop time (below 1: better)."
     )
     report.table(
         [
