@@ -191,7 +191,8 @@ def run(report: Report) -> None:
         "are not alike: packet's is stamped by the kernel when the reply reaches the socket, "
         "xdp's when the RT thread has read it (AF_XDP on veth has no receive timestamp), so "
         "xdp's includes the thread's wake-up from ppoll. CPU: the engine's RT thread / the whole "
-        "simulator process, as a share of one core. Ratios are against `packet` at the same loop time (below 1: better)."
+        "simulator process, as a share of one core. Ratios are against `packet` at the same "
+        "loop time (below 1: better)."
     )
     report.table(
         [
