@@ -4,8 +4,9 @@ the C floor (bench/c/rtt.c on AF_PACKET), at 400, 100 and 50 µs loop times.
 Setup as in bench_engine: the simulator (`ether-ros sim config/laelaps.yaml`, 4 Laelaps II legs)
 in its own network namespace at the far end of a veth pair, the engine
 (`ether_ros._native.Engine`) on the near end with the thesis's cyclic frame (DC datagrams and a
-240-byte LRW), send_at_wake order, SCHED_FIFO 80, memory locked. The simulator uses the same
-link as the master (`ether-ros sim --link`), so an xdp row has XDP on both ends of the veth.
+240-byte LRW), send_at_wake order, SCHED_FIFO 80, memory locked. The simulator runs on AF_PACKET
+for the first three rows, so only the master's link differs; the last row puts the simulator on
+xdp too (`ether-ros sim --link xdp`), XDP on both ends of the veth.
 
 Per link and loop time, one window of the engine's RT thread: execution (wake-up → frame handed
 to the kernel), wake-up latency, round trip, the share of cycles whose reply was lost (not there
@@ -36,8 +37,9 @@ BUSY_POLL_US = 50
 # (row name, engine link, busy poll µs, simulator link)
 LINKS = (
     ("packet", "packet", 0, "packet"),
-    ("xdp", "xdp", 0, "xdp"),
-    (f"xdp + busy poll {BUSY_POLL_US} µs", "xdp", BUSY_POLL_US, "xdp"),
+    ("xdp", "xdp", 0, "packet"),
+    (f"xdp + busy poll {BUSY_POLL_US} µs", "xdp", BUSY_POLL_US, "packet"),
+    ("xdp, simulator on xdp too", "xdp", 0, "xdp"),
 )
 RT_THREAD = "ether_ros-rt"
 
@@ -187,7 +189,8 @@ def run(report: Report) -> None:
         f"4 legs ({IMAGE}-byte LRW + DC datagrams), send_at_wake, SCHED_FIFO {PRIORITY}, memory "
         f"locked, not pinned; one {window:.0f} s send_at_wake window per link and loop time for "
         f"execution, latency, losses and CPU, then {window / 2:.1f} s of send_then_wait for the "
-        "round trip (see the module doc); the simulator uses the master's link. The round trips "
+        "round trip (see the module doc); the simulator runs on AF_PACKET except in the last row. "
+        "The round trips "
         "are not alike: packet's is stamped by the kernel when the reply reaches the socket, "
         "xdp's when the RT thread has read it (AF_XDP on veth has no receive timestamp), so "
         "xdp's includes the thread's wake-up from ppoll. CPU: the engine's RT thread / the whole "
