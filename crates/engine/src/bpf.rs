@@ -293,8 +293,8 @@ pub(crate) fn attach(ifname: &str, ifindex: u32, queue: u32, xsk_fd: i32) -> io:
 
 /// How long a queue may stay busy after its previous socket closed: the kernel releases a
 /// socket's UMEM in deferred work, so a stop followed at once by a restart can find the queue
-/// still taken for a few milliseconds.
-const RELEASE_GRACE_MS: u32 = 500;
+/// still taken for a few milliseconds (longer when the kernel's workqueue is starved).
+const RELEASE_GRACE_MS: u32 = 2000;
 
 /// Bind zero-copy when the driver can, in copy mode otherwise; retry while the queue is still
 /// being released (a real second user keeps it busy past the grace time).
