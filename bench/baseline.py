@@ -311,15 +311,15 @@ def ether_ros_exe() -> str:
 
 @contextmanager
 def simulator(
-    config: Path, interface: str, netns: str | None, cpu: int | None = None
+    config: Path, interface: str, netns: str | None, cpu: int | None = None, link: str = "packet"
 ) -> Iterator[subprocess.Popen[str]]:
     """`ether-ros sim CONFIG` on ``interface`` (in ``netns``) until the block ends; with ``cpu``,
-    all its threads are pinned to that CPU (taskset)."""
+    all its threads are pinned to that CPU (taskset); ``link`` is its ``--link``."""
     taskset = shutil.which("taskset") if cpu is not None else None
     pin = [taskset, "-c", str(cpu)] if taskset else []
     cmd = [
         *netns_prefix(netns), *pin, ether_ros_exe(), "sim", str(config),
-        "--interface", interface, "--no-control",
+        "--interface", interface, "--no-control", "--link", link,
     ]  # fmt: skip
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:

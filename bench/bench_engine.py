@@ -47,9 +47,9 @@ EXEC_P99_TARGET_NS = 15_000
 LATENCY_RATIO = 1.1
 
 
-def _plan(order: str) -> dict[str, Any]:
+def _plan(order: str, cycle_us: int = CYCLE_US) -> dict[str, Any]:
     return {
-        "cycle_ns": CYCLE_US * 1000,
+        "cycle_ns": cycle_us * 1000,
         "order": order,
         "datagrams": [
             {"kind": "dc_write_ref", "station": 0x1001},
@@ -66,16 +66,20 @@ def _plan(order: str) -> dict[str, Any]:
         "output_ranges": [(0, LEGS * 38)],
         "initial_image": bytes(IMAGE),
         "safe_image": bytes(IMAGE),
-        "dc": {"mode": "ref_follows_master", "time_offset_ns": 0, "sync0_shift_ns": 55_000},
+        "dc": {
+            "mode": "ref_follows_master",
+            "time_offset_ns": 0,
+            "sync0_shift_ns": min(55_000, cycle_us * 500),
+        },
         "rt": {"policy": "fifo", "priority": PRIORITY, "cpu": None, "lock_memory": True},
         "watchdog_ns": 0,
         "ring_capacity": 65536,
     }
 
 
-def _run_engine(engine: Any, order: str, seconds: float) -> None:
+def _run_engine(engine: Any, order: str, seconds: float, cycle_us: int = CYCLE_US) -> None:
     """Run the cyclic thread for ``seconds``; its statistics accumulate in the engine."""
-    engine.start_cyclic(_plan(order))
+    engine.start_cyclic(_plan(order, cycle_us))
     deadline = time.monotonic() + seconds
     command = bytearray(LEGS * 38)
     try:

@@ -28,11 +28,12 @@ REPO = Path(__file__).resolve().parents[2]
 LAELAPS = REPO / "config" / "laelaps.yaml"
 MIXED = REPO / "config" / "mixed.yaml"
 LEGS = ["hind_right_leg", "hind_left_leg", "front_left_leg", "front_right_leg"]
-MODE_CONFIGURATIONAL, MODE_OPERATIONAL = 1.0, 2.0  # leg firmware "mode" in the probe
+MODE_CONFIGURATIONAL, MODE_OPERATIONAL = 1.0, 2.0
+LINKS = ["packet", "xdp"]  # leg firmware "mode" in the probe
 
 
-def _config(path: Path, interface: str, watchdog_ms: int = 0) -> BusConfig:
-    cfg = load_bus_config(path, interface=interface)
+def _config(path: Path, interface: str, link: str = "packet", watchdog_ms: int = 0) -> BusConfig:
+    cfg = load_bus_config(path, interface=interface, link=link)
     # A shared 2-core VM: a 1 ms cycle, no CPU pinning, no mlockall of the test process.
     cfg.bus.cycle_us = 1000
     cfg.bus.dc.sync0_shift_us = 200
@@ -62,6 +63,12 @@ class Recorder:
         return [e.kind for e in self.events if slave is None or e.slave == slave]
 
 
+@pytest.fixture(params=LINKS)
+def link(request: pytest.FixtureRequest) -> str:
+    """Every master test runs on both links: AF_PACKET and AF_XDP (native XDP on veth)."""
+    return str(request.param)
+
+
 @pytest.fixture
 def sim_laelaps(veth_ns: VethPair) -> Iterator[SimProcess]:
     with SimProcess(LAELAPS, veth_ns.slave, veth_ns.netns) as sim:
@@ -75,23 +82,40 @@ def sim_mixed(veth_ns: VethPair) -> Iterator[SimProcess]:
 
 
 @pytest.fixture
-def mixed_bus(sim_mixed: SimProcess, veth_ns: VethPair) -> Iterator[tuple[Bus, SimProcess]]:
-    with Bus.open(_config(MIXED, veth_ns.master), drift_frames=500) as bus:
+def mixed_bus(
+    sim_mixed: SimProcess, veth_ns: VethPair, link: str
+) -> Iterator[tuple[Bus, SimProcess]]:
+    with Bus.open(_config(MIXED, veth_ns.master, link), drift_frames=500) as bus:
+        assert_link(bus, link)
         bus.start()
         yield bus, sim_mixed
+
+
+def assert_link(bus: Bus, link: str) -> None:
+    """The engine really runs on the link the test asked for."""
+    assert ("AF_XDP" in bus.engine.link) == (link == "xdp"), bus.engine.link
 
 
 def _states(bus: Bus) -> list[str]:
     return [s.state for s in bus.states()]
 
 
-@pytest.mark.parametrize("mode", ["ref_follows_master", "master_follows_ref"])
+# Both DC modes on AF_PACKET; the link does not change the DC logic, so AF_XDP runs one mode.
+@pytest.mark.parametrize(
+    ("mode", "link"),
+    [
+        ("ref_follows_master", "packet"),
+        ("master_follows_ref", "packet"),
+        ("master_follows_ref", "xdp"),
+    ],
+)
 def test_four_legs_reach_op_with_dc_and_walk(
-    sim_laelaps: SimProcess, veth_ns: VethPair, mode: str
+    sim_laelaps: SimProcess, veth_ns: VethPair, mode: str, link: str
 ) -> None:
-    cfg = _config(LAELAPS, veth_ns.master)
+    cfg = _config(LAELAPS, veth_ns.master, link)
     cfg.bus.dc.mode = mode  # type: ignore[assignment]
     with Bus.open(cfg) as bus:
+        assert_link(bus, link)
         bus.start()
         assert bus.plan is not None and bus.plan["dc"]["mode"] == mode
         assert _states(bus) == ["OP"] * 4
@@ -151,9 +175,10 @@ def test_mixed_bus_io_echo_and_sdo_in_op(mixed_bus: tuple[Bus, SimProcess]) -> N
 
 
 def test_panic_and_watchdog_put_safe_outputs_on_the_wire(
-    sim_mixed: SimProcess, veth_ns: VethPair
+    sim_mixed: SimProcess, veth_ns: VethPair, link: str
 ) -> None:
-    with Bus.open(_config(MIXED, veth_ns.master, watchdog_ms=200), drift_frames=500) as bus:
+    cfg = _config(MIXED, veth_ns.master, link, watchdog_ms=200)
+    with Bus.open(cfg, drift_frames=500) as bus:
         bus.start()
         bus.write_many("front_left_leg", table_6_1("front_left_leg", transition_s=1))
         bus.write("io_box", "DigitalOutput1", True)
@@ -178,8 +203,9 @@ def test_panic_and_watchdog_put_safe_outputs_on_the_wire(
         assert int(bus.stats()["watchdog_trips"]) >= 1
 
 
-def test_stop_and_restart_many_times(sim_mixed: SimProcess, veth_ns: VethPair) -> None:
-    with Bus.open(_config(MIXED, veth_ns.master), drift_frames=200) as bus:
+def test_stop_and_restart_many_times(sim_mixed: SimProcess, veth_ns: VethPair, link: str) -> None:
+    with Bus.open(_config(MIXED, veth_ns.master, link), drift_frames=200) as bus:
+        assert_link(bus, link)
         for _ in range(5):
             bus.start()
             assert _states(bus) == ["OP"] * 5

@@ -31,6 +31,8 @@ LAELAPS = REPO / "config" / "laelaps.yaml"
 CAPABILITIES = ("net_raw", "sys_nice", "ipc_lock")
 # Capability bit numbers (linux/capability.h).
 CAP_BITS = {"net_raw": 13, "ipc_lock": 14, "sys_nice": 23}
+# The xdp link also loads and attaches an XDP program (docs/capabilities.md).
+XDP_CAPABILITIES = (*CAPABILITIES, "net_admin", "bpf")
 NOBODY_UID = 65534
 
 
@@ -174,6 +176,24 @@ def test_without_the_realtime_capabilities_the_error_names_them(
         "--cycle-us", "1000", "--seconds", "1", "--drift-frames", "300",
     )  # fmt: skip
     assert_one_line_error(r, named)
+
+
+def test_the_xdp_link_needs_net_admin_and_bpf_and_names_what_is_missing(
+    nobody_can_run_the_venv: None, sim: SimProcess, veth_ns: VethPair
+) -> None:
+    def slaves(caps: tuple[str, ...]) -> subprocess.CompletedProcess[str]:
+        return ether_ros_as_nobody(caps, "slaves", "--interface", veth_ns.master, "--link", "xdp")
+
+    r = slaves(XDP_CAPABILITIES)
+    assert r.returncode == 0, r.stderr
+    assert len(r.stdout.strip().splitlines()) == 4
+    assert_one_line_error(slaves(CAPABILITIES), "missing CAP_NET_ADMIN and CAP_BPF")
+    without_bpf = tuple(c for c in XDP_CAPABILITIES if c != "bpf")
+    assert_one_line_error(slaves(without_bpf), "missing CAP_BPF")
+    without_admin = tuple(c for c in XDP_CAPABILITIES if c != "net_admin")
+    assert_one_line_error(slaves(without_admin), "missing CAP_NET_ADMIN")
+    without_raw = tuple(c for c in XDP_CAPABILITIES if c != "net_raw")
+    assert_one_line_error(slaves(without_raw), "CAP_NET_RAW")
 
 
 def setid_files(root: Path) -> list[Path]:

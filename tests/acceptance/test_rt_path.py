@@ -36,14 +36,31 @@ REPO = Path(__file__).resolve().parents[2]
 LAELAPS = REPO / "config" / "laelaps.yaml"
 RT_THREAD = "ether_ros-rt"
 
-# What one cycle may ask of the kernel (crates/engine/src/cyclic.rs, link.rs, clock.rs):
-ALLOWED_SYSCALLS = {
+# What one cycle may ask of the kernel (crates/engine/src/cyclic.rs, link.rs, xdp.rs, clock.rs),
+# per link:
+COMMON_SYSCALLS = {
     "clock_nanosleep",  # sleep until the next cycle (absolute CLOCK_MONOTONIC)
-    "sendto",  # the cyclic frame, and an acyclic frame from the mailbox (libc send = sendto)
-    "recvmsg",  # replies, non-blocking, with the kernel receive timestamp
     "ppoll",  # wait for a reply inside the cycle (cycle_order send_then_wait only)
     "clock_gettime",  # normally the vDSO (no syscall); a kernel without vDSO makes it one
     "restart_syscall",  # strace attaching interrupts the clock_nanosleep in progress
+}
+ALLOWED_SYSCALLS = {
+    "packet": COMMON_SYSCALLS
+    | {
+        "sendto",  # the cyclic frame, and an acyclic frame from the mailbox (libc send = sendto)
+        "recvmsg",  # replies, non-blocking, with the kernel receive timestamp
+    },
+    "xdp": COMMON_SYSCALLS
+    | {
+        "sendto",  # the TX kick: the frame is already on the TX ring (copy mode kicks each one)
+        "recvfrom",  # the fill ring's wakeup kick, when the driver asks for one
+    },
+}
+# Calls every traced window must contain (more than 10 each), per link: replies on the packet
+# link are read with recvmsg; on the xdp link they are read from the RX ring without a syscall.
+REQUIRED_SYSCALLS = {
+    "packet": ("clock_nanosleep", "sendto", "recvmsg"),
+    "xdp": ("clock_nanosleep", "sendto"),
 }
 SCHED_FIFO = 1
 
@@ -118,9 +135,10 @@ def config_with_order(order: str, tmp_path: Path) -> Path:
     return path
 
 
+@pytest.mark.parametrize("link", ["packet", "xdp"])
 @pytest.mark.parametrize("order", ["send_at_wake", "send_then_wait"])
 def test_rt_thread_makes_only_the_cycles_syscalls_and_runs_as_configured(
-    sim: SimProcess, veth_ns: VethPair, tmp_path: Path, order: str
+    sim: SimProcess, veth_ns: VethPair, tmp_path: Path, order: str, link: str
 ) -> None:
     strace = shutil.which("strace")
     if strace is None:
@@ -129,7 +147,8 @@ def test_rt_thread_makes_only_the_cycles_syscalls_and_runs_as_configured(
     bench = subprocess.Popen(
         [sys.executable, "-m", "ether_ros.cli.main", "bench", "cycle",
          str(config_with_order(order, tmp_path)), "--interface", veth_ns.master,
-         "--cycle-us", "1000", "--seconds", "4", "--drift-frames", "300", "--json", str(result)],
+         "--cycle-us", "1000", "--seconds", "4", "--drift-frames", "300", "--json", str(result),
+         "--link", link],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -162,12 +181,11 @@ def test_rt_thread_makes_only_the_cycles_syscalls_and_runs_as_configured(
     assert bench.returncode == 0, err
     assert still_cycling, "the trace overlapped the bench's shutdown: raise --seconds"
     calls = strace_summary(traced)
-    assert calls.get("clock_nanosleep", 0) > 10, traced
-    assert calls.get("sendto", 0) > 10, traced
-    assert calls.get("recvmsg", 0) > 10, traced
+    for name in REQUIRED_SYSCALLS[link]:
+        assert calls.get(name, 0) > 10, f"{name}: {traced}"
     # (send_then_wait calls ppoll only when the reply is not in yet: under strace, which slows
     # every syscall, it usually is, so ppoll is allowed but not required.)
-    extra = set(calls) - ALLOWED_SYSCALLS
+    extra = set(calls) - ALLOWED_SYSCALLS[link]
     assert not extra, f"syscalls outside the cycle's own on {RT_THREAD}: {extra}\n{traced}"
     # Every cycle's timing is recorded: the bench reports the cycles it measured.
     measured = json.loads(result.read_text())

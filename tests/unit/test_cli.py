@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import subprocess
 import sys
 
@@ -19,3 +20,40 @@ def test_no_command_is_a_usage_error() -> None:
         [sys.executable, "-m", "ether_ros.cli.main"], capture_output=True, text=True
     )
     assert out.returncode == 2
+
+
+def _commands(
+    parser: argparse.ArgumentParser, path: str = ""
+) -> dict[str, argparse.ArgumentParser]:
+    """Every leaf command of the parser tree, by its words (``"bench cycle"``)."""
+    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    if not subs:
+        return {path.strip(): parser}
+    found: dict[str, argparse.ArgumentParser] = {}
+    for name, child in subs[0].choices.items():
+        found.update(_commands(child, f"{path} {name}"))
+    return found
+
+
+# Commands that take --interface without opening it for EtherCAT frames.
+NOT_OPENING = {
+    "rt check": "reads the NIC's settings (IRQs, coalescing) only",
+    "rt setup": "changes the NIC's settings only",
+    "sim-fault": "talks to the simulator's control socket, named after the interface",
+}
+
+
+def test_every_command_that_opens_an_interface_takes_link() -> None:
+    from ether_ros.cli.main import build_parser
+
+    commands = _commands(build_parser())
+    opening = {
+        name: p
+        for name, p in commands.items()
+        if "--interface" in p._option_string_actions and name not in NOT_OPENING
+    }
+    assert {"run", "slaves", "bench cycle", "sim", "record", "top"} <= set(opening)
+    for name, p in opening.items():
+        link = p._option_string_actions.get("--link")
+        assert link is not None, f"ether-ros {name} has --interface but no --link"
+        assert tuple(link.choices or ()) == ("packet", "xdp", "auto"), name

@@ -257,6 +257,23 @@ def test_missing_file_and_empty_file(tmp_path: Path) -> None:
         load_bus_config(no_slaves)
 
 
+def test_link_and_busy_poll(tmp_path: Path) -> None:
+    path = write(tmp_path, GOOD)
+    cfg = load_bus_config(path)
+    assert (cfg.bus.link, cfg.bus.busy_poll_us) == ("packet", 0)
+    assert load_bus_config(path, link="xdp").bus.link == "xdp"
+    with pytest.raises(ConfigError, match=r"link must be packet, xdp or auto, got 'dpdk'"):
+        load_bus_config(path, link="dpdk")
+    bad = write(tmp_path, GOOD.replace("  name: test_bus\n", "  name: test_bus\n  link: dpdk\n", 1))
+    with pytest.raises(ConfigError, match=r":3: bus\.link: .*'packet', 'xdp' or 'auto'"):
+        load_bus_config(bad)
+    bad = write(
+        tmp_path, GOOD.replace("  name: test_bus\n", "  name: test_bus\n  busy_poll_us: -1\n", 1)
+    )
+    with pytest.raises(ConfigError, match=r"bus\.busy_poll_us: .*greater than or equal to 0"):
+        load_bus_config(bad)
+
+
 def test_interface_override_is_checked(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match=r"interface name must be 1\.\.15"):
         load_bus_config(write(tmp_path, GOOD), interface="x" * 16)

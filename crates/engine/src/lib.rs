@@ -6,6 +6,7 @@
 //! it. While cyclic, `transact` posts its frame to a one-slot mailbox that the RT thread sends
 //! after the cyclic frame.
 
+mod bpf;
 pub mod clock;
 pub mod cyclic;
 pub mod fields;
@@ -15,6 +16,7 @@ pub mod link;
 pub mod plan;
 pub mod rt;
 pub mod stats;
+pub mod xdp;
 
 use std::sync::atomic::Ordering;
 use std::sync::{mpsc, Arc, Mutex, MutexGuard};
@@ -28,9 +30,10 @@ pub use frames::Request;
 use frames::{build_request_frame, reply_datagrams, reply_matches};
 use handover::mailbox_state;
 pub use handover::{flags, SampleRecord, RECORD_LEN};
-pub use link::{InProcessLink, Link, RawSocketLink, Received, Responder};
+pub use link::{InProcessLink, Link, LinkKind, LinkOptions, RawSocketLink, Received, Responder};
 pub use plan::Plan;
 use stats::Summary;
+pub use xdp::{XdpLink, XdpMode};
 
 use ether_ros_wire::MAX_FRAME_LEN;
 
@@ -105,8 +108,23 @@ enum MailboxOutcome {
 impl Engine {
     /// An engine on a raw socket bound to `ifname`.
     pub fn open_interface(ifname: &str) -> Result<Engine> {
-        let link = RawSocketLink::open(ifname).map_err(|e| Error::Link(e.to_string()))?;
-        Ok(Engine::with_link(Box::new(link)))
+        Engine::open_interface_with(ifname, LinkKind::Packet, &LinkOptions::default())
+    }
+
+    /// An engine on `ifname` through the link `kind`.
+    pub fn open_interface_with(
+        ifname: &str,
+        kind: LinkKind,
+        options: &LinkOptions,
+    ) -> Result<Engine> {
+        let link: Box<dyn Link> = match kind {
+            LinkKind::Packet => {
+                RawSocketLink::open_with(ifname, options).map(|l| Box::new(l) as Box<dyn Link>)
+            }
+            LinkKind::Xdp => XdpLink::open(ifname, options).map(|l| Box::new(l) as Box<dyn Link>),
+        }
+        .map_err(|e| Error::Link(e.to_string()))?;
+        Ok(Engine::with_link(link))
     }
 
     /// An engine on any link (in-process simulator, test responders).

@@ -33,6 +33,51 @@ pub trait Link: Send {
     fn describe(&self) -> String;
 }
 
+/// Which kind of link carries the frames on a network interface.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LinkKind {
+    /// An AF_PACKET raw socket: works on any interface, frames go through the kernel's stack.
+    Packet,
+    /// An AF_XDP socket fed by an XDP program: needs native XDP in the driver.
+    Xdp,
+}
+
+impl std::str::FromStr for LinkKind {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<LinkKind, String> {
+        match s {
+            "packet" => Ok(LinkKind::Packet),
+            "xdp" => Ok(LinkKind::Xdp),
+            other => Err(format!("unknown link '{other}' (packet or xdp)")),
+        }
+    }
+}
+
+/// How a link should be opened: which queue, and whether the kernel busy-polls for us.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LinkOptions {
+    /// `SO_BUSY_POLL` time in µs (0 = off): `recv` spins in the driver for this long before
+    /// sleeping, which trades a CPU for wake-up latency.
+    pub busy_poll_us: u32,
+}
+
+/// Apply the busy-poll options to a socket (both links use them). Returns false when the
+/// kernel refused one (needs CAP_NET_ADMIN for values above `net.core.busy_read`).
+pub(crate) fn set_busy_poll(fd: libc::c_int, options: &LinkOptions) -> bool {
+    if options.busy_poll_us == 0 {
+        return true;
+    }
+    let us = options.busy_poll_us.min(i32::MAX as u32) as libc::c_int;
+    set_int_option(fd, libc::SOL_SOCKET, libc::SO_BUSY_POLL, us)
+        && set_int_option(fd, libc::SOL_SOCKET, SO_PREFER_BUSY_POLL, 1)
+        && set_int_option(fd, libc::SOL_SOCKET, SO_BUSY_POLL_BUDGET, 8)
+}
+
+// Not in every libc version's generic Linux module.
+const SO_PREFER_BUSY_POLL: libc::c_int = 69;
+const SO_BUSY_POLL_BUDGET: libc::c_int = 70;
+
 /// An AF_PACKET raw socket bound to one interface and to the EtherCAT EtherType.
 pub struct RawSocketLink {
     fd: libc::c_int,
@@ -44,7 +89,7 @@ fn os_error(what: &str, ifname: &str) -> io::Error {
     io::Error::new(e.kind(), format!("{what} on interface '{ifname}': {e}"))
 }
 
-fn set_int_option(
+pub(crate) fn set_int_option(
     fd: libc::c_int,
     level: libc::c_int,
     name: libc::c_int,
@@ -65,6 +110,11 @@ fn set_int_option(
 impl RawSocketLink {
     /// Open a raw socket on `ifname`. Needs CAP_NET_RAW (root).
     pub fn open(ifname: &str) -> io::Result<RawSocketLink> {
+        RawSocketLink::open_with(ifname, &LinkOptions::default())
+    }
+
+    /// Open a raw socket on `ifname` with `options` (busy polling).
+    pub fn open_with(ifname: &str, options: &LinkOptions) -> io::Result<RawSocketLink> {
         let cname = CString::new(ifname).map_err(|_| {
             io::Error::new(
                 io::ErrorKind::InvalidInput,
@@ -116,6 +166,9 @@ impl RawSocketLink {
             // a cycle later (send_at_wake). Optional as well.
             set_int_option(fd, libc::SOL_SOCKET, libc::SO_TIMESTAMPNS, 1);
             set_int_option(fd, libc::SOL_SOCKET, libc::SO_RCVBUF, 1 << 20);
+            if !set_busy_poll(fd, options) {
+                return Err(os_error("cannot enable busy polling", ifname));
+            }
             let mut link = link;
             link.drain();
             Ok(link)

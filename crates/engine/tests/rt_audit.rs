@@ -11,19 +11,19 @@
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::io;
-use std::process::Command as Process;
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use ether_ros_engine::plan::{DcMode, DcPlan, Order, Policy, RtPlan};
 use ether_ros_engine::{
-    now_ns, Engine, Error, InProcessLink, Link, Plan, RawSocketLink, Received, Request,
+    now_ns, Engine, Error, InProcessLink, Link, LinkOptions, Plan, RawSocketLink, Received,
+    Request, XdpLink,
 };
 use ether_ros_wire::{self as wire, Command, MAX_FRAME_LEN};
 
 mod common;
-use common::{counter, wait_for};
+use common::{counter, wait_for, Veth};
 
 // ------------------------------------------------------------------ the counting allocator
 
@@ -210,50 +210,6 @@ fn in_process_link() -> Box<dyn Link> {
         answer_in_place(&mut buf[..len], 123_456_000).then_some(len)
     });
     Box::new(InProcessLink::new("audit bus", responder))
-}
-
-/// A veth pair created for one test and deleted when dropped.
-struct Veth {
-    master: String,
-    peer: String,
-}
-
-impl Veth {
-    /// None when the pair cannot be created (no CAP_NET_ADMIN, no `ip`).
-    fn create() -> Option<Veth> {
-        let tag = std::process::id() % 100_000;
-        let v = Veth {
-            master: format!("rtam{tag}"),
-            peer: format!("rtap{tag}"),
-        };
-        let ok = |args: &[&str]| {
-            Process::new("ip")
-                .args(args)
-                .output()
-                .map(|o| o.status.success())
-                .unwrap_or(false)
-        };
-        if !ok(&[
-            "link", "add", &v.master, "type", "veth", "peer", "name", &v.peer,
-        ]) {
-            return None;
-        }
-        let up = ok(&["link", "set", &v.master, "up"]) && ok(&["link", "set", &v.peer, "up"]);
-        // IPv6 link-local autoconfiguration would put foreign frames on the wire: harmless for
-        // the audit (they are filtered by EtherType), but keep the link quiet anyway.
-        for name in [&v.master, &v.peer] {
-            let _ = std::fs::write(format!("/proc/sys/net/ipv6/conf/{name}/disable_ipv6"), "1");
-        }
-        up.then_some(v)
-    }
-}
-
-impl Drop for Veth {
-    fn drop(&mut self) {
-        let _ = Process::new("ip")
-            .args(["link", "del", &self.master])
-            .output();
-    }
 }
 
 /// The far end of the veth: answers every frame, loses every 97th, and after every 50th also
@@ -470,7 +426,7 @@ fn rt_thread_never_allocates_on_the_in_process_link() {
 #[test]
 fn rt_thread_never_allocates_on_the_raw_socket_link() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let Some(veth) = Veth::create() else {
+    let Some(veth) = Veth::create("rta") else {
         eprintln!("SKIPPED: cannot create a veth pair here (needs CAP_NET_ADMIN and `ip`)");
         return;
     };
@@ -492,6 +448,33 @@ fn rt_thread_never_allocates_on_the_raw_socket_link() {
     stop.store(true, Ordering::Relaxed);
     assert!(far.join().unwrap() > 1000, "the far end answered");
     assert_clean("raw socket link over veth", &o);
+}
+
+#[test]
+fn rt_thread_never_allocates_on_the_xdp_link() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let Some(veth) = Veth::create("rtx") else {
+        eprintln!("SKIPPED: cannot create a veth pair here (needs CAP_NET_ADMIN and `ip`)");
+        return;
+    };
+    let master = match XdpLink::open(&veth.master, &LinkOptions::default()) {
+        Ok(l) => l,
+        Err(e) => {
+            eprintln!("SKIPPED: no AF_XDP link ({e})");
+            return;
+        }
+    };
+    let stop = Arc::new(AtomicBool::new(false));
+    let far = spawn_far_end(&veth.peer, stop.clone());
+    let o = audit(
+        Box::new(master),
+        Order::SendAtWake,
+        DcMode::RefFollowsMaster,
+        2000,
+    );
+    stop.store(true, Ordering::Relaxed);
+    assert!(far.join().unwrap() > 1000, "the far end answered");
+    assert_clean("AF_XDP link over veth", &o);
 }
 
 /// The instrument itself: an allocation on the RT thread is seen (so a zero above means
@@ -540,6 +523,7 @@ fn the_rt_path_source_has_no_lock_and_no_output() {
         ("cyclic.rs", include_str!("../src/cyclic.rs")),
         ("handover.rs", include_str!("../src/handover.rs")),
         ("link.rs", include_str!("../src/link.rs")),
+        ("xdp.rs", include_str!("../src/xdp.rs")),
         ("clock.rs", include_str!("../src/clock.rs")),
         ("stats.rs", include_str!("../src/stats.rs")),
         ("frames.rs", include_str!("../src/frames.rs")),

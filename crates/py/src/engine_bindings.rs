@@ -7,7 +7,8 @@ use std::sync::{Arc, Mutex, Weak};
 
 use ether_ros_engine::plan::{CyclicDatagram, DcMode, DcPlan, Order, Policy, RtPlan};
 use ether_ros_engine::{
-    flags, Engine, Error, InProcessLink, OutputField, Plan, Request, Responder, RECORD_LEN,
+    flags, Engine, Error, InProcessLink, LinkKind, LinkOptions, OutputField, Plan, Request,
+    Responder, RECORD_LEN,
 };
 use ether_ros_sim::network::Network;
 use ether_ros_wire::{Command, MAX_FRAME_LEN};
@@ -362,11 +363,21 @@ impl Drop for PyEngine {
 
 #[pymethods]
 impl PyEngine {
-    /// Open a raw socket on network interface `ifname` (needs root / CAP_NET_RAW).
+    /// Open network interface `ifname` through `link`: "packet" (an AF_PACKET raw socket,
+    /// needs CAP_NET_RAW) or "xdp" (an AF_XDP socket and its XDP program, needs CAP_NET_RAW,
+    /// CAP_NET_ADMIN and CAP_BPF). `busy_poll_us` > 0 turns on the kernel's busy polling.
     #[staticmethod]
-    fn open_interface(py: Python<'_>, ifname: String) -> PyResult<PyEngine> {
+    #[pyo3(signature = (ifname, link = "packet", busy_poll_us = 0))]
+    fn open_interface(
+        py: Python<'_>,
+        ifname: String,
+        link: &str,
+        busy_poll_us: u32,
+    ) -> PyResult<PyEngine> {
+        let kind: LinkKind = link.parse().map_err(PyValueError::new_err)?;
+        let options = LinkOptions { busy_poll_us };
         let engine = py
-            .detach(|| Engine::open_interface(&ifname))
+            .detach(|| Engine::open_interface_with(&ifname, kind, &options))
             .map_err(|e| to_py(py, e))?;
         Ok(PyEngine {
             inner: track(engine),

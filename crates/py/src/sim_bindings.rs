@@ -34,6 +34,7 @@ use pyo3::exceptions::{PyIndexError, PyOSError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList};
 
+use ether_ros_engine::LinkKind;
 use ether_ros_sim::chip::EscChip;
 use ether_ros_sim::esc::Esc;
 use ether_ros_sim::faults::Rng;
@@ -359,14 +360,17 @@ impl SimNetwork {
         Ok(())
     }
 
-    /// Serve frames on a network interface from a background thread (AF_PACKET).
-    fn run_on_interface(&mut self, ifname: &str) -> PyResult<()> {
+    /// Serve frames on a network interface from a background thread, through `link`:
+    /// "packet" (AF_PACKET) or "xdp" (AF_XDP with its XDP program).
+    #[pyo3(signature = (ifname, link = "packet"))]
+    fn run_on_interface(&mut self, ifname: &str, link: &str) -> PyResult<()> {
+        let kind: LinkKind = link.parse().map_err(PyValueError::new_err)?;
         if self.runner.as_ref().is_some_and(|r| r.is_running()) {
             return Err(PyRuntimeError::new_err(
                 "the simulator already runs on an interface; call stop() first",
             ));
         }
-        let r = Runner::start(self.net.clone(), ifname)
+        let r = Runner::start_on(self.net.clone(), ifname, kind)
             .map_err(|e| PyOSError::new_err(format!("cannot serve EtherCAT on '{ifname}': {e}")))?;
         self.runner = Some(r);
         Ok(())

@@ -1,5 +1,6 @@
 //! Runs a `Network` on a network interface: an `AF_PACKET` raw socket bound to EtherType
-//! 0x88A4, a background thread that receives a frame, processes it through the line of slaves
+//! 0x88A4 (or the engine's AF_XDP link, so the simulator is never the slower side of an xdp
+//! master), a background thread that receives a frame, processes it through the line of slaves
 //! and sends the answer back, and polls the slaves every millisecond when no frame arrives so
 //! device models and watchdogs keep running without traffic.
 
@@ -9,6 +10,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 
+use ether_ros_engine::{Link, LinkKind, LinkOptions, XdpLink};
 use ether_ros_wire as wire;
 
 use crate::network::{monotonic_ns, Network};
@@ -89,6 +91,87 @@ fn try_realtime() {
     }
 }
 
+/// Where the frame loop gets frames and puts answers.
+trait FrameIo: Send {
+    /// Wait up to `timeout_ns` for a frame; its length, or None when none came.
+    fn recv(&mut self, buf: &mut [u8], timeout_ns: u64) -> Option<usize>;
+    /// Send one frame; false when the kernel refused it.
+    fn send(&mut self, frame: &[u8]) -> bool;
+}
+
+impl FrameIo for Socket {
+    fn recv(&mut self, buf: &mut [u8], timeout_ns: u64) -> Option<usize> {
+        // An idle wait is one blocking receive (SO_RCVTIMEO is the idle poll time): one
+        // syscall per frame. A shorter wait (delayed answers due) polls first.
+        let flags = if timeout_ns >= IDLE_POLL_US as u64 * 1_000 {
+            0
+        } else if wait_readable(self.0, timeout_ns) {
+            libc::MSG_DONTWAIT
+        } else {
+            return None;
+        };
+        loop {
+            // SAFETY: recvfrom into our buffer and address struct, sizes passed correctly.
+            let mut sll: libc::sockaddr_ll = unsafe { std::mem::zeroed() };
+            let mut alen = std::mem::size_of::<libc::sockaddr_ll>() as libc::socklen_t;
+            let n = unsafe {
+                libc::recvfrom(
+                    self.0,
+                    buf.as_mut_ptr() as *mut libc::c_void,
+                    buf.len(),
+                    flags,
+                    &mut sll as *mut libc::sockaddr_ll as *mut libc::sockaddr,
+                    &mut alen,
+                )
+            };
+            if n <= 0 {
+                return None;
+            }
+            // Our own answers come back to packet sockets as outgoing frames: not for us.
+            if sll.sll_pkttype != libc::PACKET_OUTGOING {
+                return Some(n as usize);
+            }
+        }
+    }
+
+    fn send(&mut self, frame: &[u8]) -> bool {
+        // SAFETY: send a buffer we own on the bound socket.
+        unsafe {
+            libc::send(
+                self.0,
+                frame.as_ptr() as *const libc::c_void,
+                frame.len(),
+                0,
+            ) >= 0
+        }
+    }
+}
+
+impl FrameIo for XdpLink {
+    fn recv(&mut self, buf: &mut [u8], timeout_ns: u64) -> Option<usize> {
+        let deadline = ether_ros_engine::now_ns() + timeout_ns as i64;
+        Link::recv(self, buf, deadline)
+            .ok()
+            .flatten()
+            .map(|r| r.len)
+    }
+
+    fn send(&mut self, frame: &[u8]) -> bool {
+        Link::send(self, frame).is_ok()
+    }
+}
+
+fn open_io(ifname: &str, kind: LinkKind) -> io::Result<Box<dyn FrameIo>> {
+    match kind {
+        LinkKind::Packet => {
+            let sock = open_socket(ifname)?;
+            set_idle_timeout(sock.0);
+            Ok(Box::new(sock))
+        }
+        LinkKind::Xdp => Ok(Box::new(XdpLink::open(ifname, &LinkOptions::default())?)),
+    }
+}
+
 /// A running frame thread.
 pub struct Runner {
     stop: Arc<AtomicBool>,
@@ -99,7 +182,12 @@ pub struct Runner {
 impl Runner {
     /// Open the socket (errors are reported here) and start the thread.
     pub fn start(net: Arc<Mutex<Network>>, ifname: &str) -> io::Result<Runner> {
-        let sock = open_socket(ifname)?;
+        Runner::start_on(net, ifname, LinkKind::Packet)
+    }
+
+    /// Like `start`, through the link `kind` (an AF_XDP socket for `LinkKind::Xdp`).
+    pub fn start_on(net: Arc<Mutex<Network>>, ifname: &str, kind: LinkKind) -> io::Result<Runner> {
+        let sock = open_io(ifname, kind)?;
         let stop = Arc::new(AtomicBool::new(false));
         let stop2 = stop.clone();
         let handle = std::thread::Builder::new()
@@ -168,13 +256,11 @@ impl DelayQueue {
     }
 
     /// Send every answer due by `now`.
-    fn send_due(&mut self, fd: libc::c_int, now: u64) -> u64 {
+    fn send_due(&mut self, io: &mut dyn FrameIo, now: u64) -> u64 {
         let mut errors = 0;
         while self.count > 0 && self.due[self.head] <= now {
             let f = &self.frames[self.head][..self.lens[self.head]];
-            // SAFETY: send a buffer we own on the bound socket.
-            let sent = unsafe { libc::send(fd, f.as_ptr() as *const libc::c_void, f.len(), 0) };
-            if sent < 0 {
+            if !io.send(f) {
                 errors += 1;
             }
             self.head = (self.head + 1) % DELAY_QUEUE;
@@ -199,11 +285,8 @@ fn wait_readable(fd: libc::c_int, timeout_ns: u64) -> bool {
     unsafe { libc::ppoll(&mut pfd, 1, &ts, std::ptr::null()) > 0 }
 }
 
-fn frame_loop(sock: Socket, net: Arc<Mutex<Network>>, stop: Arc<AtomicBool>) {
-    try_realtime();
-    let fd = sock.0;
-    // A blocking receive with a 1 ms timeout: one syscall per frame, and a poll of the
-    // slaves whenever the line is idle.
+/// A blocking receive on the raw socket returns after the idle poll time at the latest.
+fn set_idle_timeout(fd: libc::c_int) {
     let tv = libc::timeval {
         tv_sec: 0,
         tv_usec: IDLE_POLL_US,
@@ -218,56 +301,38 @@ fn frame_loop(sock: Socket, net: Arc<Mutex<Network>>, stop: Arc<AtomicBool>) {
             std::mem::size_of::<libc::timeval>() as u32,
         );
     }
+}
+
+fn frame_loop(mut io: Box<dyn FrameIo>, net: Arc<Mutex<Network>>, stop: Arc<AtomicBool>) {
+    try_realtime();
     let mut buf = [0u8; FRAME_BUF];
     let mut delayed = DelayQueue::new();
     let mut last_poll = 0u64;
+    let idle_ns = IDLE_POLL_US as u64 * 1_000;
     while !stop.load(Ordering::Relaxed) {
-        let mut flags = 0;
+        let mut wait = idle_ns;
         if delayed.next_due().is_some() {
             // Delayed answers pending: wait only until the first is due.
             let now = monotonic_ns();
-            let errors = delayed.send_due(fd, now);
+            let errors = delayed.send_due(io.as_mut(), now);
             if errors > 0 {
                 if let Ok(mut net) = net.lock() {
                     net.stats.send_errors += errors;
                 }
             }
             if let Some(due) = delayed.next_due() {
-                let wait = due
-                    .saturating_sub(now)
-                    .clamp(1_000, IDLE_POLL_US as u64 * 1_000);
-                if !wait_readable(fd, wait) {
-                    continue;
-                }
-                flags = libc::MSG_DONTWAIT;
+                wait = due.saturating_sub(now).clamp(1_000, idle_ns - 1);
             }
         }
-        // SAFETY: recvfrom into our buffer and address struct, sizes passed correctly.
-        let mut sll: libc::sockaddr_ll = unsafe { std::mem::zeroed() };
-        let mut alen = std::mem::size_of::<libc::sockaddr_ll>() as libc::socklen_t;
-        let n = unsafe {
-            libc::recvfrom(
-                fd,
-                buf.as_mut_ptr() as *mut libc::c_void,
-                buf.len(),
-                flags,
-                &mut sll as *mut libc::sockaddr_ll as *mut libc::sockaddr,
-                &mut alen,
-            )
-        };
-        if n <= 0 {
-            if flags == 0 {
+        let Some(len) = io.recv(&mut buf, wait) else {
+            if wait == idle_ns {
                 if let Ok(mut net) = net.lock() {
                     net.poll();
                     last_poll = net.now();
                 }
             }
             continue;
-        }
-        if sll.sll_pkttype == libc::PACKET_OUTGOING {
-            continue;
-        }
-        let len = n as usize;
+        };
         let (answer, delay_us) = match net.lock() {
             Ok(mut net) => {
                 let a = net.process_frame(&mut buf[..len]);
@@ -295,9 +360,7 @@ fn frame_loop(sock: Socket, net: Arc<Mutex<Network>>, stop: Arc<AtomicBool>) {
             }
             continue;
         }
-        // SAFETY: send our buffer on the bound socket.
-        let sent = unsafe { libc::send(fd, buf.as_ptr() as *const libc::c_void, len, 0) };
-        if sent < 0 {
+        if !io.send(&buf[..len]) {
             if let Ok(mut net) = net.lock() {
                 net.stats.send_errors += 1;
             }

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from ether_ros.errors import ConfigError
+from ether_ros.master.link import add_link_argument
 
 COUNTERS = (
     "cycles",
@@ -40,6 +41,7 @@ def register(subparsers: Any) -> None:
     )
     c.add_argument("config", help="bus configuration (YAML)")
     c.add_argument("--interface", "-i", help="network interface (default: bus.interface)")
+    add_link_argument(c)
     c.add_argument("--cycle-us", type=int, help="cycle time in µs (default: bus.cycle_us)")
     c.add_argument("--seconds", type=float, default=10.0, help="how long to run (default 10)")
     c.add_argument("--json", dest="json_file", help="also write the results to this JSON file")
@@ -103,7 +105,7 @@ def run_cycle(args: argparse.Namespace) -> int:
 
     if args.seconds <= 0:
         raise ConfigError(f"--seconds must be positive, got {args.seconds}")
-    cfg = load_bus_config(args.config, interface=args.interface)
+    cfg = load_bus_config(args.config, interface=args.interface, link=args.link)
     if args.cycle_us is not None:
         if not 20 <= args.cycle_us <= 1_000_000:
             raise ConfigError(f"--cycle-us must be 20..1000000, got {args.cycle_us}")

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from ether_ros.master.link import add_link_argument
+
 
 def register(subparsers: Any) -> None:
     parser = subparsers.add_parser(
@@ -17,6 +19,7 @@ def register(subparsers: Any) -> None:
     trot = sub.add_parser("trot", help="Table 6.1: ramp b to 4 cm and a to 5 cm, trot, stop")
     trot.add_argument("config", help="bus configuration (YAML) with Laelaps II legs")
     trot.add_argument("--interface", help="network interface (overrides bus.interface)")
+    add_link_argument(trot)
     trot.add_argument("--record", metavar="FILE", help="record the run to this MCAP file")
     trot.add_argument(
         "--transition", type=int, default=3, help="Transition_time in seconds (Table 6.1: 3)"
@@ -34,6 +37,7 @@ def register(subparsers: Any) -> None:
     )
     freq.add_argument("config", help="bus configuration (YAML)")
     freq.add_argument("--interface", help="network interface (overrides bus.interface)")
+    add_link_argument(freq)
     freq.add_argument("--from-us", type=int, default=400, help="first loop time (default 400)")
     freq.add_argument("--step-us", type=int, default=50, help="decrement per round (default 50)")
     freq.add_argument("--to-us", type=int, default=100, help="last loop time (default 100)")
@@ -55,7 +59,7 @@ def run_trot(args: argparse.Namespace) -> int:
     from ether_ros.tools.experiments import TrotPlan, trot
     from ether_ros.tools.session import load_config, running_bus
 
-    config = load_config(args.config, args.interface)
+    config = load_config(args.config, args.interface, args.link)
     with running_bus(config, args.interface) as bus:
         result = trot(
             bus, TrotPlan(transition_s=args.transition, hold_s=args.hold), record=args.record
@@ -82,7 +86,7 @@ def run_frequency(args: argparse.Namespace) -> int:
     load_config(args.config, args.interface)  # a bad configuration fails before round one
 
     def open_bus(cycle_us: int) -> Any:
-        config = load_config(args.config, args.interface)
+        config = load_config(args.config, args.interface, args.link)
         config.bus.cycle_us = cycle_us
         return Bus.open(config, interface=args.interface)
 

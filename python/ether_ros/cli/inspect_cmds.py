@@ -14,11 +14,14 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from ether_ros.master.link import add_link_argument
+
 Handler = Callable[[Any, argparse.Namespace], Any]
 
 
 def _common(p: argparse.ArgumentParser, slave: str | None) -> None:
     p.add_argument("--interface", "-i", help="network interface (or bus.interface of --config)")
+    add_link_argument(p)
     p.add_argument("--config", "-c", help="bus configuration: slave names and ESI files")
     p.add_argument(
         "--esi",
@@ -87,7 +90,9 @@ def register(subparsers: Any) -> None:
 def _run(handler: Handler, args: argparse.Namespace) -> int:
     from ether_ros.tools.bus_inspect import Inspector
 
-    with Inspector.open(args.interface, config=args.config, esi=args.esi) as inspector:
+    with Inspector.open(
+        args.interface, config=args.config, esi=args.esi, link_kind=args.link
+    ) as inspector:
         result = handler(inspector, args)
     if args.json and result is not None:
         json.dump(result, sys.stdout, indent=2, default=_json_default)

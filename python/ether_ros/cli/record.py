@@ -6,6 +6,8 @@ import argparse
 import time
 from typing import Any
 
+from ether_ros.master.link import add_link_argument
+
 
 def register(subparsers: Any) -> None:
     parser = subparsers.add_parser(
@@ -13,6 +15,7 @@ def register(subparsers: Any) -> None:
     )
     parser.add_argument("config", help="bus configuration (YAML)")
     parser.add_argument("--interface", help="network interface (overrides bus.interface)")
+    add_link_argument(parser)
     parser.add_argument(
         "--seconds",
         type=float,
@@ -43,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.seconds <= 0:
         raise EtherRosError(f"--seconds must be positive, got {args.seconds}")
-    config = load_config(args.config, args.interface)
+    config = load_config(args.config, args.interface, args.link)
     decimation = args.decimation or config.ros.decoded_decimation
     with running_bus(config, args.interface) as bus:
         writer = RecordingWriter(

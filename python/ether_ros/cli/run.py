@@ -7,6 +7,8 @@ import signal
 import sys
 from typing import Any
 
+from ether_ros.master.link import add_link_argument
+
 SWITCH_INTERVAL_S = 0.0005
 
 
@@ -20,6 +22,7 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("config", help="bus configuration (YAML)")
     p.add_argument("--interface", "-i", help="network interface (overrides bus.interface)")
+    add_link_argument(p)
     p.add_argument(
         "--inactive",
         action="store_true",
@@ -59,6 +62,7 @@ def run(args: argparse.Namespace) -> int:
             node_name=args.node_name,
             command_node=True,
             native_commands=not args.python_commands,
+            link_kind=args.link,
         )
         if not args.inactive:
             ok, message = node.run_command("start")

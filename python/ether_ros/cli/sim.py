@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from ether_ros.errors import ConfigError, LinkError
+from ether_ros.master.link import LINKS
 
 _FAULT_HELP = {
     "drop": "drop frames: each frame starts a burst of BURST lost frames with probability RATE",
@@ -44,6 +45,13 @@ def register(subparsers: Any) -> None:
                    " several)")  # fmt: skip
     p.add_argument("--count", type=int, default=1, help="with --esi: how many slaves (default 1)")
     p.add_argument("--interface", "-i", help="network interface (default: bus.interface)")
+    p.add_argument(
+        "--link",
+        choices=LINKS,
+        default="packet",
+        help="how the simulator receives and answers: AF_PACKET (default), AF_XDP, or AF_XDP"
+        " when available",
+    )
     p.add_argument("--control", type=Path, help="control socket path (default:"
                    " /run/ether_ros/sim-INTERFACE.sock)")  # fmt: skip
     p.add_argument("--no-control", action="store_true", help="no control socket")
@@ -89,6 +97,22 @@ def register(subparsers: Any) -> None:
     f.set_defaults(func=run_fault)
 
 
+def _serve(net: Any, iface: str, link: str) -> None:
+    """Start the simulator's frame thread on ``iface`` through ``link``; ``auto`` falls back
+    to AF_PACKET with one line on stderr."""
+    if link == "auto":
+        try:
+            net.run_on_interface(iface, "xdp")
+            return
+        except OSError as exc:
+            print(f"ether-ros sim: no AF_XDP ({exc}); using AF_PACKET", file=sys.stderr)
+            link = "packet"
+    try:
+        net.run_on_interface(iface, link)
+    except OSError as exc:
+        raise LinkError(str(exc)) from None
+
+
 def run_sim(args: argparse.Namespace) -> int:
     from ether_ros.config import load_bus_config
     from ether_ros.sim.control import ControlServer, socket_path
@@ -125,10 +149,7 @@ def run_sim(args: argparse.Namespace) -> int:
             server = ControlServer(
                 path, slave_names(cfg), lambda op, kind, a: handle_request(net, op, kind, a)
             )
-        try:
-            net.run_on_interface(iface)
-        except OSError as exc:
-            raise LinkError(str(exc)) from None
+        _serve(net, iface, args.link)
         if server is not None:
             server.start()
         print(f"ether-ros sim: {len(cfg.slaves)} slaves on {iface} ready", flush=True)

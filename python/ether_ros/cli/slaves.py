@@ -12,7 +12,7 @@ import json
 import sys
 from typing import Any
 
-from ether_ros.errors import LinkError
+from ether_ros.master.link import add_link_argument, open_engine
 
 
 def register(subparsers: Any) -> None:
@@ -22,6 +22,7 @@ def register(subparsers: Any) -> None:
         description="Scan the bus on INTERFACE and print one line per slave.",
     )
     p.add_argument("--interface", "-i", required=True, help="network interface (e.g. eth1)")
+    add_link_argument(p)
     p.add_argument("--config", "-c", help="bus configuration: check identities, show names")
     p.add_argument("-v", "--verbose", action="store_true", help="details of every slave")
     p.add_argument("--json", action="store_true", help="machine-readable output")
@@ -89,7 +90,6 @@ def details(entry: dict[str, Any]) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ether_ros import _native
     from ether_ros.master.al import AlStateMachine, SlaveRef
     from ether_ros.master.datagrams import DatagramService
     from ether_ros.master.scan import Expected, match_configuration, scan
@@ -102,10 +102,7 @@ def run(args: argparse.Namespace) -> int:
 
         cfg = load_bus_config(args.config)
         expected = [_expected(s, i) for i, s in enumerate(cfg.slaves)]
-    try:
-        engine = _native.Engine.open_interface(args.interface)
-    except OSError as exc:
-        raise LinkError(f"cannot open interface {args.interface}: {exc}") from None
+    engine = open_engine(args.interface, args.link or "packet")
     try:
         dg = DatagramService(engine)
         found = scan(dg, reset=False)

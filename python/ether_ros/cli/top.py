@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from ether_ros.master.link import add_link_argument
+
 
 def register(subparsers: Any) -> None:
     parser = subparsers.add_parser(
@@ -12,6 +14,7 @@ def register(subparsers: Any) -> None:
     )
     parser.add_argument("--config", help="bus configuration: open the bus in this process")
     parser.add_argument("--interface", help="network interface (with --config)")
+    add_link_argument(parser)
     parser.add_argument(
         "--topic",
         default="/diagnostics",
@@ -34,7 +37,9 @@ def run(args: argparse.Namespace) -> int:
         from ether_ros.master.bus import Bus
         from ether_ros.tools.session import load_config
 
-        bus = Bus.open(load_config(args.config, args.interface), interface=args.interface)
+        bus = Bus.open(
+            load_config(args.config, args.interface, args.link), interface=args.interface
+        )
         try:
             bus.start()
         except BaseException:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, cast
 
 from pydantic import (
     BaseModel,
@@ -58,6 +58,7 @@ def _parse_int(value: Any) -> Any:
 
 
 HexInt = Annotated[int, BeforeValidator(_parse_int)]
+LinkName = Literal["packet", "xdp", "auto"]
 Identifier = Annotated[str, Field(pattern=r"^[a-z_][a-z0-9_]*$", max_length=63)]
 
 
@@ -86,6 +87,12 @@ class BusSection(_Model):
     cycle_us: int = Field(default=1000, ge=20, le=1_000_000)
     cycle_order: Literal["send_at_wake", "send_then_wait"] = "send_at_wake"
     watchdog_ms: int = Field(default=100, ge=0, le=60_000)
+    # How frames reach the interface (docs/engine.md, "Links"): AF_PACKET, AF_XDP, or AF_XDP
+    # with a fallback to AF_PACKET.
+    link: LinkName = "packet"
+    # SO_BUSY_POLL time of the link's socket in µs (0: off): the kernel spins for a reply
+    # before the RT thread sleeps.
+    busy_poll_us: int = Field(default=0, ge=0, le=1_000_000)
     dc: DcConfig = Field(default_factory=DcConfig)
     realtime: RealtimeConfig = Field(default_factory=RealtimeConfig)
 
@@ -305,8 +312,11 @@ class JointSpec:
 # Loader
 
 
-def load_bus_config(path: str | Path, interface: str | None = None) -> BusConfig:
-    """Load and fully validate a bus configuration; ``interface`` overrides ``bus.interface``."""
+def load_bus_config(
+    path: str | Path, interface: str | None = None, link: str | None = None
+) -> BusConfig:
+    """Load and fully validate a bus configuration; ``interface`` overrides ``bus.interface``
+    and ``link`` overrides ``bus.link``."""
     file = Path(path)
     data, smap = load_yaml(file)
     if not isinstance(data, dict):
@@ -319,6 +329,10 @@ def load_bus_config(path: str | Path, interface: str | None = None) -> BusConfig
         if not 1 <= len(interface) <= 15:
             raise ConfigError(f"interface name must be 1..15 characters, got {interface!r}")
         cfg.bus.interface = interface
+    if link is not None:
+        if link not in ("packet", "xdp", "auto"):
+            raise ConfigError(f"link must be packet, xdp or auto, got {link!r}")
+        cfg.bus.link = cast(LinkName, link)
     cfg._source = file.resolve()
     _resolve(cfg, file, smap)
     return cfg

@@ -39,6 +39,7 @@ from ether_ros.master.al import AlState, AlStateMachine, AlStatus, al_code_text
 from ether_ros.master.datagrams import DatagramService
 from ether_ros.master.dc import EPOCH_2000_S, DcSlave, DistributedClocks
 from ether_ros.master.events import BusEvent
+from ether_ros.master.link import open_engine
 from ether_ros.master.pdo import select_pdos
 from ether_ros.master.plan import DcPlan, ImageLayout, RtPlan, build_plan, layout_image
 from ether_ros.master.samples import Samples, decode_samples
@@ -133,12 +134,7 @@ class Bus:
             ifname = interface or getattr(cfg.bus, "interface", None)
             if not ifname:
                 raise LinkError("no network interface: give --interface or bus.interface")
-            try:
-                engine = _native.Engine.open_interface(ifname)
-            except EtherRosError:
-                raise
-            except OSError as exc:
-                raise LinkError(f"cannot open interface {ifname}: {exc}") from None
+            engine = open_engine(ifname, cfg.bus.link, cfg.bus.busy_poll_us)
         bus = cls(cfg, engine, drift_frames=drift_frames)
         try:
             bus._discover()

@@ -113,10 +113,10 @@ def _open_bus(config: Any, interface: str | None = None, link: Any = None) -> An
     return Bus.open(config, interface=interface, link=link)
 
 
-def load_config(path: str, interface: str | None) -> Any:
+def load_config(path: str, interface: str | None, link: str | None = None) -> Any:
     from ether_ros.config import load_bus_config
 
-    return load_bus_config(path, interface=interface or None)
+    return load_bus_config(path, interface=interface or None, link=link)
 
 
 class EtherRosNode(LifecycleNode):
@@ -136,8 +136,11 @@ class EtherRosNode(LifecycleNode):
         context: Any = None,
         command_node: bool = False,
         native_commands: bool = True,
+        link_kind: str | None = None,
     ) -> None:
-        cfg = load_config(str(config_path), interface)
+        # ``link_kind`` overrides bus.link (packet, xdp, auto) each time the bus opens.
+        self._link_kind = link_kind
+        cfg = load_config(str(config_path), interface, link_kind)
         name = node_name or cfg.ros.node_name
         super().__init__(name, namespace=cfg.ros.namespace or None, context=context)
         # The command path (``pdo_listener``, ``write_variables``, ``panic``) optionally lives on
@@ -319,7 +322,7 @@ class EtherRosNode(LifecycleNode):
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         interface = str(self.get_parameter("interface").value) or None
         try:
-            cfg = load_config(self._config_path, interface)
+            cfg = load_config(self._config_path, interface, self._link_kind)
             with self._bus_lock:
                 bus = self._bus_opener(cfg, interface=interface, link=self._link)
                 self._cfg, self._bus = cfg, bus

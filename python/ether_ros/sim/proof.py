@@ -44,10 +44,12 @@ class SimProcess:
         interface: str,
         netns: str | None = None,
         extra: Sequence[str] = (),
+        link: str = "packet",
     ) -> None:
-        """``config`` is the bus YAML; None with ``extra`` such as ``["--esi", FILE]``."""
+        """``config`` is the bus YAML; None with ``extra`` such as ``["--esi", FILE]``;
+        ``link`` is how the simulator meets the wire (``ether-ros sim --link``)."""
         self.config = None if config is None else Path(config)
-        self.extra = tuple(extra)
+        self.extra = (*extra, "--link", link)
         self.interface = interface
         self.netns = netns
         self.control = socket_path(interface)

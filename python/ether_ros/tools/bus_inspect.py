@@ -25,6 +25,7 @@ from ether_ros.config.sii import SiiInfo
 from ether_ros.errors import BusError, EtherRosError, LinkError
 from ether_ros.master.al import AlState, AlStateMachine, AlStatus, SlaveRef, al_code_text
 from ether_ros.master.datagrams import DatagramService
+from ether_ros.master.link import open_engine
 from ether_ros.master.scan import FoundSlave, bus_tree, scan
 
 
@@ -131,6 +132,7 @@ class Inspector:
         link: Any = None,
         config: str | None = None,
         esi: Sequence[str] = (),
+        link_kind: str | None = None,
     ) -> Inspector:
         from ether_ros import _native
         from ether_ros.config import load_bus_config
@@ -152,10 +154,8 @@ class Inspector:
                 raise LinkError(
                     "no network interface: give --interface (or --config with bus.interface)"
                 )
-            try:
-                engine = _native.Engine.open_interface(interface)
-            except OSError as exc:
-                raise LinkError(f"cannot open interface {interface}: {exc}") from None
+            kind = link_kind or (cfg.bus.link if cfg is not None else "packet")
+            engine = open_engine(interface, kind, cfg.bus.busy_poll_us if cfg is not None else 0)
         try:
             inspector = cls(engine, devices, names, interface or "in-process")
             if cfg is not None:

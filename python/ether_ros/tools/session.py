@@ -12,10 +12,10 @@ from contextlib import contextmanager
 from typing import Any
 
 
-def load_config(path: str, interface: str | None = None) -> Any:
+def load_config(path: str, interface: str | None = None, link: str | None = None) -> Any:
     from ether_ros.config import load_bus_config
 
-    return load_bus_config(path, interface=interface)
+    return load_bus_config(path, interface=interface, link=link)
 
 
 @contextmanager

@@ -1,6 +1,10 @@
 //! Helpers shared by the engine's integration tests: the cyclic datagram list of a one-LRW
-//! test bus, the non-real-time thread settings, and polling/counter look-ups on an engine.
+//! test bus, the non-real-time thread settings, polling/counter look-ups on an engine, and veth pairs.
 
+// Each test binary uses a part of these helpers.
+#![allow(dead_code)]
+
+use std::process::Command as Process;
 use std::time::{Duration, Instant};
 
 use ether_ros_engine::plan::{CyclicDatagram, DcMode, Policy, RtPlan};
@@ -63,4 +67,49 @@ pub fn counter(e: &Engine, name: &str) -> u64 {
         .find(|(n, _)| *n == name)
         .unwrap_or_else(|| panic!("the engine has no counter named {name}"))
         .1
+}
+
+/// A veth pair created for one test and deleted when dropped.
+pub struct Veth {
+    pub master: String,
+    pub peer: String,
+}
+
+impl Veth {
+    /// A pair named `{prefix}m{pid}` / `{prefix}p{pid}` (distinct prefixes keep parallel test
+    /// binaries apart). None when it cannot be created (no CAP_NET_ADMIN, no `ip`).
+    pub fn create(prefix: &str) -> Option<Veth> {
+        let tag = std::process::id() % 100_000;
+        let v = Veth {
+            master: format!("{prefix}m{tag}"),
+            peer: format!("{prefix}p{tag}"),
+        };
+        let ok = |args: &[&str]| {
+            Process::new("ip")
+                .args(args)
+                .output()
+                .map(|o| o.status.success())
+                .unwrap_or(false)
+        };
+        if !ok(&[
+            "link", "add", &v.master, "type", "veth", "peer", "name", &v.peer,
+        ]) {
+            return None;
+        }
+        let up = ok(&["link", "set", &v.master, "up"]) && ok(&["link", "set", &v.peer, "up"]);
+        // IPv6 link-local autoconfiguration would put foreign frames on the wire: harmless for
+        // the audit (they are filtered by EtherType), but keep the link quiet anyway.
+        for name in [&v.master, &v.peer] {
+            let _ = std::fs::write(format!("/proc/sys/net/ipv6/conf/{name}/disable_ipv6"), "1");
+        }
+        up.then_some(v)
+    }
+}
+
+impl Drop for Veth {
+    fn drop(&mut self) {
+        let _ = Process::new("ip")
+            .args(["link", "del", &self.master])
+            .output();
+    }
 }
