@@ -2,9 +2,9 @@
 
 pub mod generic_io;
 pub mod laelaps_leg;
-pub mod loopback;
 pub mod leg_kinematics;
 pub mod leg_physics;
+pub mod loopback;
 pub mod od_slots;
 pub mod trajectory;
 
