@@ -114,7 +114,8 @@ BAD = [
     (
         "    device: LaelapsII_Leg",
         "    device: NoSuchLeg",
-        r"slaves\[0\]\.device: no such ESI device \(known: GenericIO, LaelapsII_Leg\).*NoSuchLeg",
+        r"slaves\[0\]\.device: no such ESI device"
+        r" \(known: GenericIO, LaelapsII_Leg, ServoDrive1, ServoDrive2\).*NoSuchLeg",
         12,
     ),
     (
