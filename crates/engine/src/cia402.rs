@@ -724,6 +724,8 @@ pub struct AxisController {
     fault_since: i64,
     retries: u32,
     operation_enabled_since: Option<i64>,
+    /// When the previous cycle ran (for the CSP step limit).
+    last_step_ns: Option<i64>,
     /// pp: a new set-point waits for the drive's acknowledge.
     pp_new_setpoint: bool,
     pub status: AxisStatus,
@@ -757,6 +759,7 @@ impl AxisController {
             retries: 0,
             operation_enabled_since: None,
             pp_new_setpoint: false,
+            last_step_ns: None,
             status: AxisStatus::default(),
             plan,
         }
@@ -964,8 +967,12 @@ impl AxisController {
                     let hi = limits.position_max.max(self.target_position);
                     let mut p = wanted.clamp(lo, hi);
                     if cmd.mode == Mode::CyclicPosition {
-                        // No step larger than the velocity limit allows in one cycle.
-                        let step = limits.velocity_max * cycle_ns as f64 * 1e-9;
+                        // No step larger than the velocity limit allows since the last cycle
+                        // (a late wake-up may have skipped one: the path still moved on).
+                        let elapsed = self
+                            .last_step_ns
+                            .map_or(cycle_ns, |t| (now - t).max(cycle_ns));
+                        let step = limits.velocity_max * elapsed as f64 * 1e-9;
                         p = p.clamp(self.target_position - step, self.target_position + step);
                     }
                     if p != wanted {
@@ -1002,6 +1009,8 @@ impl AxisController {
                 _ => {}
             }
         }
+
+        self.last_step_ns = Some(now);
 
         // Into the image.
         io[map.controlword..map.controlword + 2].copy_from_slice(&cw.to_le_bytes());

@@ -9,6 +9,7 @@ name things the device has and that the values fit their types. Every error is a
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -23,6 +24,7 @@ from pydantic import (
     model_validator,
 )
 
+from ether_ros.config import cia402
 from ether_ros.config import types as dt
 from ether_ros.config.esi import EsiDevice, esi_files, load_esi
 from ether_ros.config.process import ProcessLayout, ProcessValueError
@@ -149,6 +151,27 @@ class Joint(_Model):
     effort_scale: float = 1.0
 
 
+class AxisConfig(_Model):
+    """One axis (joint) of a CiA 402 drive: position = raw × position_scale + position_offset
+    (rad or m), velocity = raw × velocity_scale, torque = raw × torque_scale."""
+
+    name: Identifier
+    mode: Literal["csp", "csv", "cst", "pp", "pv", "hm"] = "csp"
+    position_scale: float = 1.0
+    position_offset: float = 0.0
+    velocity_scale: float = 1.0
+    torque_scale: float = 1.0
+    # [min, max] in SI; velocity_limit and torque_limit are |max| in SI.
+    position_limits: tuple[float, float] = (-math.inf, math.inf)
+    velocity_limit: float = math.inf
+    torque_limit: float = math.inf
+    following_error_window: float = 0.0
+    on_stop: Literal["quick_stop", "disable"] = "quick_stop"
+    fault_reset: Literal["auto", "manual"] = "auto"
+    fault_retries: int = Field(default=3, ge=0, le=100)
+    fault_backoff_ms: float = Field(default=100.0, ge=0.0, le=60_000.0)
+
+
 class SimConfig(_Model):
     device: Literal["laelaps_leg", "generic_io", "loopback", "none"] | None = None
     # The slave controller chip whose registers the virtual slave presents (docs/simulator.md).
@@ -171,10 +194,15 @@ class SlaveConfig(_Model):
     sdo_init: list[SdoInit] = Field(default_factory=list)
     safe_outputs: dict[str, int | float | bool] = Field(default_factory=dict)
     joints: list[Joint] = Field(default_factory=list)
+    # CiA 402 drives (docs/cia402.md): the profile (also taken from the ESI's ProfileNo 402
+    # when axes are given) and one entry per axis.
+    profile: Literal["cia402"] | None = None
+    axes: list[AxisConfig] = Field(default_factory=list, max_length=cia402.MAX_AXES)
     sim: SimConfig = Field(default_factory=SimConfig)
     _esi: EsiDevice | None = PrivateAttr(default=None)
     _layout: ProcessLayout | None = PrivateAttr(default=None)
     _safe_image: bytes = PrivateAttr(default=b"")
+    _axis_specs: list[cia402.AxisSpec] = PrivateAttr(default_factory=list)
 
     @model_validator(mode="after")
     def _identified(self) -> SlaveConfig:
@@ -200,6 +228,11 @@ class SlaveConfig(_Model):
     def safe_output_image(self) -> bytes:
         """The slave's output area with ``safe_outputs`` applied (other variables 0)."""
         return self._safe_image
+
+    @property
+    def axis_specs(self) -> list[cia402.AxisSpec]:
+        """The slave's CiA 402 axes, resolved against its PDO layout."""
+        return list(self._axis_specs)
 
     @property
     def sim_device(self) -> str:
@@ -234,6 +267,10 @@ class BusConfig(_Model):
                 return s
         known = ", ".join(s.name for s in self.slaves)
         raise ConfigError(f"no slave named {name!r} (slaves: {known})")
+
+    def axis_specs(self) -> list[cia402.AxisSpec]:
+        """Every CiA 402 axis of the bus, in bus order."""
+        return [a for s in self.slaves for a in s.axis_specs]
 
     def joint_specs(self) -> list[JointSpec]:
         """Every slave's ``joints``, in bus order, each with the slave it reads from."""
@@ -438,6 +475,23 @@ def _resolve_slave(
 ) -> None:
     rx = s.pdo_assign.rx if s.pdo_assign is not None else None
     tx = s.pdo_assign.tx if s.pdo_assign is not None else None
+    is_drive = s.profile == "cia402" or (
+        bool(s.axes) and cia402.PROFILE_NUMBER in dev.profile_numbers
+    )
+    if s.axes and not is_drive:
+        raise err((*at, "axes"), f"axes need a CiA 402 drive: {dev.type_name} has no ProfileNo "
+                  "402 in its ESI; give profile: cia402 if it is one", None, False)  # fmt: skip
+    if is_drive and not s.axes:
+        raise err((*at, "profile"), "a cia402 slave needs axes: (one entry per axis)", s.profile)
+    if is_drive:
+        s.profile = "cia402"
+        auto_rx, auto_tx = cia402.auto_assign(dev, len(s.axes))
+        if rx is None and tuple(auto_rx) != dev.default_rx_pdos():
+            rx = auto_rx
+        if tx is None and tuple(auto_tx) != dev.default_tx_pdos():
+            tx = auto_tx
+        if rx is not None or tx is not None:
+            s.pdo_assign = PdoAssign(rx=rx, tx=tx)
     for kind, chosen, pdos in (("rx", rx, dev.rx_pdos), ("tx", tx, dev.tx_pdos)):
         if chosen is None:
             continue
@@ -512,6 +566,13 @@ def _resolve_slave(
         except ValueError as exc:
             raise err((*path, "value"), str(exc), init.value) from None
         init.type = t.name
+
+    for j, axis in enumerate(s.axes):
+        if axis.name in joints:
+            raise err((*at, "axes", j, "name"), f"duplicate joint name (also in slave "
+                      f"{joints[axis.name]})", axis.name)  # fmt: skip
+        joints[axis.name] = s.name
+    s._axis_specs = cia402.resolve_axes(dev, layout, s.name, s.axes, at, err)
 
     for j, joint in enumerate(s.joints):
         path = (*at, "joints", j)
