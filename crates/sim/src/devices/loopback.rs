@@ -77,7 +77,11 @@ mod tests {
     #[test]
     fn valid_outputs_are_copied_and_held_otherwise() {
         let mut od = ObjectDictionary::new();
-        for e in [entry(0x7000, 1, 32), entry(0x6000, 1, 32), entry(0x6000, 2, 16)] {
+        for e in [
+            entry(0x7000, 1, 32),
+            entry(0x6000, 1, 32),
+            entry(0x6000, 2, 16),
+        ] {
             od.add_entry(e);
         }
         let mut app = Loopback::new(&[(0x7000, 1, 0x6000, 1)]);
@@ -89,8 +93,16 @@ mod tests {
         assert_eq!(od.get_int(0x6000, 1), 0x1234_5678);
         od.set_int(0x7000, 1, 1);
         app.step(&mut od, 0, false);
-        assert_eq!(od.get_int(0x6000, 1), 0x1234_5678, "held without valid outputs");
-        assert_eq!(od.get_int(0x6000, 2), 77, "an input without partner keeps its value");
+        assert_eq!(
+            od.get_int(0x6000, 1),
+            0x1234_5678,
+            "held without valid outputs"
+        );
+        assert_eq!(
+            od.get_int(0x6000, 2),
+            77,
+            "an input without partner keeps its value"
+        );
     }
 
     #[test]
