@@ -234,13 +234,19 @@ class Axis:
             raise AxisCommandError(f"axis {self.name}: give exactly one of position, velocity, "
                                    f"torque (got {', '.join(given) or 'none'})")  # fmt: skip
         ((kind, value),) = given.items()
+        self.check_command(kind, value)
+        self._require_running()
+        self._bus.engine.axis_setpoint(self._index, kind, float(value))
+
+    def check_command(self, kind: str, value: float) -> None:
+        """Raise :class:`AxisCommandError` if ``command(**{kind: value})`` would be refused for
+        its kind (the mode's) or its value; writes nothing. Lets a caller check the setpoints
+        of several axes before commanding any (all or nothing)."""
         want = SETPOINT_KIND[self._mode]
         if kind != want:
             raise AxisCommandError(f"axis {self.name}: a {kind} command for an axis in mode "
                                    f"{self._mode} (it takes {want or 'no setpoint'})")  # fmt: skip
         self._check_value(kind, value)
-        self._require_running()
-        self._bus.engine.axis_setpoint(self._index, kind, float(value))
 
     def follow(
         self,
@@ -251,6 +257,27 @@ class Axis:
         (seconds from the start, SI), t strictly increasing; position mode interpolates
         positions (cubic, with the velocities), velocity mode the velocities. Starts
         ``start_in`` seconds from now; returns the start time (engine clock, s)."""
+        points = self.check_trajectory(trajectory)
+        if not math.isfinite(start_in) or start_in < 0:
+            raise AxisCommandError(f"axis {self.name}: start_in must be >= 0 s")
+        self._require_running()
+        engine = self._bus.engine
+        start_ns = int(engine.now_ns() + start_in * 1e9)
+        try:
+            engine.axis_follow(
+                self._index,
+                start_ns,
+                [(round(p.t * 1e9), p.position, p.velocity) for p in points],
+            )
+        except ValueError as exc:
+            raise AxisCommandError(f"axis {self.name}: {exc}") from None
+        return start_ns / 1e9
+
+    def check_trajectory(
+        self, trajectory: Iterable[TrajectoryPoint | tuple[float, ...]]
+    ) -> list[TrajectoryPoint]:
+        """The points :meth:`follow` would run, or :class:`AxisCommandError` saying why it
+        would refuse them (mode, times, values, limits); writes nothing."""
         if self._mode not in ("csp", "csv"):
             raise AxisCommandError(f"axis {self.name}: trajectories need mode csp or csv "
                                    f"(the axis is in {self._mode})")  # fmt: skip
@@ -267,20 +294,7 @@ class Axis:
             if self._mode == "csp":
                 self._check_value("position", p.position, f"trajectory point {i}: ")
             self._check_value("velocity", p.velocity, f"trajectory point {i}: ")
-        if not math.isfinite(start_in) or start_in < 0:
-            raise AxisCommandError(f"axis {self.name}: start_in must be >= 0 s")
-        self._require_running()
-        engine = self._bus.engine
-        start_ns = int(engine.now_ns() + start_in * 1e9)
-        try:
-            engine.axis_follow(
-                self._index,
-                start_ns,
-                [(round(p.t * 1e9), p.position, p.velocity) for p in points],
-            )
-        except ValueError as exc:
-            raise AxisCommandError(f"axis {self.name}: {exc}") from None
-        return start_ns / 1e9
+        return points
 
     def wait_trajectory(self, timeout: float) -> None:
         """Until the trajectory has run to its end."""
