@@ -30,14 +30,14 @@ CONFIG = Path(__file__).resolve().parents[2] / "config" / "laelaps.yaml"
 
 @contextlib.contextmanager
 def running_node(
-    domain_offset: int, **options: Any
+    domain_offset: int, config: Path = CONFIG, **options: Any
 ) -> Iterator[tuple[EtherRosNode, EtherRosClient, object]]:
     """The node on the in-process simulator, spun by an executor thread, and a client; all in a
     ROS context of their own."""
     context = Context()
     rclpy.init(context=context, domain_id=domain_for(os.getpid(), domain_offset))
-    net = build_network(load_bus_config(CONFIG))
-    node = EtherRosNode(CONFIG, link=net, context=context, **options)
+    net = build_network(load_bus_config(config))
+    node = EtherRosNode(config, link=net, context=context, **options)
     executor = MultiThreadedExecutor(num_threads=4, context=context)
     executor.add_node(node)
     thread = threading.Thread(target=executor.spin, daemon=True)

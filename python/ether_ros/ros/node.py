@@ -25,6 +25,7 @@ while a transition or an SDO transfer is in progress.
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import os
 import threading
@@ -37,7 +38,7 @@ import rclpy
 import rclpy.executors
 from diagnostic_msgs.msg import DiagnosticArray
 from ether_ros_msgs.msg import BusLayout, PdoRaw, SlaveValues, WriteResult, WriteVariable
-from ether_ros_msgs.srv import Command, SdoRead, SdoWrite, WriteVariables
+from ether_ros_msgs.srv import AxisCommand, Command, SdoRead, SdoWrite, SetMode, WriteVariables
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.executors import ExternalShutdownException
@@ -53,10 +54,11 @@ from rclpy.qos import (
 )
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
+from trajectory_msgs.msg import JointTrajectory
 
 from ether_ros.config import types as dt
 from ether_ros.errors import EtherRosError
-from ether_ros.ros import bridge, diagnostics
+from ether_ros.ros import bridge, diagnostics, joints
 from ether_ros.ros.convert import layout_msg
 from ether_ros.ros.layout import BusSpec, LayoutError
 from ether_ros.ros.native_commands import (
@@ -177,6 +179,12 @@ class EtherRosNode(LifecycleNode):
         self._writes_group = MutuallyExclusiveCallbackGroup()
         self._timer_group = MutuallyExclusiveCallbackGroup()
         self._panic_group = ReentrantCallbackGroup()
+        # The axis services wait for the drives (an enable takes up to seconds): a group of
+        # their own, served by another thread of the multi-threaded executor, so they hold up
+        # neither the lifecycle nor the commands (which never wait on them).
+        self._axis_group = MutuallyExclusiveCallbackGroup()
+        # CiA 402 axes by joint name while the node is active (bridge.bus_axes).
+        self._axes: dict[str, Any] = {}
 
         self._pub: dict[str, Any] = {
             "pdo_raw": self.create_publisher(PdoRaw, "pdo_raw", QOS_HIGH_RATE),
@@ -188,6 +196,8 @@ class EtherRosNode(LifecycleNode):
         self._layout_pub = self.create_publisher(BusLayout, "bus_layout", QOS_LATCHED)
         self._diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", QOS_RELIABLE)
         self._result_pub = self.create_publisher(WriteResult, "write_results", QOS_COMMANDS)
+        # Refused joint_commands and every joint_trajectory's answer (request_id 0).
+        self._joint_result_pub = self.create_publisher(WriteResult, "joint_results", QOS_COMMANDS)
 
         commands: Node = self.command_node or self
         # pdo_listener: the native path (see ether_ros.ros.native_commands); the Python
@@ -226,6 +236,28 @@ class EtherRosNode(LifecycleNode):
             self._on_panic,
             callback_group=None if self.command_node else self._panic_group,
         )
+        commands.create_subscription(
+            JointState,
+            "joint_commands",
+            self._on_joint_commands,
+            QOS_COMMANDS,
+            callback_group=None if self.command_node else self._writes_group,
+        )
+        commands.create_subscription(
+            JointTrajectory,
+            "joint_trajectory",
+            self._on_joint_trajectory,
+            QOS_COMMANDS,
+            callback_group=None if self.command_node else self._writes_group,
+        )
+        for service in ("enable", "disable", "reset_fault"):
+            self.create_service(
+                AxisCommand,
+                service,
+                functools.partial(self._on_axis_service, service),
+                callback_group=self._axis_group,
+            )
+        self.create_service(SetMode, "set_mode", self._on_set_mode, callback_group=self._axis_group)
         self.create_service(Command, "ethercat_communicator", self._on_command)
         self.create_service(SdoRead, "sdo_read", self._on_sdo_read)
         self.create_service(SdoWrite, "sdo_write", self._on_sdo_write)
@@ -343,6 +375,7 @@ class EtherRosNode(LifecycleNode):
         try:
             with self._bus_lock:
                 bus.start()
+                self._axes = bridge.bus_axes(bus)
                 if self._native is not None:
                     self._native.attach(bus, spec)
         except EtherRosError as exc:
@@ -361,6 +394,7 @@ class EtherRosNode(LifecycleNode):
             self._rates,
             self._feed_watchdog,
             max_backlog=backlog,
+            axis_joints=(lambda: joints.axis_joint_values(self._axes)) if self._axes else None,
         )
         self._samples.start()
         self._restart_snapshot_timer(self._param_ms("ros.snapshot_period_ms"))
@@ -406,6 +440,7 @@ class EtherRosNode(LifecycleNode):
         if self._native is not None:
             self._native.detach()  # before the bus stops: no native write after this
         with self._bus_lock:
+            self._axes = {}
             if self._bus is not None:
                 try:
                     self._bus.stop()
@@ -418,6 +453,7 @@ class EtherRosNode(LifecycleNode):
             self._native.detach()
         with self._bus_lock:
             bus, self._bus, self._spec = self._bus, None, None
+            self._axes = {}
             if bus is not None:
                 try:
                     bus.close()
@@ -524,7 +560,18 @@ class EtherRosNode(LifecycleNode):
                 statuses.extend(diagnostics.slave_statuses(name, bus.states()))
             except Exception as exc:
                 self.get_logger().warning(f"reading slave states: {exc}")
+        statuses.extend(diagnostics.axis_statuses(name, self._axis_reports()))
         self._diag_pub.publish(diagnostics.array(statuses, self.get_clock().now().to_msg()))
+
+    def _axis_reports(self) -> list[tuple[str, str, dict[str, Any]]]:
+        """(joint, commanded mode, status) of every axis, for the diagnostics."""
+        reports = []
+        for name, axis in list(self._axes.items()):
+            try:
+                reports.append((name, bridge.axis_mode(axis), bridge.axis_status(axis)))
+            except EtherRosError:
+                continue  # the bus stopped meanwhile
+        return reports
 
     def _feed_watchdog(self) -> bool:
         """Called by the sample thread every loop: keep the engine's command watchdog fed while
@@ -590,6 +637,121 @@ class EtherRosNode(LifecycleNode):
         self, req: WriteVariables.Request, resp: WriteVariables.Response
     ) -> WriteVariables.Response:
         resp.success, resp.message = self._write(list(req.writes))
+        return resp
+
+    # ------------------------------------------------------------------------ joints
+    def _axes_if_active(self) -> dict[str, Any]:
+        """The axes, or AxisRejected when the node is not active (checked without the bus
+        lock, like writes, so a refusal never waits for a transition)."""
+        state = self.lifecycle_state()
+        if state != "active" or not self._axes:
+            why = "joint commands need it active" if state != "active" else "no CiA 402 axes"
+            raise bridge.AxisRejected(f"the node is {state}: {why}")
+        return self._axes
+
+    def joint_command(self, msg: JointState) -> tuple[bool, str]:
+        """A ``joint_commands`` message: every setpoint checked, then all written, or nothing
+        (``bridge.resolve_joint_command``)."""
+        try:
+            self._axes_if_active()
+            with self._bus_lock:
+                commands = bridge.resolve_joint_command(
+                    self._axes_if_active(),
+                    list(msg.name),
+                    list(msg.position),
+                    list(msg.velocity),
+                    list(msg.effort),
+                )
+                self._last_command = time.monotonic()
+                bridge.apply_joint_commands(commands)
+        except EtherRosError as exc:
+            return False, str(exc)
+        return True, bridge.describe_joint_commands(commands)
+
+    def _on_joint_commands(self, msg: JointState) -> None:
+        ok, message = self.joint_command(msg)
+        if not ok:  # applied commands are not answered: they come at the controller's rate
+            self.get_logger().warning(f"joint_commands refused: {message}")
+            self._joint_result_pub.publish(
+                WriteResult(success=False, message=f"joint_commands refused: {message}")
+            )
+
+    def joint_trajectory(self, msg: JointTrajectory) -> tuple[bool, str]:
+        """Check every joint's trajectory, then start them all at ``header.stamp``."""
+        try:
+            self._axes_if_active()
+            with self._bus_lock:
+                plans = joints.trajectory_plans(
+                    self._axes_if_active(), msg, bridge.trajectory_capacity(self._bus)
+                )
+                start_in = joints.start_delay(joints.stamp_ns(msg.header.stamp), time.time_ns())
+                self._last_command = time.monotonic()
+                bridge.follow_trajectories(plans, start_in)
+        except EtherRosError as exc:
+            return False, str(exc)
+        duration = max(track[-1][0] for _, track in plans)
+        names = ", ".join(axis.name for axis, _ in plans)
+        return True, (
+            f"trajectory of {len(msg.points)} point(s) over {duration:g} s for {names}, "
+            f"starting in {start_in:.3f} s"
+        )
+
+    def _on_joint_trajectory(self, msg: JointTrajectory) -> None:
+        ok, message = self.joint_trajectory(msg)
+        if not ok:
+            self.get_logger().warning(f"joint_trajectory refused: {message}")
+        text = f"joint_trajectory: {message}" if ok else f"joint_trajectory refused: {message}"
+        self._joint_result_pub.publish(WriteResult(success=ok, message=text))
+
+    def axis_command(
+        self, command: str, names: list[str], mode: str = ""
+    ) -> tuple[bool, str, list[str], list[str]]:
+        """enable / disable / reset_fault / set_mode on the joints named (empty: all): (success,
+        message, joints, their CiA 402 states afterwards). Waits for the drives without the bus
+        lock, so writes and other commands go on meanwhile."""
+        try:
+            chosen = bridge.select_axes(self._axes_if_active(), names)
+            if command == "set_mode":
+                bridge.check_mode(chosen, mode)
+        except EtherRosError as exc:
+            return False, str(exc), [], []
+        errors = []
+        for axis in chosen:
+            try:
+                bridge.run_axis_command(axis, command, mode)
+            except EtherRosError as exc:
+                errors.append(str(exc))
+        states = []
+        for axis in chosen:
+            try:
+                states.append(str(bridge.axis_status(axis)["state"]))
+            except EtherRosError:
+                states.append("unknown")
+        names_done = [axis.name for axis in chosen]
+        if errors:
+            return False, "; ".join(errors), names_done, states
+        what = f"{command} {mode}" if command == "set_mode" else command
+        done = ", ".join(f"{n}: {s}" for n, s in zip(names_done, states, strict=True))
+        return True, f"{what} done ({done})", names_done, states
+
+    def _on_axis_service(
+        self, command: str, req: AxisCommand.Request, resp: AxisCommand.Response
+    ) -> AxisCommand.Response:
+        try:
+            resp.success, resp.message, resp.joints, resp.states = self.axis_command(
+                command, list(req.joints)
+            )
+        except Exception as exc:  # a service must always answer
+            resp.success, resp.message = False, f"{command} failed: {exc}"
+        return resp
+
+    def _on_set_mode(self, req: SetMode.Request, resp: SetMode.Response) -> SetMode.Response:
+        try:
+            resp.success, resp.message, resp.joints, resp.states = self.axis_command(
+                "set_mode", list(req.joints), req.mode.strip().lower()
+            )
+        except Exception as exc:
+            resp.success, resp.message = False, f"set_mode failed: {exc}"
         return resp
 
     # ------------------------------------------------------------------------ commands
