@@ -36,11 +36,20 @@ SIM_DEVICES = ("laelaps_leg", "generic_io", "none")
 SIM_DEVICE_FOR_ESI = {"LaelapsII_Leg": "laelaps_leg", "GenericIO": "generic_io"}
 
 
+# Device profile number of CiA 402 drives (IEC 61800-7-201), in ``<Profile><ProfileNo>``.
+CIA402_PROFILE = 402
+
+
 def default_sim_device(esi: EsiDevice) -> str:
     """The simulator's firmware model for a device when the config names none: the model
-    written for it, else the generic ``loopback`` (outputs copied to matching inputs), so that
-    any ESI runs on the simulator."""
-    return SIM_DEVICE_FOR_ESI.get(esi.type_name, "loopback")
+    written for it, the ``cia402`` drive model for any CiA 402 device (profile 402), else the
+    generic ``loopback`` (outputs copied to matching inputs), so that any ESI runs on the
+    simulator."""
+    if esi.type_name in SIM_DEVICE_FOR_ESI:
+        return SIM_DEVICE_FOR_ESI[esi.type_name]
+    if CIA402_PROFILE in esi.profile_numbers:
+        return "cia402"
+    return "loopback"
 
 
 def _parse_int(value: Any) -> Any:
@@ -173,7 +182,7 @@ class AxisConfig(_Model):
 
 
 class SimConfig(_Model):
-    device: Literal["laelaps_leg", "generic_io", "loopback", "none"] | None = None
+    device: Literal["laelaps_leg", "generic_io", "cia402", "loopback", "none"] | None = None
     # The slave controller chip whose registers the virtual slave presents (docs/simulator.md).
     esc: Literal["et1100", "et1200", "lan9252"] = "et1100"
     params: dict[str, float] = Field(default_factory=dict)
