@@ -81,7 +81,7 @@ def test_joint_commands_move_the_named_joints_only(arm: Any) -> None:
         (["nope"], {"position": [0.1]}, "unknown joint 'nope'"),
         (["elbow"], {"position": [math.nan]}, "not a finite number"),
         (["elbow"], {"position": [9.0]}, "outside the limits"),
-        (["elbow"], {"velocity": [0.1]}, "takes a position, got a velocity"),
+        (["elbow"], {"velocity": [0.1]}, "takes a position, got velocity"),
         (["elbow", "wrist_1"], {"position": [0.1]}, "1 value(s) for 2 joint name(s)"),
         (["elbow", "elbow"], {"position": [0.1, 0.2]}, "named twice"),
         # one bad joint: the good one is not written either
@@ -153,7 +153,7 @@ def test_set_mode_disable_enable(arm: Any) -> None:
     assert node._axes["wrist_3"].status()["mode_display"] == "csv"
     before = len(client.joint_results)
     client.publish_joint_command(["wrist_3"], position=[0.1])  # csv takes a velocity
-    assert "takes a velocity, got a position" in refusal(client, before)
+    assert "takes a velocity, got position" in refusal(client, before)
     ok, message, states = client.set_mode("csp", ["wrist_3"])
     assert ok, message
     ok, message, states = client.axis_command("disable", ["wrist_3"])

@@ -414,7 +414,7 @@ def resolve_joint_command(
             if others and not values:
                 raise AxisRejected(
                     f"joint {name!r} is in mode {axis.mode}: it takes a {JOINT_ARRAY[kind]}, "
-                    f"got a {' and '.join(others)}"
+                    f"got {' and '.join(others)}"
                 )
             raise AxisRejected(
                 f"joint {name!r}: {JOINT_ARRAY[kind]} {value!r} is not a finite number"
