@@ -67,12 +67,15 @@ def test_joint_states_has_every_axis_in_si(arm: Any) -> None:
 
 
 def test_joint_commands_move_the_named_joints_only(arm: Any) -> None:
-    _node, client, _net = arm
+    node, client, _net = arm
     before = joint_positions(client)
+    native = node.joint_command_path_counters()["applied"]
     client.publish_joint_command(["elbow", "wrist_2"], position=[0.4, -0.3])
     wait_position(client, "elbow", 0.4)
     wait_position(client, "wrist_2", -0.3)
     assert abs(joint_positions(client)["shoulder_pan"] - before["shoulder_pan"]) < 0.01
+    # written by the native thread, not by Python
+    assert node.joint_command_path_counters()["applied"] == native + 1
 
 
 @pytest.mark.parametrize(
@@ -93,10 +96,12 @@ def test_bad_joint_commands_are_refused_and_write_nothing(
 ) -> None:
     node, client, _net = arm
     seq = command_seq(node)
+    deferred = node.joint_command_path_counters()["deferred"]
     before = len(client.joint_results)
     client.publish_joint_command(names, **arrays)
     assert why in refusal(client, before)
     assert command_seq(node) == seq
+    assert node.joint_command_path_counters()["deferred"] == deferred + 1  # Python refused it
 
 
 def test_joint_trajectory_runs_in_time(arm: Any) -> None:

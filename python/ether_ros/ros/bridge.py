@@ -463,3 +463,24 @@ def check_mode(axes: list[Any], mode: str) -> None:
                 f"joint {axis.name!r}: the drive does not offer mode {mode} "
                 f"(it offers {', '.join(axis.spec.modes)})"
             )
+
+
+def joint_rows(axes: Mapping[str, Any]) -> list[tuple[str, int, float, float, float, float, Any]]:
+    """Each axis as the native joint table takes it: (joint, engine axis index, position
+    limits, velocity limit, torque limit, the setpoint kind its mode takes)."""
+    rows = []
+    for name, axis in axes.items():
+        c = axis.spec.config
+        lo, hi = c.position_limits
+        rows.append(
+            (
+                name,
+                int(axis.index),
+                float(lo),
+                float(hi),
+                float(c.velocity_limit),
+                float(c.torque_limit),
+                setpoint_kind(axis),
+            )
+        )
+    return rows

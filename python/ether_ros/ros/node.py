@@ -202,25 +202,29 @@ class EtherRosNode(LifecycleNode):
         commands: Node = self.command_node or self
         # pdo_listener: the native path (see ether_ros.ros.native_commands); the Python
         # subscription only if it cannot start (or native_commands=False, for comparison).
+        # joint_commands likewise, on a native thread of its own.
         self._native: NativeCommandPath | None = None
+        self._native_joints: NativeCommandPath | None = None
         if native_commands:
-            try:
-                self._native = NativeCommandPath(
-                    self,
-                    "pdo_listener",
-                    QOS_COMMANDS,
-                    self._result_pub,
-                    self._on_write_topic,
-                    command_priority(cfg),
-                    housekeeping_cpus(cfg.bus.realtime.cpu),
-                )
-            except CommandPathError as exc:
-                self.get_logger().warning(f"{exc}; pdo_listener is served by Python instead")
+            self._native = self._native_path(
+                cfg, "pdo_listener", WriteVariable, self._result_pub, self._on_write_topic
+            )
+            self._native_joints = self._native_path(
+                cfg, "joint_commands", JointState, self._joint_result_pub, self._on_joint_commands
+            )
         if self._native is None:
             commands.create_subscription(
                 WriteVariable,
                 "pdo_listener",
                 self._on_write_topic,
+                QOS_COMMANDS,
+                callback_group=None if self.command_node else self._writes_group,
+            )
+        if self._native_joints is None:
+            commands.create_subscription(
+                JointState,
+                "joint_commands",
+                self._on_joint_commands,
                 QOS_COMMANDS,
                 callback_group=None if self.command_node else self._writes_group,
             )
@@ -235,13 +239,6 @@ class EtherRosNode(LifecycleNode):
             "panic",
             self._on_panic,
             callback_group=None if self.command_node else self._panic_group,
-        )
-        commands.create_subscription(
-            JointState,
-            "joint_commands",
-            self._on_joint_commands,
-            QOS_COMMANDS,
-            callback_group=None if self.command_node else self._writes_group,
         )
         commands.create_subscription(
             JointTrajectory,
@@ -378,6 +375,8 @@ class EtherRosNode(LifecycleNode):
                 self._axes = bridge.bus_axes(bus)
                 if self._native is not None:
                     self._native.attach(bus, spec)
+                if self._native_joints is not None and self._axes:
+                    self._native_joints.attach_joints(bus, self._axes)
         except EtherRosError as exc:
             self._stop_bus()
             return self._fail("activate", exc)
@@ -437,8 +436,8 @@ class EtherRosNode(LifecycleNode):
             self._samples = None
 
     def _stop_bus(self) -> None:
-        if self._native is not None:
-            self._native.detach()  # before the bus stops: no native write after this
+        for native in self._native_paths():
+            native.detach()  # before the bus stops: no native write after this
         with self._bus_lock:
             self._axes = {}
             if self._bus is not None:
@@ -449,8 +448,8 @@ class EtherRosNode(LifecycleNode):
 
     def _release(self) -> None:
         self._stop_publishing()
-        if self._native is not None:
-            self._native.detach()
+        for native in self._native_paths():
+            native.detach()
         with self._bus_lock:
             bus, self._bus, self._spec = self._bus, None, None
             self._axes = {}
@@ -465,9 +464,9 @@ class EtherRosNode(LifecycleNode):
 
     def destroy_node(self) -> None:
         self._release()
-        if self._native is not None:
-            self._native.close()
-            self._native = None
+        for native in self._native_paths():
+            native.close()
+        self._native = self._native_joints = None
         if self.command_node is not None:
             self.command_node.destroy_node()
             self.command_node = None
@@ -550,6 +549,10 @@ class EtherRosNode(LifecycleNode):
                         commands["delivery_sum_ns"] / commands["delivery_count"]
                     )
                     ros_numbers["command_delivery_max_ns"] = commands["delivery_max_ns"]
+            joint_commands = self.joint_command_path_counters()
+            if joint_commands:
+                ros_numbers["joint_commands_native"] = joint_commands["applied"]
+                ros_numbers["joint_commands_deferred"] = joint_commands["deferred"]
         statuses.append(
             diagnostics.master_status(name, lifecycle, stats, ros_numbers, self._panic, dc_error)
         )
@@ -587,12 +590,39 @@ class EtherRosNode(LifecycleNode):
 
     def _last_command_time(self) -> float:
         """time.monotonic() of the last write, through Python or the native path."""
-        native = self._native.last_command_ns() / 1e9 if self._native is not None else 0.0
+        native = max((n.last_command_ns() / 1e9 for n in self._native_paths()), default=0.0)
         return max(self._last_command, native)
+
+    def _native_paths(self) -> list[NativeCommandPath]:
+        return [n for n in (self._native, self._native_joints) if n is not None]
+
+    def _native_path(
+        self, cfg: Any, topic: str, message_type: Any, results: Any, handler: Any
+    ) -> NativeCommandPath | None:
+        """The native command path for ``topic``, or None (with the reason logged) when it
+        cannot start: then Python serves the topic."""
+        try:
+            return NativeCommandPath(
+                self,
+                topic,
+                QOS_COMMANDS,
+                results,
+                handler,
+                command_priority(cfg),
+                housekeeping_cpus(cfg.bus.realtime.cpu),
+                message_type=message_type,
+            )
+        except CommandPathError as exc:
+            self.get_logger().warning(f"{exc}; {topic} is served by Python instead")
+            return None
 
     def command_path_counters(self) -> dict[str, int]:
         """The native command path's counters (empty when Python serves pdo_listener)."""
         return self._native.counters() if self._native is not None else {}
+
+    def joint_command_path_counters(self) -> dict[str, int]:
+        """The native joint_commands path's counters (empty when Python serves it)."""
+        return self._native_joints.counters() if self._native_joints is not None else {}
 
     # ------------------------------------------------------------------------ writes
     def _write(self, requests: list[WriteVariable]) -> tuple[bool, str]:
@@ -715,12 +745,19 @@ class EtherRosNode(LifecycleNode):
                 bridge.check_mode(chosen, mode)
         except EtherRosError as exc:
             return False, str(exc), [], []
+        native = self._native_joints if command == "set_mode" else None
+        if native is not None:  # while the mode changes, Python checks every joint command
+            native.hold_joints(self._axes, chosen)
         errors = []
-        for axis in chosen:
-            try:
-                bridge.run_axis_command(axis, command, mode)
-            except EtherRosError as exc:
-                errors.append(str(exc))
+        try:
+            for axis in chosen:
+                try:
+                    bridge.run_axis_command(axis, command, mode)
+                except EtherRosError as exc:
+                    errors.append(str(exc))
+        finally:
+            if native is not None:
+                native.update_joints(self._axes)
         states = []
         for axis in chosen:
             try:
