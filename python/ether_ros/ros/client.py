@@ -365,6 +365,20 @@ class EtherRosClient:
             msg.points.append(p)
         self._trajectory_pub.publish(msg)
 
+    def axis_parameters(self, timeout: float = 5.0) -> dict[str, dict[str, Any]]:
+        """The axes' configuration as the node mirrors it (``axis_joints``, ``axes.<joint>.*``
+        parameters): {joint: {slave, mode, position_limits, velocity_limit, torque_limit}}."""
+        joints = self.get_parameters(["axis_joints"], timeout)["axis_joints"] or []
+        keys = ("slave", "mode", "position_limits", "velocity_limit", "torque_limit")
+        names = [f"axes.{j}.{k}" for j in joints for k in keys]
+        values = self.get_parameters(names, timeout) if names else {}
+        out = {}
+        for j in joints:
+            p = {k: values[f"axes.{j}.{k}"] for k in keys}
+            p["position_limits"] = tuple(float(x) for x in p["position_limits"])
+            out[str(j)] = p
+        return out
+
     def axis_states(self) -> dict[str, dict[str, str]]:
         """Key/values (plus ``message`` and ``level``) of every axis's diagnostic status."""
         diag = self.latest.diagnostics

@@ -955,6 +955,27 @@ def config_parameters(cfg: Any) -> dict[str, Any]:
         joints = [j["name"] for j in s.get("joints") or []]
         if joints:
             out[f"{base}.joints"] = joints
+    out.update(axis_parameters(cfg))
+    return out
+
+
+def axis_parameters(cfg: Any) -> dict[str, Any]:
+    """The CiA 402 axes as parameters (``axis_joints``, ``axes.<joint>.mode``, ``.slave``,
+    ``.position_limits``, ``.velocity_limit``, ``.torque_limit``): what a client (the console)
+    checks a joint command against before sending it."""
+    out: dict[str, Any] = {}
+    names = []
+    for slave in cfg.slaves:
+        for axis in getattr(slave, "axes", None) or []:
+            names.append(axis.name)
+            base = f"axes.{axis.name}"
+            out[f"{base}.slave"] = slave.name
+            out[f"{base}.mode"] = axis.mode
+            out[f"{base}.position_limits"] = [float(x) for x in axis.position_limits]
+            out[f"{base}.velocity_limit"] = float(axis.velocity_limit)
+            out[f"{base}.torque_limit"] = float(axis.torque_limit)
+    if names:
+        out["axis_joints"] = names
     return out
 
 
