@@ -88,7 +88,7 @@ class Console:
     def _joints(self) -> dict[str, JointLimits]:
         """The axes with their limits (the node's ``axes.*`` parameters, read once) and each
         one's mode as the diagnostics last reported it."""
-        if not self._axes:
+        if self._axes is None:  # not read yet (a bus without axes: {})
             try:
                 params = self.client.axis_parameters()
                 self._axes = {

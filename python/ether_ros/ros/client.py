@@ -429,11 +429,20 @@ class EtherRosClient:
         client = self.node.create_client(GetParameters, f"{self.target}/get_parameters")
         try:
             resp = self._call(client, GetParameters.Request(names=names), timeout)
+            values = list(resp.values)
+            if len(values) != len(names):
+                # rclpy leaves undeclared names out of the answer: ask name by name.
+                values = []
+                for name in names:
+                    one = self._call(client, GetParameters.Request(names=[name]), timeout)
+                    values.append(one.values[0] if one.values else None)
         finally:
             self.node.destroy_client(client)
         return {
-            n: Parameter.from_parameter_msg(ParameterMsg(name=n, value=v)).value
-            for n, v in zip(names, resp.values, strict=True)
+            n: None
+            if v is None
+            else Parameter.from_parameter_msg(ParameterMsg(name=n, value=v)).value
+            for n, v in zip(names, values, strict=True)
         }
 
     def set_parameter(self, name: str, value: Any, timeout: float = 5.0) -> tuple[bool, str]:
