@@ -123,3 +123,52 @@ def test_panic_reaches_every_drive_as_its_stop_command(bus: Bus) -> None:
     wait_for(lambda: all(a.status()["statusword"] == 0 for a in echoing), "enabled again")
     bus.stop()
     assert [s.state for s in bus.states()] == ["INIT"] * 3
+
+
+@pytest.fixture
+def drives() -> Iterator[Bus]:
+    """arm6 on the simulator's CiA 402 drive model (its default for ServoDrive2)."""
+    from ether_ros.sim.network import build_network
+
+    cfg = _config()
+    for s in cfg.slaves:
+        s.sim.device = None
+    assert {s.sim_device for s in cfg.slaves} == {"cia402"}
+    with Bus.open(cfg, link=build_network(cfg), drift_frames=100) as b:
+        b.start()
+        yield b
+
+
+def test_every_mode_runs_on_the_drive_model(drives: Bus) -> None:
+    j = drives.axis("elbow")
+    # Cyclic modes switch while enabled; 0x6061 confirms each.
+    j.enable(timeout=3)
+    j.set_mode("csv")
+    j.command(velocity=0.2)
+    wait_for(lambda: abs(j.velocity - 0.2) < 0.01, "csv velocity")
+    j.set_mode("cst")
+    assert j.status()["mode_display"] == "cst"
+    j.command(torque=0.0)
+    with pytest.raises(AxisCommandError, match="switch from cst to pp only while disabled"):
+        j.set_mode("pp")
+    j.disable()
+    # Profile position: the new set-point handshake (controlword bit 4, statusword bit 12).
+    j.set_mode("pp")
+    j.enable(timeout=3)
+    start = j.position
+    j.command(position=start + 0.05)
+    wait_for(lambda: abs(j.position - (start + 0.05)) < 0.002, "pp target reached")
+    j.disable()
+    # Profile velocity.
+    j.set_mode("pv")
+    j.enable(timeout=3)
+    j.command(velocity=-0.1)
+    wait_for(lambda: abs(j.velocity + 0.1) < 0.01, "pv velocity")
+    j.command(velocity=0.0)
+    j.disable()
+    # Homing starts when enabled (controlword bit 4): statusword bit 12, homing attained.
+    j.set_mode("hm")
+    j.enable(timeout=3)
+    wait_for(lambda: j.status()["statusword"] & 0x1000 != 0, "homing attained")
+    with pytest.raises(AxisCommandError, match="takes no setpoint"):
+        j.command(position=0.0)
