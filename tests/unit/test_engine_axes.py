@@ -306,3 +306,25 @@ def test_bad_axis_plans_name_the_key() -> None:
             engine.start_cyclic(p)
     finally:
         engine.close()
+
+
+def test_a_new_cyclic_run_starts_from_the_plans_commands() -> None:
+    drive = Drive()
+    engine = _native.Engine.open_sim(drive)
+    try:
+        engine.start_cyclic(plan())
+        engine.axis_enable(0, True)
+        engine.axis_set_mode(0, "csv")
+        wait_for(lambda: engine.axis_status(0)["mode_display"] == "csv", "csv")
+        engine.stop_cyclic()
+        engine.start_cyclic(plan())
+        # Not enabled, csp again: nothing of the previous run's commands carries over.
+        wait_for(lambda: engine.axis_status(0)["cycle"] > 5, "cycles of the new run")
+        st = engine.axis_status(0)
+        assert not st["enable_wanted"] and st["mode_display"] == "csp"
+        engine.axis_reset_fault(0)  # any command: the slot is initialised from the new plan
+        time.sleep(0.02)
+        st = engine.axis_status(0)
+        assert not st["enable_wanted"] and st["mode_display"] == "csp"
+    finally:
+        engine.close()
