@@ -172,3 +172,38 @@ def test_every_mode_runs_on_the_drive_model(drives: Bus) -> None:
     wait_for(lambda: j.status()["statusword"] & 0x1000 != 0, "homing attained")
     with pytest.raises(AxisCommandError, match="takes no setpoint"):
         j.command(position=0.0)
+
+
+def test_an_object_mapped_by_the_master_reaches_the_drive(tmp_path: Path) -> None:
+    """Axis 2's target velocity is missing from the ESI's RxPDO 0x1610: the loader appends it,
+    the master writes the mapping in PREOP, and the drive model (which maps what the master
+    configured) runs the csv axis on it."""
+    from ether_ros.sim.network import build_network
+
+    entry = ("<Entry><Index>#x68FF</Index><SubIndex>0</SubIndex><BitLen>32</BitLen>"
+             "<Name>Target velocity</Name><DataType>DINT</DataType></Entry>")  # fmt: skip
+    esi = tmp_path / "servo.xml"
+    text = (REPO / "devices" / "servo_drive.xml").read_text()
+    esi.write_text(text.replace(entry, "<Entry><Index>#x0</Index><BitLen>32</BitLen></Entry>"))
+    yaml = tmp_path / "bus.yaml"
+    yaml.write_text(
+        f"bus: {{name: one, interface: eth0, cycle_us: 2000, watchdog_ms: 0,\n"
+        f"      realtime: {{policy: other, lock_memory: false}}}}\n"
+        f"esi: [{esi}]\n"
+        "slaves:\n"
+        "  - name: drive\n"
+        "    device: ServoDrive2\n"
+        "    axes:\n"
+        "      - {name: j1, position_scale: 7.66990394e-6}\n"
+        "      - {name: j2, mode: csv, velocity_scale: 7.66990394e-6}\n"
+    )
+    cfg = load_bus_config(yaml)
+    with Bus.open(cfg, link=build_network(cfg), drift_frames=100) as bus:
+        bus.start()
+        j2 = bus.axis("j2")
+        j2.enable(timeout=3)
+        j2.command(velocity=0.25)
+        wait_for(lambda: abs(j2.velocity - 0.25) < 0.01, "csv velocity through the new mapping")
+        # Six entries as in the ESI (one now padding), then 0x68FF:00, 32 bits.
+        assert bus.sdo_read("drive", 0x1610, 0) == 7
+        assert bus.sdo_read("drive", 0x1610, 7) == 0x68FF0020
