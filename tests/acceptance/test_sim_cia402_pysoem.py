@@ -180,3 +180,34 @@ def _read_emergency(bus: SoemBus) -> Any:
         bus.run(0.01)
     assert seen, "no CoE emergency reached SOEM"
     return seen[0]
+
+
+def test_a_master_may_remap_the_pdos(drive: tuple[SimProcess, SoemBus]) -> None:
+    """The PDOs are not fixed: SOEM remaps axis 1 to controlword + target position and
+    statusword + position actual value in PREOP (free run this time), and the drive answers
+    through the new layout."""
+    sim, bus = drive
+    assert bus.scan() == 1
+    layout = {0x1600: (0x6040_0010, 0x607A_0020), 0x1A00: (0x6041_0010, 0x6064_0020)}
+
+    def remap(slave: Any) -> None:
+        for pdo, entries in layout.items():
+            slave.sdo_write(pdo, 0, bytes([0]))
+            for sub, entry in enumerate(entries, start=1):
+                slave.sdo_write(pdo, sub, entry.to_bytes(4, "little"))
+            slave.sdo_write(pdo, 0, bytes([len(entries)]))
+
+    bus.master.slaves[0].setup_func = remap
+    assert bus.master.config_map() == (6 + 14) + (6 + 20)
+    bus.set_watchdog(2000)
+    assert bus.request_op(), bus.states()
+    slave = bus.slaves[0]
+    assert (len(slave.output), len(slave.input)) == (6 + 14, 6 + 20)
+    slave.output = (0x06).to_bytes(2, "little") + bytes(4 + 14)  # shutdown on axis 1
+    deadline = time.monotonic() + 5
+    while int.from_bytes(bytes(slave.input)[:2], "little") & 0x6F != READY:
+        assert time.monotonic() < deadline, bytes(slave.input).hex()
+        bus.run(0.01)
+    # Axis 2 kept its default layout right behind: its statusword at input byte 6.
+    assert int.from_bytes(bytes(slave.input)[6:8], "little") & 0x4F == 0x40
+    assert sim.request({"op": "slave_info", "slave": 0})["sync0_active"] is False
