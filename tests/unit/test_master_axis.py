@@ -8,8 +8,7 @@ CiA 402 drive model in tests/acceptance/test_cia402_veth.py."""
 from __future__ import annotations
 
 import math
-import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -19,6 +18,7 @@ from ether_ros.config.bus import BusConfig
 from ether_ros.config.process import ProcessValueError
 from ether_ros.master import Bus
 from ether_ros.master.axis import AxisCommandError, AxisError
+from ether_ros.testing.wait import wait_for
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -98,13 +98,6 @@ def test_a_drive_that_never_enables_is_named_with_its_state(bus: Bus) -> None:
     assert st["target_position_raw"] == st["position_raw"]
 
 
-def wait_for(cond: Callable[[], bool], what: str) -> None:
-    deadline = time.monotonic() + 10
-    while not cond():
-        assert time.monotonic() < deadline, f"timed out waiting for {what}"
-        time.sleep(0.005)
-
-
 def test_panic_reaches_every_drive_as_its_stop_command(bus: Bus) -> None:
     bus.start()
     axes = bus.axes()
@@ -114,13 +107,13 @@ def test_panic_reaches_every_drive_as_its_stop_command(bus: Bus) -> None:
     for a in axes:
         bus.engine.axis_enable(a.index, True)
     # Wanted enabled, in Not Ready the controlword is 0.
-    wait_for(lambda: all(a.status()["statusword"] == 0 for a in echoing), "controlword 0")
+    wait_for("controlword 0", lambda: all(a.status()["statusword"] == 0 for a in echoing))
     bus.panic()
     # Quick stop (0x0002) went to every drive: it came back from the drives.
-    wait_for(lambda: all(a.status()["statusword"] == 0x0002 for a in echoing), "quick stop")
+    wait_for("quick stop", lambda: all(a.status()["statusword"] == 0x0002 for a in echoing))
     assert all(a.status()["halted"] and a.status()["controlword"] == 0x0002 for a in axes)
     bus.clear_panic()
-    wait_for(lambda: all(a.status()["statusword"] == 0 for a in echoing), "enabled again")
+    wait_for("enabled again", lambda: all(a.status()["statusword"] == 0 for a in echoing))
     bus.stop()
     assert [s.state for s in bus.states()] == ["INIT"] * 3
 
@@ -145,7 +138,7 @@ def test_every_mode_runs_on_the_drive_model(drives: Bus) -> None:
     j.enable(timeout=3)
     j.set_mode("csv")
     j.command(velocity=0.2)
-    wait_for(lambda: abs(j.velocity - 0.2) < 0.01, "csv velocity")
+    wait_for("csv velocity", lambda: abs(j.velocity - 0.2) < 0.01)
     j.set_mode("cst")
     assert j.status()["mode_display"] == "cst"
     j.command(torque=0.0)
@@ -157,19 +150,19 @@ def test_every_mode_runs_on_the_drive_model(drives: Bus) -> None:
     j.enable(timeout=3)
     start = j.position
     j.command(position=start + 0.05)
-    wait_for(lambda: abs(j.position - (start + 0.05)) < 0.002, "pp target reached")
+    wait_for("pp target reached", lambda: abs(j.position - (start + 0.05)) < 0.002)
     j.disable()
     # Profile velocity.
     j.set_mode("pv")
     j.enable(timeout=3)
     j.command(velocity=-0.1)
-    wait_for(lambda: abs(j.velocity + 0.1) < 0.01, "pv velocity")
+    wait_for("pv velocity", lambda: abs(j.velocity + 0.1) < 0.01)
     j.command(velocity=0.0)
     j.disable()
     # Homing starts when enabled (controlword bit 4): statusword bit 12, homing attained.
     j.set_mode("hm")
     j.enable(timeout=3)
-    wait_for(lambda: j.status()["statusword"] & 0x1000 != 0, "homing attained")
+    wait_for("homing attained", lambda: j.status()["statusword"] & 0x1000 != 0)
     with pytest.raises(AxisCommandError, match="takes no setpoint"):
         j.command(position=0.0)
 
@@ -203,7 +196,7 @@ def test_an_object_mapped_by_the_master_reaches_the_drive(tmp_path: Path) -> Non
         j2 = bus.axis("j2")
         j2.enable(timeout=3)
         j2.command(velocity=0.25)
-        wait_for(lambda: abs(j2.velocity - 0.25) < 0.01, "csv velocity through the new mapping")
+        wait_for("csv velocity through the new mapping", lambda: abs(j2.velocity - 0.25) < 0.01)
         # Six entries as in the ESI (one now padding), then 0x68FF:00, 32 bits.
         assert bus.sdo_read("drive", 0x1610, 0) == 7
         assert bus.sdo_read("drive", 0x1610, 7) == 0x68FF0020
