@@ -200,3 +200,13 @@ def test_an_object_mapped_by_the_master_reaches_the_drive(tmp_path: Path) -> Non
         # Six entries as in the ESI (one now padding), then 0x68FF:00, 32 bits.
         assert bus.sdo_read("drive", 0x1610, 0) == 7
         assert bus.sdo_read("drive", 0x1610, 7) == 0x68FF0020
+
+
+def test_stop_takes_every_axis_out_of_operation_enabled_first(drives: Bus) -> None:
+    for a in drives.axes():
+        a.enable(timeout=3)
+    drives.stop()
+    # The last status the RT thread published before the cyclic exchange stopped.
+    states = [drives.engine.axis_status(i)["state"] for i in range(6)]
+    assert "operation_enabled" not in states, states
+    assert all(drives.engine.axis_status(i)["controlword"] == 0x0002 for i in range(6))
