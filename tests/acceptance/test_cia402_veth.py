@@ -12,7 +12,7 @@ commands are refused. Timing is never asserted: waits have generous deadlines.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +25,7 @@ from ether_ros.master.axis import AxisCommandError
 from ether_ros.master.samples import FLAG_PANIC
 from ether_ros.sim.proof import SimProcess
 from ether_ros.testing.netns import VethPair
+from ether_ros.testing.wait import wait_for
 
 pytestmark = pytest.mark.netns
 
@@ -43,15 +44,6 @@ def _config(interface: str) -> BusConfig:
     cfg.bus.realtime.lock_memory = False
     cfg.bus.watchdog_ms = 0
     return cfg
-
-
-def wait_for(what: str, check: Callable[[], bool], timeout: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if check():
-            return
-        time.sleep(0.005)
-    raise AssertionError(f"timed out waiting for {what}")
 
 
 @pytest.fixture

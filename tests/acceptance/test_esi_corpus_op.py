@@ -1,4 +1,5 @@
-"""Every device of the ESI corpus (tests/data/esi) runs on the simulator without a bus config
+"""Every device of the ESI corpus (tests/data/esi), and our servo drives
+(devices/servo_drive.xml), runs on the simulator without a bus config
 (``ether-ros sim --esi FILE --device TYPE --count 2``, its own process and network namespace)
 and reaches OP under our master, opened with the same ESI (`bus_config_for_esi`). The generic
 ``loopback`` model copies outputs to matching inputs, so a value written by the master comes
@@ -25,7 +26,10 @@ from ether_ros.testing.netns import VethPair
 pytestmark = pytest.mark.netns
 
 CORPUS = Path(__file__).resolve().parents[1] / "data" / "esi"
+SERVO = Path(__file__).resolve().parents[2] / "devices" / "servo_drive.xml"
 DEVICES = [
+    (str(SERVO), "ServoDrive1"),
+    (str(SERVO), "ServoDrive2"),
     ("servo_vendor_style.xml", "CorpusServo"),
     ("multi_device_latin1.xml", "CorpusDIO8"),
     ("multi_device_latin1.xml", "CorpusDIO16"),
@@ -76,9 +80,10 @@ def _drive_answers_shutdown(bus: Bus, slave: str, layout: Any) -> None:
     """Controlword "shutdown" (0x06) takes the drive to Ready to switch on (0x21 under 0x6F)."""
     control = next(v for v in layout.outputs if v.index == 0x6040)
     status = next(v for v in layout.inputs if v.index == 0x6041)
-    bus.write(slave, control.name, 0x06)
+    # By key: a multi-axis drive names the objects of every axis alike.
+    bus.write(slave, control.key, 0x06)
     deadline = time.monotonic() + 10
-    while int(bus.read(slave, status.name)) & 0x6F != 0x21:
+    while int(bus.read(slave, status.key)) & 0x6F != 0x21:
         assert time.monotonic() < deadline, f"{slave}: statusword never showed the shutdown"
         time.sleep(0.01)
 

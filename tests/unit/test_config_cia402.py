@@ -143,11 +143,60 @@ def test_a_mode_the_esi_does_not_offer_is_refused(tmp_path: Path) -> None:
                      r"\(0x6D02 supported drive modes: csp\)", msg), msg  # fmt: skip
 
 
+TARGET_VELOCITY_2 = (
+    "<Entry><Index>#x68FF</Index><SubIndex>0</SubIndex><BitLen>32</BitLen>"
+    "<Name>Target velocity</Name><DataType>DINT</DataType></Entry>"
+)
+PADDING_32 = "<Entry><Index>#x0</Index><BitLen>32</BitLen></Entry>"
+
+
+def test_a_missing_object_is_mapped_into_a_configurable_pdo(tmp_path: Path) -> None:
+    # Axis 2's target velocity out of its RxPDO 0x1610: the drive allows PDO configuration, so
+    # the loader appends it to 0x1610 and assigns the PDOs explicitly (written in PREOP).
+    esi = edited_esi(tmp_path, TARGET_VELOCITY_2, PADDING_32)
+    cfg = load_bus_config(write(tmp_path, ONE_DRIVE, esi))
+    drive = cfg.slave("drive")
+    pdo = drive.esi.pdo(0x1610)
+    assert pdo is not None and (pdo.entries[-1].index, pdo.entries[-1].bit_length) == (0x68FF, 32)
+    assert drive.pdo_assign is not None and drive.pdo_assign.rx == [0x1600, 0x1610]
+    j2 = cfg.axis_specs()[1]
+    assert j2.variables["target_velocity"].index == 0x68FF
+
+
 def test_an_object_the_pdos_lack_is_named(tmp_path: Path) -> None:
-    # Target velocity out of every RxPDO: the csv axis cannot run.
-    entry = ("<Entry><Index>#x68FF</Index><SubIndex>0</SubIndex><BitLen>32</BitLen>"
-             "<Name>Target velocity</Name><DataType>DINT</DataType></Entry>")  # fmt: skip
-    esi = edited_esi(tmp_path, entry, "<Entry><Index>#x0</Index><BitLen>32</BitLen></Entry>")
+    # The same, on a drive whose PDOs cannot be configured: refused, naming the object.
+    esi = edited_esi(tmp_path, TARGET_VELOCITY_2, PADDING_32)
+    text = esi.read_text().replace('PdoConfig="true"', 'PdoConfig="false"')
+    esi.write_text(text)
     msg = load_error(tmp_path, ONE_DRIVE, esi)
     assert re.search(r"axes\[1\]: axis j2 \(mode csv\) needs object 0x68FF \(target_velocity\), "
                      r"which is not in any assigned RxPDO of ServoDrive2", msg), msg  # fmt: skip
+
+
+def test_a_position_mode_needs_the_actual_position(tmp_path: Path) -> None:
+    # Without 0x6064 the target before enabling cannot be the actual position.
+    entry = ("<Entry><Index>#x6064</Index><SubIndex>0</SubIndex><BitLen>32</BitLen>"
+             "<Name>Position actual value</Name><DataType>DINT</DataType></Entry>")  # fmt: skip
+    esi = edited_esi(tmp_path, entry, PADDING_32)
+    esi.write_text(esi.read_text().replace('PdoConfig="true"', 'PdoConfig="false"'))
+    msg = load_error(tmp_path, ONE_DRIVE, esi)
+    assert "axis j1 (mode csp) needs object 0x6064 (position)" in msg, msg
+
+
+def test_a_mode_object_outside_the_pdos_is_set_in_preop(tmp_path: Path) -> None:
+    # Drive with fixed PDOs without 0x6060/0x6061: the mode goes in by SDO in PREOP.
+    text = ESI.read_text().replace('PdoConfig="true"', 'PdoConfig="false"')
+    for idx, name, io in (("#x6060", "Modes of operation", "SINT"),
+                          ("#x6061", "Modes of operation display", "SINT")):  # fmt: skip
+        text = text.replace(
+            f"<Entry><Index>{idx}</Index><SubIndex>0</SubIndex><BitLen>8</BitLen>"
+            f"<Name>{name}</Name><DataType>{io}</DataType></Entry>",
+            "<Entry><Index>#x0</Index><BitLen>8</BitLen></Entry>",
+        )
+    esi = tmp_path / "servo_fixed.xml"
+    esi.write_text(text)
+    cfg = load_bus_config(write(tmp_path, ONE_DRIVE, esi))
+    drive = cfg.slave("drive")
+    inits = [(i.index, i.subindex, i.data) for i in drive.sdo_init]
+    assert (0x6060, 0, bytes([8])) in inits  # j1: csp
+    assert "mode" not in cfg.axis_specs()[0].variables

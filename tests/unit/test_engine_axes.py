@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -15,6 +15,7 @@ import pytest
 
 import ether_ros._native as _native
 from ether_ros.master.samples import decode_samples
+from ether_ros.testing.wait import wait_for
 
 LRW = 12
 # Image: outputs 0..12 (controlword, mode, pad, target position, target velocity), inputs
@@ -154,13 +155,6 @@ def plan(**axis_overrides: Any) -> dict[str, Any]:
     }
 
 
-def wait_for(cond: Callable[[], bool], what: str) -> None:
-    deadline = time.monotonic() + 15
-    while not cond():
-        assert time.monotonic() < deadline, f"timed out waiting for {what}"
-        time.sleep(0.002)
-
-
 @pytest.fixture
 def rig() -> Iterator[tuple[_native.Engine, Drive]]:
     drive = Drive()
@@ -179,9 +173,9 @@ def test_enable_walks_the_state_machine_and_never_moves(
 ) -> None:
     engine, drive = rig
     assert engine.axis_names() == ["j1"]
-    wait_for(lambda: engine.axis_status(0)["state"] == "switch_on_disabled", "first status")
+    wait_for("first status", lambda: engine.axis_status(0)["state"] == "switch_on_disabled")
     engine.axis_enable(0, True)
-    wait_for(lambda: enabled(engine), "operation enabled")
+    wait_for("operation enabled", lambda: enabled(engine))
     frames = drive.seen()
     cws = [f["cw"] for f in frames]
     # Shutdown, switch on, enable operation, in this order.
@@ -199,10 +193,10 @@ def test_enable_walks_the_state_machine_and_never_moves(
 def test_setpoints_are_clamped_and_nan_refused(rig: tuple[_native.Engine, Drive]) -> None:
     engine, drive = rig
     engine.axis_enable(0, True)
-    wait_for(lambda: enabled(engine), "operation enabled")
+    wait_for("operation enabled", lambda: enabled(engine))
     engine.drain_samples(1 << 20)
     engine.axis_setpoint(0, "position", 5.5)
-    wait_for(lambda: drive.seen()[-1]["target"] == 5500, "the target reached")
+    wait_for("the target reached", lambda: drive.seen()[-1]["target"] == 5500)
     # The engine's own record of every cycle: its wake-up time and the image it sent.
     records, images = engine.drain_samples(1 << 20)
     s = decode_samples(records, images, image_len=IMAGE)
@@ -215,7 +209,7 @@ def test_setpoints_are_clamped_and_nan_refused(rig: tuple[_native.Engine, Drive]
     steps = np.abs(np.diff(target.astype(np.int64)))
     assert (steps <= 2 * ms + 1).all(), steps.max()
     engine.axis_setpoint(0, "position", 50.0)
-    wait_for(lambda: drive.seen()[-1]["target"] == 10_000, "held at the position limit")
+    wait_for("held at the position limit", lambda: drive.seen()[-1]["target"] == 10_000)
     assert engine.axis_status(0)["position_clamps"] > 0
     before = engine.axis_status(0)["command_seq"]
     with pytest.raises(ValueError, match="not a finite number"):
@@ -233,27 +227,27 @@ def test_panic_puts_the_quick_stop_on_the_wire_within_two_cycles(
 ) -> None:
     engine, drive = rig
     engine.axis_enable(0, True)
-    wait_for(lambda: enabled(engine), "operation enabled")
+    wait_for("operation enabled", lambda: enabled(engine))
     # The in-process link answers inside `send`: frames seen so far were sent before panic();
     # the one being built meanwhile may still be live, the next one must carry the stop.
     n = len(drive.seen())
     engine.panic()
-    wait_for(lambda: len(drive.seen()) >= n + 3, "frames after the panic")
+    wait_for("frames after the panic", lambda: len(drive.seen()) >= n + 3)
     frames = drive.seen()
     assert frames[n + 1]["cw"] == 0x0002, frames[n : n + 3]
-    wait_for(lambda: engine.axis_status(0)["state"] == "quick_stop_active", "quick stop active")
+    wait_for("quick stop active", lambda: engine.axis_status(0)["state"] == "quick_stop_active")
     assert engine.axis_status(0)["halted"]
     engine.clear_panic()
-    wait_for(lambda: enabled(engine), "enabled again after the panic")
+    wait_for("enabled again after the panic", lambda: enabled(engine))
 
 
 def test_a_fault_is_reported_reset_and_reenabled(rig: tuple[_native.Engine, Drive]) -> None:
     engine, drive = rig
     engine.axis_enable(0, True)
-    wait_for(lambda: enabled(engine), "operation enabled")
+    wait_for("operation enabled", lambda: enabled(engine))
     drive.fault(0x7305)
-    wait_for(lambda: engine.axis_status(0)["faults"] == 1, "the fault seen")
-    wait_for(lambda: enabled(engine), "re-enabled by the automatic reset")
+    wait_for("the fault seen", lambda: engine.axis_status(0)["faults"] == 1)
+    wait_for("re-enabled by the automatic reset", lambda: enabled(engine))
     st = engine.axis_status(0)
     assert (st["last_fault_code"], st["fault_resets"], st["error_code"]) == (0x7305, 1, 0)
 
@@ -264,13 +258,13 @@ def test_manual_policy_waits_for_reset_fault() -> None:
     try:
         engine.start_cyclic(plan(fault_reset="manual"))
         engine.axis_enable(0, True)
-        wait_for(lambda: enabled(engine), "operation enabled")
+        wait_for("operation enabled", lambda: enabled(engine))
         drive.fault(0x2310)
-        wait_for(lambda: engine.axis_status(0)["state"] == "fault", "fault")
+        wait_for("fault", lambda: engine.axis_status(0)["state"] == "fault")
         time.sleep(0.05)
         assert engine.axis_status(0)["state"] == "fault"
         engine.axis_reset_fault(0)
-        wait_for(lambda: enabled(engine), "re-enabled after reset_fault")
+        wait_for("re-enabled after reset_fault", lambda: enabled(engine))
     finally:
         engine.close()
 
@@ -278,12 +272,12 @@ def test_manual_policy_waits_for_reset_fault() -> None:
 def test_trajectory_runs_on_the_engine_clock(rig: tuple[_native.Engine, Drive]) -> None:
     engine, drive = rig
     engine.axis_enable(0, True)
-    wait_for(lambda: enabled(engine), "operation enabled")
+    wait_for("operation enabled", lambda: enabled(engine))
     start = engine.now_ns() + 20_000_000
     # 5.0 rad → 5.1 rad in 100 ms, back to 5.05 rad at 200 ms.
     points = [(0, 5.0, 0.0), (100_000_000, 5.1, 0.0), (200_000_000, 5.05, 0.0)]
     engine.axis_follow(0, start, points)
-    wait_for(lambda: engine.axis_status(0)["trajectory_done"], "the trajectory's end")
+    wait_for("the trajectory's end", lambda: engine.axis_status(0)["trajectory_done"])
     targets = [f["target"] for f in drive.seen()]
     assert max(targets) == 5100 and targets[-1] == 5050
     assert engine.axis_status(0)["position_clamps"] == 0
@@ -304,5 +298,27 @@ def test_bad_axis_plans_name_the_key() -> None:
         p["axes"][0]["map"]["statusword"] = 2
         with pytest.raises(ValueError, match="statusword at byte 2 must lie in an input range"):
             engine.start_cyclic(p)
+    finally:
+        engine.close()
+
+
+def test_a_new_cyclic_run_starts_from_the_plans_commands() -> None:
+    drive = Drive()
+    engine = _native.Engine.open_sim(drive)
+    try:
+        engine.start_cyclic(plan())
+        engine.axis_enable(0, True)
+        engine.axis_set_mode(0, "csv")
+        wait_for("csv", lambda: engine.axis_status(0)["mode_display"] == "csv")
+        engine.stop_cyclic()
+        engine.start_cyclic(plan())
+        # Not enabled, csp again: nothing of the previous run's commands carries over.
+        wait_for("cycles of the new run", lambda: engine.axis_status(0)["cycle"] > 5)
+        st = engine.axis_status(0)
+        assert not st["enable_wanted"] and st["mode_display"] == "csp"
+        engine.axis_reset_fault(0)  # any command: the slot is initialised from the new plan
+        time.sleep(0.02)
+        st = engine.axis_status(0)
+        assert not st["enable_wanted"] and st["mode_display"] == "csp"
     finally:
         engine.close()

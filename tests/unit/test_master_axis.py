@@ -8,8 +8,7 @@ CiA 402 drive model in tests/acceptance/test_cia402_veth.py."""
 from __future__ import annotations
 
 import math
-import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -19,6 +18,7 @@ from ether_ros.config.bus import BusConfig
 from ether_ros.config.process import ProcessValueError
 from ether_ros.master import Bus
 from ether_ros.master.axis import AxisCommandError, AxisError
+from ether_ros.testing.wait import wait_for
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -98,13 +98,6 @@ def test_a_drive_that_never_enables_is_named_with_its_state(bus: Bus) -> None:
     assert st["target_position_raw"] == st["position_raw"]
 
 
-def wait_for(cond: Callable[[], bool], what: str) -> None:
-    deadline = time.monotonic() + 10
-    while not cond():
-        assert time.monotonic() < deadline, f"timed out waiting for {what}"
-        time.sleep(0.005)
-
-
 def test_panic_reaches_every_drive_as_its_stop_command(bus: Bus) -> None:
     bus.start()
     axes = bus.axes()
@@ -114,12 +107,106 @@ def test_panic_reaches_every_drive_as_its_stop_command(bus: Bus) -> None:
     for a in axes:
         bus.engine.axis_enable(a.index, True)
     # Wanted enabled, in Not Ready the controlword is 0.
-    wait_for(lambda: all(a.status()["statusword"] == 0 for a in echoing), "controlword 0")
+    wait_for("controlword 0", lambda: all(a.status()["statusword"] == 0 for a in echoing))
     bus.panic()
     # Quick stop (0x0002) went to every drive: it came back from the drives.
-    wait_for(lambda: all(a.status()["statusword"] == 0x0002 for a in echoing), "quick stop")
+    wait_for("quick stop", lambda: all(a.status()["statusword"] == 0x0002 for a in echoing))
     assert all(a.status()["halted"] and a.status()["controlword"] == 0x0002 for a in axes)
     bus.clear_panic()
-    wait_for(lambda: all(a.status()["statusword"] == 0 for a in echoing), "enabled again")
+    wait_for("enabled again", lambda: all(a.status()["statusword"] == 0 for a in echoing))
     bus.stop()
     assert [s.state for s in bus.states()] == ["INIT"] * 3
+
+
+@pytest.fixture
+def drives() -> Iterator[Bus]:
+    """arm6 on the simulator's CiA 402 drive model (its default for ServoDrive2)."""
+    from ether_ros.sim.network import build_network
+
+    cfg = _config()
+    for s in cfg.slaves:
+        s.sim.device = None
+    assert {s.sim_device for s in cfg.slaves} == {"cia402"}
+    with Bus.open(cfg, link=build_network(cfg), drift_frames=100) as b:
+        b.start()
+        yield b
+
+
+def test_every_mode_runs_on_the_drive_model(drives: Bus) -> None:
+    j = drives.axis("elbow")
+    # Cyclic modes switch while enabled; 0x6061 confirms each.
+    j.enable(timeout=3)
+    j.set_mode("csv")
+    j.command(velocity=0.2)
+    wait_for("csv velocity", lambda: abs(j.velocity - 0.2) < 0.01)
+    j.set_mode("cst")
+    assert j.status()["mode_display"] == "cst"
+    j.command(torque=0.0)
+    with pytest.raises(AxisCommandError, match="switch from cst to pp only while disabled"):
+        j.set_mode("pp")
+    j.disable()
+    # Profile position: the new set-point handshake (controlword bit 4, statusword bit 12).
+    j.set_mode("pp")
+    j.enable(timeout=3)
+    start = j.position
+    j.command(position=start + 0.05)
+    wait_for("pp target reached", lambda: abs(j.position - (start + 0.05)) < 0.002)
+    j.disable()
+    # Profile velocity.
+    j.set_mode("pv")
+    j.enable(timeout=3)
+    j.command(velocity=-0.1)
+    wait_for("pv velocity", lambda: abs(j.velocity + 0.1) < 0.01)
+    j.command(velocity=0.0)
+    j.disable()
+    # Homing starts when enabled (controlword bit 4): statusword bit 12, homing attained.
+    j.set_mode("hm")
+    j.enable(timeout=3)
+    wait_for("homing attained", lambda: j.status()["statusword"] & 0x1000 != 0)
+    with pytest.raises(AxisCommandError, match="takes no setpoint"):
+        j.command(position=0.0)
+
+
+def test_an_object_mapped_by_the_master_reaches_the_drive(tmp_path: Path) -> None:
+    """Axis 2's target velocity is missing from the ESI's RxPDO 0x1610: the loader appends it,
+    the master writes the mapping in PREOP, and the drive model (which maps what the master
+    configured) runs the csv axis on it."""
+    from ether_ros.sim.network import build_network
+
+    entry = ("<Entry><Index>#x68FF</Index><SubIndex>0</SubIndex><BitLen>32</BitLen>"
+             "<Name>Target velocity</Name><DataType>DINT</DataType></Entry>")  # fmt: skip
+    esi = tmp_path / "servo.xml"
+    text = (REPO / "devices" / "servo_drive.xml").read_text()
+    esi.write_text(text.replace(entry, "<Entry><Index>#x0</Index><BitLen>32</BitLen></Entry>"))
+    yaml = tmp_path / "bus.yaml"
+    yaml.write_text(
+        f"bus: {{name: one, interface: eth0, cycle_us: 2000, watchdog_ms: 0,\n"
+        f"      realtime: {{policy: other, lock_memory: false}}}}\n"
+        f"esi: [{esi}]\n"
+        "slaves:\n"
+        "  - name: drive\n"
+        "    device: ServoDrive2\n"
+        "    axes:\n"
+        "      - {name: j1, position_scale: 7.66990394e-6}\n"
+        "      - {name: j2, mode: csv, velocity_scale: 7.66990394e-6}\n"
+    )
+    cfg = load_bus_config(yaml)
+    with Bus.open(cfg, link=build_network(cfg), drift_frames=100) as bus:
+        bus.start()
+        j2 = bus.axis("j2")
+        j2.enable(timeout=3)
+        j2.command(velocity=0.25)
+        wait_for("csv velocity through the new mapping", lambda: abs(j2.velocity - 0.25) < 0.01)
+        # Six entries as in the ESI (one now padding), then 0x68FF:00, 32 bits.
+        assert bus.sdo_read("drive", 0x1610, 0) == 7
+        assert bus.sdo_read("drive", 0x1610, 7) == 0x68FF0020
+
+
+def test_stop_takes_every_axis_out_of_operation_enabled_first(drives: Bus) -> None:
+    for a in drives.axes():
+        a.enable(timeout=3)
+    drives.stop()
+    # The last status the RT thread published before the cyclic exchange stopped.
+    states = [drives.engine.axis_status(i)["state"] for i in range(6)]
+    assert "operation_enabled" not in states, states
+    assert all(drives.engine.axis_status(i)["controlword"] == 0x0002 for i in range(6))

@@ -83,7 +83,7 @@ def test_sim_fault_command_line_builds_drive_fault() -> None:
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["drive-fault", "0", "overheat"], "argument error: invalid choice: 'overheat'"),
+        (["drive-fault", "0", "overheat"], "argument error: unknown drive fault 'overheat' (known: over_current, encoder, under_voltage, following_error)"),
         (["drive-fault", "0", "encoder", "--axis", "0"], "argument --axis: axis must be 1..8, got 0"),
         (["drive-fault", "0", "encoder", "--axis", "two"], "argument --axis: axis must be a number 1..8, got 'two'"),
     ],

@@ -12,7 +12,6 @@ from pathlib import Path
 from typing import Any
 
 from ether_ros.errors import ConfigError, LinkError
-from ether_ros.sim.control import DRIVE_FAULTS, MAX_AXES
 
 _FAULT_HELP = {
     "drop": "drop frames: each frame starts a burst of BURST lost frames with probability RATE",
@@ -81,15 +80,30 @@ def register(subparsers: Any) -> None:
     k.add_argument("ppm", type=float)
     k = kinds.add_parser("drive-fault", help=_FAULT_HELP["drive-fault"])
     k.add_argument("slave", help="slave name or position")
-    k.add_argument("error", choices=DRIVE_FAULTS, help="which fault")
-    k.add_argument("--axis", type=_axis, default=1, help=f"axis 1..{MAX_AXES} (default 1)")
+    k.add_argument("error", type=_drive_fault, help="over_current, encoder, under_voltage or"
+                   " following_error")  # fmt: skip
+    k.add_argument("--axis", type=_axis, default=1, help="axis 1..8 of the drive (default 1)")
     kinds.add_parser("clear", help=_FAULT_HELP["clear"])
     kinds.add_parser("stats", help=_FAULT_HELP["stats"])
     f.set_defaults(func=run_fault)
 
 
+def _drive_fault(text: str) -> str:
+    """A drive fault name for ``drive-fault`` (the control socket's table; imported only when
+    parsing one, so the command line starts without the simulator front)."""
+    from ether_ros.sim.control import DRIVE_FAULTS
+
+    if text not in DRIVE_FAULTS:
+        raise argparse.ArgumentTypeError(
+            f"unknown drive fault {text!r} (known: {', '.join(DRIVE_FAULTS)})"
+        )
+    return text
+
+
 def _axis(text: str) -> int:
     """An axis number for ``drive-fault --axis`` (1-based)."""
+    from ether_ros.sim.control import MAX_AXES
+
     try:
         axis = int(text)
     except ValueError:

@@ -499,6 +499,17 @@ def _resolve_slave(
             rx = auto_rx
         if tx is None and tuple(auto_tx) != dev.default_tx_pdos():
             tx = auto_tx
+        mapped = cia402.extend_mapping(
+            dev,
+            rx if rx is not None else dev.default_rx_pdos(),
+            tx if tx is not None else dev.default_tx_pdos(),
+            s.axes,
+        )
+        if mapped is not dev:
+            # The PDO contents change: the master writes assignment and mapping in PREOP.
+            dev = s._esi = mapped
+            rx = list(rx if rx is not None else dev.default_rx_pdos())
+            tx = list(tx if tx is not None else dev.default_tx_pdos())
         if rx is not None or tx is not None:
             s.pdo_assign = PdoAssign(rx=rx, tx=tx)
     for kind, chosen, pdos in (("rx", rx, dev.rx_pdos), ("tx", tx, dev.tx_pdos)):
@@ -529,6 +540,18 @@ def _resolve_slave(
     except ConfigError as exc:
         raise err((*at, "pdo_assign"), str(exc), None, False) from None
     s._layout = layout
+
+    for j, axis in enumerate(s.axes):
+        if axis.name in joints:
+            raise err((*at, "axes", j, "name"), f"duplicate joint name (also in slave "
+                      f"{joints[axis.name]})", axis.name)  # fmt: skip
+        joints[axis.name] = s.name
+    s._axis_specs = cia402.resolve_axes(dev, layout, s.name, s.axes, at, err)
+    # An axis whose 0x6060 is not in the PDOs gets its mode once, in PREOP.
+    given = {(i.index, i.subindex) for i in s.sdo_init}
+    for index, code in cia402.mode_sdo_inits(s._axis_specs):
+        if (index, 0) not in given:
+            s.sdo_init.append(SdoInit(index=index, subindex=0, value=code, type="int8"))
 
     safe = bytearray(layout.output_bytes)
     for var_name, value in s.safe_outputs.items():
@@ -575,13 +598,6 @@ def _resolve_slave(
         except ValueError as exc:
             raise err((*path, "value"), str(exc), init.value) from None
         init.type = t.name
-
-    for j, axis in enumerate(s.axes):
-        if axis.name in joints:
-            raise err((*at, "axes", j, "name"), f"duplicate joint name (also in slave "
-                      f"{joints[axis.name]})", axis.name)  # fmt: skip
-        joints[axis.name] = s.name
-    s._axis_specs = cia402.resolve_axes(dev, layout, s.name, s.axes, at, err)
 
     for j, joint in enumerate(s.joints):
         path = (*at, "joints", j)

@@ -13,10 +13,10 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
-from ether_ros.config.esi import EsiDevice, Pdo
+from ether_ros.config.esi import EsiDevice, Pdo, PdoEntry
 from ether_ros.config.process import ProcessLayout, ProcessVariable
 
 if TYPE_CHECKING:
@@ -101,8 +101,65 @@ def offered_modes(dev: EsiDevice, axis: int) -> tuple[str, ...]:
 
 
 def needed_roles(mode: str) -> tuple[str, ...]:
+    """Objects the axis cannot run without: controlword, statusword, the mode's target and, in
+    the position modes, the actual position (the target before enabling: no jump)."""
     target = MODES[mode][2]
-    return (*REQUIRED, *((target,) if target else ()))
+    extra = ("position",) if target == "target_position" else ()
+    return (*REQUIRED, *((target,) if target else ()), *extra)
+
+
+# Objects mapped into a configurable PDO when missing: the needed ones, and the mode objects
+# (so that 0x6060 is written every cycle and 0x6061 confirms it).
+MAPPED_IF_POSSIBLE = ("mode", "mode_display")
+
+
+def extend_mapping(
+    dev: EsiDevice, rx: Sequence[int], tx: Sequence[int], axes: Sequence[AxisConfig]
+) -> EsiDevice:
+    """``dev`` with the objects the axes need appended to the assigned PDOs that lack them, when
+    the device allows PDO configuration (ESI ``<CoE PdoConfig="true">``), the PDO is not fixed
+    and the dictionary marks the object mappable in that direction; else ``dev`` unchanged (the
+    check in ``resolve_axes`` then names what is missing). The master writes the new mapping in
+    PREOP (master/pdo.py)."""
+    if dev.mailbox is None or not dev.mailbox.pdo_config:
+        return dev
+    pdos = {p.index: p for p in (*dev.rx_pdos, *dev.tx_pdos)}
+    chosen = {"rx": [i for i in rx if i in pdos], "tx": [i for i in tx if i in pdos]}
+    changed = False
+    for n, cfg in enumerate(axes):
+        for role in (*needed_roles(cfg.mode), *MAPPED_IF_POSSIBLE):
+            idx = object_index(role, n)
+            kind = "rx" if OBJECTS[role][1] == "output" else "tx"
+            if any(_maps(pdos[i], (idx, 0)) for i in chosen[kind]):
+                continue
+            entry = dev.od_entry(idx, 0)
+            flag = "R" if kind == "rx" else "T"
+            if entry is None or flag not in entry.pdo_mapping:
+                continue
+            target = _pdo_for_axis([pdos[i] for i in chosen[kind]], n)
+            if target is None:
+                continue
+            new = PdoEntry(idx, 0, entry.bit_length, entry.name, entry.data_type, entry.type_name)
+            pdos[target.index] = replace(target, entries=(*target.entries, new))
+            changed = True
+    if not changed:
+        return dev
+    return replace(
+        dev,
+        rx_pdos=tuple(pdos[p.index] for p in dev.rx_pdos),
+        tx_pdos=tuple(pdos[p.index] for p in dev.tx_pdos),
+    )
+
+
+def _pdo_for_axis(candidates: Sequence[Pdo], axis: int) -> Pdo | None:
+    """The configurable PDO that already carries objects of ``axis`` (else the first
+    configurable one)."""
+    lo, hi = 0x6000 + axis * AXIS_STRIDE, 0x6000 + (axis + 1) * AXIS_STRIDE
+    free = [p for p in candidates if not p.fixed]
+    for p in free:
+        if any(lo <= e.index < hi for e in p.entries):
+            return p
+    return free[0] if free else None
 
 
 def wanted_roles() -> tuple[str, ...]:
@@ -143,6 +200,16 @@ def auto_assign(dev: EsiDevice, axes: int) -> tuple[list[int], list[int]]:
 
 def _maps(p: Pdo, key: tuple[int, int]) -> bool:
     return any((e.index, e.subindex) == key for e in p.entries)
+
+
+def mode_sdo_inits(specs: Sequence[AxisSpec]) -> list[tuple[int, int]]:
+    """(0x6060 index, mode code) of every axis whose mode object is not in the PDOs: the mode
+    is then written once in PREOP, so the drive never runs without one."""
+    return [
+        (object_index("mode", a.axis_index), MODES[a.config.mode][0])
+        for a in specs
+        if "mode" not in a.variables
+    ]
 
 
 def check_axis(cfg: AxisConfig, path: tuple[Any, ...], err: ErrorFn) -> None:
@@ -209,5 +276,10 @@ def resolve_axes(
                 raise err(path, f"axis {cfg.name} (mode {cfg.mode}) needs object 0x{idx:04X} "
                           f"({role}), which is not in {where} of {dev.type_name}",
                           None, False)  # fmt: skip
+        mode_index = object_index("mode", n)
+        if "mode" not in variables and dev.objects and dev.od_object(mode_index) is None:
+            raise err(path, f"axis {cfg.name}: object 0x{mode_index:04X} (modes of operation) is "
+                      f"neither in the PDOs nor in the {dev.type_name} dictionary: the mode "
+                      "cannot be set", None, False)  # fmt: skip
         specs.append(AxisSpec(cfg, slave, n, variables, modes))
     return specs

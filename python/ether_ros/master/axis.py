@@ -209,6 +209,9 @@ class Axis:
         if target is not None and target not in self.spec.variables:
             raise AxisCommandError(f"axis {self.name}: mode {mode} needs {target}, which the "
                                    "PDOs do not map")  # fmt: skip
+        if mode != self._mode and "mode" not in self.spec.variables:
+            raise AxisCommandError(f"axis {self.name}: 0x6060 is not in the PDOs; the mode "
+                                   f"({self._mode}) is set once in PREOP")  # fmt: skip
         profile_change = mode in PROFILE_MODES or self._mode in PROFILE_MODES
         if profile_change and mode != self._mode and self.state == "operation_enabled":
             raise AxisCommandError(f"axis {self.name}: switch from {self._mode} to {mode} only "

@@ -104,6 +104,8 @@ class Bus:
         self._closed = False
         self._listeners: list[Callable[[BusEvent], None]] = []
         self.supervisor: Supervisor | None = None
+        # Image byte → axis name of the output bytes the engine's axis stage owns (lazily).
+        self._axis_owned: dict[int, str] | None = None
 
     # ---------------------------------------------------------------------------- opening
     @classmethod
@@ -491,7 +493,9 @@ class Bus:
         cycle: a variable write there would be overwritten, so it is refused."""
         if self.layout is None or s.area is None:
             return
-        owned = axis_mod.output_bits(self._axis_specs(), self.layout)
+        if self._axis_owned is None:
+            self._axis_owned = axis_mod.output_bits(self._axis_specs(), self.layout)
+        owned = self._axis_owned
         byte = s.area.output_offset + var.bit_offset // 8
         if byte in owned:
             raise ProcessValueError(f"{s}: variable {var.name!r} belongs to axis {owned[byte]}; "

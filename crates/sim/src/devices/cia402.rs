@@ -17,7 +17,7 @@ use super::od_slots::OdSlots;
 use super::period_clock::PeriodClock;
 use super::servo_motor::{limit, Cascade, Mechanics, MotorParams};
 use crate::device::{DeviceApp, Emergency};
-use crate::od::ObjectDictionary;
+use crate::od::{dtype, Access, Entry, ObjectDictionary};
 
 /// Drive loop period: 8 kHz (position and velocity loops).
 pub const PERIOD_NS: u64 = 125_000;
@@ -75,6 +75,70 @@ const AXIS_KEYS: [(u16, u8, i64); 35] = [
     (0x6091, 1, 50),              // 33 gear ratio: motor revolutions
     (0x6091, 2, 1),               // 34 gear ratio: shaft revolutions
 ];
+/// Data type and bit length of each `AXIS_KEYS` object (as in devices/servo_drive.xml).
+const AXIS_TYPES: [(u16, u16); 35] = [
+    (dtype::UINT16, 16), // 0x6040:0
+    (dtype::INT8, 8),    // 0x6060:0
+    (dtype::INT32, 32),  // 0x607A:0
+    (dtype::INT32, 32),  // 0x60FF:0
+    (dtype::INT16, 16),  // 0x6071:0
+    (dtype::UINT16, 16), // 0x6041:0
+    (dtype::INT8, 8),    // 0x6061:0
+    (dtype::INT32, 32),  // 0x6064:0
+    (dtype::INT32, 32),  // 0x606C:0
+    (dtype::INT16, 16),  // 0x6077:0
+    (dtype::UINT16, 16), // 0x603F:0
+    (dtype::INT32, 32),  // 0x60F4:0
+    (dtype::UINT32, 32), // 0x6065:0
+    (dtype::UINT16, 16), // 0x6066:0
+    (dtype::UINT32, 32), // 0x6502:0
+    (dtype::UINT32, 32), // 0x6076:0
+    (dtype::UINT16, 16), // 0x6072:0
+    (dtype::UINT32, 32), // 0x6080:0
+    (dtype::INT16, 16),  // 0x605A:0
+    (dtype::UINT32, 32), // 0x6085:0
+    (dtype::INT32, 32),  // 0x607D:1
+    (dtype::INT32, 32),  // 0x607D:2
+    (dtype::UINT8, 8),   // 0x60C2:1
+    (dtype::INT8, 8),    // 0x60C2:2
+    (dtype::UINT32, 32), // 0x6081:0
+    (dtype::UINT32, 32), // 0x6083:0
+    (dtype::UINT32, 32), // 0x6084:0
+    (dtype::INT8, 8),    // 0x6098:0
+    (dtype::INT32, 32),  // 0x607C:0
+    (dtype::UINT32, 32), // 0x6067:0
+    (dtype::UINT16, 16), // 0x606D:0
+    (dtype::UINT32, 32), // 0x608F:1
+    (dtype::UINT32, 32), // 0x608F:2
+    (dtype::UINT32, 32), // 0x6091:1
+    (dtype::UINT32, 32), // 0x6091:2
+];
+
+/// The dictionary of a drive with `axes` axes as devices/servo_drive.xml describes it (the axis
+/// objects and 0x1001), for tests and for running the model without an ESI.
+pub fn dictionary(axes: usize) -> ObjectDictionary {
+    let mut od = ObjectDictionary::new();
+    let mut add = |index: u16, subindex: u8, data_type: u16, bits: u16, value: i64| {
+        od.add_entry(Entry {
+            index,
+            subindex,
+            name: String::new(),
+            data_type,
+            bit_length: bits,
+            access: Access::ReadWrite,
+            pdo_mappable: true,
+            value: value.to_le_bytes()[..usize::from(bits / 8)].to_vec(),
+        });
+    };
+    for n in 0..axes.min(MAX_AXES) as u16 {
+        for ((index, sub, value), (t, bits)) in AXIS_KEYS.into_iter().zip(AXIS_TYPES) {
+            add(index + n * AXIS_OFFSET, sub, t, bits, value);
+        }
+    }
+    add(ERROR_REGISTER[0].0, ERROR_REGISTER[0].1, dtype::UINT8, 8, 0);
+    od
+}
+
 mod slot {
     pub const CONTROLWORD: usize = 0;
     pub const MODE: usize = 1;
@@ -1453,72 +1517,9 @@ impl DeviceApp for Cia402Drive {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::od::{dtype, Access, Entry};
     use std::f64::consts::TAU;
 
     const CPR: i64 = 16_384;
-
-    /// Data type and bit length of each `AXIS_KEYS` object (as in devices/servo_drive.xml).
-    const TYPES: [(u16, u16); 35] = [
-        (dtype::UINT16, 16), // 0x6040:0
-        (dtype::INT8, 8),    // 0x6060:0
-        (dtype::INT32, 32),  // 0x607A:0
-        (dtype::INT32, 32),  // 0x60FF:0
-        (dtype::INT16, 16),  // 0x6071:0
-        (dtype::UINT16, 16), // 0x6041:0
-        (dtype::INT8, 8),    // 0x6061:0
-        (dtype::INT32, 32),  // 0x6064:0
-        (dtype::INT32, 32),  // 0x606C:0
-        (dtype::INT16, 16),  // 0x6077:0
-        (dtype::UINT16, 16), // 0x603F:0
-        (dtype::INT32, 32),  // 0x60F4:0
-        (dtype::UINT32, 32), // 0x6065:0
-        (dtype::UINT16, 16), // 0x6066:0
-        (dtype::UINT32, 32), // 0x6502:0
-        (dtype::UINT32, 32), // 0x6076:0
-        (dtype::UINT16, 16), // 0x6072:0
-        (dtype::UINT32, 32), // 0x6080:0
-        (dtype::INT16, 16),  // 0x605A:0
-        (dtype::UINT32, 32), // 0x6085:0
-        (dtype::INT32, 32),  // 0x607D:1
-        (dtype::INT32, 32),  // 0x607D:2
-        (dtype::UINT8, 8),   // 0x60C2:1
-        (dtype::INT8, 8),    // 0x60C2:2
-        (dtype::UINT32, 32), // 0x6081:0
-        (dtype::UINT32, 32), // 0x6083:0
-        (dtype::UINT32, 32), // 0x6084:0
-        (dtype::INT8, 8),    // 0x6098:0
-        (dtype::INT32, 32),  // 0x607C:0
-        (dtype::UINT32, 32), // 0x6067:0
-        (dtype::UINT16, 16), // 0x606D:0
-        (dtype::UINT32, 32), // 0x608F:1
-        (dtype::UINT32, 32), // 0x608F:2
-        (dtype::UINT32, 32), // 0x6091:1
-        (dtype::UINT32, 32), // 0x6091:2
-    ];
-
-    fn dictionary(axes: usize) -> ObjectDictionary {
-        let mut od = ObjectDictionary::new();
-        let mut add = |index: u16, subindex: u8, data_type: u16, bits: u16, value: i64| {
-            od.add_entry(Entry {
-                index,
-                subindex,
-                name: String::new(),
-                data_type,
-                bit_length: bits,
-                access: Access::ReadWrite,
-                pdo_mappable: true,
-                value: value.to_le_bytes()[..usize::from(bits / 8)].to_vec(),
-            });
-        };
-        for n in 0..axes as u16 {
-            for ((index, sub, value), (t, bits)) in AXIS_KEYS.into_iter().zip(TYPES) {
-                add(index + n * AXIS_OFFSET, sub, t, bits, value);
-            }
-        }
-        add(0x1001, 0, dtype::UINT8, 8, 0);
-        od
-    }
 
     /// A drive on its dictionary, stepped the way the ESC does (every drive period).
     struct Bench {
@@ -2171,7 +2172,7 @@ mod tests {
         // The ESI's default of each VAR object (subindex 0) is the drive's fallback default.
         let esi = include_str!("../../../../devices/servo_drive.xml");
         let device = &esi[..esi.find("ServoDrive2").expect("second device")];
-        for ((index, sub, default), (_, bits)) in AXIS_KEYS.into_iter().zip(TYPES) {
+        for ((index, sub, default), (_, bits)) in AXIS_KEYS.into_iter().zip(AXIS_TYPES) {
             if sub != 0 {
                 continue;
             }
