@@ -106,12 +106,14 @@ def test_bad_joint_commands_are_refused_and_write_nothing(
 
 def test_joint_trajectory_runs_in_time(arm: Any) -> None:
     _node, client, _net = arm
+    elbow = joint_positions(client)["elbow"]
     before = len(client.joint_results)
     client.publish_trajectory(["shoulder_lift", "wrist_1"], [(0.4, [0.3, -0.2]), (0.8, [0.5, 0.1])])
     client.wait_for(lambda _l: len(client.joint_results) > before)
     assert client.joint_results[before].success, client.joint_results[before].message
     wait_position(client, "shoulder_lift", 0.5)
     wait_position(client, "wrist_1", 0.1)
+    assert abs(joint_positions(client)["elbow"] - elbow) < 0.01  # not in it: kept its command
 
 
 @pytest.mark.parametrize(
@@ -220,3 +222,39 @@ def test_the_console_operates_the_axes(arm: Any) -> None:
     assert lines[-1].startswith("disable done (elbow: switch_on_disabled)")
     console.line("enable all")
     assert lines[-1].startswith("enable done (shoulder_pan: operation_enabled")
+
+
+def test_a_slow_enable_holds_up_no_other_callback(arm: Any, monkeypatch: Any) -> None:
+    """An enable waits for the drive (seconds, for a slow one): the lifecycle service, joint
+    commands and trajectories are still served meanwhile. The drive is the faked layer here: its
+    enable blocks until released."""
+    import threading
+
+    node, client, _net = arm
+    release = threading.Event()
+    entered = threading.Event()
+
+    def slow_enable(timeout: float = 2.0) -> None:
+        entered.set()
+        release.wait(10)
+
+    monkeypatch.setattr(node._axes["wrist_2"], "enable", slow_enable)
+    answer: list[Any] = []
+    caller = threading.Thread(
+        target=lambda: answer.append(client.axis_command("enable", ["wrist_2"]))
+    )
+    caller.start()
+    try:
+        assert entered.wait(5)
+        assert client.get_state(timeout=2) == "active"
+        before = len(client.joint_results)
+        client.publish_trajectory(["wrist_1"], [(0.3, [0.05])])
+        client.wait_for(lambda _l: len(client.joint_results) > before, timeout=2)
+        assert client.joint_results[before].success
+        client.publish_joint_command(["elbow"], position=[0.15])
+        wait_position(client, "elbow", 0.15, timeout=2)
+        assert not answer  # the enable is still waiting
+    finally:
+        release.set()
+        caller.join(10)
+    assert answer and answer[0][0], answer
