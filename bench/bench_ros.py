@@ -184,8 +184,9 @@ class CommandSender:
     """The sender process: publishes the patterns, returns the stamps of every value. Sequence
     numbers (and so values) go on rising across calls: unique within one sender."""
 
-    def __init__(self, domain_id: int) -> None:
-        self.worker = Worker(["publish", SLAVE, VARIABLE], domain_id, "the command sender")
+    def __init__(self, domain_id: int, args: list[str] | None = None) -> None:
+        args = args or ["publish", SLAVE, VARIABLE]
+        self.worker = Worker(args, domain_id, "the command sender")
         self.next_seq = 0
         try:
             self.worker.expect_ready()
@@ -226,8 +227,9 @@ class WireSniffer:
     image in the LRW data changes (one LRW covers the whole image here). Only the kernel's
     timestamps count, so this thread's own delays do not matter."""
 
-    def __init__(self, interface: str, offset: int) -> None:
+    def __init__(self, interface: str, offset: int, fmt: str = "<h") -> None:
         self.offset = offset
+        self.fmt = fmt  # the value's struct format (int16 by default)
         self.changes: list[tuple[int, int]] = []
         self.frames = 0
         self.dropped = 0
@@ -294,8 +296,8 @@ class WireSniffer:
             length = struct.unpack_from("<H", frame, pos + 6)[0]
             more, length = length & 0x8000, length & 0x07FF
             data = pos + 10
-            if cmd == LRW and self.offset + 2 <= length:
-                return int(struct.unpack_from("<h", frame, data + self.offset)[0])
+            if cmd == LRW and self.offset + struct.calcsize(self.fmt) <= length:
+                return int(struct.unpack_from(self.fmt, frame, data + self.offset)[0])
             if not more:
                 return None
             pos = data + length + 2

@@ -1,7 +1,10 @@
 """Worker processes of the ROS benchmark (bench_ros.py), each a fresh interpreter so that nothing
 else in the benchmark process (the rig's ROS client, the wire sniffer) shares its GIL or caches:
 
-- ``publish``: the command sender. Publishes ``WriteVariable`` on ``pdo_listener`` in the pattern
+- ``publish``: the command sender. Publishes ``WriteVariable`` on ``pdo_listener`` (or, as
+  ``publish-joint JOINT SCALE``, a ``sensor_msgs/JointState`` velocity for JOINT on
+  ``joint_commands``: the raw value ``joint_value(seq)`` × SCALE, ``header.frame_id`` the
+  sequence number) in the pattern
   it is told on stdin (one line ``GAP_S COUNT FIRST_SEQ DITHER_S [SENDER]``: COUNT values, one
   every GAP_S seconds on an absolute schedule, each moved later by a random 0..DITHER_S; SENDER
   ``python`` builds each message when it is due and calls ``publish()`` from a normal thread,
@@ -11,7 +14,8 @@ else in the benchmark process (the rig's ROS client, the wire sniffer) shares it
   ``[seq, value, t_construct, t_publish, t_returned]`` — ``time.time_ns()`` before building
   the message, right before ``publish()`` and right after it returns. ``end`` sends a message
   with variable ``__end__`` (tells the floor subscriber to stop); ``quit`` or EOF ends.
-- ``subscribe``: the DDS floor. A minimal low-level rclpy wait set on ``pdo_listener``; stamps
+- ``subscribe [joints]``: the DDS floor. A minimal low-level rclpy wait set on ``pdo_listener``
+  (``joint_commands``); stamps
   ``time.time_ns()`` right after ``rcl_wait`` returns (before taking) and after the take, and
   keeps the middleware's ``received_timestamp`` of the sample (when DDS in this process had
   it, before this thread woke); on ``__end__`` prints
@@ -21,7 +25,8 @@ Both print ``ready`` once set up (the publisher: once its writer matched a reade
 domain comes from the environment (``ROS_DOMAIN_ID``, set by the benchmark).
 
     python bench/ros_floor.py publish SLAVE VARIABLE
-    python bench/ros_floor.py subscribe
+    python bench/ros_floor.py publish-joint JOINT SCALE
+    python bench/ros_floor.py subscribe [joints]
 """
 
 from __future__ import annotations
@@ -41,9 +46,42 @@ CONTROLLER_PRIORITY = 60  # below the engine's RT thread (80), above the node's 
 MATCH_TIMEOUT_S = 30.0
 
 
-def publish(slave: str, variable: str) -> int:
+class Messages:
+    """What a sender publishes: WriteVariable writes, or JointState joint commands."""
+
+    def __init__(self, joints: bool, target: str, arg: str) -> None:
+        from ether_ros_msgs.msg import WriteVariable
+        from sensor_msgs.msg import JointState
+
+        self.joints = joints
+        self.target, self.arg = target, arg
+        self.type: Any = JointState if joints else WriteVariable
+        self.topic = "joint_commands" if joints else "pdo_listener"
+
+    def value(self, seq: int) -> int:
+        return joint_value(seq) if self.joints else command_value(seq)
+
+    def make(self, seq: int) -> Any:
+        if self.joints:
+            return joint_command(self.target, float(self.arg), seq)
+        return command(self.target, self.arg, seq)
+
+    def end(self) -> Any:
+        if self.joints:
+            msg = self.type(name=[self.target], velocity=[0.0])
+            msg.header.frame_id = END
+            return msg
+        return self.type(slave=self.target, variable=END)
+
+    def key(self, msg: Any) -> int | None:
+        """The sequence number a floor subscriber files a message under (None: the end)."""
+        if self.joints:
+            return None if msg.header.frame_id == END else int(msg.header.frame_id)
+        return None if msg.variable == END else int(msg.request_id)
+
+
+def publish(messages: Messages) -> int:
     import rclpy
-    from ether_ros_msgs.msg import WriteVariable
     from rclpy.serialization import serialize_message
 
     from ether_ros.config import load_bus_config
@@ -53,7 +91,7 @@ def publish(slave: str, variable: str) -> int:
     rt_cpu = load_bus_config(CONFIG).bus.realtime.cpu
     rclpy.init()
     node = rclpy.create_node("bench_command_sender")
-    pub = node.create_publisher(WriteVariable, "pdo_listener", QOS_COMMANDS)
+    pub = node.create_publisher(messages.type, messages.topic, QOS_COMMANDS)
     deadline = time.monotonic() + MATCH_TIMEOUT_S
     while pub.get_subscription_count() < 1:
         if time.monotonic() > deadline:
@@ -67,7 +105,7 @@ def publish(slave: str, variable: str) -> int:
         if not words or words[0] == "quit":
             break
         if words[0] == "end":
-            pub.publish(WriteVariable(slave=slave, variable=END))
+            pub.publish(messages.end())
             print("[]", flush=True)
             continue
         gap_ns, count, first = int(float(words[0]) * 1e9), int(words[1]), int(words[2])
@@ -79,7 +117,7 @@ def publish(slave: str, variable: str) -> int:
         stamps: list[list[int]] = []
         ready: list[bytes] = []
         if controller:
-            ready = [serialize_message(command(slave, variable, first + i)) for i in range(count)]
+            ready = [serialize_message(messages.make(first + i)) for i in range(count)]
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(CONTROLLER_PRIORITY))
             # A controller runs on the housekeeping CPUs, not on the EtherCAT RT thread's.
             os.sched_setaffinity(0, housekeeping or everywhere)
@@ -93,9 +131,9 @@ def publish(slave: str, variable: str) -> int:
             if delay > 0:
                 time.sleep(delay / 1e9)
             seq = first + i
-            value = command_value(seq)
+            value = messages.value(seq)
             t_construct = time.time_ns()
-            msg: Any = ready[i] if controller else command(slave, variable, seq)
+            msg: Any = ready[i] if controller else messages.make(seq)
             t_publish = time.time_ns()
             pub.publish(msg)  # bytes: published as they are (rclpy's publish_raw)
             t_returned = time.time_ns()
@@ -123,9 +161,22 @@ def command_value(seq: int) -> int:
     return 1000 + (seq * 7919) % 20000
 
 
-def subscribe() -> int:
+def joint_value(seq: int) -> int:
+    """The raw velocity sent as joint command ``seq``: distinct like ``command_value``, its sign
+    alternating so that the joint does not wander off."""
+    return command_value(seq) * (1 if seq % 2 else -1)
+
+
+def joint_command(joint: str, scale: float, seq: int) -> Any:
+    from sensor_msgs.msg import JointState
+
+    msg = JointState(name=[joint], velocity=[joint_value(seq) * scale])
+    msg.header.frame_id = str(seq)
+    return msg
+
+
+def subscribe(messages: Messages) -> int:
     import rclpy
-    from ether_ros_msgs.msg import WriteVariable
     from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 
     from ether_ros.ros.node import QOS_COMMANDS
@@ -133,7 +184,7 @@ def subscribe() -> int:
     rclpy.init()
     node = rclpy.create_node("bench_floor_subscriber")
     # The callback is never called: nothing spins this node; the loop below takes directly.
-    sub = node.create_subscription(WriteVariable, "pdo_listener", lambda _m: None, QOS_COMMANDS)
+    sub = node.create_subscription(messages.type, messages.topic, lambda _m: None, QOS_COMMANDS)
     wait_set = _rclpy.WaitSet(1, 0, 0, 0, 0, 0, node.context.handle)
     seen: dict[int, list[int]] = {}
     print("ready", flush=True)
@@ -142,17 +193,18 @@ def subscribe() -> int:
         wait_set.add_subscription(sub.handle)
         wait_set.wait(200_000_000)
         t_woken = time.time_ns()
-        taken = sub.handle.take_message(WriteVariable, False)
+        taken = sub.handle.take_message(messages.type, False)
         t_taken = time.time_ns()
         if taken is None:
             continue
         msg, info = taken[0], taken[1]
-        if msg.variable == END:
+        key = messages.key(msg)
+        if key is None:
             break
         # received_timestamp: when the middleware in this process received the sample (the
         # system clock, as time.time_ns()), before this thread was woken.
         t_received = int(info.get("received_timestamp") or 0)
-        seen.setdefault(int(msg.request_id), [t_woken, t_taken, t_received])
+        seen.setdefault(key, [t_woken, t_taken, t_received])
     print(json.dumps(seen), flush=True)
     node.destroy_node()
     rclpy.try_shutdown()
@@ -165,11 +217,17 @@ def main(argv: list[str] | None = None) -> int:
     p = sub.add_parser("publish")
     p.add_argument("slave")
     p.add_argument("variable")
-    sub.add_parser("subscribe")
+    p = sub.add_parser("publish-joint")
+    p.add_argument("joint")
+    p.add_argument("scale")
+    p = sub.add_parser("subscribe")
+    p.add_argument("kind", nargs="?", choices=("writes", "joints"), default="writes")
     args = parser.parse_args(argv)
     if args.cmd == "publish":
-        return publish(args.slave, args.variable)
-    return subscribe()
+        return publish(Messages(False, args.slave, args.variable))
+    if args.cmd == "publish-joint":
+        return publish(Messages(True, args.joint, args.scale))
+    return subscribe(Messages(args.kind == "joints", "", ""))
 
 
 if __name__ == "__main__":

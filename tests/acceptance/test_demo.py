@@ -44,3 +44,20 @@ def test_demo_trots_through_pysoem() -> None:
         # The hips really swing, and follow their desired angles far closer than the swing.
         assert float(swing) > 5.0, f"{leg} did not trot: {out.stdout}"
         assert float(rms) < float(swing) / 3, f"{leg} did not track: {out.stdout}"
+
+
+def test_demo_arm_moves_the_arm_through_ros() -> None:
+    out = _demo("arm", timeout=180)
+    assert out.returncode == 0, out.stdout + out.stderr
+    rows = re.findall(
+        r"(\w+)\s+RMS error\s+([\d.]+) rad\s+max\s+([\d.]+) rad\s+\(swing ([\d.]+) rad, "
+        r"ended at ([-+\d.]+) rad\)",
+        out.stdout,
+    )
+    assert [r[0] for r in rows] == [
+        "shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3"
+    ], out.stdout  # fmt: skip
+    for joint, rms, largest, swing, _ended in rows:
+        # Every joint followed its swing far closer than the swing itself.
+        assert float(largest) < float(swing) / 5, f"{joint} did not track: {out.stdout}"
+        assert float(rms) <= float(largest)

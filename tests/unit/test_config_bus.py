@@ -115,7 +115,8 @@ BAD = [
         "    device: LaelapsII_Leg",
         "    device: NoSuchLeg",
         r"slaves\[0\]\.device: no such ESI device"
-        r" \(known: Coupler, GenericIO, Junction, LaelapsII_Leg\).*NoSuchLeg",
+        r" \(known: Coupler, GenericIO, Junction, LaelapsII_Leg, ServoDrive1, ServoDrive2\)"
+        r".*NoSuchLeg",
         12,
     ),
     (

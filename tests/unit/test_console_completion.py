@@ -25,7 +25,7 @@ def test_commands_slaves_and_variables(ctx: ConsoleContext) -> None:
     assert complete("get front_left_leg hip", ctx) == ["hip_angle"]
     assert complete("sdo r", ctx) == ["read"]
     assert complete("sdo read front_left_leg 0x1018:01 ui", ctx)[0] == "uint8"
-    assert complete("help se", ctx) == ["set"]
+    assert complete("help se", ctx) == ["set", "set_mode"]
 
 
 def test_unknown_slave_or_no_layout_completes_nothing(ctx: ConsoleContext) -> None:

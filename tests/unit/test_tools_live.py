@@ -199,3 +199,30 @@ def test_diagnostics_source_reads_the_nodes_statuses() -> None:
     finally:
         node.destroy_node()
         source.close()
+
+
+def test_axes_from_the_diagnostics() -> None:
+    """The node's per-axis statuses become top's axis rows: state, mode, position and the
+    error with its text (the last fault when the drive recovered from it)."""
+    from ether_ros.tools.live import axes_text
+
+    axes = {
+        "elbow": {"state": "fault", "mode": "csp", "position": "0.25", "error_code": "0x2310",
+                  "error_text": "continuous over-current", "last_fault_code": "0x2310"},
+        "wrist": {"state": "operation_enabled", "mode": "csv", "position": "-1.5",
+                  "error_code": "0x0000", "last_fault_code": "0x7305",
+                  "last_fault_text": "incremental encoder 1 fault"},
+        "base": {"state": "switch_on_disabled", "mode": "csp", "position": "0",
+                 "error_code": "0x0000", "last_fault_code": "0x0000"},
+    }  # fmt: skip
+    snap = snapshot_from_diagnostics({"cycles": "1"}, {}, "arm6", axes)
+    assert [(a.joint, a.state, a.mode, a.position, a.error) for a in snap.axes] == [
+        ("elbow", "fault", "csp", 0.25, "0x2310 continuous over-current"),
+        ("wrist", "operation_enabled", "csv", -1.5, "0x7305 incremental encoder 1 fault"),
+        ("base", "switch_on_disabled", "csp", 0.0, ""),
+    ]
+    text = axes_text(snap).splitlines()
+    assert text[0].split() == ["joint", "state", "mode", "position", "error"]
+    assert text[1].split() == ["elbow", "fault", "csp", "0.2500", "0x2310", "continuous",
+                               "over-current"]  # fmt: skip
+    assert axes_text(snapshot_from_diagnostics({}, {})) == ""

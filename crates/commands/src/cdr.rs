@@ -1,10 +1,12 @@
-//! CDR (XCDR version 1, little or big endian) for the two messages of the command path:
-//! decoding `ether_ros_msgs/WriteVariable` and encoding `ether_ros_msgs/WriteResult`.
+//! CDR (XCDR version 1, little or big endian) for the messages of the command path: decoding
+//! `ether_ros_msgs/WriteVariable` and `sensor_msgs/JointState` (`joint_commands`), encoding
+//! `ether_ros_msgs/WriteResult`.
 //!
 //! Layout rules (OMG DDS-XTypes, encapsulation CDR_LE/CDR_BE as ROS 2's rmw implementations
 //! use it): a 4-byte encapsulation header, then the fields in order, each primitive aligned to
 //! its size (8-byte types to 8) relative to the end of the header; a string is a u32 length that
-//! counts the terminating NUL, then the bytes and the NUL. Padding bytes carry no meaning (Fast
+//! counts the terminating NUL, then the bytes and the NUL; a sequence is a u32 count, then its
+//! elements (an empty sequence adds no alignment padding). Padding bytes carry no meaning (Fast
 //! DDS leaves them uninitialised), so they are skipped, never checked.
 
 use std::fmt;
@@ -111,8 +113,8 @@ impl<'a> Reader<'a> {
     }
 }
 
-/// Decode a serialized `WriteVariable` (with its encapsulation header).
-pub fn decode_write_variable(data: &[u8]) -> Result<WriteRequest<'_>, CdrError> {
+/// A reader over the body of `data`, after checking its encapsulation header.
+fn reader(data: &[u8]) -> Result<Reader<'_>, CdrError> {
     if data.len() < HEADER {
         return Err(CdrError::Truncated {
             field: "encapsulation header",
@@ -125,11 +127,16 @@ pub fn decode_write_variable(data: &[u8]) -> Result<WriteRequest<'_>, CdrError> 
         CDR_BE => false,
         other => return Err(CdrError::Encapsulation(other)),
     };
-    let mut r = Reader {
+    Ok(Reader {
         body: &data[HEADER..],
         pos: 0,
         little,
-    };
+    })
+}
+
+/// Decode a serialized `WriteVariable` (with its encapsulation header).
+pub fn decode_write_variable(data: &[u8]) -> Result<WriteRequest<'_>, CdrError> {
+    let mut r = reader(data)?;
     Ok(WriteRequest {
         slave: r.string("slave")?,
         position: r.i32("position")?,
@@ -138,6 +145,93 @@ pub fn decode_write_variable(data: &[u8]) -> Result<WriteRequest<'_>, CdrError> 
         value: r.f64("value")?,
         text: r.string("text")?,
         request_id: r.u32("request_id")?,
+    })
+}
+
+/// A `sequence<float64>` of a serialized message, read in place (no copy, no allocation).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct F64Seq<'a> {
+    bytes: &'a [u8],
+    little: bool,
+}
+
+impl F64Seq<'_> {
+    pub fn len(&self) -> usize {
+        self.bytes.len() / 8
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.bytes.is_empty()
+    }
+
+    /// Element `i` (< len).
+    pub fn get(&self, i: usize) -> f64 {
+        let mut b: [u8; 8] = self.bytes[i * 8..i * 8 + 8].try_into().expect("8 bytes");
+        if !self.little {
+            b.reverse();
+        }
+        f64::from_le_bytes(b)
+    }
+}
+
+/// A decoded `sensor_msgs/JointState` as `joint_commands` carries it; the names are in the
+/// vector given to [`decode_joint_state`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct JointCommand<'a> {
+    pub stamp_sec: i32,
+    pub stamp_nanosec: u32,
+    pub frame_id: &'a str,
+    pub position: F64Seq<'a>,
+    pub velocity: F64Seq<'a>,
+    pub effort: F64Seq<'a>,
+}
+
+impl<'a> Reader<'a> {
+    fn count(&mut self, field: &'static str) -> Result<usize, CdrError> {
+        Ok(self.u32(field)? as usize)
+    }
+
+    fn f64_seq(&mut self, field: &'static str) -> Result<F64Seq<'a>, CdrError> {
+        let n = self.count(field)?;
+        let little = self.little;
+        if n == 0 {
+            return Ok(F64Seq { bytes: &[], little });
+        }
+        let len = n.checked_mul(8).ok_or(CdrError::Truncated {
+            field,
+            offset: HEADER + self.pos,
+        })?;
+        Ok(F64Seq {
+            bytes: self.take(len, 8, field)?,
+            little,
+        })
+    }
+}
+
+/// Decode a serialized `sensor_msgs/JointState` (header, name[], position[], velocity[],
+/// effort[]); the joint names go into `names` (cleared first, reused between messages).
+pub fn decode_joint_state<'a>(
+    data: &'a [u8],
+    names: &mut Vec<&'a str>,
+) -> Result<JointCommand<'a>, CdrError> {
+    names.clear();
+    let mut r = reader(data)?;
+    let stamp_sec = r.i32("header.stamp.sec")?;
+    let stamp_nanosec = r.u32("header.stamp.nanosec")?;
+    let frame_id = r.string("header.frame_id")?;
+    let n = r.count("name")?;
+    for _ in 0..n {
+        // Each string takes at least its 4-byte length, so a bogus count ends in Truncated
+        // after at most len/4 names, never in a huge allocation.
+        names.push(r.string("name")?);
+    }
+    Ok(JointCommand {
+        stamp_sec,
+        stamp_nanosec,
+        frame_id,
+        position: r.f64_seq("position")?,
+        velocity: r.f64_seq("velocity")?,
+        effort: r.f64_seq("effort")?,
     })
 }
 
@@ -241,6 +335,40 @@ mod tests {
             (r.variable, r.value, r.text, r.request_id),
             ("v", -2.25, "", 9)
         );
+    }
+
+    // Serialized by rclpy: JointState(header.frame_id='f', name=['a'], position=[],
+    // velocity=[1.0], effort=[]); padding bytes are garbage, 4 trailing bytes of padding.
+    const JOINTS_FROM_RCLPY: &str =
+        "00 01 00 00 00 00 00 00 00 00 00 00 02 00 00 00 66 00 f4 00 01 00 00 00 02 00 00 00 \
+        61 00 f0 00 00 00 00 00 01 00 00 00 01 24 73 12 00 00 00 00 00 00 f0 3f 00 00 00 00 \
+        42 11 03 c2";
+
+    #[test]
+    fn decodes_a_joint_state_as_rclpy_serializes_it() {
+        let data = hex(JOINTS_FROM_RCLPY);
+        let mut names = Vec::new();
+        let j = decode_joint_state(&data, &mut names).unwrap();
+        assert_eq!(names, ["a"]);
+        assert_eq!((j.stamp_sec, j.stamp_nanosec, j.frame_id), (0, 0, "f"));
+        assert!(j.position.is_empty() && j.effort.is_empty());
+        assert_eq!((j.velocity.len(), j.velocity.get(0)), (1, 1.0));
+        for n in 0..52 {
+            let e = decode_joint_state(&data[..n], &mut names).unwrap_err();
+            assert!(matches!(e, CdrError::Truncated { .. }), "{n}: {e}");
+        }
+    }
+
+    #[test]
+    fn a_huge_name_count_is_truncated_not_allocated() {
+        let mut data = hex(JOINTS_FROM_RCLPY);
+        data[20..24].copy_from_slice(&u32::MAX.to_le_bytes());
+        let mut names = Vec::new();
+        assert!(matches!(
+            decode_joint_state(&data, &mut names),
+            Err(CdrError::Truncated { field: "name", .. } | CdrError::BadString { field: "name" })
+        ));
+        assert!(names.len() < 16);
     }
 
     #[test]

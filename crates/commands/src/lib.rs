@@ -7,15 +7,24 @@
 //! it against a table of the bus's output variables built by Python ([`table`]) and writes the
 //! value straight into the engine's output buffer ([`receiver`]). Python is never on this path.
 //!
+//! `joint_commands` (`sensor_msgs/JointState` for CiA 402 axes) takes the same path with its own
+//! thread: decoded here, resolved against the axes ([`joints`]) and written into the engine's
+//! axis command slots (`Engine::axis_setpoint`).
+//!
 //! Only requests that are certainly valid take the fast path; anything else (text values,
 //! unknown names, values out of range, malformed data) is handed to the node's Python code,
 //! which owns every error message, so both paths accept exactly the same writes.
 
 pub mod cdr;
+pub mod joints;
 pub mod rcl;
 pub mod receiver;
 pub mod table;
 
-pub use cdr::{decode_write_variable, encode_write_result, CdrError, WriteRequest};
+pub use cdr::{
+    decode_joint_state, decode_write_variable, encode_write_result, CdrError, JointCommand,
+    WriteRequest,
+};
+pub use joints::{JointEntry, JointTable, Setpoint};
 pub use receiver::{CommandReceiver, ReceiverCounters, ReceiverHandles};
 pub use table::{CommandTable, Kind, Resolution, SlaveEntry, VariableEntry};

@@ -1,6 +1,9 @@
 //! The command thread: waits on the `pdo_listener` subscription, applies every request the
 //! table can resolve by itself straight to the engine and answers it on `write_results`, and
-//! queues the rest, in order, for the node's Python code.
+//! queues the rest, in order, for the node's Python code. A second thread serves
+//! `joint_commands` the same way (`MessageKind::JointState`): certainly valid commands go into
+//! the engine's axis command slots, unanswered (they come at a controller's rate); the rest to
+//! Python, which refuses them on `joint_results`.
 //!
 //! The thread lives as long as the node; an engine and its table are attached while the node
 //! is active. Detached, every request goes to Python (which refuses it while the bus is not
@@ -22,9 +25,26 @@ use std::time::Duration;
 
 use ether_ros_engine::{now_ns, Engine};
 
-use crate::cdr::{decode_write_variable, encode_write_result};
+use crate::cdr::{decode_joint_state, decode_write_variable, encode_write_result};
+use crate::joints::{JointTable, Setpoint};
 use crate::rcl::{publish_serialized, Rcl, SubscriptionWaiter};
 use crate::table::{CommandTable, Resolution};
+
+/// The message type the subscription carries.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MessageKind {
+    /// `ether_ros_msgs/WriteVariable` (`pdo_listener`), resolved with a [`CommandTable`].
+    WriteVariable,
+    /// `sensor_msgs/JointState` (`joint_commands`), resolved with a [`JointTable`].
+    JointState,
+}
+
+/// What requests are resolved against (it must match the receiver's [`MessageKind`]).
+#[derive(Debug, Clone)]
+pub enum Resolver {
+    Writes(CommandTable),
+    Joints(JointTable),
+}
 
 /// How long one wait lasts before the thread looks at its stop flag.
 const WAIT_NS: i64 = 50_000_000;
@@ -42,6 +62,7 @@ pub struct ReceiverHandles {
     pub context: usize,
     pub subscription: usize,
     pub results: usize,
+    pub message: MessageKind,
 }
 
 /// Counters since start.
@@ -168,6 +189,7 @@ impl CommandReceiver {
                     shared: thread_shared,
                     rcl,
                     results: handles.results,
+                    message: handles.message,
                 };
                 worker.run(&handles, priority, &cpus, ready_tx);
             })
@@ -198,9 +220,9 @@ impl CommandReceiver {
         }
     }
 
-    /// Apply valid requests to `engine` from now on, resolved with `table`.
-    pub fn attach(&self, engine: Arc<Engine>, table: CommandTable) {
-        *lock(&self.shared.target) = Some(Target { engine, table });
+    /// Apply valid requests to `engine` from now on, resolved with `resolver`.
+    pub fn attach(&self, engine: Arc<Engine>, resolver: Resolver) {
+        *lock(&self.shared.target) = Some(Target { engine, resolver });
     }
 
     /// Stop writing to the engine; returns once no write is in progress.
@@ -281,13 +303,14 @@ impl Drop for CommandReceiver {
 
 struct Target {
     engine: Arc<Engine>,
-    table: CommandTable,
+    resolver: Resolver,
 }
 
 struct Worker {
     shared: Arc<Shared>,
     rcl: Rcl,
     results: usize,
+    message: MessageKind,
 }
 
 impl Worker {
@@ -366,8 +389,66 @@ impl Worker {
     }
 
     fn handle(&self, data: &[u8], scratch: &mut Scratch) {
+        self.shared
+            .counters
+            .received
+            .fetch_add(1, Ordering::Relaxed);
+        match self.message {
+            MessageKind::WriteVariable => self.handle_write(data, scratch),
+            MessageKind::JointState => self.handle_joints(data, scratch),
+        }
+    }
+
+    fn handle_joints(&self, data: &[u8], scratch: &mut Scratch) {
         let c = &self.shared.counters;
-        c.received.fetch_add(1, Ordering::Relaxed);
+        let mut names = recycle(std::mem::take(&mut scratch.names));
+        let decoded = decode_joint_state(data, &mut names);
+        let applied = match decoded {
+            Err(e) => {
+                self.failed(&c.undecodable, format!("decoding a JointState: {e}"));
+                false
+            }
+            Ok(_) if self.shared.pending.load(Ordering::Acquire) > 0 => false,
+            Ok(command) => {
+                let guard = lock(&self.shared.target);
+                match guard.as_ref() {
+                    Some(Target {
+                        engine,
+                        resolver: Resolver::Joints(table),
+                    }) if table.resolve(&command, &names, &mut scratch.setpoints)
+                        == Resolution::Apply =>
+                    {
+                        self.write_setpoints(engine, &scratch.setpoints)
+                    }
+                    _ => false,
+                }
+            }
+        };
+        scratch.names = recycle(names);
+        if applied {
+            c.applied.fetch_add(1, Ordering::Relaxed);
+        } else {
+            self.defer(data, 0, scratch);
+        }
+    }
+
+    /// Write checked setpoints into the axes' command slots; false (nothing more written) on
+    /// an engine error, which is not expected while the node is active.
+    fn write_setpoints(&self, engine: &Engine, setpoints: &[Setpoint]) -> bool {
+        for &(axis, kind, value) in setpoints {
+            if let Err(e) = engine.axis_setpoint(axis, kind, value) {
+                self.shared.error(format!("writing axis {axis}: {e}"));
+                return false;
+            }
+        }
+        self.shared
+            .last_command_ns
+            .store(now_ns(), Ordering::Release);
+        true
+    }
+
+    fn handle_write(&self, data: &[u8], scratch: &mut Scratch) {
+        let c = &self.shared.counters;
         let request = match decode_write_variable(data) {
             Ok(r) => r,
             Err(e) => {
@@ -380,18 +461,19 @@ impl Worker {
         }
         {
             let guard = lock(&self.shared.target);
-            let Some(target) = guard.as_ref() else {
+            let Some(Target {
+                engine,
+                resolver: Resolver::Writes(table),
+            }) = guard.as_ref()
+            else {
                 return self.defer(data, request.request_id, scratch);
             };
-            let resolution =
-                target
-                    .table
-                    .resolve(&request, &mut scratch.fields, &mut scratch.answer);
+            let resolution = table.resolve(&request, &mut scratch.fields, &mut scratch.answer);
             if resolution == Resolution::Defer {
                 drop(guard);
                 return self.defer(data, request.request_id, scratch);
             }
-            if let Err(e) = target.engine.write_output_fields(&scratch.fields) {
+            if let Err(e) = engine.write_output_fields(&scratch.fields) {
                 drop(guard);
                 // Not expected while the node is active; Python answers it with the reason.
                 self.shared.error(format!("writing to the engine: {e}"));
@@ -459,6 +541,17 @@ struct Scratch {
     fields: Vec<ether_ros_engine::OutputField>,
     answer: String,
     result: Vec<u8>,
+    setpoints: Vec<Setpoint>,
+    /// The joint names of the message being handled borrow from it; between messages the
+    /// (empty) vector is kept with a 'static element type so its allocation is reused.
+    names: Vec<&'static str>,
+}
+
+/// An emptied vector of string slices with another lifetime, reusing its allocation (the
+/// in-place collect of a same-layout element type; no element is ever converted).
+fn recycle<'b>(mut v: Vec<&str>) -> Vec<&'b str> {
+    v.clear();
+    v.into_iter().map(|_| "").collect()
 }
 
 /// Keep the calling thread on `cpus` (none given: wherever the process may run); describe it.

@@ -2,11 +2,12 @@
 //! cycle it makes only the cycle's own syscalls (clock_nanosleep, send, recvmsg/ppoll) and hands
 //! data to Python through the lock-free structures of `handover`.
 
-use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU8, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, AtomicU8, Ordering};
 use std::sync::Arc;
 
 use ether_ros_wire::{self as wire, MAX_FRAME_LEN};
 
+use crate::cia402::{Axes, AxisExchange};
 use crate::clock::{now_ns, sleep_until};
 use crate::frames::{frame_index, reply_matches};
 use crate::handover::{flags, Mailbox, SampleRecord, SampleRing, SeqBuffer};
@@ -35,6 +36,8 @@ pub struct Shared {
     pub acyclic_index: AtomicU8,
     /// Cycle time of the running plan (for waiters), ns.
     pub cycle_ns: AtomicI64,
+    /// Cyclic runs started so far (each Exchange gets the next number).
+    pub runs: AtomicU64,
 }
 
 /// The buffers of one cyclic run, shared with Python.
@@ -47,6 +50,10 @@ pub struct Exchange {
     /// The latest process image, written by the RT thread after every cycle.
     pub image: SeqBuffer,
     pub ring: SampleRing,
+    /// Command, trajectory and status slots of the CiA 402 axes.
+    pub axes: AxisExchange,
+    /// Which cyclic run of the engine this is (1, 2, ...; 0 before `start_cyclic` numbers it).
+    pub run: u64,
 }
 
 impl Exchange {
@@ -72,6 +79,8 @@ impl Exchange {
             outputs: SeqBuffer::new(&plan.initial_image),
             image: SeqBuffer::new(&plan.initial_image),
             ring: SampleRing::new(plan.ring_capacity, plan.image_len),
+            axes: AxisExchange::new(&plan.axes, plan.trajectory_capacity),
+            run: 0,
             plan,
         }
     }
@@ -170,6 +179,8 @@ pub struct Cyclic {
     live_out: Vec<u8>,
     scratch: Vec<u8>,
     out_version: u64,
+    /// The axis stage (CiA 402 drives), run on the image before the frame is filled.
+    axes: Axes,
     /// Cyclic frames whose reply is awaited, in slot `cycle % 2`: in send_at_wake the frame
     /// just sent and the previous one can both be in flight.
     pending: [Option<Pending>; 2],
@@ -204,6 +215,7 @@ impl Cyclic {
             scratch: image.clone(),
             image,
             out_version: u64::MAX,
+            axes: Axes::new(&ex.plan.axes, ex.plan.trajectory_capacity),
             layout,
             shared,
             ex,
@@ -486,6 +498,15 @@ impl Cyclic {
         for &(o, l) in &self.layout.outputs {
             self.image[o..o + l].copy_from_slice(&source[o..o + l]);
         }
+        // The axes own their controlwords and targets: on panic or watchdog they put the
+        // configured stop there instead of the safe image's bytes, in this same frame.
+        self.axes.step(
+            &mut self.image,
+            t_wake,
+            plan.cycle_ns as i64,
+            panic || stale,
+            &self.ex.axes,
+        );
         for &(f, i, l) in &self.layout.lrw {
             self.frame[f..f + l].copy_from_slice(&self.image[i..i + l]);
         }

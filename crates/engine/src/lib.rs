@@ -7,6 +7,7 @@
 //! after the cyclic frame.
 
 mod bpf;
+pub mod cia402;
 pub mod clock;
 pub mod cyclic;
 pub mod fields;
@@ -23,6 +24,8 @@ use std::sync::{mpsc, Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
+use cia402::AxisCommand;
+pub use cia402::{AxisStatus, Mode, Point, SetpointKind};
 pub use clock::now_ns;
 use cyclic::{Cyclic, Exchange, Shared};
 pub use fields::OutputField;
@@ -90,6 +93,9 @@ pub struct Engine {
     /// Serialises writers of the output buffer (the seqlock allows one writer); holds the
     /// scratch bytes `write_output_fields` merges fields into, reused from call to call.
     output_writer: Mutex<Vec<u8>>,
+    /// Serialises writers of the axis command slots; holds each axis's command as last written,
+    /// with the cyclic run (`Exchange::run`) they belong to, so a new run starts afresh.
+    axis_writer: Mutex<(u64, Vec<AxisCommand>)>,
     /// Serialises consumers of the sample ring.
     drain: Mutex<()>,
     description: String,
@@ -136,6 +142,7 @@ impl Engine {
             exchange: Mutex::new(None),
             acyclic: Mutex::new(()),
             output_writer: Mutex::new(Vec::new()),
+            axis_writer: Mutex::new((0, Vec::new())),
             drain: Mutex::new(()),
             description,
         }
@@ -307,7 +314,9 @@ impl Engine {
         };
         let rt = plan.rt;
         let cycle_ns = plan.cycle_ns;
-        let ex = Arc::new(Exchange::new(plan, &layout));
+        let mut ex = Exchange::new(plan, &layout);
+        ex.run = self.shared.runs.fetch_add(1, Ordering::Relaxed) + 1;
+        let ex = Arc::new(ex);
         let shared = self.shared.clone();
         shared.stop.store(false, Ordering::Release);
         shared.alive.store(false, Ordering::Release);
@@ -446,6 +455,139 @@ impl Engine {
         }
         self.feed_watchdog();
         Ok(())
+    }
+
+    /// Names of the plan's CiA 402 axes, in plan order (their indices for the axis calls).
+    pub fn axis_names(&self) -> Result<Vec<String>> {
+        Ok(self
+            .exchange()?
+            .plan
+            .axes
+            .iter()
+            .map(|a| a.name.clone())
+            .collect())
+    }
+
+    /// Change axis `axis`'s command slot with `change` (under the axis writer mutex, so the
+    /// Python API and a native command thread never undo each other's requests). Feeds the
+    /// watchdog: an axis command is a command.
+    fn update_axis(&self, axis: usize, change: impl FnOnce(&mut AxisCommand)) -> Result<()> {
+        let ex = self.exchange()?;
+        let mut slots = lock(&self.axis_writer);
+        if slots.0 != ex.run {
+            // A new cyclic run: start again from the plan's initial commands.
+            slots.0 = ex.run;
+            slots.1 = ex
+                .plan
+                .axes
+                .iter()
+                .map(|a| AxisCommand::initial(a.mode))
+                .collect();
+        }
+        let Some(cmd) = slots.1.get_mut(axis) else {
+            return Err(Error::Invalid(format!(
+                "axis index {axis} is out of range (the plan has {} axes)",
+                ex.plan.axes.len()
+            )));
+        };
+        change(cmd);
+        let mut bytes = [0u8; cia402::COMMAND_LEN];
+        cmd.encode(&mut bytes);
+        ex.axes.commands[axis].write(0, &bytes);
+        drop(slots);
+        self.feed_watchdog();
+        Ok(())
+    }
+
+    /// Ask for Operation Enabled (`true`) or the axis's `on_stop` command (`false`).
+    pub fn axis_enable(&self, axis: usize, enable: bool) -> Result<()> {
+        self.update_axis(axis, |c| c.enable = enable)
+    }
+
+    /// Ask for a fault reset (a rising edge of controlword bit 7 while the drive is in Fault);
+    /// also gives the automatic reset its retries back.
+    pub fn axis_reset_fault(&self, axis: usize) -> Result<()> {
+        self.update_axis(axis, |c| c.reset_count = c.reset_count.wrapping_add(1))
+    }
+
+    /// Command a mode of operation (0x6060); targets wait until 0x6061 shows it.
+    pub fn axis_set_mode(&self, axis: usize, mode: Mode) -> Result<()> {
+        self.update_axis(axis, |c| c.mode = mode)
+    }
+
+    /// A setpoint in SI units, stamped with its arrival time; it replaces any trajectory.
+    pub fn axis_setpoint(&self, axis: usize, kind: SetpointKind, value: f64) -> Result<()> {
+        if !value.is_finite() {
+            return Err(Error::Invalid(format!(
+                "axis {axis}: setpoint {value} is not a finite number"
+            )));
+        }
+        let t = now_ns();
+        self.update_axis(axis, |c| {
+            c.seq += 1;
+            c.setpoint_kind = kind as u8;
+            c.value = value;
+            c.t_ns = t;
+        })
+    }
+
+    /// Execute `points` (times from `start_ns`, CLOCK_MONOTONIC; strictly increasing, finite
+    /// values, at most the plan's trajectory_capacity) on the engine's clock.
+    pub fn axis_follow(&self, axis: usize, start_ns: i64, points: &[Point]) -> Result<()> {
+        let ex = self.exchange()?;
+        let cap = ex.axes.trajectory_capacity;
+        if points.is_empty() || points.len() > cap {
+            return Err(Error::Invalid(format!(
+                "a trajectory takes 1..={cap} points, got {}",
+                points.len()
+            )));
+        }
+        for (i, p) in points.iter().enumerate() {
+            let ordered = i == 0 || p.t_ns > points[i - 1].t_ns;
+            if p.t_ns < 0 || !ordered || !p.position.is_finite() || !p.velocity.is_finite() {
+                return Err(Error::Invalid(format!(
+                    "trajectory point #{i} ({p:?}): times must be >= 0 and strictly increasing, \
+                     positions and velocities finite"
+                )));
+            }
+        }
+        let Some(slot) = ex.axes.trajectories.get(axis) else {
+            return self.update_axis(axis, |_| {});
+        };
+        let writer = lock(&self.axis_writer);
+        let seq = writer.1.get(axis).map_or(0, |c| c.seq) + 1;
+        let mut bytes = vec![0u8; cia402::TRAJECTORY_HEADER + points.len() * cia402::POINT_LEN];
+        bytes[..8].copy_from_slice(&seq.to_le_bytes());
+        for (p, b) in points
+            .iter()
+            .zip(bytes[cia402::TRAJECTORY_HEADER..].chunks_exact_mut(cia402::POINT_LEN))
+        {
+            p.encode(b);
+        }
+        slot.write(0, &bytes);
+        drop(writer);
+        let n = points.len() as u32;
+        self.update_axis(axis, |c| {
+            c.seq = seq;
+            c.setpoint_kind = 0;
+            c.t_ns = start_ns;
+            c.trajectory_len = n;
+        })
+    }
+
+    /// The axis's status as the RT thread last published it.
+    pub fn axis_status(&self, axis: usize) -> Result<AxisStatus> {
+        let ex = self.exchange()?;
+        if axis >= ex.plan.axes.len() {
+            return Err(Error::Invalid(format!(
+                "axis index {axis} is out of range (the plan has {} axes)",
+                ex.plan.axes.len()
+            )));
+        }
+        let all = ex.axes.status.read();
+        Ok(AxisStatus::decode(
+            &all[axis * cia402::STATUS_LEN..(axis + 1) * cia402::STATUS_LEN],
+        ))
     }
 
     /// The latest process image (inputs as last received, outputs as last sent).

@@ -2,6 +2,7 @@
 //! fills it from the plan dict (python/ether_ros/master/plan.py); `validate` names the key that
 //! is wrong.
 
+use crate::cia402::{AxisPlan, MAX_TRAJECTORY_CAPACITY};
 use ether_ros_wire::{
     self as wire, reg, Command, DatagramSlot, FrameBuilder, MASTER_MAC, MAX_FRAME_LEN,
 };
@@ -61,7 +62,7 @@ pub struct RtPlan {
     pub lock_memory: bool,
 }
 
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct Plan {
     pub cycle_ns: u64,
     pub order: Order,
@@ -75,6 +76,10 @@ pub struct Plan {
     /// 0 = off.
     pub watchdog_ns: u64,
     pub ring_capacity: usize,
+    /// CiA 402 axes driven by the axis stage of the cycle (docs/cia402.md).
+    pub axes: Vec<AxisPlan>,
+    /// Points per axis trajectory (preallocated).
+    pub trajectory_capacity: usize,
 }
 
 /// Shortest cycle accepted: below this the loop's own work would not fit.
@@ -205,7 +210,42 @@ impl Plan {
                 self.rt.runtime_ns, self.cycle_ns
             ));
         }
-        self.layout().map(|_| ())
+        let layout = self.layout()?;
+        self.validate_axes(&layout)
+    }
+
+    fn validate_axes(&self, layout: &FrameLayout) -> Result<(), String> {
+        if self.axes.is_empty() {
+            return Ok(());
+        }
+        if !(1..=MAX_TRAJECTORY_CAPACITY).contains(&self.trajectory_capacity) {
+            return Err(format!(
+                "trajectory_capacity = {} must be 1..={MAX_TRAJECTORY_CAPACITY}",
+                self.trajectory_capacity
+            ));
+        }
+        let mut owned = vec![false; self.image_len];
+        for (i, a) in self.axes.iter().enumerate() {
+            if self.axes[..i].iter().any(|b| b.name == a.name) {
+                return Err(format!("axes[{i}]: the name {} is used twice", a.name));
+            }
+            a.validate(self.image_len, &layout.outputs)
+                .map_err(|e| format!("axes[{i}]: {e}"))?;
+            for (name, out, off, size) in a.map.objects() {
+                if !out {
+                    continue;
+                }
+                for o in &mut owned[off..off + size] {
+                    if *o {
+                        return Err(format!(
+                            "axes[{i}]: {name} at byte {off} overlaps another axis's output"
+                        ));
+                    }
+                    *o = true;
+                }
+            }
+        }
+        Ok(())
     }
 
     /// Lay the cyclic frame out once; the RT thread only refreshes data and indices.
@@ -337,6 +377,8 @@ pub(crate) mod tests {
             },
             watchdog_ns: 0,
             ring_capacity: 64,
+            axes: Vec::new(),
+            trajectory_capacity: 16,
         }
     }
 

@@ -144,6 +144,8 @@ fn plan(order: Order, mode: DcMode) -> Plan {
         rt: common::non_rt(),
         watchdog_ns: 0,
         ring_capacity: 100_000,
+        axes: Vec::new(),
+        trajectory_capacity: 16,
     }
 }
 

@@ -15,10 +15,11 @@ use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
+use ether_ros_engine::cia402::{AxisMap, AxisPlan, FaultReset, Limits, OnStop};
 use ether_ros_engine::plan::{DcMode, DcPlan, Order, Policy, RtPlan};
 use ether_ros_engine::{
-    now_ns, Engine, Error, InProcessLink, Link, LinkOptions, Plan, RawSocketLink, Received,
-    Request, XdpLink,
+    now_ns, Engine, Error, InProcessLink, Link, LinkOptions, Mode, Plan, Point, RawSocketLink,
+    Received, Request, SetpointKind, XdpLink,
 };
 use ether_ros_wire::{self as wire, Command, MAX_FRAME_LEN};
 
@@ -162,6 +163,22 @@ impl Link for AuditLink {
 
 const INPUTS: [u8; 2] = [0x5a, 0xa5];
 
+/// When set, image bytes 4..6 answer like a CiA 402 drive's statusword to the controlword in
+/// bytes 0..2 (the axis audit), instead of `INPUTS`.
+static DRIVE: AtomicBool = AtomicBool::new(false);
+
+/// The statusword of a drive that obeys `cw` at once (enough to walk the axis stage through
+/// its states: switch on disabled, ready, switched on, operation enabled, quick stop).
+fn drive_statusword(cw: u16) -> u16 {
+    match cw & 0x8F {
+        0x06 => 0x0021,
+        0x07 => 0x0023,
+        0x0F => 0x0027,
+        0x02 => 0x0007,
+        _ => 0x0040,
+    }
+}
+
 /// Answers a frame in place like a small bus would, without allocating (it runs on the RT
 /// thread for the in-process link): LRW swaps in inputs, FRMW returns a clock, others get a
 /// working counter of 1. Returns false for frames that are not EtherCAT.
@@ -181,7 +198,12 @@ fn answer_in_place(frame: &mut [u8], ref_offset_ns: i64) -> bool {
                 let data = &mut frame[s.data..s.data + s.len];
                 // Image bytes 4..6 are the inputs of the plan below.
                 if data.len() >= 6 {
-                    data[4..6].copy_from_slice(&INPUTS);
+                    if DRIVE.load(Ordering::Relaxed) {
+                        let cw = u16::from_le_bytes([data[0], data[1]]);
+                        data[4..6].copy_from_slice(&drive_statusword(cw).to_le_bytes());
+                    } else {
+                        data[4..6].copy_from_slice(&INPUTS);
+                    }
                 }
                 wire::write_wkc(frame, &s, 3);
             }
@@ -241,7 +263,44 @@ fn spawn_far_end(ifname: &str, stop: Arc<AtomicBool>) -> std::thread::JoinHandle
 
 // ------------------------------------------------------------------ the audit
 
+/// One CiA 402 axis in the 8-byte image: controlword 0..2, mode 2, statusword 4..6 (input),
+/// target torque 6..8 (cyclic torque mode, so that the audit's image holds it).
+fn audit_axis() -> AxisPlan {
+    AxisPlan {
+        name: "joint".into(),
+        map: AxisMap {
+            controlword: 0,
+            statusword: 4,
+            mode: Some(2),
+            target_torque: Some(6),
+            ..Default::default()
+        },
+        mode: Mode::CyclicTorque,
+        position_scale: 0.001,
+        position_offset: 0.0,
+        velocity_scale: 0.001,
+        torque_scale: 0.01,
+        limits: Limits {
+            position_min: -1.0,
+            position_max: 1.0,
+            velocity_max: 1.0,
+            torque_max: 1.0,
+        },
+        following_error_window: 0.1,
+        on_stop: OnStop::QuickStop,
+        fault_reset: FaultReset::Auto,
+        fault_retries: 3,
+        fault_backoff_ns: 1_000_000,
+        interpolation_max_ns: 10_000_000,
+    }
+}
+
 fn plan(order: Order, dc: DcMode, rt: RtPlan) -> Plan {
+    let axes = if DRIVE.load(Ordering::Relaxed) {
+        vec![audit_axis()]
+    } else {
+        Vec::new()
+    };
     Plan {
         cycle_ns: 250_000,
         order,
@@ -260,6 +319,8 @@ fn plan(order: Order, dc: DcMode, rt: RtPlan) -> Plan {
         watchdog_ns: 5_000_000,
         // Small, so the ring also runs full between drains (the drop path).
         ring_capacity: 256,
+        axes,
+        trajectory_capacity: 16,
     }
 }
 
@@ -305,6 +366,9 @@ fn exercise(engine: &Engine, seen: &Seen, cycles: u64) {
         let b = i as u8;
         engine.write_outputs(0, &[b, b, b, b]).unwrap();
         engine.write_outputs(6, &[b, !b]).unwrap();
+        if DRIVE.load(Ordering::Relaxed) {
+            exercise_axis(engine, i);
+        }
         match i % 100 {
             10 => {
                 // Acyclic request through the mailbox: the RT thread sends it after the cyclic
@@ -333,6 +397,35 @@ fn exercise(engine: &Engine, seen: &Seen, cycles: u64) {
     }
 }
 
+/// The axis calls of a non-RT thread: enable/disable, setpoints (clamped ones too), a mode
+/// change, fault resets, trajectories (the RT thread copies their points) and status reads.
+fn exercise_axis(engine: &Engine, i: u64) {
+    match i % 50 {
+        1 => engine.axis_enable(0, true).unwrap(),
+        45 => engine.axis_enable(0, i % 100 != 45).unwrap(),
+        20 => engine.axis_reset_fault(0).unwrap(),
+        25 => engine.axis_set_mode(0, Mode::CyclicVelocity).unwrap(),
+        26 => engine.axis_set_mode(0, Mode::CyclicTorque).unwrap(),
+        30 => {
+            let points: Vec<Point> = (0..16)
+                .map(|k| Point {
+                    t_ns: k * 1_000_000,
+                    position: 0.0,
+                    velocity: k as f64 * 0.2,
+                })
+                .collect();
+            engine.axis_follow(0, now_ns(), &points).unwrap();
+        }
+        _ => {}
+    }
+    engine
+        .axis_setpoint(0, SetpointKind::Torque, (i % 7) as f64 * 0.3)
+        .unwrap();
+    if i.is_multiple_of(10) {
+        let _ = engine.axis_status(0).unwrap();
+    }
+}
+
 struct Outcome {
     policy: &'static str,
     cycles: u64,
@@ -356,10 +449,18 @@ fn audit(link: Box<dyn Link>, order: Order, dc: DcMode, cycles: u64) -> Outcome 
         "warm-up cycles",
     );
     engine.write_outputs(0, &[1, 2, 3, 4]).unwrap();
-    wait_for(
-        || engine.read_inputs().unwrap()[4..6] == INPUTS,
-        "inputs from the responder",
-    );
+    if DRIVE.load(Ordering::Relaxed) {
+        engine.axis_enable(0, true).unwrap();
+        wait_for(
+            || engine.axis_status(0).unwrap().state == 4,
+            "the axis in operation enabled",
+        );
+    } else {
+        wait_for(
+            || engine.read_inputs().unwrap()[4..6] == INPUTS,
+            "inputs from the responder",
+        );
+    }
     RT_ALLOCS.store(0, Ordering::Relaxed);
     RT_DEALLOCS.store(0, Ordering::Relaxed);
     let before = seen.rt_sends.load(Ordering::Relaxed);
@@ -368,6 +469,13 @@ fn audit(link: Box<dyn Link>, order: Order, dc: DcMode, cycles: u64) -> Outcome 
     ARMED.store(false, Ordering::SeqCst);
     let audited = seen.rt_sends.load(Ordering::Relaxed) - before;
     // The paths were really taken (otherwise zero allocations would prove little).
+    if DRIVE.load(Ordering::Relaxed) {
+        let st = engine.axis_status(0).unwrap();
+        assert!(
+            st.torque_clamps > 0 && st.command_seq > 100,
+            "axis paths not exercised: {st:?}"
+        );
+    }
     for name in [
         "acyclic_frames",
         "panics",
@@ -421,6 +529,20 @@ fn rt_thread_never_allocates_on_the_in_process_link() {
         let o = audit(in_process_link(), order, dc, 2000);
         assert_clean(&format!("in-process link, {order:?}, {dc:?}"), &o);
     }
+}
+
+#[test]
+fn rt_thread_never_allocates_with_cia402_axes() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    DRIVE.store(true, Ordering::Relaxed);
+    let o = audit(
+        in_process_link(),
+        Order::SendAtWake,
+        DcMode::RefFollowsMaster,
+        2000,
+    );
+    DRIVE.store(false, Ordering::Relaxed);
+    assert_clean("in-process link with a CiA 402 axis", &o);
 }
 
 #[test]
@@ -521,6 +643,7 @@ fn the_audit_sees_an_allocation_on_the_rt_thread() {
 fn the_rt_path_source_has_no_lock_and_no_output() {
     let modules = [
         ("cyclic.rs", include_str!("../src/cyclic.rs")),
+        ("cia402.rs", include_str!("../src/cia402.rs")),
         ("handover.rs", include_str!("../src/handover.rs")),
         ("link.rs", include_str!("../src/link.rs")),
         ("xdp.rs", include_str!("../src/xdp.rs")),

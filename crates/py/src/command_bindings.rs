@@ -5,10 +5,12 @@
 
 use std::time::Duration;
 
+use ether_ros_commands::receiver::{MessageKind, Resolver};
 use ether_ros_commands::{
-    decode_write_variable, CommandReceiver, CommandTable, Kind, ReceiverHandles, Resolution,
-    SlaveEntry, VariableEntry,
+    decode_joint_state, decode_write_variable, CommandReceiver, CommandTable, JointEntry,
+    JointTable, Kind, ReceiverHandles, Resolution, SlaveEntry, VariableEntry,
 };
+use ether_ros_engine::SetpointKind;
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
@@ -86,6 +88,90 @@ impl PyCommandTable {
     }
 }
 
+/// (joint, engine axis index, position min, position max, velocity limit, torque limit, kind)
+type JointRow = (String, usize, f64, f64, f64, f64, Option<String>);
+/// [(axis index, kind, value)]: the setpoints the native path writes.
+type Setpoints = Vec<(usize, String, f64)>;
+
+fn setpoint_kind(name: Option<&str>) -> PyResult<Option<SetpointKind>> {
+    Ok(match name {
+        None => None,
+        Some("position") => Some(SetpointKind::Position),
+        Some("velocity") => Some(SetpointKind::Velocity),
+        Some("torque") => Some(SetpointKind::Torque),
+        Some(other) => {
+            return Err(PyValueError::new_err(format!(
+                "unknown setpoint kind '{other}' (position, velocity, torque or None)"
+            )))
+        }
+    })
+}
+
+fn kind_name(kind: SetpointKind) -> &'static str {
+    match kind {
+        SetpointKind::Position => "position",
+        SetpointKind::Velocity => "velocity",
+        SetpointKind::Torque => "torque",
+    }
+}
+
+/// The CiA 402 axes of a bus, for the native `joint_commands` path.
+#[pyclass(name = "JointTable", module = "ether_ros._native", frozen)]
+pub struct PyJointTable {
+    table: JointTable,
+}
+
+#[pymethods]
+impl PyJointTable {
+    /// `joints`: (name, engine axis index, position min, position max, velocity limit, torque
+    /// limit, kind) with kind "position", "velocity", "torque" or None (the mode takes none).
+    #[new]
+    fn new(joints: Vec<JointRow>) -> PyResult<Self> {
+        let mut entries = Vec::with_capacity(joints.len());
+        for (name, axis, position_min, position_max, velocity_limit, torque_limit, kind) in joints {
+            let kind = setpoint_kind(kind.as_deref())?;
+            entries.push((
+                JointEntry {
+                    name,
+                    axis,
+                    position_min,
+                    position_max,
+                    velocity_limit,
+                    torque_limit,
+                },
+                kind,
+            ));
+        }
+        let table = JointTable::new(entries).map_err(PyValueError::new_err)?;
+        Ok(PyJointTable { table })
+    }
+
+    /// The kind joint number `joint` (its row) takes from now on, also in attached receivers.
+    #[pyo3(signature = (joint, kind))]
+    fn set_kind(&self, joint: usize, kind: Option<&str>) -> PyResult<()> {
+        self.table.set_kind(joint, setpoint_kind(kind)?);
+        Ok(())
+    }
+
+    /// Resolve a serialized `JointState` as the native path would: the setpoints when it applies
+    /// them itself, None when it leaves the message to Python. ValueError if the bytes are not
+    /// a JointState.
+    fn resolve(&self, data: &[u8]) -> PyResult<Option<Setpoints>> {
+        let mut names = Vec::new();
+        let command = decode_joint_state(data, &mut names)
+            .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        let mut out = Vec::new();
+        Ok(match self.table.resolve(&command, &names, &mut out) {
+            Resolution::Apply => Some(
+                out.iter()
+                    .map(|&(axis, kind, value)| (axis, kind_name(kind).to_string(), value))
+                    .collect(),
+            ),
+            Resolution::Defer => None,
+        })
+    }
+}
+
 /// The native command thread (see the module doc); it runs from construction until `stop` and
 /// writes to an engine while one is attached.
 #[pyclass(name = "CommandReceiver", module = "ether_ros._native", frozen)]
@@ -96,7 +182,8 @@ pub struct PyCommandReceiver {
 #[pymethods]
 impl PyCommandReceiver {
     #[new]
-    #[pyo3(signature = (*, librcl, librcutils, context, subscription, results, priority, cpus=Vec::new()))]
+    /// `message`: "write_variable" (`pdo_listener`) or "joint_state" (`joint_commands`).
+    #[pyo3(signature = (*, librcl, librcutils, context, subscription, results, priority, cpus=Vec::new(), message="write_variable"))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -107,13 +194,24 @@ impl PyCommandReceiver {
         results: usize,
         priority: i32,
         cpus: Vec<usize>,
+        message: &str,
     ) -> PyResult<Self> {
+        let message = match message {
+            "write_variable" => MessageKind::WriteVariable,
+            "joint_state" => MessageKind::JointState,
+            other => {
+                return Err(PyValueError::new_err(format!(
+                    "unknown message kind '{other}' (write_variable, joint_state)"
+                )))
+            }
+        };
         let handles = ReceiverHandles {
             librcl,
             librcutils,
             context,
             subscription,
             results,
+            message,
         };
         let inner = py
             .detach(move || CommandReceiver::start(handles, priority, cpus))
@@ -121,9 +219,20 @@ impl PyCommandReceiver {
         Ok(PyCommandReceiver { inner })
     }
 
-    /// Write valid requests into `engine` from now on, resolved with `table`.
-    fn attach(&self, engine: PyRef<'_, PyEngine>, table: PyRef<'_, PyCommandTable>) {
-        self.inner.attach(engine.inner.clone(), table.table.clone());
+    /// Write valid requests into `engine` from now on, resolved with `table` (a CommandTable
+    /// for write_variable, a JointTable for joint_state).
+    fn attach(&self, engine: PyRef<'_, PyEngine>, table: &Bound<'_, PyAny>) -> PyResult<()> {
+        let resolver = if let Ok(t) = table.cast::<PyCommandTable>() {
+            Resolver::Writes(t.get().table.clone())
+        } else if let Ok(t) = table.cast::<PyJointTable>() {
+            Resolver::Joints(t.get().table.clone())
+        } else {
+            return Err(PyValueError::new_err(
+                "attach takes a CommandTable or a JointTable",
+            ));
+        };
+        self.inner.attach(engine.inner.clone(), resolver);
+        Ok(())
     }
 
     /// Stop writing to the engine (every request goes to Python); returns once no write is in
@@ -178,6 +287,7 @@ impl PyCommandReceiver {
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyCommandTable>()?;
+    m.add_class::<PyJointTable>()?;
     m.add_class::<PyCommandReceiver>()?;
     Ok(())
 }

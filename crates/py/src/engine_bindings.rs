@@ -5,10 +5,14 @@
 
 use std::sync::{Arc, Mutex, Weak};
 
+use ether_ros_engine::cia402::{
+    status_flags, AxisMap, AxisPlan, DriveState, FaultReset, Limits, OnStop,
+    DEFAULT_TRAJECTORY_CAPACITY,
+};
 use ether_ros_engine::plan::{CyclicDatagram, DcMode, DcPlan, Order, Policy, RtPlan};
 use ether_ros_engine::{
-    flags, Engine, Error, InProcessLink, LinkKind, LinkOptions, OutputField, Plan, Request,
-    Responder, RECORD_LEN,
+    flags, AxisStatus, Engine, Error, InProcessLink, LinkKind, LinkOptions, Mode, OutputField,
+    Plan, Point, Request, Responder, SetpointKind, RECORD_LEN,
 };
 use ether_ros_sim::network::Network;
 use ether_ros_wire::{Command, MAX_FRAME_LEN};
@@ -209,7 +213,180 @@ fn parse_plan(d: &Bound<'_, PyDict>) -> PyResult<Plan> {
         },
         watchdog_ns: opt(d, "", "watchdog_ns", "a non-negative int", 0)?,
         ring_capacity: opt(d, "", "ring_capacity", "a positive int", 4096)?,
+        axes: parse_axes(d)?,
+        trajectory_capacity: opt(
+            d,
+            "",
+            "trajectory_capacity",
+            "a positive int",
+            DEFAULT_TRAJECTORY_CAPACITY,
+        )?,
     })
+}
+
+/// One of the `choices` (name, value) by name, else a ValueError naming the key and the names.
+fn choice<T: Copy>(
+    d: &Bound<'_, PyDict>,
+    path: &str,
+    key: &str,
+    choices: &[(&str, T)],
+) -> PyResult<T> {
+    let name: String = req(d, path, key, "a str")?;
+    choices
+        .iter()
+        .find(|(n, _)| *n == name)
+        .map(|(_, v)| *v)
+        .ok_or_else(|| {
+            let names: Vec<&str> = choices.iter().map(|(n, _)| *n).collect();
+            PyValueError::new_err(format!(
+                "plan['{path}{key}'] = '{name}': expected one of {}",
+                names.join(", ")
+            ))
+        })
+}
+
+const MODES: [(&str, Mode); 6] = [
+    ("pp", Mode::ProfilePosition),
+    ("pv", Mode::ProfileVelocity),
+    ("hm", Mode::Homing),
+    ("csp", Mode::CyclicPosition),
+    ("csv", Mode::CyclicVelocity),
+    ("cst", Mode::CyclicTorque),
+];
+
+/// `plan['axes']`: CiA 402 axes (docs/engine.md, "The axis stage").
+fn parse_axes(d: &Bound<'_, PyDict>) -> PyResult<Vec<AxisPlan>> {
+    let Some(list) = d.get_item("axes")? else {
+        return Ok(Vec::new());
+    };
+    let list = list
+        .cast::<PyList>()
+        .map_err(|_| PyValueError::new_err("plan['axes'] must be a list of dicts"))?;
+    let mut axes = Vec::new();
+    for (i, item) in list.iter().enumerate() {
+        let path = format!("axes[{i}].");
+        let a = item
+            .cast_into::<PyDict>()
+            .map_err(|_| PyValueError::new_err(format!("plan['axes'][{i}] must be a dict")))?;
+        let m = a
+            .get_item("map")?
+            .ok_or_else(|| PyValueError::new_err(format!("plan is missing '{path}map'")))?
+            .cast_into::<PyDict>()
+            .map_err(|_| PyValueError::new_err(format!("plan['{path}map'] must be a dict")))?;
+        let mp = format!("{path}map.");
+        let off = "a byte offset or None";
+        let map = AxisMap {
+            controlword: req(&m, &mp, "controlword", "a byte offset")?,
+            statusword: req(&m, &mp, "statusword", "a byte offset")?,
+            mode: opt(&m, &mp, "mode", off, None)?,
+            mode_display: opt(&m, &mp, "mode_display", off, None)?,
+            target_position: opt(&m, &mp, "target_position", off, None)?,
+            target_velocity: opt(&m, &mp, "target_velocity", off, None)?,
+            target_torque: opt(&m, &mp, "target_torque", off, None)?,
+            position: opt(&m, &mp, "position", off, None)?,
+            velocity: opt(&m, &mp, "velocity", off, None)?,
+            torque: opt(&m, &mp, "torque", off, None)?,
+            error_code: opt(&m, &mp, "error_code", off, None)?,
+            following_error: opt(&m, &mp, "following_error", off, None)?,
+        };
+        let num = "a number";
+        axes.push(AxisPlan {
+            name: req(&a, &path, "name", "a str")?,
+            map,
+            mode: choice(&a, &path, "mode", &MODES)?,
+            position_scale: opt(&a, &path, "position_scale", num, 1.0)?,
+            position_offset: opt(&a, &path, "position_offset", num, 0.0)?,
+            velocity_scale: opt(&a, &path, "velocity_scale", num, 1.0)?,
+            torque_scale: opt(&a, &path, "torque_scale", num, 1.0)?,
+            limits: Limits {
+                position_min: opt(&a, &path, "position_min", num, f64::NEG_INFINITY)?,
+                position_max: opt(&a, &path, "position_max", num, f64::INFINITY)?,
+                velocity_max: opt(&a, &path, "velocity_max", num, f64::INFINITY)?,
+                torque_max: opt(&a, &path, "torque_max", num, f64::INFINITY)?,
+            },
+            following_error_window: opt(&a, &path, "following_error_window", num, 0.0)?,
+            on_stop: choice(
+                &a,
+                &path,
+                "on_stop",
+                &[
+                    ("quick_stop", OnStop::QuickStop),
+                    ("disable", OnStop::Disable),
+                ],
+            )?,
+            fault_reset: choice(
+                &a,
+                &path,
+                "fault_reset",
+                &[("auto", FaultReset::Auto), ("manual", FaultReset::Manual)],
+            )?,
+            fault_retries: opt(&a, &path, "fault_retries", "a non-negative int", 3)?,
+            fault_backoff_ns: opt(
+                &a,
+                &path,
+                "fault_backoff_ns",
+                "a non-negative int",
+                100_000_000,
+            )?,
+            interpolation_max_ns: opt(
+                &a,
+                &path,
+                "interpolation_max_ns",
+                "a positive int",
+                100_000_000,
+            )?,
+        });
+    }
+    Ok(axes)
+}
+
+fn axis_status_dict<'py>(py: Python<'py>, s: &AxisStatus) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    let state = DriveState::NAMES
+        .get(s.state as usize)
+        .copied()
+        .unwrap_or("not_ready_to_switch_on");
+    let mode = MODES
+        .iter()
+        .find(|(_, m)| *m as i8 == s.mode_display)
+        .map(|(n, _)| *n);
+    d.set_item("cycle", s.cycle)?;
+    d.set_item("state", state)?;
+    d.set_item("statusword", s.statusword)?;
+    d.set_item("controlword", s.controlword)?;
+    d.set_item("mode_display", mode)?;
+    d.set_item("mode_display_code", s.mode_display)?;
+    d.set_item("flags", s.flags)?;
+    for (name, bit) in [
+        ("enable_wanted", status_flags::ENABLE_WANTED),
+        ("mode_reached", status_flags::MODE_REACHED),
+        ("trajectory_active", status_flags::TRAJECTORY_ACTIVE),
+        ("trajectory_done", status_flags::TRAJECTORY_DONE),
+        ("following_error_exceeded", status_flags::FOLLOWING_ERROR),
+        ("retries_exhausted", status_flags::RETRIES_EXHAUSTED),
+        ("halted", status_flags::HALTED),
+    ] {
+        d.set_item(name, s.flags & bit != 0)?;
+    }
+    d.set_item("error_code", s.error_code)?;
+    d.set_item("last_fault_code", s.last_fault_code)?;
+    d.set_item("position_raw", s.position_raw)?;
+    d.set_item("velocity_raw", s.velocity_raw)?;
+    d.set_item("torque_raw", s.torque_raw)?;
+    d.set_item("following_error_raw", s.following_error_raw)?;
+    d.set_item("target_position_raw", s.target_position_raw)?;
+    d.set_item("position", s.position)?;
+    d.set_item("velocity", s.velocity)?;
+    d.set_item("torque", s.torque)?;
+    d.set_item("following_error", s.following_error)?;
+    d.set_item("target_position", s.target_position)?;
+    d.set_item("position_clamps", s.position_clamps)?;
+    d.set_item("velocity_clamps", s.velocity_clamps)?;
+    d.set_item("torque_clamps", s.torque_clamps)?;
+    d.set_item("faults", s.faults)?;
+    d.set_item("fault_resets", s.fault_resets)?;
+    d.set_item("command_seq", s.command_seq)?;
+    Ok(d)
 }
 
 // ----- datagram requests -------------------------------------------------------------------
@@ -476,6 +653,77 @@ impl PyEngine {
         let engine = self.inner.clone();
         py.detach(move || engine.write_output_fields(&fields))
             .map_err(|e| to_py(py, e))
+    }
+
+    /// Names of the plan's CiA 402 axes; an axis's index in this list is its `axis` argument.
+    fn axis_names(&self, py: Python<'_>) -> PyResult<Vec<String>> {
+        self.inner.axis_names().map_err(|e| to_py(py, e))
+    }
+
+    /// Ask axis `axis` for Operation Enabled (True) or its on_stop command (False).
+    fn axis_enable(&self, py: Python<'_>, axis: usize, enable: bool) -> PyResult<()> {
+        self.inner
+            .axis_enable(axis, enable)
+            .map_err(|e| to_py(py, e))
+    }
+
+    /// Ask for a fault reset (rising edge of controlword bit 7).
+    fn axis_reset_fault(&self, py: Python<'_>, axis: usize) -> PyResult<()> {
+        self.inner.axis_reset_fault(axis).map_err(|e| to_py(py, e))
+    }
+
+    /// Command a mode of operation by name: pp, pv, hm, csp, csv, cst.
+    fn axis_set_mode(&self, py: Python<'_>, axis: usize, mode: &str) -> PyResult<()> {
+        let m = Mode::from_name(mode).ok_or_else(|| {
+            PyValueError::new_err(format!(
+                "mode '{mode}': expected one of pp, pv, hm, csp, csv, cst"
+            ))
+        })?;
+        self.inner.axis_set_mode(axis, m).map_err(|e| to_py(py, e))
+    }
+
+    /// A setpoint in SI units: kind 'position', 'velocity' or 'torque'.
+    fn axis_setpoint(&self, py: Python<'_>, axis: usize, kind: &str, value: f64) -> PyResult<()> {
+        let k = match kind {
+            "position" => SetpointKind::Position,
+            "velocity" => SetpointKind::Velocity,
+            "torque" => SetpointKind::Torque,
+            _ => {
+                return Err(PyValueError::new_err(format!(
+                    "setpoint kind '{kind}': expected position, velocity or torque"
+                )))
+            }
+        };
+        self.inner
+            .axis_setpoint(axis, k, value)
+            .map_err(|e| to_py(py, e))
+    }
+
+    /// Run a trajectory `[(t_ns, position, velocity), ...]` (t from `start_ns`, engine clock).
+    fn axis_follow(
+        &self,
+        py: Python<'_>,
+        axis: usize,
+        start_ns: i64,
+        points: Vec<(i64, f64, f64)>,
+    ) -> PyResult<()> {
+        let points: Vec<Point> = points
+            .into_iter()
+            .map(|(t_ns, position, velocity)| Point {
+                t_ns,
+                position,
+                velocity,
+            })
+            .collect();
+        self.inner
+            .axis_follow(axis, start_ns, &points)
+            .map_err(|e| to_py(py, e))
+    }
+
+    /// The axis's status as last published by the RT thread (a dict; docs/cia402.md).
+    fn axis_status<'py>(&self, py: Python<'py>, axis: usize) -> PyResult<Bound<'py, PyDict>> {
+        let s = self.inner.axis_status(axis).map_err(|e| to_py(py, e))?;
+        axis_status_dict(py, &s)
     }
 
     /// The latest process image: inputs as last received, outputs as last sent.

@@ -1,4 +1,8 @@
-"""``ether-ros demo``: the Laelaps II trot on a simulated bus.
+"""``ether-ros demo [laelaps|arm]``: the Laelaps II trot (default), or the 6-axis CiA 402 arm,
+on a simulated bus.
+
+``ether-ros demo arm`` moves the arm of config/arm6.yaml with a joint trajectory sent over
+ROS 2 and prints the tracking error per joint (see ``ether_ros.ros.arm_demo``).
 
 By default the trot is driven through the ROS 2 node (``--via ros``): the simulator and
 ``ether-ros run`` each run in their own process on a veth pair, and the trot of thesis Table 6.1
@@ -23,6 +27,7 @@ from typing import Any
 from ether_ros.errors import EtherRosError
 
 DEFAULT_CONFIG = Path(__file__).resolve().parents[3] / "config" / "laelaps.yaml"
+ARM_CONFIG = Path(__file__).resolve().parents[3] / "config" / "arm6.yaml"
 
 
 def register(subparsers: Any) -> None:
@@ -32,7 +37,15 @@ def register(subparsers: Any) -> None:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("--config", type=Path, default=DEFAULT_CONFIG, help="bus configuration")
+    p.add_argument(
+        "robot",
+        nargs="?",
+        choices=("laelaps", "arm"),
+        default="laelaps",
+        help="laelaps: the trot (default); arm: the 6-axis arm, a joint trajectory over ROS 2",
+    )
+    p.add_argument("--config", type=Path, default=None, help="bus configuration (default: "
+                   "config/laelaps.yaml, config/arm6.yaml for arm)")  # fmt: skip
     p.add_argument(
         "--via",
         choices=("ros", "pysoem"),
@@ -46,6 +59,13 @@ def register(subparsers: Any) -> None:
 
 
 def run_demo(args: argparse.Namespace) -> int:
+    if args.robot == "arm":
+        from ether_ros.ros.arm_demo import run_arm_demo
+
+        if args.via != "ros":
+            raise EtherRosError("the arm demo runs through the ROS 2 node only (no --via pysoem)")
+        return run_arm_demo(args.config or ARM_CONFIG)
+    args.config = args.config or DEFAULT_CONFIG
     if args.via == "ros":
         from ether_ros.ros.demo import run_demo as run_ros_demo
 

@@ -11,20 +11,25 @@ from __future__ import annotations
 import contextlib
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 from ether_ros.console.commands import (
+    AxisOp,
     Command,
     CommandError,
     ConsoleContext,
     Control,
     Get,
     Help,
+    JointLimits,
+    Move,
     Quit,
     RunSequence,
     SdoRead,
     SdoWrite,
+    SetMode,
     Show,
     Wait,
     Write,
@@ -39,6 +44,8 @@ from ether_ros.ros.values import format_value
 HISTORY_FILE = Path.home() / ".ether_ros_console_history"
 PANIC_KEYS = ("c-p", "f1")
 SENT_MEMORY_S = 2.0
+# How long a move waits for the node to refuse it (it answers only refusals).
+MOVE_ANSWER_S = 0.3
 
 
 class QuitConsole(Exception):
@@ -61,6 +68,7 @@ class Console:
         # ros.snapshot_period_ms) have surely caught up: the next command is checked against
         # the values just sent, not against a snapshot from before them.
         self._sent: dict[tuple[str, str], tuple[float, float]] = {}
+        self._axes: dict[str, JointLimits] | None = None  # from the node's parameters, once
 
     def context(self) -> ConsoleContext:
         """The layout and the last commanded outputs (``pdo_out_timer``; the wire echo when no
@@ -75,7 +83,27 @@ class Console:
                 del self._sent[(slave, variable)]
             else:
                 outputs.setdefault(slave, {})[variable] = value
-        return ConsoleContext(latest.layout, outputs)
+        return ConsoleContext(latest.layout, outputs, self._joints())
+
+    def _joints(self) -> dict[str, JointLimits]:
+        """The axes with their limits (the node's ``axes.*`` parameters, read once) and each
+        one's mode as the diagnostics last reported it."""
+        if self._axes is None:  # not read yet (a bus without axes: {})
+            try:
+                params = self.client.axis_parameters()
+                self._axes = {
+                    name: JointLimits(
+                        str(p["mode"]), p["position_limits"], p["velocity_limit"], p["torque_limit"]
+                    )
+                    for name, p in params.items()
+                }
+            except EtherRosError:
+                return {}
+        reported = self.client.axis_states()
+        return {
+            name: replace(limits, mode=reported.get(name, {}).get("mode", limits.mode))
+            for name, limits in self._axes.items()
+        }
 
     def line(self, text: str) -> bool:
         """Parse and run one line; False when the console should end."""
@@ -127,6 +155,12 @@ class Console:
             ok = self.run_sequence(command.path, command.step)
         elif isinstance(command, Wait):
             time.sleep(command.seconds)
+        elif isinstance(command, AxisOp):
+            ok, message, _ = self.client.axis_command(command.command, list(command.joints))
+        elif isinstance(command, SetMode):
+            ok, message, _ = self.client.set_mode(command.mode, list(command.joints))
+        elif isinstance(command, Move):
+            ok, message = self._move(command)
         elif isinstance(command, Help):
             message = help_text(command.topic)
         elif isinstance(command, Quit):
@@ -134,6 +168,16 @@ class Console:
         if message:
             self.out(message if ok else f"error: {message}")
         return ok
+
+    def _move(self, command: Move) -> tuple[bool, str]:
+        before = len(self.client.joint_results)
+        self.client.publish_joint_command([command.joint], **{command.array: [command.value]})
+        try:  # the node answers refusals only
+            self.client.wait_for(lambda _l: len(self.client.joint_results) > before, MOVE_ANSWER_S)
+        except EtherRosError:
+            return True, f"sent {command.joint} {command.array}={command.value:g}"
+        result = self.client.joint_results[before]
+        return bool(result.success), str(result.message)
 
     def _get(self, command: Get) -> None:
         latest = self.client.latest

@@ -16,6 +16,9 @@ Grammar (words separated by blanks; quotes group words, nothing is ever run by a
     states | stats | layout [SLAVE]
     sdo read SLAVE INDEX:SUB TYPE
     sdo write SLAVE INDEX:SUB TYPE VALUE
+    enable | disable | reset_fault [JOINT ...|all]   CiA 402 axes (none or "all": every axis)
+    set_mode JOINT|all MODE                  MODE: csp csv cst pp pv hm
+    move JOINT VALUE                         one setpoint, SI units, of the kind the mode takes
     run FILE [step]                          a sequence file (see ether_ros.console.sequence)
     wait SECONDS
     help [COMMAND] | quit | exit
@@ -28,6 +31,7 @@ import shlex
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
+from ether_ros.config.cia402 import MODES
 from ether_ros.console.workspace import (
     TRAJECTORY_FIELDS,
     TRAJECTORY_INDEX,
@@ -35,6 +39,7 @@ from ether_ros.console.workspace import (
     invalid_reason,
 )
 from ether_ros.errors import EtherRosError
+from ether_ros.master.axis import SETPOINT_KIND
 from ether_ros.ros.layout import BusSpec, LayoutError, SlaveSpec, VariableSpec, parse_address
 from ether_ros.ros.values import InvalidValue, format_value, parse_text, type_range
 
@@ -66,6 +71,11 @@ HELP: dict[str, str] = {
     "sdo": "sdo read|write SLAVE INDEX:SUB TYPE [VALUE]   CoE object access",
     "run": "run FILE [step]            run a sequence file (step: confirm each step)",
     "wait": "wait SECONDS               pause (in sequences)",
+    "enable": "enable [JOINT ...|all]      CiA 402 axes to Operation Enabled (none: all)",
+    "disable": "disable [JOINT ...|all]     the axes' on_stop (quick stop or disable voltage)",
+    "reset_fault": "reset_fault [JOINT ...|all] fault reset of the axes",
+    "set_mode": "set_mode JOINT|all MODE     mode of operation (csp csv cst pp pv hm)",
+    "move": "move JOINT VALUE           one setpoint (SI units) of the kind the joint's mode takes",
     "help": "help [COMMAND]             this text",
     "quit": "quit                       leave the console (the node keeps running)",
 }
@@ -131,6 +141,41 @@ class Wait:
 
 
 @dataclass(frozen=True)
+class JointLimits:
+    """A CiA 402 axis as the console checks commands for it: its mode (as last reported) and
+    its limits (SI units)."""
+
+    mode: str
+    position_limits: tuple[float, float]
+    velocity_limit: float
+    torque_limit: float
+
+
+@dataclass(frozen=True)
+class AxisOp:
+    """enable / disable / reset_fault for joints (empty: every axis)."""
+
+    command: str
+    joints: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class SetMode:
+    mode: str
+    joints: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class Move:
+    """One setpoint on ``joint_commands``: ``array`` is the JointState array (position,
+    velocity or effort) the joint's mode takes."""
+
+    joint: str
+    array: str
+    value: float
+
+
+@dataclass(frozen=True)
 class Help:
     topic: str | None = None
 
@@ -140,7 +185,21 @@ class Quit:
     pass
 
 
-Command = Control | Write | Get | Show | SdoRead | SdoWrite | RunSequence | Wait | Help | Quit
+Command = (
+    Control
+    | Write
+    | Get
+    | Show
+    | SdoRead
+    | SdoWrite
+    | RunSequence
+    | Wait
+    | AxisOp
+    | SetMode
+    | Move
+    | Help
+    | Quit
+)
 
 
 @dataclass
@@ -151,6 +210,8 @@ class ConsoleContext:
 
     layout: BusSpec | None
     outputs: dict[str, dict[str, float]] = field(default_factory=dict)
+    # CiA 402 axes by joint name (from the node's axes.* parameters and axis diagnostics).
+    joints: dict[str, JointLimits] = field(default_factory=dict)
 
     def after(self, write: Write) -> ConsoleContext:
         """The context as it will be once ``write`` is applied (for checking sequences)."""
@@ -191,6 +252,16 @@ def parse_command(line: str, ctx: ConsoleContext) -> Command | None:
         return Show("layout", _slave(ctx, args[0]).name if args else None)
     if head == "sdo":
         return _parse_sdo(args, ctx)
+    if head in ("enable", "disable", "reset_fault"):
+        return AxisOp(head, _joints(ctx, args))
+    if head == "set_mode":
+        if len(args) != 2:
+            raise CommandError("usage: set_mode JOINT|all MODE")
+        return _parse_set_mode(args[0], args[1].lower(), ctx)
+    if head == "move":
+        if len(args) != 2:
+            raise CommandError("usage: move JOINT VALUE")
+        return _parse_move(args[0], args[1], ctx)
     if head == "run":
         if not args or len(args) > 2 or (len(args) == 2 and args[1] != "step"):
             raise CommandError("usage: run FILE [step]")
@@ -345,6 +416,59 @@ def _check_leg_workspace(
             f"{name}={format_value(value, slave.output(name))}" for name, value in assigned.items()
         )
         raise CommandError(f"slave '{slave.name}': {shown} makes an invalid ellipse: {reason}")
+
+
+def _known_joints(ctx: ConsoleContext) -> dict[str, JointLimits]:
+    if not ctx.joints:
+        raise CommandError("no CiA 402 axes known (the bus has none, or the node is not up yet)")
+    return ctx.joints
+
+
+def _joints(ctx: ConsoleContext, args: list[str]) -> tuple[str, ...]:
+    """Joint names (none or "all": every axis), each one checked."""
+    joints = _known_joints(ctx)
+    if not args or (len(args) == 1 and args[0].lower() == "all"):
+        return ()
+    for name in args:
+        if name not in joints:
+            raise CommandError(f"unknown joint '{name}' (joints: {', '.join(joints)})")
+    if len(set(args)) != len(args):
+        raise CommandError("a joint is named twice")
+    return tuple(args)
+
+
+def _parse_set_mode(target: str, mode: str, ctx: ConsoleContext) -> SetMode:
+    joints = _joints(ctx, [target])
+    if mode not in MODES:
+        raise CommandError(f"unknown mode '{mode}' (modes: {', '.join(MODES)})")
+    return SetMode(mode, joints)
+
+
+def _parse_move(joint: str, text: str, ctx: ConsoleContext) -> Move:
+    (name,) = _joints(ctx, [joint]) or ("all",)
+    if name == "all":
+        raise CommandError("move takes one joint (not all)")
+    limits = ctx.joints[name]
+    kind = SETPOINT_KIND.get(limits.mode)
+    if kind is None:
+        raise CommandError(f"joint '{name}' is in mode {limits.mode}: it takes no setpoint")
+    try:
+        value = float(text)
+    except ValueError:
+        raise CommandError(f"'{text}' is not a number") from None
+    if not math.isfinite(value):
+        raise CommandError(f"joint '{name}': {kind} {text} is not a finite number")
+    if kind == "position":
+        lo, hi = limits.position_limits
+        if not lo <= value <= hi:
+            raise CommandError(
+                f"joint '{name}': position {value:g} is outside the limits [{lo:g}, {hi:g}]"
+            )
+    else:
+        limit = limits.velocity_limit if kind == "velocity" else limits.torque_limit
+        if abs(value) > limit:
+            raise CommandError(f"joint '{name}': {kind} {value:g} is beyond the limit ±{limit:g}")
+    return Move(name, "effort" if kind == "torque" else kind, value)
 
 
 def _parse_sdo(args: list[str], ctx: ConsoleContext) -> SdoRead | SdoWrite:

@@ -9,6 +9,7 @@ from collections.abc import Callable, Iterable, Iterator
 from prompt_toolkit.completion import CompleteEvent, Completer, Completion
 from prompt_toolkit.document import Document
 
+from ether_ros.config.cia402 import MODES
 from ether_ros.console.commands import HELP, ConsoleContext
 from ether_ros.ros.layout import LayoutError
 
@@ -43,6 +44,13 @@ def candidates(words: list[str], ctx: ConsoleContext) -> list[str]:
             return SDO_TYPES
     if head == "run" and n == 2:
         return ["step"]
+    joints = list(ctx.joints)
+    if head in ("enable", "disable", "reset_fault"):
+        return ["all", *joints] if n == 1 else joints
+    if head == "set_mode":
+        return ["all", *joints] if n == 1 else list(MODES) if n == 2 else []
+    if head == "move" and n == 1:
+        return joints
     return []
 
 

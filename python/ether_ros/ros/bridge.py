@@ -289,3 +289,198 @@ def apply_writes(bus: Any, writes: list[tuple[SlaveSpec, VariableSpec, float]]) 
         by_slave.setdefault(s.name, {})[name] = to_python(value, var.type)
     for slave, values in by_slave.items():
         bus.write_many(slave, values)
+
+
+# ---------------------------------------------------------------------------- CiA 402 axes
+# The ROS side sees an axis through these functions: its joint name, its status (SI units),
+# its mode and the four commands. ``Axis`` objects come from ``bus.axes()`` and live as long
+# as the bus's cyclic run (the node takes them at activate).
+
+# JointState array carrying each setpoint kind of ``Axis.command``.
+JOINT_ARRAY = {"position": "position", "velocity": "velocity", "torque": "effort"}
+
+
+class AxisRejected(WriteRejected):
+    """An axis command (joint command, trajectory, service) refused before anything was
+    written."""
+
+
+def bus_axes(bus: Any) -> dict[str, Any]:
+    """The bus's CiA 402 axes by joint name, in bus order (empty for a bus without axes)."""
+    axes = getattr(bus, "axes", None)
+    return {a.name: a for a in axes()} if axes is not None else {}
+
+
+def trajectory_capacity(bus: Any) -> int:
+    """Most points one axis's trajectory may have (the engine's slot size)."""
+    plan = getattr(bus, "plan", None) or {}
+    return int(plan.get("trajectory_capacity", 0))
+
+
+def select_axes(axes: Mapping[str, Any], joints: list[str]) -> list[Any]:
+    """The axes named (every axis when ``joints`` is empty); unknown names refused, naming
+    the known joints."""
+    if not axes:
+        raise AxisRejected("this bus has no CiA 402 axes")
+    if not joints:
+        return list(axes.values())
+    unknown = [j for j in joints if j not in axes]
+    if unknown:
+        raise AxisRejected(
+            f"unknown joint(s) {', '.join(map(repr, unknown))} (joints: {', '.join(axes)})"
+        )
+    seen: set[str] = set()
+    chosen = []
+    for j in joints:
+        if j not in seen:
+            seen.add(j)
+            chosen.append(axes[j])
+    return chosen
+
+
+def axis_status(axis: Any) -> dict[str, Any]:
+    """The status the RT thread last published for the axis (``Axis.status()``)."""
+    return dict(axis.status())
+
+
+def axis_mode(axis: Any) -> str:
+    return str(axis.mode)
+
+
+def setpoint_kind(axis: Any) -> str | None:
+    """``position``, ``velocity`` or ``torque``: what the axis's mode takes (None: homing)."""
+    from ether_ros.master.axis import SETPOINT_KIND
+
+    return SETPOINT_KIND.get(axis.mode)
+
+
+def run_axis_command(axis: Any, command: str, mode: str = "") -> None:
+    """``enable``, ``disable``, ``reset_fault`` or ``set_mode`` on one axis; blocks until the
+    drive has done it (or raises ``EtherRosError`` saying where it stuck)."""
+    if command == "enable":
+        axis.enable()
+    elif command == "disable":
+        axis.disable()
+    elif command == "reset_fault":
+        axis.reset_fault()
+    elif command == "set_mode":
+        axis.set_mode(mode)
+    else:
+        raise AxisRejected(f"unknown axis command {command!r}")
+
+
+def resolve_joint_command(
+    axes: Mapping[str, Any],
+    names: list[str],
+    position: list[float],
+    velocity: list[float],
+    effort: list[float],
+) -> list[tuple[Any, str, float]]:
+    """A ``joint_commands`` JointState → the checked (axis, kind, value) setpoints it stands
+    for, all or nothing.
+
+    Any subset of the joints, by name. An array is empty (not given) or has one value per name;
+    each joint takes the value of the array its mode takes (position for csp/pp, velocity for
+    csv/pv, effort for cst), which must be a finite number within the joint's limits. A value
+    in another array is ignored when the mode's is there (``topic_based_ros2_control`` may send
+    several), and refused as the wrong kind when it is the only one."""
+    if not axes:
+        raise AxisRejected("this bus has no CiA 402 axes")
+    if not names:
+        raise AxisRejected("no joint names")
+    arrays = {"position": position, "velocity": velocity, "effort": effort}
+    for label, values in arrays.items():
+        if len(values) not in (0, len(names)):
+            raise AxisRejected(
+                f"{label} has {len(values)} value(s) for {len(names)} joint name(s) "
+                "(give one per name, or none)"
+            )
+    out = []
+    seen: set[str] = set()
+    for i, name in enumerate(names):
+        if name in seen:
+            raise AxisRejected(f"joint {name!r} is named twice")
+        seen.add(name)
+        axis = axes.get(name)
+        if axis is None:
+            raise AxisRejected(f"unknown joint {name!r} (joints: {', '.join(axes)})")
+        kind = setpoint_kind(axis)
+        if kind is None:
+            raise AxisRejected(f"joint {name!r} is in mode {axis.mode}: it takes no setpoint")
+        values = arrays[JOINT_ARRAY[kind]]
+        value = float(values[i]) if values else math.nan
+        if not math.isfinite(value):
+            others = [k for k, v in arrays.items() if v and math.isfinite(v[i])]
+            if others and not values:
+                raise AxisRejected(
+                    f"joint {name!r} is in mode {axis.mode}: it takes a {JOINT_ARRAY[kind]}, "
+                    f"got {' and '.join(others)}"
+                )
+            raise AxisRejected(
+                f"joint {name!r}: {JOINT_ARRAY[kind]} {value!r} is not a finite number"
+                if values
+                else f"joint {name!r}: no {JOINT_ARRAY[kind]} given (mode {axis.mode})"
+            )
+        try:
+            axis.check_command(kind, value)
+        except EtherRosError as exc:
+            raise AxisRejected(str(exc)) from None
+        out.append((axis, kind, value))
+    return out
+
+
+def apply_joint_commands(commands: list[tuple[Any, str, float]]) -> None:
+    """Write checked setpoints into the axes' command slots."""
+    for axis, kind, value in commands:
+        axis.command(**{kind: value})
+
+
+def describe_joint_commands(commands: list[tuple[Any, str, float]]) -> str:
+    shown = ", ".join(f"{a.name} {k}={v:g}" for a, k, v in commands[:8])
+    more = f" (+{len(commands) - 8} more)" if len(commands) > 8 else ""
+    return f"commanded {shown}{more}"
+
+
+def follow_trajectories(
+    plans: list[tuple[Any, list[tuple[float, float, float]]]], start_in: float
+) -> None:
+    """Start checked trajectories (axis, [(t, position, velocity)]) together, ``start_in``
+    seconds from now (on the engine's clock)."""
+    for axis, points in plans:
+        axis.follow(points, start_in=start_in)
+
+
+def check_mode(axes: list[Any], mode: str) -> None:
+    """Refuse a mode before any axis is switched: unknown, or not offered by one of the
+    drives."""
+    from ether_ros.config.cia402 import MODES
+
+    if mode not in MODES:
+        raise AxisRejected(f"unknown mode {mode!r} (modes: {', '.join(MODES)})")
+    for axis in axes:
+        if mode not in axis.spec.modes:
+            raise AxisRejected(
+                f"joint {axis.name!r}: the drive does not offer mode {mode} "
+                f"(it offers {', '.join(axis.spec.modes)})"
+            )
+
+
+def joint_rows(axes: Mapping[str, Any]) -> list[tuple[str, int, float, float, float, float, Any]]:
+    """Each axis as the native joint table takes it: (joint, engine axis index, position
+    limits, velocity limit, torque limit, the setpoint kind its mode takes)."""
+    rows = []
+    for name, axis in axes.items():
+        c = axis.spec.config
+        lo, hi = c.position_limits
+        rows.append(
+            (
+                name,
+                int(axis.index),
+                float(lo),
+                float(hi),
+                float(c.velocity_limit),
+                float(c.torque_limit),
+                setpoint_kind(axis),
+            )
+        )
+    return rows

@@ -20,9 +20,10 @@ from typing import Any, TypeVar
 
 import rclpy
 import rclpy.executors
+from builtin_interfaces.msg import Duration
 from diagnostic_msgs.msg import DiagnosticArray
 from ether_ros_msgs.msg import BusLayout, PdoRaw, SlaveValues, WriteResult, WriteVariable
-from ether_ros_msgs.srv import Command, SdoRead, SdoWrite, WriteVariables
+from ether_ros_msgs.srv import AxisCommand, Command, SdoRead, SdoWrite, SetMode, WriteVariables
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState, GetState
 from rcl_interfaces.msg import Parameter as ParameterMsg
@@ -31,6 +32,7 @@ from rclpy.context import Context
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from ether_ros.errors import EtherRosError
 from ether_ros.ros.convert import spec_from_msg
@@ -91,6 +93,7 @@ class EtherRosClient:
         self.node = rclpy.create_node(name, context=context)
         self.latest = Latest()
         self.results: deque[WriteResult] = deque(maxlen=1000)
+        self.joint_results: deque[WriteResult] = deque(maxlen=1000)
         self._cond = threading.Condition()
         self._on_joint_state = on_joint_state
         self._on_inputs = on_inputs
@@ -105,6 +108,14 @@ class EtherRosClient:
         self._change_state = n.create_client(ChangeState, f"{self.target}/change_state")
         self._get_state = n.create_client(GetState, f"{self.target}/get_state")
         self._write_pub = n.create_publisher(WriteVariable, f"{p}pdo_listener", QOS_COMMANDS)
+        self._axis = {
+            c: n.create_client(AxisCommand, f"{p}{c}") for c in ("enable", "disable", "reset_fault")
+        }
+        self._set_mode = n.create_client(SetMode, f"{p}set_mode")
+        self._joint_pub = n.create_publisher(JointState, f"{p}joint_commands", QOS_COMMANDS)
+        self._trajectory_pub = n.create_publisher(
+            JointTrajectory, f"{p}joint_trajectory", QOS_COMMANDS
+        )
         n.create_subscription(BusLayout, f"{p}bus_layout", self._on_layout, QOS_LATCHED)
         n.create_subscription(SlaveValues, f"{p}pdo_in", self._on_values("inputs"), QOS_HIGH_RATE)
         n.create_subscription(SlaveValues, f"{p}pdo_out", self._on_values("outputs"), QOS_HIGH_RATE)
@@ -114,6 +125,7 @@ class EtherRosClient:
         n.create_subscription(JointState, f"{p}joint_states", self._on_joints, QOS_RELIABLE)
         n.create_subscription(DiagnosticArray, f"{p}diagnostics", self._on_diag, QOS_RELIABLE)
         n.create_subscription(WriteResult, f"{p}write_results", self._on_result, QOS_COMMANDS)
+        n.create_subscription(WriteResult, f"{p}joint_results", self._on_joint_result, QOS_COMMANDS)
         if raw:
             n.create_subscription(PdoRaw, f"{p}pdo_raw", self._on_raw, QOS_HIGH_RATE)
         self._executor = rclpy.executors.SingleThreadedExecutor(context=context)
@@ -190,6 +202,12 @@ class EtherRosClient:
         with self._cond:
             self.results.append(msg)
             self._bump("write_results")
+            self._cond.notify_all()
+
+    def _on_joint_result(self, msg: WriteResult) -> None:
+        with self._cond:
+            self.joint_results.append(msg)
+            self._bump("joint_results")
             self._cond.notify_all()
 
     def _on_raw(self, msg: PdoRaw) -> None:
@@ -288,6 +306,93 @@ class EtherRosClient:
 
         return self.wait_for(find, timeout)
 
+    # ------------------------------------------------------------------------ joints
+    def axis_command(
+        self, command: str, joints: list[str] | None = None, timeout: float = 10.0
+    ) -> tuple[bool, str, dict[str, str]]:
+        """``enable``, ``disable`` or ``reset_fault`` for the joints (None/empty: all):
+        (success, message, {joint: CiA 402 state})."""
+        if command not in self._axis:
+            raise ClientError(f"unknown axis command {command!r} ({', '.join(self._axis)})")
+        req = AxisCommand.Request(joints=list(joints or []))
+        resp = self._call(self._axis[command], req, timeout)
+        return _axis_answer(resp)
+
+    def set_mode(
+        self, mode: str, joints: list[str] | None = None, timeout: float = 10.0
+    ) -> tuple[bool, str, dict[str, str]]:
+        req = SetMode.Request(joints=list(joints or []), mode=mode)
+        resp = self._call(self._set_mode, req, timeout)
+        return _axis_answer(resp)
+
+    def publish_joint_command(
+        self,
+        names: list[str],
+        position: list[float] | None = None,
+        velocity: list[float] | None = None,
+        effort: list[float] | None = None,
+    ) -> None:
+        """Setpoints on ``joint_commands`` (a refusal comes on ``joint_results``)."""
+        msg = JointState()
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        msg.name = list(names)
+        msg.position = [float(x) for x in position or []]
+        msg.velocity = [float(x) for x in velocity or []]
+        msg.effort = [float(x) for x in effort or []]
+        self._joint_pub.publish(msg)
+
+    def publish_trajectory(
+        self,
+        names: list[str],
+        points: list[tuple[float, list[float]]],
+        velocities: list[list[float]] | None = None,
+        start: float = 0.0,
+    ) -> None:
+        """A JointTrajectory: ``points`` are (time_from_start s, positions); ``start`` is the
+        header stamp in wall-clock seconds (0: now). The answer comes on ``joint_results``."""
+        msg = JointTrajectory()
+        if start:
+            ns = int(start * 1e9)
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns, 1_000_000_000)
+        msg.joint_names = list(names)
+        for i, (t, positions) in enumerate(points):
+            p = JointTrajectoryPoint()
+            p.positions = [float(x) for x in positions]
+            if velocities is not None:
+                p.velocities = [float(x) for x in velocities[i]]
+            ns = round(t * 1e9)
+            p.time_from_start = Duration(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+            msg.points.append(p)
+        self._trajectory_pub.publish(msg)
+
+    def axis_parameters(self, timeout: float = 5.0) -> dict[str, dict[str, Any]]:
+        """The axes' configuration as the node mirrors it (``axis_joints``, ``axes.<joint>.*``
+        parameters): {joint: {slave, mode, position_limits, velocity_limit, torque_limit}}."""
+        joints = self.get_parameters(["axis_joints"], timeout)["axis_joints"] or []
+        keys = ("slave", "mode", "position_limits", "velocity_limit", "torque_limit")
+        names = [f"axes.{j}.{k}" for j in joints for k in keys]
+        values = self.get_parameters(names, timeout) if names else {}
+        out = {}
+        for j in joints:
+            p = {k: values[f"axes.{j}.{k}"] for k in keys}
+            p["position_limits"] = tuple(float(x) for x in p["position_limits"])
+            out[str(j)] = p
+        return out
+
+    def axis_states(self) -> dict[str, dict[str, str]]:
+        """Key/values (plus ``message`` and ``level``) of every axis's diagnostic status."""
+        diag = self.latest.diagnostics
+        out: dict[str, dict[str, str]] = {}
+        if diag is None:
+            return out
+        for st in diag.status:
+            if ": axis " in st.name:
+                values = {kv.key: kv.value for kv in st.values}
+                values["message"] = st.message
+                values["level"] = str(int.from_bytes(st.level, "little"))
+                out[st.name.split(": axis ", 1)[1]] = values
+        return out
+
     def sdo_read(
         self, slave: str, index: int, subindex: int, type_name: str = "", timeout: float = 10.0
     ) -> SdoRead.Response:
@@ -324,11 +429,20 @@ class EtherRosClient:
         client = self.node.create_client(GetParameters, f"{self.target}/get_parameters")
         try:
             resp = self._call(client, GetParameters.Request(names=names), timeout)
+            values = list(resp.values)
+            if len(values) != len(names):
+                # rclpy leaves undeclared names out of the answer: ask name by name.
+                values = []
+                for name in names:
+                    one = self._call(client, GetParameters.Request(names=[name]), timeout)
+                    values.append(one.values[0] if one.values else None)
         finally:
             self.node.destroy_client(client)
         return {
-            n: Parameter.from_parameter_msg(ParameterMsg(name=n, value=v)).value
-            for n, v in zip(names, resp.values, strict=True)
+            n: None
+            if v is None
+            else Parameter.from_parameter_msg(ParameterMsg(name=n, value=v)).value
+            for n, v in zip(names, values, strict=True)
         }
 
     def set_parameter(self, name: str, value: Any, timeout: float = 5.0) -> tuple[bool, str]:
@@ -350,6 +464,11 @@ class EtherRosClient:
             except ClientError:
                 if time.monotonic() >= deadline:
                     raise
+
+
+def _axis_answer(resp: Any) -> tuple[bool, str, dict[str, str]]:
+    states = dict(zip(resp.joints, resp.states, strict=True))
+    return bool(resp.success), str(resp.message), states
 
 
 def make_write(slave: str | int, variable: str, value: float | str) -> WriteVariable:

@@ -140,6 +140,14 @@ def summary(client: EtherRosClient, recorder: TrotRecorder) -> tuple[str, bool]:
         if a in legs and b in legs:
             r = correlation(legs[a].desired_knee, legs[b].desired_knee)
             lines.append(f"  desired knee angle correlation {a} / {b}: {r:+.2f}")
+    lines.extend(bus_lines(client))
+    return "\n".join(lines), all_tracked
+
+
+def bus_lines(client: EtherRosClient) -> list[str]:
+    """The bus part of a demo's summary, from the node's diagnostics: slave states, cycle
+    counters, loop timing and DC sync error."""
+    lines = []
     status = client.master_status()
     states = client.slave_states()
     lines.append("Bus (from the node's diagnostics)")
@@ -171,7 +179,7 @@ def summary(client: EtherRosClient, recorder: TrotRecorder) -> tuple[str, bool]:
     if "dc_sync_error_max_ns" in status:
         dc = int(status["dc_sync_error_max_ns"]) / 1000
         lines.append(f"  {'DC sync error (last period)':28} max {dc:.1f} µs")
-    return "\n".join(lines), all_tracked
+    return lines
 
 
 def run_demo(config: Path = DEFAULT_CONFIG, sequence: str = "trot") -> int:

@@ -5,7 +5,8 @@ panics, overruns, samples dropped (engine ring and ROS side), loop timing (wake-
 execution time, period, round trip: p50/p99/max) and the largest DC sync error since the last
 report; cables found broken on a branch (``link lost behind slave 'coupler' port 2: slaves …
 unreachable``) make it WARN. One status per slave: its AL state and AL status code, and the
-supervisor's reason when the slave is lost (e.g. the broken cable that cut it off).
+supervisor's reason when the slave is lost (e.g. the broken cable that cut it off). One per CiA
+402 axis: its state, mode, error code with its text, following error and clamp counts.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from typing import Any
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
 from ether_ros.ros import bridge
+from ether_ros.ros.error_codes import describe
 
 OK = DiagnosticStatus.OK
 WARN = DiagnosticStatus.WARN
@@ -107,6 +109,56 @@ def slave_statuses(node_name: str, states: Sequence[Any]) -> list[DiagnosticStat
         else:
             st.level, st.message = OK, "OP"
         out.append(st)
+    return out
+
+
+_AXIS_NUMBERS = ("position", "velocity", "torque", "following_error", "target_position")
+_AXIS_COUNTS = ("position_clamps", "velocity_clamps", "torque_clamps", "faults", "fault_resets")
+
+
+def axis_statuses(
+    node_name: str, axes: Sequence[tuple[str, str, Mapping[str, Any]]]
+) -> list[DiagnosticStatus]:
+    """One status per axis (joint, commanded mode, ``Axis.status()``): ERROR in Fault (the
+    message names the error code and its text), WARN for a following error beyond the window
+    or an automatic reset that gave up, else OK with the state."""
+    out = []
+    for joint, mode, st in axes:
+        d = DiagnosticStatus()
+        d.name = f"{node_name}: axis {joint}"
+        d.hardware_id = joint
+        code, last = int(st["error_code"]), int(st["last_fault_code"])
+        values = [
+            ("state", str(st["state"])),
+            ("mode", mode),
+            ("mode_display", str(st["mode_display"] or st["mode_display_code"])),
+            ("statusword", f"0x{int(st['statusword']):04x}"),
+            ("error_code", f"0x{code:04x}"),
+            ("error_text", describe(code).split(" ", 1)[1]),
+            ("last_fault_code", f"0x{last:04x}"),
+            ("last_fault_text", describe(last).split(" ", 1)[1] if last else ""),
+        ]
+        values += [(k, f"{float(st[k]):.6g}") for k in _AXIS_NUMBERS]
+        values += [(k, str(int(st[k]))) for k in _AXIS_COUNTS]
+        for flag in ("following_error_exceeded", "retries_exhausted", "halted"):
+            values.append((flag, str(bool(st[flag])).lower()))
+        d.values = [KeyValue(key=k, value=v) for k, v in values]
+        state = str(st["state"])
+        if state in ("fault", "fault_reaction_active"):
+            d.level, d.message = ERROR, f"{state}: {describe(code or last)}"
+        elif st["retries_exhausted"]:
+            d.level = ERROR
+            d.message = f"{state}: automatic fault reset gave up (last {describe(last)})"
+        elif st["following_error_exceeded"]:
+            d.level = WARN
+            d.message = f"{state}: following error {float(st['following_error']):.4g}"
+        elif code:
+            d.level, d.message = WARN, f"{state}: {describe(code)}"
+        else:
+            d.level, d.message = OK, f"{state} ({mode})"
+            if last:  # a fault the drive recovered from stays visible
+                d.message += f"; last fault {describe(last)} ({int(st['faults'])} so far)"
+        out.append(d)
     return out
 
 

@@ -1,4 +1,5 @@
-"""The node's command path for ``pdo_listener``: a native thread, not the Python executor.
+"""The node's command path for ``pdo_listener`` and ``joint_commands``: native threads, not the
+Python executor.
 
 A ``WriteVariable`` taken by the Python executor waits for the GIL, which the sample publisher
 holds most of the time on a node that publishes every cycle; that cost milliseconds per command.
@@ -8,6 +9,10 @@ certainly valid — writes it into the engine's output buffer and answers on ``w
 without touching Python. Every other request (text values, unknown names, values out of range)
 is handed to :meth:`EtherRosNode._on_write_topic` in order, through a Python thread here, so all
 refusals and their wording stay in one place (``bridge.resolve_write``).
+
+``joint_commands`` (``sensor_msgs/JointState`` for CiA 402 axes) has a receiver of its own
+(``message="joint_state"``): certainly valid commands go straight into the engine's axis command
+slots; the rest to :meth:`EtherRosNode._on_joint_commands` (``bridge.resolve_joint_command``).
 
 The rcl objects are created with rclpy's low-level API so no executor ever waits on (and takes
 from) the same subscription; they are marked in use while the thread runs, so rclpy cannot
@@ -32,6 +37,7 @@ from rclpy.type_support import check_is_valid_msg_type
 from ether_ros import _native
 from ether_ros.errors import EtherRosError
 from ether_ros.master.bus import output_bit_offset
+from ether_ros.ros import bridge
 from ether_ros.ros.layout import BusSpec
 
 log = logging.getLogger(__name__)
@@ -98,6 +104,12 @@ def command_table(bus: Any, spec: BusSpec) -> Any:
     return _native.CommandTable(rows)
 
 
+def joint_table(axes: dict[str, Any]) -> Any:
+    """The axes as a ``_native.JointTable``: each one's engine index, limits and the setpoint
+    kind its mode takes (the same the Python path checks against)."""
+    return _native.JointTable(bridge.joint_rows(axes))
+
+
 # Fast DDS names its receive threads "dds.shm.<port>" and "dds.udp.<port>" (2.14, Jazzy).
 _MIDDLEWARE_RECEIVERS = ("dds.shm.", "dds.udp.")
 
@@ -141,8 +153,9 @@ def housekeeping_cpus(rt_cpu: int | None) -> set[int]:
 
 
 class NativeCommandPath:
-    """``pdo_listener`` for one node: the native receiver plus the Python thread that handles
-    what it defers (``handle_deferred`` gets the deserialized ``WriteVariable``)."""
+    """``pdo_listener`` (or, with ``message_type=JointState``, ``joint_commands``) for one node:
+    the native receiver plus the Python thread that handles what it defers
+    (``handle_deferred`` gets the deserialized message)."""
 
     def __init__(
         self,
@@ -150,15 +163,18 @@ class NativeCommandPath:
         topic: str,
         qos: QoSProfile,
         results_publisher: Any,
-        handle_deferred: Callable[[WriteVariable], None],
+        handle_deferred: Callable[[Any], None],
         priority: int,
         cpus: set[int] | None = None,
+        message_type: Any = WriteVariable,
     ) -> None:
         self._handle_deferred = handle_deferred
-        check_is_valid_msg_type(WriteVariable)  # loads the type support the subscription needs
+        self._message_type = message_type
+        self._joints: Any = None
+        check_is_valid_msg_type(message_type)  # loads the type support the subscription needs
         with node.handle:
             self._subscription = _rclpy.Subscription(
-                node.handle, WriteVariable, topic, qos.get_c_qos_profile()
+                node.handle, message_type, topic, qos.get_c_qos_profile()
             )
         # Held "in use" until close(): rclpy defers destroying them (node destruction,
         # shutdown) until then, so the native thread never sees a freed object.
@@ -174,6 +190,7 @@ class NativeCommandPath:
                 results=results_publisher.handle.pointer,
                 priority=priority,
                 cpus=sorted(cpus or ()),
+                message="write_variable" if message_type is WriteVariable else "joint_state",
             )
         except (RuntimeError, CommandPathError) as exc:
             self._release()
@@ -182,7 +199,9 @@ class NativeCommandPath:
         raise_middleware_receivers(priority, cpus)
         self._stop = threading.Event()
         self._thread = threading.Thread(
-            target=self._serve_deferred, name="ether_ros-deferred", daemon=True
+            target=self._serve_deferred,
+            name="ether_ros-deferred" if message_type is WriteVariable else "ether_ros-jdeferred",
+            daemon=True,
         )
         self._thread.start()
 
@@ -190,9 +209,33 @@ class NativeCommandPath:
         """Write valid requests into ``bus``'s engine from now on."""
         self.receiver.attach(bus.engine, command_table(bus, spec))
 
+    def attach_joints(self, bus: Any, axes: dict[str, Any]) -> None:
+        """Write valid joint commands into ``bus``'s axes from now on."""
+        self._joints = joint_table(axes)
+        self.receiver.attach(bus.engine, self._joints)
+
+    def hold_joints(self, axes: dict[str, Any], held: list[Any]) -> None:
+        """Leave every command for the ``held`` axes to Python (while their mode changes);
+        ``axes`` are all of them, in the table's order."""
+        joints = self._joints
+        if joints is None:
+            return
+        for i, axis in enumerate(axes.values()):
+            if axis in held:
+                joints.set_kind(i, None)
+
+    def update_joints(self, axes: dict[str, Any]) -> None:
+        """Take each axis's setpoint kind from its mode again (after a mode change)."""
+        joints = self._joints
+        if joints is None:
+            return
+        for i, axis in enumerate(axes.values()):
+            joints.set_kind(i, bridge.setpoint_kind(axis))
+
     def detach(self) -> None:
         """No more native writes (returns once none is in progress)."""
         self.receiver.detach()
+        self._joints = None
 
     def last_command_ns(self) -> int:
         return int(self.receiver.last_command_ns())
@@ -221,7 +264,7 @@ class NativeCommandPath:
             if data is None:
                 continue
             try:
-                message = deserialize_message(data, WriteVariable)
+                message = deserialize_message(data, self._message_type)
                 self._handle_deferred(message)
             except Exception:  # one bad request must not end the command path
                 log.exception("handling a deferred write failed")

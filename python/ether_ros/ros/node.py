@@ -25,6 +25,7 @@ while a transition or an SDO transfer is in progress.
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import os
 import threading
@@ -37,7 +38,7 @@ import rclpy
 import rclpy.executors
 from diagnostic_msgs.msg import DiagnosticArray
 from ether_ros_msgs.msg import BusLayout, PdoRaw, SlaveValues, WriteResult, WriteVariable
-from ether_ros_msgs.srv import Command, SdoRead, SdoWrite, WriteVariables
+from ether_ros_msgs.srv import AxisCommand, Command, SdoRead, SdoWrite, SetMode, WriteVariables
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.executors import ExternalShutdownException
@@ -53,10 +54,11 @@ from rclpy.qos import (
 )
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
+from trajectory_msgs.msg import JointTrajectory
 
 from ether_ros.config import types as dt
 from ether_ros.errors import EtherRosError
-from ether_ros.ros import bridge, diagnostics
+from ether_ros.ros import bridge, diagnostics, joints
 from ether_ros.ros.convert import layout_msg
 from ether_ros.ros.layout import BusSpec, LayoutError
 from ether_ros.ros.native_commands import (
@@ -180,6 +182,12 @@ class EtherRosNode(LifecycleNode):
         self._writes_group = MutuallyExclusiveCallbackGroup()
         self._timer_group = MutuallyExclusiveCallbackGroup()
         self._panic_group = ReentrantCallbackGroup()
+        # The axis services wait for the drives (an enable takes up to seconds): a group of
+        # their own, served by another thread of the multi-threaded executor, so they hold up
+        # neither the lifecycle nor the commands (which never wait on them).
+        self._axis_group = MutuallyExclusiveCallbackGroup()
+        # CiA 402 axes by joint name while the node is active (bridge.bus_axes).
+        self._axes: dict[str, Any] = {}
 
         self._pub: dict[str, Any] = {
             "pdo_raw": self.create_publisher(PdoRaw, "pdo_raw", QOS_HIGH_RATE),
@@ -191,29 +199,35 @@ class EtherRosNode(LifecycleNode):
         self._layout_pub = self.create_publisher(BusLayout, "bus_layout", QOS_LATCHED)
         self._diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", QOS_RELIABLE)
         self._result_pub = self.create_publisher(WriteResult, "write_results", QOS_COMMANDS)
+        # Refused joint_commands and every joint_trajectory's answer (request_id 0).
+        self._joint_result_pub = self.create_publisher(WriteResult, "joint_results", QOS_COMMANDS)
 
         commands: Node = self.command_node or self
         # pdo_listener: the native path (see ether_ros.ros.native_commands); the Python
         # subscription only if it cannot start (or native_commands=False, for comparison).
+        # joint_commands likewise, on a native thread of its own.
         self._native: NativeCommandPath | None = None
+        self._native_joints: NativeCommandPath | None = None
         if native_commands:
-            try:
-                self._native = NativeCommandPath(
-                    self,
-                    "pdo_listener",
-                    QOS_COMMANDS,
-                    self._result_pub,
-                    self._on_write_topic,
-                    command_priority(cfg),
-                    housekeeping_cpus(cfg.bus.realtime.cpu),
-                )
-            except CommandPathError as exc:
-                self.get_logger().warning(f"{exc}; pdo_listener is served by Python instead")
+            self._native = self._native_path(
+                cfg, "pdo_listener", WriteVariable, self._result_pub, self._on_write_topic
+            )
+            self._native_joints = self._native_path(
+                cfg, "joint_commands", JointState, self._joint_result_pub, self._on_joint_commands
+            )
         if self._native is None:
             commands.create_subscription(
                 WriteVariable,
                 "pdo_listener",
                 self._on_write_topic,
+                QOS_COMMANDS,
+                callback_group=None if self.command_node else self._writes_group,
+            )
+        if self._native_joints is None:
+            commands.create_subscription(
+                JointState,
+                "joint_commands",
+                self._on_joint_commands,
                 QOS_COMMANDS,
                 callback_group=None if self.command_node else self._writes_group,
             )
@@ -229,6 +243,21 @@ class EtherRosNode(LifecycleNode):
             self._on_panic,
             callback_group=None if self.command_node else self._panic_group,
         )
+        commands.create_subscription(
+            JointTrajectory,
+            "joint_trajectory",
+            self._on_joint_trajectory,
+            QOS_COMMANDS,
+            callback_group=None if self.command_node else self._writes_group,
+        )
+        for service in ("enable", "disable", "reset_fault"):
+            self.create_service(
+                AxisCommand,
+                service,
+                functools.partial(self._on_axis_service, service),
+                callback_group=self._axis_group,
+            )
+        self.create_service(SetMode, "set_mode", self._on_set_mode, callback_group=self._axis_group)
         self.create_service(Command, "ethercat_communicator", self._on_command)
         self.create_service(SdoRead, "sdo_read", self._on_sdo_read)
         self.create_service(SdoWrite, "sdo_write", self._on_sdo_write)
@@ -346,8 +375,11 @@ class EtherRosNode(LifecycleNode):
         try:
             with self._bus_lock:
                 bus.start()
+                self._axes = bridge.bus_axes(bus)
                 if self._native is not None:
                     self._native.attach(bus, spec)
+                if self._native_joints is not None and self._axes:
+                    self._native_joints.attach_joints(bus, self._axes)
         except EtherRosError as exc:
             self._stop_bus()
             return self._fail("activate", exc)
@@ -364,6 +396,7 @@ class EtherRosNode(LifecycleNode):
             self._rates,
             self._feed_watchdog,
             max_backlog=backlog,
+            axis_joints=(lambda: joints.axis_joint_values(self._axes)) if self._axes else None,
         )
         self._samples.start()
         self._restart_snapshot_timer(self._param_ms("ros.snapshot_period_ms"))
@@ -406,9 +439,10 @@ class EtherRosNode(LifecycleNode):
             self._samples = None
 
     def _stop_bus(self) -> None:
-        if self._native is not None:
-            self._native.detach()  # before the bus stops: no native write after this
+        for native in self._native_paths():
+            native.detach()  # before the bus stops: no native write after this
         with self._bus_lock:
+            self._axes = {}
             if self._bus is not None:
                 try:
                     self._bus.stop()
@@ -417,10 +451,11 @@ class EtherRosNode(LifecycleNode):
 
     def _release(self) -> None:
         self._stop_publishing()
-        if self._native is not None:
-            self._native.detach()
+        for native in self._native_paths():
+            native.detach()
         with self._bus_lock:
             bus, self._bus, self._spec = self._bus, None, None
+            self._axes = {}
             if bus is not None:
                 try:
                     bus.close()
@@ -432,9 +467,9 @@ class EtherRosNode(LifecycleNode):
 
     def destroy_node(self) -> None:
         self._release()
-        if self._native is not None:
-            self._native.close()
-            self._native = None
+        for native in self._native_paths():
+            native.close()
+        self._native = self._native_joints = None
         if self.command_node is not None:
             self.command_node.destroy_node()
             self.command_node = None
@@ -517,6 +552,10 @@ class EtherRosNode(LifecycleNode):
                         commands["delivery_sum_ns"] / commands["delivery_count"]
                     )
                     ros_numbers["command_delivery_max_ns"] = commands["delivery_max_ns"]
+            joint_commands = self.joint_command_path_counters()
+            if joint_commands:
+                ros_numbers["joint_commands_native"] = joint_commands["applied"]
+                ros_numbers["joint_commands_deferred"] = joint_commands["deferred"]
         supervisor = getattr(bus, "supervisor", None)
         problems = supervisor.branch_problems() if supervisor is not None else []
         statuses.append(
@@ -531,7 +570,18 @@ class EtherRosNode(LifecycleNode):
                 statuses.extend(diagnostics.slave_statuses(name, bus.states()))
             except Exception as exc:
                 self.get_logger().warning(f"reading slave states: {exc}")
+        statuses.extend(diagnostics.axis_statuses(name, self._axis_reports()))
         self._diag_pub.publish(diagnostics.array(statuses, self.get_clock().now().to_msg()))
+
+    def _axis_reports(self) -> list[tuple[str, str, dict[str, Any]]]:
+        """(joint, commanded mode, status) of every axis, for the diagnostics."""
+        reports = []
+        for name, axis in list(self._axes.items()):
+            try:
+                reports.append((name, bridge.axis_mode(axis), bridge.axis_status(axis)))
+            except EtherRosError:
+                continue  # the bus stopped meanwhile
+        return reports
 
     def _feed_watchdog(self) -> bool:
         """Called by the sample thread every loop: keep the engine's command watchdog fed while
@@ -547,12 +597,39 @@ class EtherRosNode(LifecycleNode):
 
     def _last_command_time(self) -> float:
         """time.monotonic() of the last write, through Python or the native path."""
-        native = self._native.last_command_ns() / 1e9 if self._native is not None else 0.0
+        native = max((n.last_command_ns() / 1e9 for n in self._native_paths()), default=0.0)
         return max(self._last_command, native)
+
+    def _native_paths(self) -> list[NativeCommandPath]:
+        return [n for n in (self._native, self._native_joints) if n is not None]
+
+    def _native_path(
+        self, cfg: Any, topic: str, message_type: Any, results: Any, handler: Any
+    ) -> NativeCommandPath | None:
+        """The native command path for ``topic``, or None (with the reason logged) when it
+        cannot start: then Python serves the topic."""
+        try:
+            return NativeCommandPath(
+                self,
+                topic,
+                QOS_COMMANDS,
+                results,
+                handler,
+                command_priority(cfg),
+                housekeeping_cpus(cfg.bus.realtime.cpu),
+                message_type=message_type,
+            )
+        except CommandPathError as exc:
+            self.get_logger().warning(f"{exc}; {topic} is served by Python instead")
+            return None
 
     def command_path_counters(self) -> dict[str, int]:
         """The native command path's counters (empty when Python serves pdo_listener)."""
         return self._native.counters() if self._native is not None else {}
+
+    def joint_command_path_counters(self) -> dict[str, int]:
+        """The native joint_commands path's counters (empty when Python serves it)."""
+        return self._native_joints.counters() if self._native_joints is not None else {}
 
     # ------------------------------------------------------------------------ writes
     def _write(self, requests: list[WriteVariable]) -> tuple[bool, str]:
@@ -597,6 +674,128 @@ class EtherRosNode(LifecycleNode):
         self, req: WriteVariables.Request, resp: WriteVariables.Response
     ) -> WriteVariables.Response:
         resp.success, resp.message = self._write(list(req.writes))
+        return resp
+
+    # ------------------------------------------------------------------------ joints
+    def _axes_if_active(self) -> dict[str, Any]:
+        """The axes, or AxisRejected when the node is not active (checked without the bus
+        lock, like writes, so a refusal never waits for a transition)."""
+        state = self.lifecycle_state()
+        if state != "active" or not self._axes:
+            why = "joint commands need it active" if state != "active" else "no CiA 402 axes"
+            raise bridge.AxisRejected(f"the node is {state}: {why}")
+        return self._axes
+
+    def joint_command(self, msg: JointState) -> tuple[bool, str]:
+        """A ``joint_commands`` message: every setpoint checked, then all written, or nothing
+        (``bridge.resolve_joint_command``)."""
+        try:
+            self._axes_if_active()
+            with self._bus_lock:
+                commands = bridge.resolve_joint_command(
+                    self._axes_if_active(),
+                    list(msg.name),
+                    list(msg.position),
+                    list(msg.velocity),
+                    list(msg.effort),
+                )
+                self._last_command = time.monotonic()
+                bridge.apply_joint_commands(commands)
+        except EtherRosError as exc:
+            return False, str(exc)
+        return True, bridge.describe_joint_commands(commands)
+
+    def _on_joint_commands(self, msg: JointState) -> None:
+        ok, message = self.joint_command(msg)
+        if not ok:  # applied commands are not answered: they come at the controller's rate
+            self.get_logger().warning(f"joint_commands refused: {message}")
+            self._joint_result_pub.publish(
+                WriteResult(success=False, message=f"joint_commands refused: {message}")
+            )
+
+    def joint_trajectory(self, msg: JointTrajectory) -> tuple[bool, str]:
+        """Check every joint's trajectory, then start them all at ``header.stamp``."""
+        try:
+            self._axes_if_active()
+            with self._bus_lock:
+                plans = joints.trajectory_plans(
+                    self._axes_if_active(), msg, bridge.trajectory_capacity(self._bus)
+                )
+                start_in = joints.start_delay(joints.stamp_ns(msg.header.stamp), time.time_ns())
+                self._last_command = time.monotonic()
+                bridge.follow_trajectories(plans, start_in)
+        except EtherRosError as exc:
+            return False, str(exc)
+        duration = max(track[-1][0] for _, track in plans)
+        names = ", ".join(axis.name for axis, _ in plans)
+        return True, (
+            f"trajectory of {len(msg.points)} point(s) over {duration:g} s for {names}, "
+            f"starting in {start_in:.3f} s"
+        )
+
+    def _on_joint_trajectory(self, msg: JointTrajectory) -> None:
+        ok, message = self.joint_trajectory(msg)
+        if not ok:
+            self.get_logger().warning(f"joint_trajectory refused: {message}")
+        text = f"joint_trajectory: {message}" if ok else f"joint_trajectory refused: {message}"
+        self._joint_result_pub.publish(WriteResult(success=ok, message=text))
+
+    def axis_command(
+        self, command: str, names: list[str], mode: str = ""
+    ) -> tuple[bool, str, list[str], list[str]]:
+        """enable / disable / reset_fault / set_mode on the joints named (empty: all): (success,
+        message, joints, their CiA 402 states afterwards). Waits for the drives without the bus
+        lock, so writes and other commands go on meanwhile."""
+        try:
+            chosen = bridge.select_axes(self._axes_if_active(), names)
+            if command == "set_mode":
+                bridge.check_mode(chosen, mode)
+        except EtherRosError as exc:
+            return False, str(exc), [], []
+        native = self._native_joints if command == "set_mode" else None
+        if native is not None:  # while the mode changes, Python checks every joint command
+            native.hold_joints(self._axes, chosen)
+        errors = []
+        try:
+            for axis in chosen:
+                try:
+                    bridge.run_axis_command(axis, command, mode)
+                except EtherRosError as exc:
+                    errors.append(str(exc))
+        finally:
+            if native is not None:
+                native.update_joints(self._axes)
+        states = []
+        for axis in chosen:
+            try:
+                states.append(str(bridge.axis_status(axis)["state"]))
+            except EtherRosError:
+                states.append("unknown")
+        names_done = [axis.name for axis in chosen]
+        if errors:
+            return False, "; ".join(errors), names_done, states
+        what = f"{command} {mode}" if command == "set_mode" else command
+        done = ", ".join(f"{n}: {s}" for n, s in zip(names_done, states, strict=True))
+        return True, f"{what} done ({done})", names_done, states
+
+    def _on_axis_service(
+        self, command: str, req: AxisCommand.Request, resp: AxisCommand.Response
+    ) -> AxisCommand.Response:
+        try:
+            resp.success, resp.message, resp.joints, resp.states = self.axis_command(
+                command, list(req.joints)
+            )
+        except Exception as exc:  # a service must always answer
+            resp.success, resp.message = False, f"{command} failed: {exc}"
+        return resp
+
+    def _on_set_mode(self, req: SetMode.Request, resp: SetMode.Response) -> SetMode.Response:
+        try:
+            resp.success, resp.message, resp.joints, resp.states = self.axis_command(
+                "set_mode", list(req.joints), req.mode.strip().lower()
+            )
+        except Exception as exc:
+            resp.success, resp.message = False, f"set_mode failed: {exc}"
         return resp
 
     # ------------------------------------------------------------------------ commands
@@ -763,6 +962,27 @@ def config_parameters(cfg: Any) -> dict[str, Any]:
         joints = [j["name"] for j in s.get("joints") or []]
         if joints:
             out[f"{base}.joints"] = joints
+    out.update(axis_parameters(cfg))
+    return out
+
+
+def axis_parameters(cfg: Any) -> dict[str, Any]:
+    """The CiA 402 axes as parameters (``axis_joints``, ``axes.<joint>.mode``, ``.slave``,
+    ``.position_limits``, ``.velocity_limit``, ``.torque_limit``): what a client (the console)
+    checks a joint command against before sending it."""
+    out: dict[str, Any] = {}
+    names = []
+    for slave in cfg.slaves:
+        for axis in getattr(slave, "axes", None) or []:
+            names.append(axis.name)
+            base = f"axes.{axis.name}"
+            out[f"{base}.slave"] = slave.name
+            out[f"{base}.mode"] = axis.mode
+            out[f"{base}.position_limits"] = [float(x) for x in axis.position_limits]
+            out[f"{base}.velocity_limit"] = float(axis.velocity_limit)
+            out[f"{base}.torque_limit"] = float(axis.torque_limit)
+    if names:
+        out["axis_joints"] = names
     return out
 
 

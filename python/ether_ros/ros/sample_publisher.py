@@ -5,8 +5,8 @@ per cycle into a lock-free ring; this Python thread drains the ring through ``Bu
 and publishes
 
 - ``pdo_raw`` every ``raw_decimation`` cycles (the whole image, inputs and outputs),
-- ``pdo_in`` / ``pdo_out`` (decoded values per slave) and ``joint_states`` every
-  ``decoded_decimation`` cycles.
+- ``pdo_in`` / ``pdo_out`` (decoded values per slave) and ``joint_states`` (the ``joints:``
+  mappings and every CiA 402 axis, SI units) every ``decoded_decimation`` cycles.
 
 When ROS falls behind (a batch holds more than ``max_backlog`` samples) the oldest samples are
 skipped and counted in ``dropped``; the engine counts the samples it could not even queue
@@ -70,11 +70,16 @@ class SamplePublisher:
         feed_watchdog: Callable[[], bool],
         max_backlog: int = 5000,
         poll_s: float = 0.002,
+        axis_joints: Callable[[], list[tuple[str, float, float, float]]] | None = None,
     ) -> None:
         self._bus = bus
         self._spec = spec
         self._pub = publishers
         self._joints = joints
+        # CiA 402 axes: (joint, position, velocity, effort) in SI, read from the engine's axis
+        # status when a joint_states message is built (so at most one cycle newer than the
+        # sample it goes with).
+        self._axis_joints = axis_joints
         self.rates = rates
         self._feed_watchdog = feed_watchdog
         self._max_backlog = max_backlog
@@ -213,7 +218,7 @@ class SamplePublisher:
                 msg.cycle = cycle
                 msg.values = values
                 self._pub[topic].publish(msg)
-        if self._joints:
+        if self._joints or self._axis_joints is not None:
             self._pub["joint_states"].publish(self._joint_state(stamp, inputs_by_slave))
         self.counters.published_decoded += 1
 
@@ -236,6 +241,14 @@ class SamplePublisher:
                 vel.append(raw(j.slave, j.velocity) * j.velocity_scale)
             if with_effort:
                 eff.append(raw(j.slave, j.effort) * j.effort_scale)
+        if self._axis_joints is not None:
+            for name, p, v, e in self._axis_joints():
+                names.append(name)
+                pos.append(p)
+                if with_velocity:
+                    vel.append(v)
+                if with_effort:
+                    eff.append(e)
         msg.name = names
         msg.position = pos
         msg.velocity = vel

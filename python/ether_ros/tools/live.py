@@ -31,6 +31,17 @@ class SlaveRow:
 
 
 @dataclass
+class AxisRow:
+    """A CiA 402 axis: its joint, CiA 402 state, mode, position (SI) and error."""
+
+    joint: str
+    state: str
+    mode: str
+    position: float
+    error: str = ""  # "0x2310 continuous over-current" (the last fault, when recovered)
+
+
+@dataclass
 class LiveSnapshot:
     bus: str = ""
     cycle_us: int = 0
@@ -41,6 +52,7 @@ class LiveSnapshot:
     dc_sync_error_ns: float | None = None
     panic: bool = False
     slaves: list[SlaveRow] = field(default_factory=list)
+    axes: list[AxisRow] = field(default_factory=list)
     # Recent per-cycle values, µs (what the histograms are made of).
     wake_latency_us: Sequence[float] = ()
     exec_us: Sequence[float] = ()
@@ -99,6 +111,16 @@ def stats_text(s: LiveSnapshot) -> str:
     return "\n".join(lines)
 
 
+def axes_text(s: LiveSnapshot) -> str:
+    """The CiA 402 axes, one line each (empty for a bus without axes)."""
+    if not s.axes:
+        return ""
+    lines = [f"{'joint':<16} {'state':<24} {'mode':<5} {'position':>10}  error"]
+    for a in s.axes:
+        lines.append(f"{a.joint:<16} {a.state:<24} {a.mode:<5} {a.position:10.4f}  {a.error}")
+    return "\n".join(lines)
+
+
 def timing_text(s: LiveSnapshot) -> str:
     panels = (
         ("wake_latency", "wake-up latency", s.wake_latency_us),
@@ -127,6 +149,7 @@ class TopApp(App[None]):
     CSS = """
     #stats { height: auto; padding: 0 1; }
     #slaves { height: auto; max-height: 50%; }
+    #axes { height: auto; padding: 0 1; }
     #timing { height: auto; padding: 0 1; }
     """
 
@@ -142,6 +165,7 @@ class TopApp(App[None]):
             yield Static("", id="stats")
             with Horizontal():
                 yield DataTable(id="slaves", cursor_type="row", zebra_stripes=True)
+            yield Static("", id="axes")
             yield Static("", id="timing")
         yield Footer()
 
@@ -159,6 +183,7 @@ class TopApp(App[None]):
         self.snapshot = snapshot
         self.sub_title = snapshot.source
         self.query_one("#stats", Static).update(stats_text(snapshot))
+        self.query_one("#axes", Static).update(axes_text(snapshot))
         self.query_one("#timing", Static).update(timing_text(snapshot))
         table = self.query_one("#slaves", DataTable)
         table.clear()
@@ -247,6 +272,7 @@ class BusLiveSource:
             )
         dc = self._columns["dc_diff_ns"]
         return LiveSnapshot(
+            axes=[axis_row(a.name, a.mode, a.status()) for a in getattr(self.bus, "axes", list)()],
             bus=str(cfg.name),
             cycle_us=int(cfg.cycle_us),
             cycles=int(stat(stats, "cycles")),
@@ -268,16 +294,30 @@ class BusLiveSource:
             self.bus.close()
 
 
+def axis_row(joint: str, mode: str, status: dict[str, Any]) -> AxisRow:
+    """A row from an ``Axis.status()`` (a standalone bus)."""
+    from ether_ros.ros.error_codes import describe
+
+    code = int(status["error_code"]) or int(status["last_fault_code"])
+    return AxisRow(
+        joint, str(status["state"]), mode, float(status["position"]), describe(code) if code else ""
+    )
+
+
 def snapshot_from_diagnostics(
-    master: dict[str, str], slaves: dict[str, tuple[str, dict[str, str]]], bus: str = ""
+    master: dict[str, str],
+    slaves: dict[str, tuple[str, dict[str, str]]],
+    bus: str = "",
+    axes: dict[str, dict[str, str]] | None = None,
 ) -> LiveSnapshot:
     """A snapshot from the node's diagnostics (``ether_ros.ros.diagnostics``).
 
     ``master``: the key/values of the "<node>: master" status (cycles, lost_frames,
     late_frames, wkc_errors, panic, <h>_p50_ns/_p99_ns/_max_ns for the loop timing,
     dc_sync_error_max_ns). ``slaves``: slave name -> (message, key/values of its status:
-    position, al_state, al_error, al_status_code). The node sends quantiles, not every cycle,
-    so the timing is shown as p50/p99/max.
+    position, al_state, al_error, al_status_code). ``axes``: joint -> key/values of its
+    "axis" status (state, mode, position, error_code/_text, last_fault_code/_text). The node
+    sends quantiles, not every cycle, so the timing is shown as p50/p99/max.
     """
 
     def num(key: str, default: float = 0.0) -> float:
@@ -305,7 +345,21 @@ def snapshot_from_diagnostics(
                 num(f"{h}_max_ns") / 1000,
             )
     dc = master.get("dc_sync_error_max_ns")
+    axis_rows = []
+    for joint, kv in (axes or {}).items():
+        code, text = kv.get("error_code", "0x0000"), kv.get("error_text", "")
+        if code == "0x0000" and kv.get("last_fault_code", "0x0000") != "0x0000":
+            code, text = kv["last_fault_code"], kv.get("last_fault_text", "")
+        try:
+            joint_position = float(kv.get("position", "nan"))
+        except ValueError:
+            joint_position = math.nan
+        shown = f"{code} {text}" if code != "0x0000" else ""
+        axis_rows.append(
+            AxisRow(joint, kv.get("state", "?"), kv.get("mode", "?"), joint_position, shown)
+        )
     return LiveSnapshot(
+        axes=axis_rows,
         bus=bus,
         cycles=int(num("cycles")),
         lost_frames=int(num("lost_frames")),
@@ -347,6 +401,7 @@ class DiagnosticsLiveSource:
         self._master: dict[str, str] | None = None
         self._node_name = ""
         self._slaves: dict[str, tuple[str, dict[str, str]]] = {}
+        self._axes: dict[str, dict[str, str]] = {}
         self._node.create_subscription(DiagnosticArray, topic, self._on_message, 10)
         self._bus_name = ""
         self._cycle_us = 0
@@ -375,6 +430,8 @@ class DiagnosticsLiveSource:
                 self._master, self._node_name = values, node.lstrip("/")
             elif what.startswith("slave "):
                 self._slaves[what[len("slave ") :]] = (status.message, values)
+            elif what.startswith("axis "):
+                self._axes[what[len("axis ") :]] = values
 
     def poll(self) -> LiveSnapshot:
         self._rclpy.spin_once(self._node, timeout_sec=0.0)
@@ -382,7 +439,7 @@ class DiagnosticsLiveSource:
             return LiveSnapshot(
                 source="ROS 2 diagnostics", error="waiting for the node's diagnostics"
             )
-        snap = snapshot_from_diagnostics(self._master, self._slaves, self._bus_name)
+        snap = snapshot_from_diagnostics(self._master, self._slaves, self._bus_name, self._axes)
         snap.cycle_us = self._cycle_us
         snap.source = f"node {self._node_name}, {snap.source}"
         return snap

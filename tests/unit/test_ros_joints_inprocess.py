@@ -1,0 +1,260 @@
+"""CiA 402 axes as ROS joints, with the node and the simulator's cia402 drives in one process
+(config/arm6.yaml): joint_states, joint_commands, joint_trajectory, the axis services and the
+axis diagnostics, and refusals that write nothing. The acceptance test does the same over veth
+with the node and the client in separate processes."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from test_ros_node_inprocess import running_node
+
+from ether_ros.ros.client import EtherRosClient
+from ether_ros.ros.node import EtherRosNode
+
+pytestmark = [pytest.mark.ros]
+
+ARM = Path(__file__).resolve().parents[2] / "config" / "arm6.yaml"
+JOINTS = ["shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3"]
+
+
+@pytest.fixture(scope="module")
+def arm() -> Iterator[tuple[EtherRosNode, EtherRosClient, Any]]:
+    with running_node(5, ARM) as (node, client, net):
+        ok, message = node.run_command("start")
+        assert ok, message
+        ok, message, states = client.axis_command("enable")
+        assert ok, message
+        assert states == dict.fromkeys(JOINTS, "operation_enabled")
+        yield node, client, net
+
+
+def joint_positions(client: EtherRosClient) -> dict[str, float]:
+    msg = client.wait_for(lambda latest: latest.joint_state)
+    return dict(zip(msg.name, msg.position, strict=True))
+
+
+def wait_position(client: EtherRosClient, joint: str, target: float, timeout: float = 5.0) -> None:
+    deadline = time.monotonic() + timeout
+    while abs(joint_positions(client)[joint] - target) > 0.01:
+        if time.monotonic() > deadline:
+            raise AssertionError(f"{joint} at {joint_positions(client)[joint]}, not {target}")
+        time.sleep(0.05)
+
+
+def command_seq(node: EtherRosNode) -> dict[str, int]:
+    return {name: int(axis.status()["command_seq"]) for name, axis in node._axes.items()}
+
+
+def refusal(client: EtherRosClient, before: int) -> str:
+    client.wait_for(lambda _l: len(client.joint_results) > before)
+    result = client.joint_results[before]
+    assert not result.success
+    return str(result.message)
+
+
+def test_joint_states_has_every_axis_in_si(arm: Any) -> None:
+    _node, client, _net = arm
+    msg = client.wait_for(lambda latest: latest.joint_state)
+    assert list(msg.name) == JOINTS
+    assert len(msg.position) == len(msg.velocity) == len(msg.effort) == len(JOINTS)
+    assert all(abs(p) < 3.2 for p in msg.position)  # radians, not encoder counts
+
+
+def test_joint_commands_move_the_named_joints_only(arm: Any) -> None:
+    node, client, _net = arm
+    before = joint_positions(client)
+    native = node.joint_command_path_counters()["applied"]
+    client.publish_joint_command(["elbow", "wrist_2"], position=[0.4, -0.3])
+    wait_position(client, "elbow", 0.4)
+    wait_position(client, "wrist_2", -0.3)
+    assert abs(joint_positions(client)["shoulder_pan"] - before["shoulder_pan"]) < 0.01
+    # written by the native thread, not by Python
+    assert node.joint_command_path_counters()["applied"] == native + 1
+
+
+@pytest.mark.parametrize(
+    ("names", "arrays", "why"),
+    [
+        (["nope"], {"position": [0.1]}, "unknown joint 'nope'"),
+        (["elbow"], {"position": [math.nan]}, "not a finite number"),
+        (["elbow"], {"position": [9.0]}, "outside the limits"),
+        (["elbow"], {"velocity": [0.1]}, "takes a position, got velocity"),
+        (["elbow", "wrist_1"], {"position": [0.1]}, "1 value(s) for 2 joint name(s)"),
+        (["elbow", "elbow"], {"position": [0.1, 0.2]}, "named twice"),
+        # one bad joint: the good one is not written either
+        (["wrist_1", "elbow"], {"position": [0.2, 7.0]}, "outside the limits"),
+    ],
+)
+def test_bad_joint_commands_are_refused_and_write_nothing(
+    arm: Any, names: list[str], arrays: dict[str, list[float]], why: str
+) -> None:
+    node, client, _net = arm
+    seq = command_seq(node)
+    deferred = node.joint_command_path_counters()["deferred"]
+    before = len(client.joint_results)
+    client.publish_joint_command(names, **arrays)
+    assert why in refusal(client, before)
+    assert command_seq(node) == seq
+    assert node.joint_command_path_counters()["deferred"] == deferred + 1  # Python refused it
+
+
+def test_joint_trajectory_runs_in_time(arm: Any) -> None:
+    _node, client, _net = arm
+    elbow = joint_positions(client)["elbow"]
+    before = len(client.joint_results)
+    client.publish_trajectory(["shoulder_lift", "wrist_1"], [(0.4, [0.3, -0.2]), (0.8, [0.5, 0.1])])
+    client.wait_for(lambda _l: len(client.joint_results) > before)
+    assert client.joint_results[before].success, client.joint_results[before].message
+    wait_position(client, "shoulder_lift", 0.5)
+    wait_position(client, "wrist_1", 0.1)
+    assert abs(joint_positions(client)["elbow"] - elbow) < 0.01  # not in it: kept its command
+
+
+@pytest.mark.parametrize(
+    ("names", "points", "why"),
+    [
+        (["nope"], [(0.5, [0.1])], "unknown joint"),
+        (["elbow"], [(0.5, [0.1]), (0.5, [0.2])], "not after the previous"),
+        (["elbow"], [(0.5, [math.nan])], "not finite"),
+        (["elbow"], [(0.5, [5.0])], "outside the limits"),
+        (["elbow"], [(0.001 * (i + 1), [0.0]) for i in range(2000)], "at most"),
+        (["elbow"], [], "no points"),
+    ],
+)
+def test_bad_trajectories_are_refused_and_write_nothing(
+    arm: Any, names: list[str], points: list[tuple[float, list[float]]], why: str
+) -> None:
+    node, client, _net = arm
+    seq = command_seq(node)
+    before = len(client.joint_results)
+    client.publish_trajectory(names, points)
+    assert why in refusal(client, before)
+    assert command_seq(node) == seq
+
+
+def test_trajectory_stamp_in_the_past_is_refused(arm: Any) -> None:
+    _node, client, _net = arm
+    before = len(client.joint_results)
+    client.publish_trajectory(["elbow"], [(0.5, [0.1])], start=time.time() - 5)
+    assert "in the past" in refusal(client, before)
+
+
+def test_services_refuse_bad_input(arm: Any) -> None:
+    _node, client, _net = arm
+    ok, message, _ = client.axis_command("disable", ["nope"])
+    assert not ok and "unknown joint(s) 'nope'" in message
+    ok, message, _ = client.set_mode("warp", ["elbow"])
+    assert not ok and "unknown mode 'warp'" in message
+
+
+def test_set_mode_disable_enable(arm: Any) -> None:
+    node, client, _net = arm
+    ok, message, states = client.set_mode("csv", ["wrist_3"])
+    assert ok, message
+    assert node._axes["wrist_3"].status()["mode_display"] == "csv"
+    before = len(client.joint_results)
+    client.publish_joint_command(["wrist_3"], position=[0.1])  # csv takes a velocity
+    assert "takes a velocity, got position" in refusal(client, before)
+    ok, message, states = client.set_mode("csp", ["wrist_3"])
+    assert ok, message
+    ok, message, states = client.axis_command("disable", ["wrist_3"])
+    assert ok and states == {"wrist_3": "switch_on_disabled"}, message
+    ok, message, states = client.axis_command("enable", ["wrist_3"])
+    assert ok and states == {"wrist_3": "operation_enabled"}, message
+
+
+def test_injected_fault_shows_in_diagnostics_with_its_text(arm: Any) -> None:
+    node, client, net = arm
+    faults = int(node._axes["wrist_1"].status()["faults"])
+    net.fault("drive_fault", slave=1, error="encoder", axis=2)  # elbow_drive axis 2: wrist_1
+
+    def reported(_latest: Any) -> dict[str, str] | None:
+        st = client.axis_states().get("wrist_1")
+        return st if st and int(st["faults"]) > faults else None
+
+    st = client.wait_for(reported, timeout=10)
+    assert st["last_fault_code"] == "0x7305"
+    assert st["last_fault_text"] == "incremental encoder 1 fault"
+    assert "0x7305 incremental encoder 1 fault" in st["message"]
+    ok, message, states = client.axis_command("reset_fault", ["wrist_1"])
+    assert ok, message
+    ok, message, states = client.axis_command("enable", ["wrist_1"])
+    assert ok and states == {"wrist_1": "operation_enabled"}, message
+
+
+def test_joint_commands_refused_when_not_active(arm: Any) -> None:
+    node, client, _net = arm
+    ok, message = node.run_command("stop")
+    assert ok, message
+    try:
+        before = len(client.joint_results)
+        client.publish_joint_command(["elbow"], position=[0.1])
+        assert "the node is inactive" in refusal(client, before)
+        ok, message, _ = client.axis_command("enable")
+        assert not ok and "inactive" in message
+    finally:
+        node.run_command("start")
+        client.axis_command("enable")
+
+
+def test_the_console_operates_the_axes(arm: Any) -> None:
+    from ether_ros.console.app import Console
+
+    node, client, _net = arm
+    lines: list[str] = []
+    console = Console(client, out=lines.append)
+    seq = command_seq(node)
+    console.line("move elbow 9")  # refused by the console: nothing is sent
+    assert "outside the limits [-2.5, 2.5]" in lines[-1]
+    assert command_seq(node) == seq
+    console.line("move elbow -0.25")
+    assert lines[-1] == "sent elbow position=-0.25"
+    wait_position(client, "elbow", -0.25)
+    console.line("set_mode elbow warp")
+    assert "unknown mode 'warp'" in lines[-1]
+    console.line("disable elbow")
+    assert lines[-1].startswith("disable done (elbow: switch_on_disabled)")
+    console.line("enable all")
+    assert lines[-1].startswith("enable done (shoulder_pan: operation_enabled")
+
+
+def test_a_slow_enable_holds_up_no_other_callback(arm: Any, monkeypatch: Any) -> None:
+    """An enable waits for the drive (seconds, for a slow one): the lifecycle service, joint
+    commands and trajectories are still served meanwhile. The drive is the faked layer here: its
+    enable blocks until released."""
+    import threading
+
+    node, client, _net = arm
+    release = threading.Event()
+    entered = threading.Event()
+
+    def slow_enable(timeout: float = 2.0) -> None:
+        entered.set()
+        release.wait(10)
+
+    monkeypatch.setattr(node._axes["wrist_2"], "enable", slow_enable)
+    answer: list[Any] = []
+    caller = threading.Thread(
+        target=lambda: answer.append(client.axis_command("enable", ["wrist_2"]))
+    )
+    caller.start()
+    try:
+        assert entered.wait(5)
+        assert client.get_state(timeout=2) == "active"
+        before = len(client.joint_results)
+        client.publish_trajectory(["wrist_1"], [(0.3, [0.05])])
+        client.wait_for(lambda _l: len(client.joint_results) > before, timeout=2)
+        assert client.joint_results[before].success
+        client.publish_joint_command(["elbow"], position=[0.15])
+        wait_position(client, "elbow", 0.15, timeout=2)
+        assert not answer  # the enable is still waiting
+    finally:
+        release.set()
+        caller.join(10)
+    assert answer and answer[0][0], answer
