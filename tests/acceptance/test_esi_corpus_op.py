@@ -43,8 +43,9 @@ def test_corpus_device_reaches_op_and_loops_back(file: str, device: str) -> None
     esi = CORPUS / file
     with (
         VethPair.create(netns=True) as veth,
-        SimProcess(None, veth.slave, veth.netns, ["--esi", str(esi), "--device", device,
-                                                  "--count", "2"]) as sim,  # fmt: skip
+        SimProcess(
+            None, veth.slave, veth.netns, ["--esi", str(esi), "--device", device, "--count", "2"]
+        ) as sim,  # fmt: skip
     ):
         assert sim.ready_line.endswith(f"2 slaves on {veth.slave} ready")
         cfg = bus_config_for_esi(esi, device, 2, interface=veth.master)
@@ -55,9 +56,7 @@ def test_corpus_device_reaches_op_and_loops_back(file: str, device: str) -> None
             layout = slave.layout
             pairs = loopback_pairs(slave.esi)
             assert pairs, f"{device}: no output has an input partner"
-            out_var = next(
-                v for v in layout.outputs if (v.index, v.subindex) == pairs[0][:2]
-            )
+            out_var = next(v for v in layout.outputs if (v.index, v.subindex) == pairs[0][:2])
             in_var = next(v for v in layout.inputs if (v.index, v.subindex) == pairs[0][2:])
             value = _value_for(out_var.data_type, out_var.bit_length)
             bus.write(slave.name, out_var.name, value)

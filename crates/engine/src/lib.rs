@@ -33,6 +33,7 @@ use handover::mailbox_state;
 pub use handover::{flags, SampleRecord, RECORD_LEN};
 pub use link::{InProcessLink, Link, RawSocketLink, Received, Responder};
 pub use plan::Plan;
+
 use stats::Summary;
 
 use ether_ros_wire::MAX_FRAME_LEN;
@@ -79,6 +80,17 @@ enum LinkState {
 pub struct StatsSnapshot {
     pub counters: Vec<(&'static str, u64)>,
     pub histograms: Vec<(&'static str, Summary)>,
+    /// Per cyclic frame of the current (or last) run, in plan order.
+    pub frames: Vec<FrameSnapshot>,
+}
+
+/// One cyclic frame's counters and round trip.
+#[derive(Clone, Debug, Default)]
+pub struct FrameSnapshot {
+    /// Sent every this many cycles.
+    pub every: u32,
+    pub counters: Vec<(&'static str, u64)>,
+    pub rtt: Summary,
 }
 
 pub struct Engine {
@@ -608,6 +620,24 @@ impl Engine {
                 .iter()
                 .map(|(n, h)| (*n, h.summary()))
                 .collect(),
+            frames: lock(&self.exchange)
+                .as_ref()
+                .map(|ex| {
+                    ex.frames
+                        .iter()
+                        .zip(&ex.plan.frames)
+                        .map(|(f, p)| FrameSnapshot {
+                            every: p.every,
+                            counters: f
+                                .named()
+                                .iter()
+                                .map(|(n, c)| (*n, c.load(Ordering::Relaxed)))
+                                .collect(),
+                            rtt: f.rtt.summary(),
+                        })
+                        .collect()
+                })
+                .unwrap_or_default(),
         }
     }
 
@@ -629,6 +659,9 @@ impl Engine {
             }
         }
         self.shared.stats.reset();
+        if let Some(ex) = lock(&self.exchange).as_ref() {
+            ex.frames.iter().for_each(stats::FrameStats::reset);
+        }
     }
 
     /// Latch the safe image onto the wire from the next cyclic frame on.

@@ -24,6 +24,7 @@
 //! | `pdram_kib` | int | process-data RAM size in KiB (register 0x0006), 1..=60; default the chip's (ET1100 8, ET1200 1, LAN9252 4) |
 //! | `loopback_links` | list[(out_index, out_sub, in_index, in_sub)] | output → input pairs of the `loopback` model (built by `ether_ros.sim.spec.loopback_pairs`) |
 //! | `esc` | str | slave controller chip whose registers the ESC presents: "et1100" (default), "et1200", "lan9252" |
+//! | `lrw` | bool | False: the ESC reports "LRW not supported" (0x0008 bit 9) and ignores LRW datagrams (no data, no working counter); default True |
 //! | `safeop_op_timeout_ms` | int | how long a SAFEOP->OP request waits for valid outputs before it is refused (ESI `<SafeopOpTimeout>`, default 10000) |
 
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -93,6 +94,7 @@ fn parse_spec(spec: &Bound<'_, PyDict>) -> PyResult<SlaveSpec> {
         "esc",
         "safeop_op_timeout_ms",
         "loopback_links",
+        "lrw",
     ];
     for k in spec.keys() {
         let k: String = k
@@ -223,6 +225,9 @@ fn parse_spec(spec: &Bound<'_, PyDict>) -> PyResult<SlaveSpec> {
     }
     if let Some(name) = get::<String>(spec, "esc", "str")? {
         s.esc = EscChip::from_name(&name).map_err(|e| bad_key("esc", &e))?;
+    }
+    if let Some(lrw) = get::<bool>(spec, "lrw", "bool")? {
+        s.lrw_supported = lrw;
     }
     if let Some(ms) = get::<u32>(spec, "safeop_op_timeout_ms", "int >= 0")? {
         s.safeop_op_timeout_ms = ms;

@@ -259,7 +259,11 @@ impl Esc {
         self.mem[reg::SM_COUNT as usize] = chip.sync_managers;
         self.mem[reg::RAM_SIZE as usize] = ((self.pdram_end - REGISTER_END) / 1024) as u8;
         self.mem[reg::PORT_DESC as usize] = chip.port_descriptor;
-        self.put16(reg::FEATURES, chip.features(self.spec.dc_supported));
+        let mut features = chip.features(self.spec.dc_supported);
+        if !self.spec.lrw_supported {
+            features |= crate::chip::feature::LRW_NOT_SUPPORTED;
+        }
+        self.put16(reg::FEATURES, features);
         self.put16(reg::WATCHDOG_DIVIDER, DEFAULT_WD_DIVIDER);
         self.put16(reg::WATCHDOG_TIME_PDI, DEFAULT_WD_TIME);
         self.put16(reg::WATCHDOG_TIME_PD, DEFAULT_WD_TIME);
@@ -758,7 +762,7 @@ impl Esc {
 
     /// Process a logical datagram (`data` covers logical bytes from `laddr`). `incoming` holds
     /// the data as it arrived when the command both reads and writes. Returns the working
-    /// counter increment (+1 read, +2 write).
+    /// counter increment (LRW: +1 read, +2 write; LRD, LWR: +1).
     pub fn logical(
         &mut self,
         laddr: u32,
@@ -768,6 +772,11 @@ impl Esc {
         incoming: &mut Vec<u8>,
     ) -> u16 {
         if self.fmmus.is_empty() || data.is_empty() {
+            return 0;
+        }
+        let rw = reads && writes;
+        if rw && !self.spec.lrw_supported {
+            // 0x0008 bit 9: this ESC ignores LRW; the working counter stays as it came.
             return 0;
         }
         let d0 = laddr as u64 * 8;
@@ -783,7 +792,6 @@ impl Esc {
         if !any {
             return 0;
         }
-        let rw = reads && writes;
         if rw {
             incoming.clear();
             incoming.extend_from_slice(data);
@@ -804,7 +812,10 @@ impl Esc {
                 write_ok |= self.fmmu_write(&f, d0, d1, src);
             }
         }
-        read_ok as u16 + 2 * write_ok as u16
+        // ESC datasheet, "Working counter": LRW counts +1 for a read and +2 for a write; LRD
+        // and LWR count +1 each.
+        let write_increment = if rw { 2 } else { 1 };
+        read_ok as u16 + write_increment * write_ok as u16
     }
 
     fn fmmu_read(&mut self, f: &Fmmu, d0: u64, d1: u64, data: &mut [u8]) -> bool {
