@@ -541,6 +541,7 @@ impl SimNetwork {
         d.set_item("dc_drift_ppm", s.dc.drift_ppm())?;
         d.set_item("dc_correction_ppm", s.dc.correction_ppm())?;
         d.set_item("sync0_active", s.sync0_active())?;
+        d.set_item("sync0_cycle_ns", s.get32(reg::DC_SYNC0_CYCLE))?;
         d.set_item("watchdog_expired", s.watchdog_expired)?;
         d.set_item("refuse_op", s.refuse_op)?;
         d.set_item("mailbox_stalled", s.mailbox_stalled)?;
@@ -549,6 +550,7 @@ impl SimNetwork {
         d.set_item("inputs_bytes", s.in_map.bytes())?;
         let c = &s.counters;
         d.set_item("frames", c.frames)?;
+        d.set_item("process_data_frames", c.process_data_frames)?;
         d.set_item("device_steps", c.device_steps)?;
         d.set_item("device_steps_skipped", c.device_steps_skipped)?;
         d.set_item("sync0_events", c.sync0_events)?;

@@ -39,6 +39,9 @@ const MAILBOX_QUEUE_LIMIT: usize = 32;
 #[derive(Clone, Debug, Default)]
 pub struct SlaveCounters {
     pub frames: u64,
+    /// Frames in which a logical datagram reached this slave's FMMUs (its process data went
+    /// by): with groups at their own cycles, this is the slave's own exchange rate.
+    pub process_data_frames: u64,
     pub device_steps: u64,
     pub device_steps_skipped: u64,
     pub sync0_events: u64,
@@ -120,6 +123,8 @@ pub struct Esc {
     op_pending_since: Option<u64>,
     pub mailbox_stalled: bool,
     pub counters: SlaveCounters,
+    /// A logical datagram of the current frame hit an FMMU.
+    process_data_seen: bool,
 }
 
 impl Esc {
@@ -206,6 +211,7 @@ impl Esc {
             op_pending_since: None,
             mailbox_stalled: false,
             counters: SlaveCounters::default(),
+            process_data_seen: false,
             spec,
         };
         esc.power_on_registers();
@@ -792,6 +798,7 @@ impl Esc {
         if !any {
             return 0;
         }
+        self.process_data_seen = true;
         if rw {
             incoming.clear();
             incoming.extend_from_slice(data);
@@ -1372,6 +1379,9 @@ impl Esc {
 
     /// Per-frame work after the datagrams: free-run output latch and the mailbox.
     pub fn after_frame(&mut self) {
+        if std::mem::take(&mut self.process_data_seen) {
+            self.counters.process_data_frames += 1;
+        }
         if !self.sync0_active() {
             self.latch_outputs();
         }

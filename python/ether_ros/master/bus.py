@@ -39,6 +39,7 @@ from ether_ros.master import bringup
 from ether_ros.master.al import AlState, AlStateMachine, AlStatus, al_code_text
 from ether_ros.master.datagrams import DatagramService
 from ether_ros.master.dc import EPOCH_2000_S, DcSlave, DistributedClocks
+from ether_ros.master.groups import GroupStats, group_stats
 from ether_ros.master.pdo import select_pdos
 from ether_ros.master.plan import (
     DcPlan,
@@ -556,10 +557,20 @@ class Bus:
         return s.layout.unpack(data, "input")
 
     def stats(self) -> dict[str, Any]:
+        """The engine's counters and histograms (with ``frames``: per cyclic frame), ``groups``
+        (per slave group, ``master/groups.py``) and the supervisor's counters."""
         out: dict[str, Any] = dict(self.engine.stats())
+        out["groups"] = [g.as_dict() for g in self.group_stats(out)]
         if self.supervisor is not None:
             out["supervisor"] = self.supervisor.counters()
         return out
+
+    def group_stats(self, engine_stats: dict[str, Any] | None = None) -> list[GroupStats]:
+        """Each slave group's frames, rate, working counter and frame statistics."""
+        if self.layout is None:
+            return []
+        stats = engine_stats if engine_stats is not None else dict(self.engine.stats())
+        return group_stats(self.layout, stats, self.cycle_ns)
 
     # ---------------------------------------------------------------------------- safety
     def panic(self) -> None:
