@@ -185,3 +185,27 @@ def test_groups_run_at_their_own_rate_and_a_lost_group_does_not_disturb_the_othe
             "the I/O group's working counter",
             lambda: {g.name: g for g in bus.group_stats()}["io"].wkc_ok,
         )
+
+
+def test_line128_reaches_op_at_1khz_with_the_expected_working_counter(
+    veth_ns: VethPair,
+) -> None:
+    path = REPO / "config" / "line128.yaml"
+    cfg = _config(path, veth_ns.master)
+    # A shared 2-core VM: no CPU pinning, no mlockall of the test process.
+    cfg.bus.realtime.cpu = None
+    cfg.bus.realtime.lock_memory = False
+    with SimProcess(path, veth_ns.slave, veth_ns.netns), Bus.open(cfg) as bus:
+        bus.start()
+        assert len(bus.slaves) == 128 and bus.cycle_ns == 1_000_000
+        assert {s.state for s in bus.states()} == {"OP"}
+        assert bus.layout is not None and len(bus.layout.frames) >= 3
+        # 32 legs and 32 drives with outputs and inputs (+3 each), 64 I/O boxes (+3 each).
+        assert bus.layout.expected_wkc == 128 * 3
+        expected = [f.expected_wkc for f in bus.layout.frames]
+        wait_for(
+            "every frame's working counter",
+            lambda: [f["last_wkc"] for f in _frames(bus)] == expected,
+        )
+        samples = bus.samples()
+        assert int(samples.records["wkc"].max()) == 128 * 3

@@ -208,6 +208,10 @@ pub struct Cyclic {
     rtt_ns: u32,
     send_ns: u64,
     wkc: u16,
+    /// Working counter of each frame's reply processed this cycle (bit k of `wkc_seen`): when
+    /// two replies of one frame come in one cycle, the newer counts.
+    frame_wkc: Vec<u16>,
+    wkc_seen: u32,
     dc_diff_ns: i32,
     lost_mask: u32,
 }
@@ -224,6 +228,8 @@ impl Cyclic {
             link,
             tx: layout.frames.iter().map(|f| f.template.clone()).collect(),
             last_processed: vec![None; layout.frames.len()],
+            frame_wkc: vec![0; layout.frames.len()],
+            wkc_seen: 0,
             rx: vec![0u8; MAX_FRAME_LEN],
             live_out: image.clone(),
             scratch: image.clone(),
@@ -283,6 +289,7 @@ impl Cyclic {
             self.flags = std::mem::take(&mut carry_flags);
             self.rtt_ns = 0;
             self.wkc = 0;
+            self.wkc_seen = 0;
             self.dc_diff_ns = 0;
             self.lost_mask = 0;
             self.ref_sample = None;
@@ -488,7 +495,11 @@ impl Cyclic {
             total = total.wrapping_add(w);
             bad |= w != *expected;
         }
-        self.wkc = self.wkc.wrapping_add(total);
+        self.frame_wkc[p.frame] = total;
+        self.wkc_seen |= 1 << p.frame;
+        self.wkc = (0..self.frame_wkc.len())
+            .filter(|k| self.wkc_seen & (1 << k) != 0)
+            .fold(0u16, |sum, k| sum.wrapping_add(self.frame_wkc[k]));
         stats.last_wkc.store(total as u64, Ordering::Relaxed);
         if bad {
             self.flags |= flags::WKC_ERROR;

@@ -51,6 +51,7 @@ from ether_ros.master.plan import (
 )
 from ether_ros.master.samples import Samples, decode_samples
 from ether_ros.master.scan import Expected, FoundSlave, match_configuration, scan
+from ether_ros.master.shared_frames import run_in_parallel
 from ether_ros.master.slave import Slave
 from ether_ros.master.supervisor import BusEvent, Supervisor
 
@@ -284,8 +285,7 @@ class Bus:
             self._reset_and_verify()
             refs = [s.ref for s in self.slaves]
             self.al.transition(refs, AlState.INIT)
-            for s in self.slaves:
-                bringup.setup_mailbox(self.dg, s)
+            run_in_parallel(self.dg, self.slaves, bringup.setup_mailbox)
             self.al.transition(refs, AlState.PREOP)
             bringup.configure_all_preop(self.dg, self.slaves)
             dc_slaves = [s.dc for s in self.slaves if s.dc is not None]
