@@ -289,7 +289,7 @@ class BusLiveSource:
                     g.expected_wkc,
                 )
                 for g in self.bus.group_stats(stats)
-            ],  # fmt: skip
+            ],
             wake_latency_us=list(self._columns["wake_latency_ns"]),
             exec_us=list(self._columns["exec_ns"]),
             period_us=list(self._columns["period_ns"]),
