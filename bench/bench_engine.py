@@ -131,7 +131,8 @@ def _merge(hists: list[LatencyHistogram]) -> LatencyHistogram:
     )
 
 
-def _address_slaves(engine: Any) -> None:
+def address_slaves(engine: Any) -> None:
+    """Station addresses 0x1001.. for the simulated legs (no FMMUs: frames pass through)."""
     [(_d, wkc)] = engine.transact([("BRD", 0, 2)], timeout_us=500_000, retries=10)
     if wkc != LEGS:
         raise ToolError(f"expected {LEGS} simulated slaves, BRD counted {wkc}")
@@ -151,7 +152,7 @@ def run(report: Report) -> None:
     with VethPair.create(netns=True) as veth, simulator(CONFIG, veth.slave, veth.netns):
         engine = _native.Engine.open_interface(veth.master)
         try:
-            _address_slaves(engine)
+            address_slaves(engine)
             for order in ("send_at_wake", "send_then_wait"):
                 # Engine and cyclictest take turns in short windows, so both see the same
                 # (shared, changing) machine load.

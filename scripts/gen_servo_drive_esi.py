@@ -76,7 +76,10 @@ AXIS_VARS = (
     Var(0x6064, "Position actual value", "DINT", "ro", "T"),
     Var(0x6065, "Following error window", "UDINT", "rw", "", COUNTS_PER_REV),
     Var(0x6066, "Following error time out", "UINT", "rw", "", 10),
+    # Target reached windows of PP (1 % of a motor revolution) and PV (0.1 motor rev/s).
+    Var(0x6067, "Position window", "UDINT", "rw", "", COUNTS_PER_REV // 100),
     Var(0x606C, "Velocity actual value", "DINT", "ro", "T"),
+    Var(0x606D, "Velocity window", "UINT", "rw", "", COUNTS_PER_REV // 10),
     Var(0x6071, "Target torque", "INT", "rw", "R"),
     Var(0x6072, "Max torque", "UINT", "rw", "R", MAX_TORQUE_PERMILLE),
     Var(0x6076, "Motor rated torque", "UDINT", "rw", "", RATED_TORQUE_MNM),

@@ -33,6 +33,8 @@ AXIS_OBJECTS = {
     0x60F4: (dt.INT32.code, "ro"),
     0x6065: (dt.UINT32.code, "rw"),
     0x6066: (dt.UINT16.code, "rw"),
+    0x6067: (dt.UINT32.code, "rw"),
+    0x606D: (dt.UINT16.code, "rw"),
     0x6502: (dt.UINT32.code, "ro"),
     0x6076: (dt.UINT32.code, "rw"),
     0x6072: (dt.UINT16.code, "rw"),

@@ -724,6 +724,8 @@ pub struct AxisController {
     fault_since: i64,
     retries: u32,
     operation_enabled_since: Option<i64>,
+    /// When the previous cycle ran (for the CSP step limit).
+    last_step_ns: Option<i64>,
     /// pp: a new set-point waits for the drive's acknowledge.
     pp_new_setpoint: bool,
     pub status: AxisStatus,
@@ -757,6 +759,7 @@ impl AxisController {
             retries: 0,
             operation_enabled_since: None,
             pp_new_setpoint: false,
+            last_step_ns: None,
             status: AxisStatus::default(),
             plan,
         }
@@ -921,14 +924,18 @@ impl AxisController {
                     Some(kind) => {
                         self.seq_seen = cmd.seq;
                         self.trajectory_running = false;
-                        if kind == SetpointKind::Position {
+                        if kind == SetpointKind::Position && cmd.mode == Mode::ProfilePosition {
+                            // The drive plans the motion itself and latches the target with
+                            // the new set-point bit: hand it over whole, not interpolated.
+                            self.interpolator.reset(cmd.value);
+                            self.pp_new_setpoint = true;
+                        } else if kind == SetpointKind::Position {
                             self.interpolator.push(
                                 cmd.value,
                                 cmd.t_ns,
                                 cycle_ns,
                                 self.plan.interpolation_max_ns,
                             );
-                            self.pp_new_setpoint = true;
                         } else {
                             self.setpoint_value = cmd.value;
                         }
@@ -964,8 +971,12 @@ impl AxisController {
                     let hi = limits.position_max.max(self.target_position);
                     let mut p = wanted.clamp(lo, hi);
                     if cmd.mode == Mode::CyclicPosition {
-                        // No step larger than the velocity limit allows in one cycle.
-                        let step = limits.velocity_max * cycle_ns as f64 * 1e-9;
+                        // No step larger than the velocity limit allows since the last cycle
+                        // (a late wake-up may have skipped one: the path still moved on).
+                        let elapsed = self
+                            .last_step_ns
+                            .map_or(cycle_ns, |t| (now - t).max(cycle_ns));
+                        let step = limits.velocity_max * elapsed as f64 * 1e-9;
                         p = p.clamp(self.target_position - step, self.target_position + step);
                     }
                     if p != wanted {
@@ -1002,6 +1013,8 @@ impl AxisController {
                 _ => {}
             }
         }
+
+        self.last_step_ns = Some(now);
 
         // Into the image.
         io[map.controlword..map.controlword + 2].copy_from_slice(&cw.to_le_bytes());
@@ -1564,6 +1577,36 @@ mod tests {
         assert_eq!(at(200), 50);
         assert_eq!(at(250), 50, "held at the last point");
         assert_ne!(b.status().flags & status_flags::TRAJECTORY_DONE, 0);
+    }
+
+    #[test]
+    fn profile_position_hands_the_target_over_with_the_new_setpoint_bit() {
+        let mut p = plan();
+        p.mode = Mode::ProfilePosition;
+        let mut b = Bench::new(p, DriveState::SwitchOnDisabled, 0);
+        b.command.enable = true;
+        b.send();
+        b.run(10);
+        b.command.seq += 1;
+        b.command.setpoint_kind = SetpointKind::Position as u8;
+        b.command.value = 2.0;
+        b.command.t_ns = b.now;
+        b.send();
+        b.cycle(false);
+        // The whole target with bit 4 (new set-point) and bit 5 (change immediately) at once.
+        assert_eq!(read_i32(&b.io, TPOS), 2000);
+        assert_eq!(read_u16(&b.io, CW), 0x000F | 0x0030);
+        b.cycle(false);
+        assert_eq!(
+            read_u16(&b.io, CW) & 0x0010,
+            0x0010,
+            "held until acknowledged"
+        );
+        // The drive acknowledges (statusword bit 12): bit 4 drops.
+        let mut io = b.io.clone();
+        io[SW..SW + 2].copy_from_slice(&(0x0027u16 | word::SETPOINT_ACK).to_le_bytes());
+        b.axes.step(&mut io, b.now, CYCLE, false, &b.ex);
+        assert_eq!(read_u16(&io, CW) & 0x0010, 0);
     }
 
     #[test]

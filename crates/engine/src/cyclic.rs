@@ -2,7 +2,7 @@
 //! cycle it makes only the cycle's own syscalls (clock_nanosleep, send, recvmsg/ppoll) and hands
 //! data to Python through the lock-free structures of `handover`.
 
-use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU8, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, AtomicU8, Ordering};
 use std::sync::Arc;
 
 use ether_ros_wire::{self as wire, MAX_FRAME_LEN};
@@ -40,6 +40,8 @@ pub struct Shared {
     pub acyclic_index: AtomicU8,
     /// Cycle time of the running plan (for waiters), ns.
     pub cycle_ns: AtomicI64,
+    /// Cyclic runs started so far (each Exchange gets the next number).
+    pub runs: AtomicU64,
 }
 
 /// The buffers of one cyclic run, shared with Python.
@@ -56,6 +58,8 @@ pub struct Exchange {
     pub axes: AxisExchange,
     /// Counters and round trip per cyclic frame, in plan order.
     pub frames: Box<[FrameStats]>,
+    /// Which cyclic run of the engine this is (1, 2, ...; 0 before `start_cyclic` numbers it).
+    pub run: u64,
 }
 
 impl Exchange {
@@ -83,6 +87,7 @@ impl Exchange {
             image: SeqBuffer::new(&plan.initial_image),
             ring: SampleRing::new(plan.ring_capacity, plan.image_len),
             axes: AxisExchange::new(&plan.axes, plan.trajectory_capacity),
+            run: 0,
             plan,
         }
     }

@@ -102,9 +102,9 @@ pub struct Engine {
     /// Serialises writers of the output buffer (the seqlock allows one writer); holds the
     /// scratch bytes `write_output_fields` merges fields into, reused from call to call.
     output_writer: Mutex<Vec<u8>>,
-    /// Serialises writers of the axis command slots; holds each axis's command as last written
-    /// (tagged with the exchange it belongs to, so a new cyclic run starts afresh).
-    axis_writer: Mutex<Vec<(usize, AxisCommand)>>,
+    /// Serialises writers of the axis command slots; holds each axis's command as last written,
+    /// with the cyclic run (`Exchange::run`) they belong to, so a new run starts afresh.
+    axis_writer: Mutex<(u64, Vec<AxisCommand>)>,
     /// Serialises consumers of the sample ring.
     drain: Mutex<()>,
     description: String,
@@ -136,7 +136,7 @@ impl Engine {
             exchange: Mutex::new(None),
             acyclic: Mutex::new(()),
             output_writer: Mutex::new(Vec::new()),
-            axis_writer: Mutex::new(Vec::new()),
+            axis_writer: Mutex::new((0, Vec::new())),
             drain: Mutex::new(()),
             description,
         }
@@ -308,7 +308,9 @@ impl Engine {
         };
         let rt = plan.rt;
         let cycle_ns = plan.cycle_ns;
-        let ex = Arc::new(Exchange::new(plan, &layout));
+        let mut ex = Exchange::new(plan, &layout);
+        ex.run = self.shared.runs.fetch_add(1, Ordering::Relaxed) + 1;
+        let ex = Arc::new(ex);
         let shared = self.shared.clone();
         shared.stop.store(false, Ordering::Release);
         shared.alive.store(false, Ordering::Release);
@@ -466,20 +468,17 @@ impl Engine {
     fn update_axis(&self, axis: usize, change: impl FnOnce(&mut AxisCommand)) -> Result<()> {
         let ex = self.exchange()?;
         let mut slots = lock(&self.axis_writer);
-        if slots.len() != ex.plan.axes.len()
-            || slots
-                .first()
-                .is_some_and(|s| s.0 != Arc::as_ptr(&ex) as usize)
-        {
+        if slots.0 != ex.run {
             // A new cyclic run: start again from the plan's initial commands.
-            *slots = ex
+            slots.0 = ex.run;
+            slots.1 = ex
                 .plan
                 .axes
                 .iter()
-                .map(|a| (Arc::as_ptr(&ex) as usize, AxisCommand::initial(a.mode)))
+                .map(|a| AxisCommand::initial(a.mode))
                 .collect();
         }
-        let Some((_, cmd)) = slots.get_mut(axis) else {
+        let Some(cmd) = slots.1.get_mut(axis) else {
             return Err(Error::Invalid(format!(
                 "axis index {axis} is out of range (the plan has {} axes)",
                 ex.plan.axes.len()
@@ -550,7 +549,7 @@ impl Engine {
             return self.update_axis(axis, |_| {});
         };
         let writer = lock(&self.axis_writer);
-        let seq = writer.get(axis).map_or(0, |s| s.1.seq) + 1;
+        let seq = writer.1.get(axis).map_or(0, |c| c.seq) + 1;
         let mut bytes = vec![0u8; cia402::TRAJECTORY_HEADER + points.len() * cia402::POINT_LEN];
         bytes[..8].copy_from_slice(&seq.to_le_bytes());
         for (p, b) in points

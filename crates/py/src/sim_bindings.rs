@@ -14,7 +14,7 @@
 //! | `sii` | bytes | the SII EEPROM image |
 //! | `objects` | list[(index, name, object_code)] | CoE objects |
 //! | `entries` | list[(index, subindex, name, data_type, bit_length, access, pdo_mappable, default)] | CoE entries; `access` is 'ro', 'rw' or 'wo'; `default` is little-endian bytes or None (zeros) |
-//! | `device` | str | firmware model for `devices::create` ("none" default, "laelaps_leg", "generic_io") |
+//! | `device` | str | firmware model for `devices::create` ("none" default, "laelaps_leg", "generic_io", "cia402", "loopback") |
 //! | `params` | dict[str, float] | device parameters |
 //! | `drift_ppm` | float | clock drift of the slave's local clock (default 0) |
 //! | `delay_ns` | int | propagation delay from the previous slave (or the master) to this one (default 500) |
@@ -388,7 +388,8 @@ impl SimNetwork {
 
     /// Inject a fault: drop(rate, burst=1, outbound=False), corrupt(rate, bytes=1), delay(us), reset(slave),
     /// refuse_op(slave, on=True), link(up, at=None), drift_step(slave, ppm),
-    /// stall_mailbox(slave, on=True), seed(seed), clear(). `slave`/`at` are positions;
+    /// stall_mailbox(slave, on=True), drive_fault(slave, error, axis=1) (a CiA 402 drive fault:
+    /// over_current, encoder, under_voltage, following_error), seed(seed), clear(). `slave`/`at` are positions;
     /// `pos` and `enable` are accepted as other names for `slave`/`at` and `on`.
     #[pyo3(signature = (kind, **kwargs))]
     fn fault<'py>(
@@ -405,12 +406,13 @@ impl SimNetwork {
             "refuse_op" | "stall_mailbox" => &["slave", "on"],
             "link" => &["up", "at"],
             "drift_step" => &["slave", "ppm"],
+            "drive_fault" => &["slave", "error", "axis"],
             "seed" => &["seed"],
             "clear" => &[],
             other => {
                 return Err(PyValueError::new_err(format!(
                     "unknown fault '{other}' (drop, corrupt, delay, reset, refuse_op, link, \
-                     drift_step, stall_mailbox, seed, clear)"
+                     drift_step, stall_mailbox, drive_fault, seed, clear)"
                 )))
             }
         };
@@ -496,6 +498,13 @@ impl SimNetwork {
                 let s = slave(&mut net, pos)?;
                 let d = s.dc.drift_ppm();
                 s.dc.set_drift(now, d + ppm);
+            }
+            "drive_fault" => {
+                let pos: usize = need(kw(kwargs, "slave", kind)?, kind, "slave")?;
+                let error: String = need(kw(kwargs, "error", kind)?, kind, "error")?;
+                let axis = kw::<usize>(kwargs, "axis", kind)?.unwrap_or(1);
+                net.inject_device_fault(pos, &error, axis)
+                    .map_err(PyValueError::new_err)?;
             }
             "seed" => net.rng = Rng::new(need(kw(kwargs, "seed", kind)?, kind, "seed")?),
             "clear" => {

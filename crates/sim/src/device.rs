@@ -7,6 +7,15 @@
 
 use crate::od::ObjectDictionary;
 
+/// A CoE emergency a firmware raises (ETG.1000.6 / CiA 301): error code, error register
+/// (0x1001) and five manufacturer-specific bytes. The ESC sends it through the mailbox.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Emergency {
+    pub error_code: u16,
+    pub error_register: u8,
+    pub data: [u8; 5],
+}
+
 /// A slave's firmware model.
 pub trait DeviceApp: Send {
     /// Period of the firmware's control loop in nanoseconds (the Laelaps leg: 100 µs, 10 kHz).
@@ -20,6 +29,21 @@ pub trait DeviceApp: Send {
 
     /// Power-on reset (fault injection "reset slave", or the simulator starting).
     fn reset(&mut self, od: &mut ObjectDictionary);
+
+    /// Inject a device-level fault (the simulator's `drive_fault`): `fault` names it, `axis`
+    /// (1-based) says where. Devices without injectable faults refuse.
+    fn inject_fault(&mut self, fault: &str, axis: usize) -> Result<(), String> {
+        let _ = axis;
+        Err(format!(
+            "this device model has no injectable faults (got '{fault}')"
+        ))
+    }
+
+    /// The oldest CoE emergency raised and not yet taken (the ESC drains them after each
+    /// step and queues them in the mailbox).
+    fn take_emergency(&mut self) -> Option<Emergency> {
+        None
+    }
 
     /// Named physical state for tests, plots and the simulator front (SI units).
     fn probe(&self) -> Vec<(&'static str, f64)> {

@@ -1330,6 +1330,7 @@ impl Esc {
                 if let Some(d) = self.device.as_mut() {
                     d.step(&mut self.od, t, valid);
                 }
+                self.send_device_emergencies();
                 self.counters.device_steps += 1;
                 self.app_next_step = self
                     .app_next_step
@@ -1341,6 +1342,17 @@ impl Esc {
         // Time passes for a pending SAFEOP->OP request too (its timeout), before the frame's
         // datagrams read the AL status.
         self.resolve_pending_op();
+    }
+
+    /// Queue the CoE emergencies the firmware raised (a slave with a mailbox, past INIT, as
+    /// for the state machine's own emergencies); they are dropped otherwise.
+    fn send_device_emergencies(&mut self) {
+        while let Some(e) = self.device.as_mut().and_then(|d| d.take_emergency()) {
+            if self.mailbox.is_some() && self.al_state != reg::al::INIT {
+                let msg = CoeServer::emergency(e.error_code, e.error_register, e.data);
+                self.queue_mailbox(reg::mbx::TYPE_COE, msg);
+            }
+        }
     }
 
     fn watchdog_ns(&self) -> u64 {

@@ -135,6 +135,28 @@ impl Network {
         true
     }
 
+    /// Inject a fault into the firmware model of slave `pos` (e.g. a CiA 402 drive fault on
+    /// one axis); an error names what is wrong (no slave, no model, unknown fault, no axis).
+    pub fn inject_device_fault(
+        &mut self,
+        pos: usize,
+        fault: &str,
+        axis: usize,
+    ) -> Result<(), String> {
+        let Some(esc) = self.slaves.get_mut(pos) else {
+            return Err(format!("no slave at position {pos}"));
+        };
+        let name = esc.spec.name.clone();
+        match esc.device.as_mut() {
+            Some(d) => d
+                .inject_fault(fault, axis)
+                .map_err(|e| format!("slave {pos} ({name}): {e}")),
+            None => Err(format!(
+                "slave {pos} ({name}) runs no firmware model (device 'none')"
+            )),
+        }
+    }
+
     /// Number of slaves a frame reaches (a broken link hides the rest of the line).
     fn reach(&self) -> usize {
         self.faults

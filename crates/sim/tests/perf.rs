@@ -69,3 +69,60 @@ fn cyclic_frame_cost_for_four_legs() {
         per_frame * 20_000.0 * 100.0
     );
 }
+
+/// Cost of one drive period of the 2-axis CiA 402 model in CSP (a ramp on both axes) next to
+/// one period of the Laelaps leg firmware measured in the same run (run on demand:
+/// `cargo test -p ether-ros-sim --release --test perf cia402 -- --ignored --nocapture`).
+#[test]
+#[ignore]
+fn cia402_step_cost_next_to_the_leg() {
+    use ether_ros_sim::device::DeviceApp;
+    use ether_ros_sim::devices::{cia402, laelaps_leg};
+
+    let periods = 200_000u64;
+    let mut od = cia402::dictionary(2);
+    let mut drive = cia402::Cia402Drive::new(cia402::Cia402Config::from_params(&[]).unwrap());
+    drive.reset(&mut od);
+    let mut now = 0u64;
+    drive.step(&mut od, now, true);
+    for axis in [0u16, 0x800] {
+        od.set_int(0x6060 + axis, 0, 8);
+        for word in [0x06, 0x07, 0x0F] {
+            od.set_int(0x6040 + axis, 0, word);
+            for _ in 0..8 {
+                now += cia402::PERIOD_NS;
+                drive.step(&mut od, now, true);
+            }
+        }
+    }
+    let t = Instant::now();
+    for k in 0..periods {
+        if k % 8 == 0 {
+            let target = (k / 8) as i64 * 20;
+            od.set_int(0x607A, 0, target);
+            od.set_int(0x687A, 0, -target);
+        }
+        now += cia402::PERIOD_NS;
+        drive.step(&mut od, now, true);
+    }
+    let drive_ns = t.elapsed().as_nanos() as f64 / periods as f64;
+    assert_eq!(od.get_int(0x6041, 0) & 0x6F, 0x27, "still enabled");
+
+    let mut od = laelaps_leg::object_dictionary();
+    let config = laelaps_leg::LaelapsLegConfig::from_params(&[]).unwrap();
+    let mut leg = laelaps_leg::LaelapsLeg::new(config);
+    leg.reset(&mut od);
+    let mut now = 0u64;
+    let t = Instant::now();
+    for _ in 0..periods {
+        now += laelaps_leg::PERIOD_NS;
+        leg.step(&mut od, now, true);
+    }
+    let leg_ns = t.elapsed().as_nanos() as f64 / periods as f64;
+    println!(
+        "cia402 (2 axes) {drive_ns:.0} ns per 125 µs period ({:.2} % of a core); laelaps leg \
+         {leg_ns:.0} ns per 100 µs period; ratio {:.2}",
+        drive_ns / 125_000.0 * 100.0,
+        drive_ns / leg_ns
+    );
+}

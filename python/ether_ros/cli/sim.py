@@ -22,6 +22,7 @@ _FAULT_HELP = {
     "link": "pull (down) or plug (up) the cable; --at SLAVE breaks the link before that slave",
     "drift-step": "change a slave's clock drift by PPM",
     "stall-mailbox": "a slave stops answering mailbox requests (--off to stop)",
+    "drive-fault": "raise a fault in one axis of a CiA 402 drive (cleared by a fault reset)",
     "clear": "remove all faults",
     "stats": "print the simulator's frame counters (JSON)",
     "slave-info": "print a slave's ESC state (JSON)",
@@ -77,9 +78,41 @@ def register(subparsers: Any) -> None:
     k = kinds.add_parser("drift-step", help=_FAULT_HELP["drift-step"])
     k.add_argument("slave", help="slave name or position")
     k.add_argument("ppm", type=float)
+    k = kinds.add_parser("drive-fault", help=_FAULT_HELP["drive-fault"])
+    k.add_argument("slave", help="slave name or position")
+    k.add_argument("error", type=_drive_fault, help="over_current, encoder, under_voltage or"
+                   " following_error")  # fmt: skip
+    k.add_argument("--axis", type=_axis, default=1, help="axis 1..8 of the drive (default 1)")
     kinds.add_parser("clear", help=_FAULT_HELP["clear"])
     kinds.add_parser("stats", help=_FAULT_HELP["stats"])
     f.set_defaults(func=run_fault)
+
+
+def _drive_fault(text: str) -> str:
+    """A drive fault name for ``drive-fault`` (the control socket's table; imported only when
+    parsing one, so the command line starts without the simulator front)."""
+    from ether_ros.sim.control import DRIVE_FAULTS
+
+    if text not in DRIVE_FAULTS:
+        raise argparse.ArgumentTypeError(
+            f"unknown drive fault {text!r} (known: {', '.join(DRIVE_FAULTS)})"
+        )
+    return text
+
+
+def _axis(text: str) -> int:
+    """An axis number for ``drive-fault --axis`` (1-based)."""
+    from ether_ros.sim.control import MAX_AXES
+
+    try:
+        axis = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"axis must be a number 1..{MAX_AXES}, got {text!r}"
+        ) from None
+    if not 1 <= axis <= MAX_AXES:
+        raise argparse.ArgumentTypeError(f"axis must be 1..{MAX_AXES}, got {axis}")
+    return axis
 
 
 def run_sim(args: argparse.Namespace) -> int:
@@ -167,6 +200,8 @@ def fault_request(args: argparse.Namespace) -> dict[str, Any]:
             req.update(at=args.at)
     elif name == "drift-step":
         req.update(slave=args.slave, ppm=args.ppm)
+    elif name == "drive-fault":
+        req.update(slave=args.slave, error=args.error, axis=args.axis)
     return req
 
 

@@ -9,6 +9,7 @@ name things the device has and that the values fit their types. Every error is a
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -23,6 +24,7 @@ from pydantic import (
     model_validator,
 )
 
+from ether_ros.config import cia402
 from ether_ros.config import types as dt
 from ether_ros.config.esi import EsiDevice, esi_files, load_esi
 from ether_ros.config.process import ProcessLayout, ProcessValueError
@@ -37,11 +39,20 @@ SIM_DEVICES = ("laelaps_leg", "generic_io", "none")
 SIM_DEVICE_FOR_ESI = {"LaelapsII_Leg": "laelaps_leg", "GenericIO": "generic_io"}
 
 
+# Device profile number of CiA 402 drives (IEC 61800-7-201), in ``<Profile><ProfileNo>``.
+CIA402_PROFILE = 402
+
+
 def default_sim_device(esi: EsiDevice) -> str:
     """The simulator's firmware model for a device when the config names none: the model
-    written for it, else the generic ``loopback`` (outputs copied to matching inputs), so that
-    any ESI runs on the simulator."""
-    return SIM_DEVICE_FOR_ESI.get(esi.type_name, "loopback")
+    written for it, the ``cia402`` drive model for any CiA 402 device (profile 402), else the
+    generic ``loopback`` (outputs copied to matching inputs), so that any ESI runs on the
+    simulator."""
+    if esi.type_name in SIM_DEVICE_FOR_ESI:
+        return SIM_DEVICE_FOR_ESI[esi.type_name]
+    if CIA402_PROFILE in esi.profile_numbers:
+        return "cia402"
+    return "loopback"
 
 
 def _parse_int(value: Any) -> Any:
@@ -152,8 +163,29 @@ class Joint(_Model):
     effort_scale: float = 1.0
 
 
+class AxisConfig(_Model):
+    """One axis (joint) of a CiA 402 drive: position = raw × position_scale + position_offset
+    (rad or m), velocity = raw × velocity_scale, torque = raw × torque_scale."""
+
+    name: Identifier
+    mode: Literal["csp", "csv", "cst", "pp", "pv", "hm"] = "csp"
+    position_scale: float = 1.0
+    position_offset: float = 0.0
+    velocity_scale: float = 1.0
+    torque_scale: float = 1.0
+    # [min, max] in SI; velocity_limit and torque_limit are |max| in SI.
+    position_limits: tuple[float, float] = (-math.inf, math.inf)
+    velocity_limit: float = math.inf
+    torque_limit: float = math.inf
+    following_error_window: float = 0.0
+    on_stop: Literal["quick_stop", "disable"] = "quick_stop"
+    fault_reset: Literal["auto", "manual"] = "auto"
+    fault_retries: int = Field(default=3, ge=0, le=100)
+    fault_backoff_ms: float = Field(default=100.0, ge=0.0, le=60_000.0)
+
+
 class SimConfig(_Model):
-    device: Literal["laelaps_leg", "generic_io", "loopback", "none"] | None = None
+    device: Literal["laelaps_leg", "generic_io", "cia402", "loopback", "none"] | None = None
     # The slave controller chip whose registers the virtual slave presents (docs/simulator.md).
     esc: Literal["et1100", "et1200", "lan9252"] = "et1100"
     params: dict[str, float] = Field(default_factory=dict)
@@ -189,10 +221,15 @@ class SlaveConfig(_Model):
     joints: list[Joint] = Field(default_factory=list)
     # False: LRD + LWR instead of LRW (also chosen when the ESC reports LRW unsupported).
     lrw: bool = True
+    # CiA 402 drives (docs/cia402.md): the profile (also taken from the ESI's ProfileNo 402
+    # when axes are given) and one entry per axis.
+    profile: Literal["cia402"] | None = None
+    axes: list[AxisConfig] = Field(default_factory=list, max_length=cia402.MAX_AXES)
     sim: SimConfig = Field(default_factory=SimConfig)
     _esi: EsiDevice | None = PrivateAttr(default=None)
     _layout: ProcessLayout | None = PrivateAttr(default=None)
     _safe_image: bytes = PrivateAttr(default=b"")
+    _axis_specs: list[cia402.AxisSpec] = PrivateAttr(default_factory=list)
 
     @model_validator(mode="after")
     def _identified(self) -> SlaveConfig:
@@ -218,6 +255,11 @@ class SlaveConfig(_Model):
     def safe_output_image(self) -> bytes:
         """The slave's output area with ``safe_outputs`` applied (other variables 0)."""
         return self._safe_image
+
+    @property
+    def axis_specs(self) -> list[cia402.AxisSpec]:
+        """The slave's CiA 402 axes, resolved against its PDO layout."""
+        return list(self._axis_specs)
 
     @property
     def sim_device(self) -> str:
@@ -263,6 +305,9 @@ class BusConfig(_Model):
     def group_of(self, slave: str) -> GroupConfig | None:
         """The group ``slave`` belongs to; None for the default group."""
         return next((g for g in self.groups if slave in g.slaves), None)
+    def axis_specs(self) -> list[cia402.AxisSpec]:
+        """Every CiA 402 axis of the bus, in bus order."""
+        return [a for s in self.slaves for a in s.axis_specs]
 
     def joint_specs(self) -> list[JointSpec]:
         """Every slave's ``joints``, in bus order, each with the slave it reads from."""
@@ -503,6 +548,34 @@ def _resolve_slave(
 ) -> None:
     rx = s.pdo_assign.rx if s.pdo_assign is not None else None
     tx = s.pdo_assign.tx if s.pdo_assign is not None else None
+    is_drive = s.profile == "cia402" or (
+        bool(s.axes) and cia402.PROFILE_NUMBER in dev.profile_numbers
+    )
+    if s.axes and not is_drive:
+        raise err((*at, "axes"), f"axes need a CiA 402 drive: {dev.type_name} has no ProfileNo "
+                  "402 in its ESI; give profile: cia402 if it is one", None, False)  # fmt: skip
+    if is_drive and not s.axes:
+        raise err((*at, "profile"), "a cia402 slave needs axes: (one entry per axis)", s.profile)
+    if is_drive:
+        s.profile = "cia402"
+        auto_rx, auto_tx = cia402.auto_assign(dev, len(s.axes))
+        if rx is None and tuple(auto_rx) != dev.default_rx_pdos():
+            rx = auto_rx
+        if tx is None and tuple(auto_tx) != dev.default_tx_pdos():
+            tx = auto_tx
+        mapped = cia402.extend_mapping(
+            dev,
+            rx if rx is not None else dev.default_rx_pdos(),
+            tx if tx is not None else dev.default_tx_pdos(),
+            s.axes,
+        )
+        if mapped is not dev:
+            # The PDO contents change: the master writes assignment and mapping in PREOP.
+            dev = s._esi = mapped
+            rx = list(rx if rx is not None else dev.default_rx_pdos())
+            tx = list(tx if tx is not None else dev.default_tx_pdos())
+        if rx is not None or tx is not None:
+            s.pdo_assign = PdoAssign(rx=rx, tx=tx)
     for kind, chosen, pdos in (("rx", rx, dev.rx_pdos), ("tx", tx, dev.tx_pdos)):
         if chosen is None:
             continue
@@ -531,6 +604,18 @@ def _resolve_slave(
     except ConfigError as exc:
         raise err((*at, "pdo_assign"), str(exc), None, False) from None
     s._layout = layout
+
+    for j, axis in enumerate(s.axes):
+        if axis.name in joints:
+            raise err((*at, "axes", j, "name"), f"duplicate joint name (also in slave "
+                      f"{joints[axis.name]})", axis.name)  # fmt: skip
+        joints[axis.name] = s.name
+    s._axis_specs = cia402.resolve_axes(dev, layout, s.name, s.axes, at, err)
+    # An axis whose 0x6060 is not in the PDOs gets its mode once, in PREOP.
+    given = {(i.index, i.subindex) for i in s.sdo_init}
+    for index, code in cia402.mode_sdo_inits(s._axis_specs):
+        if (index, 0) not in given:
+            s.sdo_init.append(SdoInit(index=index, subindex=0, value=code, type="int8"))
 
     safe = bytearray(layout.output_bytes)
     for var_name, value in s.safe_outputs.items():

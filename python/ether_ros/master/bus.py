@@ -26,6 +26,7 @@ from typing import Any
 
 from ether_ros.config import types as dt
 from ether_ros.config.bus import DEFAULT_GROUP
+from ether_ros.config.cia402 import AxisSpec
 from ether_ros.config.esi import EsiDevice
 from ether_ros.config.process import (
     ProcessLayout,
@@ -35,6 +36,7 @@ from ether_ros.config.process import (
     write_bits,
 )
 from ether_ros.errors import BusError, ConfigError, EtherRosError, LinkError
+from ether_ros.master import axis as axis_mod
 from ether_ros.master import bringup
 from ether_ros.master.al import AlState, AlStateMachine, AlStatus, al_code_text
 from ether_ros.master.datagrams import DatagramService
@@ -56,6 +58,9 @@ from ether_ros.master.slave import Slave
 from ether_ros.master.supervisor import BusEvent, Supervisor
 
 log = logging.getLogger(__name__)
+
+# How long stop() gives the drives to leave Operation Enabled after their on_stop command.
+AXIS_STOP_WAIT_S = 0.5
 
 __all__ = ["Bus", "BusEvent"]
 
@@ -109,6 +114,8 @@ class Bus:
         self._closed = False
         self._listeners: list[Callable[[BusEvent], None]] = []
         self.supervisor: Supervisor | None = None
+        # Image byte → axis name of the output bytes the engine's axis stage owns (lazily).
+        self._axis_owned: dict[int, str] | None = None
 
     # ---------------------------------------------------------------------------- opening
     @classmethod
@@ -368,7 +375,38 @@ class Bus:
             dc=dc,
             rt=rt_plan,
             watchdog_ns=int(watchdog_ms * 1_000_000),
+            axes=axis_mod.plan_entries(self._axis_specs(), self.layout),
         )
+
+    # ---------------------------------------------------------------------------- axes
+    def _axis_specs(self) -> list[AxisSpec]:
+        specs = getattr(self.config, "axis_specs", None)
+        return list(specs()) if callable(specs) else []
+
+    def axes(self) -> list[axis_mod.Axis]:
+        """Every CiA 402 axis of the bus (docs/cia402.md), in bus order."""
+        return [axis_mod.Axis(self, i, spec) for i, spec in enumerate(self._axis_specs())]
+
+    def axis(self, name: str) -> axis_mod.Axis:
+        """A CiA 402 axis by joint name."""
+        for a in self.axes():
+            if a.name == name:
+                return a
+        names = ", ".join(a.name for a in self.axes()) or "none"
+        raise axis_mod.AxisCommandError(f"no axis {name!r} on this bus (axes: {names})")
+
+    def _stop_axes(self) -> None:
+        """Every axis to its on_stop command, and a moment for the drives to leave Operation
+        Enabled (bounded: the stop goes on the wire whatever the drives answer)."""
+        specs = self._axis_specs()
+        for i in range(len(specs)):
+            self.engine.axis_enable(i, False)
+        deadline = time.monotonic() + AXIS_STOP_WAIT_S
+        while specs and time.monotonic() < deadline:
+            states = [self.engine.axis_status(i)["state"] for i in range(len(specs))]
+            if "operation_enabled" not in states:
+                break
+            time.sleep(0.005)
 
     def stop(self) -> None:
         """Safe outputs on the wire, slaves to SAFEOP then INIT, cyclic exchange stopped."""
@@ -378,6 +416,7 @@ class Bus:
             self.supervisor.stop()
             self.supervisor = None
         with self._acyclic:
+            self._stop_axes()
             self._outputs = bytearray(self._safe)
             if self._safe:
                 self.engine.write_outputs(0, bytes(self._safe))
@@ -458,6 +497,7 @@ class Bus:
             var = self._variable(s, name)
             if var.direction != "output":
                 raise ProcessValueError(f"{s}: variable {name!r} is an input, not an output")
+            self._refuse_axis_owned(s, var)
             variables.append(var)
         fields: list[tuple[int, int, int]] = []
         for var, value in zip(variables, values.values(), strict=True):
@@ -486,6 +526,19 @@ class Bus:
             fields.append(_output_field(s, var, var.encode(value)))
         self._write_fields(fields)
         return len(targets)
+
+    def _refuse_axis_owned(self, s: Slave, var: ProcessVariable) -> None:
+        """The engine's axis stage writes its drives' controlwords, modes and targets every
+        cycle: a variable write there would be overwritten, so it is refused."""
+        if self.layout is None or s.area is None:
+            return
+        if self._axis_owned is None:
+            self._axis_owned = axis_mod.output_bits(self._axis_specs(), self.layout)
+        owned = self._axis_owned
+        byte = s.area.output_offset + var.bit_offset // 8
+        if byte in owned:
+            raise ProcessValueError(f"{s}: variable {var.name!r} belongs to axis {owned[byte]}; "
+                                    f"command it with bus.axis({owned[byte]!r})")  # fmt: skip
 
     def _write_fields(self, fields: list[tuple[int, int, int]]) -> None:
         """Write validated output fields (image bit offset, bit length, raw) to the engine when

@@ -346,6 +346,8 @@ def build_plan(
     rt: RtPlan,
     watchdog_ns: int,
     ring_capacity: int = 65536,
+    axes: list[dict[str, Any]] | None = None,
+    trajectory_capacity: int = 1024,
 ) -> dict[str, Any]:
     """The dict ``Engine.start_cyclic`` takes (see the engine's plan contract)."""
     if len(safe_outputs) != layout.output_bytes or len(initial_outputs) != layout.output_bytes:
@@ -387,4 +389,7 @@ def build_plan(
         },
         "watchdog_ns": int(watchdog_ns),
         "ring_capacity": int(ring_capacity),
+        # CiA 402 axes (master/axis.py plan_entries): the engine's axis stage.
+        "axes": list(axes or []),
+        "trajectory_capacity": int(trajectory_capacity),
     }

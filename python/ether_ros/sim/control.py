@@ -6,6 +6,8 @@ JSON object per line back::
 
     {"op": "fault", "kind": "drop", "rate": 0.01, "burst": 2}   -> {"ok": true}
     {"op": "fault", "kind": "reset", "slave": "hind_left_leg"}  -> {"ok": true}
+    {"op": "fault", "kind": "drive_fault", "slave": 0, "axis": 2, "error": "encoder"}
+                                                                 -> {"ok": true}
     {"op": "stats"}                                              -> {"ok": true, "result": {...}}
     {"op": "slave_info", "slave": 1}                             -> {"ok": true, "result": {...}}
     {"op": "probe", "slave": 0}                                  -> {"ok": true, "result": {...}}
@@ -52,6 +54,13 @@ class Arg:
     lo: float | None = None
     hi: float | None = None
     default: Any = REQUIRED
+    choices: tuple[str, ...] = ()  # a name out of these (instead of a slave)
+
+
+# Faults of a CiA 402 drive (the simulator's `cia402` model), by the name `drive_fault` takes.
+DRIVE_FAULTS = ("over_current", "encoder", "under_voltage", "following_error")
+# Axes of one drive (ETG.6010: up to 8, objects 0x800 apart); the model checks its own count.
+MAX_AXES = 8
 
 
 # Fault kinds and their arguments: the names passed on to SimNetwork.fault(kind, **args).
@@ -64,6 +73,11 @@ FAULTS: dict[str, dict[str, Arg]] = {
     "link": {"up": Arg(bool), "at": Arg(str, default=OMIT)},
     "drift_step": {"slave": Arg(str), "ppm": Arg(float, -1000.0, 1000.0)},
     "stall_mailbox": {"slave": Arg(str), "on": Arg(bool, default=True)},
+    "drive_fault": {
+        "slave": Arg(str),
+        "error": Arg(str, choices=DRIVE_FAULTS),
+        "axis": Arg(int, 1, MAX_AXES, 1),
+    },
     "seed": {"seed": Arg(int, 0, 2**63 - 1)},
     "clear": {},
 }
@@ -71,6 +85,12 @@ QUERIES = ("stats", "slave_info", "probe")
 
 
 def _check_value(name: str, spec: Arg, value: Any, slaves: Sequence[str]) -> Any:
+    if spec.choices:
+        if not isinstance(value, str) or value not in spec.choices:
+            raise ControlError(
+                f"{name}: unknown value {value!r} (known: {', '.join(spec.choices)})"
+            )
+        return value
     if spec.kind is str:  # a slave: name or position
         if isinstance(value, bool):
             raise ControlError(f"{name}: expected a slave name or position, got {value!r}")

@@ -18,6 +18,7 @@
 use super::leg_kinematics::{forward, inverse, JointAngles};
 use super::leg_physics::{LegParams, LegPhysics};
 use super::od_slots::OdSlots;
+use super::period_clock::PeriodClock;
 use super::trajectory::{Trajectory, TrajectoryParams};
 use crate::device::DeviceApp;
 use crate::od::ObjectDictionary;
@@ -253,7 +254,7 @@ pub struct LaelapsLeg {
     pwm: [f64; 2],
     piv: [Piv; 2],
     filters: [VelocityFilter; 2],
-    last_time_ns: Option<u64>,
+    clock: PeriodClock,
     firmware_time_s: f64,
     unreachable_points: u64,
     /// The commands of the last step with valid outputs (for `probe`).
@@ -280,7 +281,7 @@ impl LaelapsLeg {
             pwm: [0.0; 2],
             piv: [Piv::default(); 2],
             filters: [VelocityFilter::default(); 2],
-            last_time_ns: None,
+            clock: PeriodClock::default(),
             firmware_time_s: 0.0,
             unreachable_points: 0,
             last_commands: None,
@@ -426,25 +427,12 @@ impl DeviceApp for LaelapsLeg {
     }
 
     fn step(&mut self, od: &mut ObjectDictionary, local_time_ns: u64, outputs_valid: bool) {
-        let periods = match self.last_time_ns {
-            None => 1,
-            Some(last) if local_time_ns >= last => {
-                (local_time_ns - last + PERIOD_NS / 2) / PERIOD_NS
-            }
-            // The clock went backwards (its time was set): re-anchor and run one period.
-            Some(last) if last - local_time_ns > PERIOD_NS => 1,
-            Some(_) => 0,
-        };
-        if periods == 0 {
+        let run = self
+            .clock
+            .due(local_time_ns, PERIOD_NS, MAX_CATCH_UP_PERIODS);
+        if run == 0 {
             return;
         }
-        let run = periods.min(MAX_CATCH_UP_PERIODS);
-        self.last_time_ns = Some(match self.last_time_ns {
-            // Advance by whole periods so the firmware keeps its own 10 kHz grid.
-            Some(last) if periods == run && local_time_ns >= last => last + run * PERIOD_NS,
-            // First call, a clock jump, or a capped catch-up: anchor on the present.
-            _ => local_time_ns,
-        });
         self.slots.resolve(od, &OD_KEYS);
         let cmd = outputs_valid.then(|| Commands::read(od, &self.slots));
         if cmd.is_some() {

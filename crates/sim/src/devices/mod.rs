@@ -1,17 +1,20 @@
 //! Device applications (firmware models) the simulator can run behind a virtual ESC.
 
+pub mod cia402;
 pub mod generic_io;
 pub mod laelaps_leg;
 pub mod leg_kinematics;
 pub mod leg_physics;
 pub mod loopback;
 pub mod od_slots;
+pub mod period_clock;
+pub mod servo_motor;
 pub mod trajectory;
 
 use crate::device::DeviceApp;
 
 /// Device kinds `create` knows, for error messages and documentation.
-pub const KINDS: &[&str] = &["laelaps_leg", "generic_io", "loopback", "none"];
+pub const KINDS: &[&str] = &["laelaps_leg", "generic_io", "cia402", "loopback", "none"];
 
 /// Create a device application by its config name. `params` come from the bus config
 /// (`sim.params` of a slave); unknown names are an error naming the kind. `links` are the
@@ -35,6 +38,10 @@ pub fn create(
             Ok(Some(Box::new(laelaps_leg::LaelapsLeg::new(config))))
         }
         "generic_io" => Ok(Some(Box::new(generic_io::GenericIo::from_params(params)?))),
+        "cia402" => {
+            let config = cia402::Cia402Config::from_params(params)?;
+            Ok(Some(Box::new(cia402::Cia402Drive::new(config))))
+        }
         "loopback" => {
             if let Some((name, _)) = params.first() {
                 return Err(format!(

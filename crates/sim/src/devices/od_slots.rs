@@ -34,6 +34,11 @@ impl OdSlots {
         }
     }
 
+    /// Whether key number `slot` exists in the dictionary.
+    pub fn has(&self, slot: usize) -> bool {
+        self.positions.get(slot).copied().flatten().is_some()
+    }
+
     /// Write key number `slot` (as `ObjectDictionary::set_int`).
     pub fn set(&self, od: &mut ObjectDictionary, slot: usize, value: i64) {
         if let Some(pos) = self.positions.get(slot).copied().flatten() {
@@ -116,5 +121,6 @@ mod tests {
             }
         }
         assert_eq!(slots.get(&od, 4), 0);
+        assert!(slots.has(3) && !slots.has(4));
     }
 }

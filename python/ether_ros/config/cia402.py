@@ -1,0 +1,285 @@
+"""CiA 402 (IEC 61800-7-201) drives in the bus configuration: a slave's ``profile: cia402`` and
+its ``axes:``, checked against the ESI, and the PDO entries each axis needs.
+
+Axis ``n`` (0-based) of a multi-axis drive has its objects at the standard index + n × 0x800
+(ETG.6010: 0x6040 → 0x6840 for the second axis). Each axis needs the controlword and the
+statusword, the target of its mode(s), and — when the ESI maps them — the mode objects, the
+actual values, the error code and the following error (docs/cia402.md). When the bus
+configuration gives no ``pdo_assign``, the PDOs that carry those objects are assigned
+automatically (the ESI's default assignment plus any PDO that maps a missing object).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any
+
+from ether_ros.config.esi import EsiDevice, Pdo, PdoEntry
+from ether_ros.config.process import ProcessLayout, ProcessVariable
+
+if TYPE_CHECKING:
+    from ether_ros.config.bus import AxisConfig
+
+PROFILE_NUMBER = 402
+AXIS_STRIDE = 0x800
+MAX_AXES = 8
+
+# Standard objects of axis 0: (name, index, direction, bit length, signed).
+CONTROLWORD = 0x6040
+STATUSWORD = 0x6041
+OBJECTS: dict[str, tuple[int, str, int]] = {
+    "controlword": (0x6040, "output", 16),
+    "statusword": (0x6041, "input", 16),
+    "mode": (0x6060, "output", 8),
+    "mode_display": (0x6061, "input", 8),
+    "target_position": (0x607A, "output", 32),
+    "target_velocity": (0x60FF, "output", 32),
+    "target_torque": (0x6071, "output", 16),
+    "position": (0x6064, "input", 32),
+    "velocity": (0x606C, "input", 32),
+    "torque": (0x6077, "input", 16),
+    "error_code": (0x603F, "input", 16),
+    "following_error": (0x60F4, "input", 32),
+}
+SUPPORTED_MODES = 0x6502
+
+# Mode name → (0x6060 value, bit in 0x6502, the target object it needs in the PDOs).
+MODES: dict[str, tuple[int, int, str | None]] = {
+    "pp": (1, 0, "target_position"),
+    "pv": (3, 2, "target_velocity"),
+    "hm": (6, 5, None),
+    "csp": (8, 7, "target_position"),
+    "csv": (9, 8, "target_velocity"),
+    "cst": (10, 9, "target_torque"),
+}
+# Objects a profile mode (pp, pv, hm) needs in the dictionary besides its target (SDO set-up
+# the drive must have: profile velocity/acceleration, homing method).
+MODE_DICTIONARY: dict[str, tuple[int, ...]] = {
+    "pp": (0x607A, 0x6081, 0x6083),
+    "pv": (0x60FF, 0x6083),
+    "hm": (0x6098,),
+}
+# Objects the axis stage cannot work without, whatever the mode.
+REQUIRED = ("controlword", "statusword")
+
+
+@dataclass(frozen=True)
+class AxisSpec:
+    """A resolved axis: its configuration, its index on the drive and where its objects are
+    in the slave's process areas (variables by role; roles the PDOs do not map are absent)."""
+
+    config: AxisConfig
+    slave: str
+    axis_index: int
+    variables: dict[str, ProcessVariable]
+    # Modes the ESI offers (names), from 0x6502's default when it has one.
+    modes: tuple[str, ...]
+
+    @property
+    def name(self) -> str:
+        return self.config.name
+
+
+ErrorFn = Callable[..., Exception]
+
+
+def object_index(role: str, axis: int) -> int:
+    return OBJECTS[role][0] + axis * AXIS_STRIDE
+
+
+def offered_modes(dev: EsiDevice, axis: int) -> tuple[str, ...]:
+    """The modes 0x6502 (supported drive modes) announces; all of them when the ESI has no
+    default for it (the drive is asked at run time, not here)."""
+    entry = dev.od_entry(SUPPORTED_MODES + axis * AXIS_STRIDE, 0)
+    default = getattr(entry, "default", None) if entry is not None else None
+    if not isinstance(default, bytes | bytearray) or not default:
+        return tuple(MODES)
+    bits = int.from_bytes(default[:4], "little")
+    return tuple(name for name, (_, bit, _t) in MODES.items() if bits >> bit & 1)
+
+
+def needed_roles(mode: str) -> tuple[str, ...]:
+    """Objects the axis cannot run without: controlword, statusword, the mode's target and, in
+    the position modes, the actual position (the target before enabling: no jump)."""
+    target = MODES[mode][2]
+    extra = ("position",) if target == "target_position" else ()
+    return (*REQUIRED, *((target,) if target else ()), *extra)
+
+
+# Objects mapped into a configurable PDO when missing: the needed ones, and the mode objects
+# (so that 0x6060 is written every cycle and 0x6061 confirms it).
+MAPPED_IF_POSSIBLE = ("mode", "mode_display")
+
+
+def extend_mapping(
+    dev: EsiDevice, rx: Sequence[int], tx: Sequence[int], axes: Sequence[AxisConfig]
+) -> EsiDevice:
+    """``dev`` with the objects the axes need appended to the assigned PDOs that lack them, when
+    the device allows PDO configuration (ESI ``<CoE PdoConfig="true">``), the PDO is not fixed
+    and the dictionary marks the object mappable in that direction; else ``dev`` unchanged (the
+    check in ``resolve_axes`` then names what is missing). The master writes the new mapping in
+    PREOP (master/pdo.py)."""
+    if dev.mailbox is None or not dev.mailbox.pdo_config:
+        return dev
+    pdos = {p.index: p for p in (*dev.rx_pdos, *dev.tx_pdos)}
+    chosen = {"rx": [i for i in rx if i in pdos], "tx": [i for i in tx if i in pdos]}
+    changed = False
+    for n, cfg in enumerate(axes):
+        for role in (*needed_roles(cfg.mode), *MAPPED_IF_POSSIBLE):
+            idx = object_index(role, n)
+            kind = "rx" if OBJECTS[role][1] == "output" else "tx"
+            if any(_maps(pdos[i], (idx, 0)) for i in chosen[kind]):
+                continue
+            entry = dev.od_entry(idx, 0)
+            flag = "R" if kind == "rx" else "T"
+            if entry is None or flag not in entry.pdo_mapping:
+                continue
+            target = _pdo_for_axis([pdos[i] for i in chosen[kind]], n)
+            if target is None:
+                continue
+            new = PdoEntry(idx, 0, entry.bit_length, entry.name, entry.data_type, entry.type_name)
+            pdos[target.index] = replace(target, entries=(*target.entries, new))
+            changed = True
+    if not changed:
+        return dev
+    return replace(
+        dev,
+        rx_pdos=tuple(pdos[p.index] for p in dev.rx_pdos),
+        tx_pdos=tuple(pdos[p.index] for p in dev.tx_pdos),
+    )
+
+
+def _pdo_for_axis(candidates: Sequence[Pdo], axis: int) -> Pdo | None:
+    """The configurable PDO that already carries objects of ``axis`` (else the first
+    configurable one)."""
+    lo, hi = 0x6000 + axis * AXIS_STRIDE, 0x6000 + (axis + 1) * AXIS_STRIDE
+    free = [p for p in candidates if not p.fixed]
+    for p in free:
+        if any(lo <= e.index < hi for e in p.entries):
+            return p
+    return free[0] if free else None
+
+
+def wanted_roles() -> tuple[str, ...]:
+    return tuple(OBJECTS)
+
+
+def auto_assign(dev: EsiDevice, axes: int) -> tuple[list[int], list[int]]:
+    """The ESI's default PDO assignment plus every other PDO that maps an object the axes use
+    and the default lacks (skipping PDOs excluded by one already chosen)."""
+    chosen: dict[str, list[int]] = {
+        "rx": list(dev.default_rx_pdos()),
+        "tx": list(dev.default_tx_pdos()),
+    }
+    for kind, pdos in (("rx", dev.rx_pdos), ("tx", dev.tx_pdos)):
+        by_index = {p.index: p for p in pdos}
+        mapped = {
+            (e.index, e.subindex)
+            for i in chosen[kind]
+            if i in by_index
+            for e in by_index[i].entries
+        }
+        direction = "output" if kind == "rx" else "input"
+        for axis in range(axes):
+            for role, (_idx, d, _bits) in OBJECTS.items():
+                want = (object_index(role, axis), 0)
+                if d != direction or want in mapped:
+                    continue
+                for p in pdos:
+                    if p.index in chosen[kind] or not _maps(p, want):
+                        continue
+                    if any(x in chosen[kind] for x in p.excludes):
+                        continue
+                    chosen[kind].append(p.index)
+                    mapped |= {(e.index, e.subindex) for e in p.entries}
+                    break
+    return chosen["rx"], chosen["tx"]
+
+
+def _maps(p: Pdo, key: tuple[int, int]) -> bool:
+    return any((e.index, e.subindex) == key for e in p.entries)
+
+
+def mode_sdo_inits(specs: Sequence[AxisSpec]) -> list[tuple[int, int]]:
+    """(0x6060 index, mode code) of every axis whose mode object is not in the PDOs: the mode
+    is then written once in PREOP, so the drive never runs without one."""
+    return [
+        (object_index("mode", a.axis_index), MODES[a.config.mode][0])
+        for a in specs
+        if "mode" not in a.variables
+    ]
+
+
+def check_axis(cfg: AxisConfig, path: tuple[Any, ...], err: ErrorFn) -> None:
+    """Refuse inconsistent numbers: non-positive or non-finite scales, NaN, min > max."""
+    for key in ("position_scale", "velocity_scale", "torque_scale"):
+        v = getattr(cfg, key)
+        if not math.isfinite(v) or v <= 0:
+            raise err((*path, key), "must be a positive finite number", v)
+    if not math.isfinite(cfg.position_offset):
+        raise err((*path, "position_offset"), "must be a finite number", cfg.position_offset)
+    lo, hi = cfg.position_limits
+    if math.isnan(lo) or math.isnan(hi) or lo > hi:
+        raise err((*path, "position_limits"), "must be [min, max] with min <= max", [lo, hi])
+    for key in ("velocity_limit", "torque_limit"):
+        v = getattr(cfg, key)
+        if math.isnan(v) or v <= 0:
+            raise err((*path, key), "must be positive", v)
+    w = cfg.following_error_window
+    if math.isnan(w) or w < 0 or math.isinf(w):
+        raise err((*path, "following_error_window"), "must be a finite number >= 0", w)
+
+
+def resolve_axes(
+    dev: EsiDevice,
+    layout: ProcessLayout,
+    slave: str,
+    axes: Sequence[AxisConfig],
+    at: tuple[Any, ...],
+    err: ErrorFn,
+) -> list[AxisSpec]:
+    """Check every axis against the ESI and the PDO layout; the error names the axis key,
+    the object and why."""
+    by_key = {(v.index, v.subindex): v for v in layout.variables}
+    specs: list[AxisSpec] = []
+    for n, cfg in enumerate(axes):
+        path = (*at, "axes", n)
+        check_axis(cfg, path, err)
+        modes = offered_modes(dev, n)
+        if cfg.mode not in modes:
+            raise err((*path, "mode"), f"{dev.type_name} axis {n + 1} does not offer this mode "
+                      f"(0x{SUPPORTED_MODES + n * AXIS_STRIDE:04X} supported drive modes: "
+                      f"{', '.join(modes) or 'none'})", cfg.mode)  # fmt: skip
+        for index in MODE_DICTIONARY.get(cfg.mode, ()):
+            idx = index + n * AXIS_STRIDE
+            if dev.objects and dev.od_object(idx) is None:
+                raise err((*path, "mode"), f"mode {cfg.mode} needs object 0x{idx:04X}, which the "
+                          f"{dev.type_name} dictionary lacks", cfg.mode)  # fmt: skip
+        variables: dict[str, ProcessVariable] = {}
+        for role, (_i, direction, bits) in OBJECTS.items():
+            idx = object_index(role, n)
+            var = by_key.get((idx, 0))
+            if var is None:
+                continue
+            if var.direction != direction or var.bit_length != bits or var.bit_offset % 8:
+                raise err(path, f"object 0x{idx:04X} ({role}) is mapped as {var.direction} of "
+                          f"{var.bit_length} bit(s) at bit {var.bit_offset}; the axis needs a "
+                          f"byte-aligned {direction} of {bits} bits", None, False)  # fmt: skip
+            variables[role] = var
+        for role in needed_roles(cfg.mode):
+            if role not in variables:
+                idx = object_index(role, n)
+                kind = "RxPDO" if OBJECTS[role][1] == "output" else "TxPDO"
+                where = "the dictionary" if dev.od_object(idx) is None else f"any assigned {kind}"
+                raise err(path, f"axis {cfg.name} (mode {cfg.mode}) needs object 0x{idx:04X} "
+                          f"({role}), which is not in {where} of {dev.type_name}",
+                          None, False)  # fmt: skip
+        mode_index = object_index("mode", n)
+        if "mode" not in variables and dev.objects and dev.od_object(mode_index) is None:
+            raise err(path, f"axis {cfg.name}: object 0x{mode_index:04X} (modes of operation) is "
+                      f"neither in the PDOs nor in the {dev.type_name} dictionary: the mode "
+                      "cannot be set", None, False)  # fmt: skip
+        specs.append(AxisSpec(cfg, slave, n, variables, modes))
+    return specs

@@ -1,0 +1,328 @@
+"""CiA 402 drives as joints: ``bus.axis(name)`` → :class:`Axis` (docs/cia402.md).
+
+The engine's axis stage runs the drive's state machine, the targets and the stop on its RT
+thread; this module turns the configured axes into plan entries and checks commands before
+they reach the engine's lock-free command slot (``Engine.axis_*``, callable without Python by a
+native thread). A refused command raises :class:`AxisCommandError` and writes nothing.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from ether_ros.config.cia402 import MODES, AxisSpec
+from ether_ros.errors import BusError
+
+if TYPE_CHECKING:
+    from ether_ros.master.bus import Bus
+    from ether_ros.master.plan import ImageLayout
+
+# Setpoint kind per mode (None: homing takes no setpoint).
+SETPOINT_KIND = {"csp": "position", "pp": "position", "csv": "velocity", "pv": "velocity",
+                 "cst": "torque", "hm": None}  # fmt: skip
+PROFILE_MODES = ("pp", "pv", "hm")
+POLL_S = 0.002
+
+
+class AxisError(BusError):
+    """An axis did not do what was asked (never reached Operation Enabled, fault)."""
+
+
+class AxisCommandError(AxisError, ValueError):
+    """A command refused before anything was written (bad value, mode, state)."""
+
+
+@dataclass(frozen=True)
+class TrajectoryPoint:
+    """``t`` seconds after the trajectory's start; position (SI) and velocity (SI/s)."""
+
+    t: float
+    position: float = 0.0
+    velocity: float = 0.0
+
+
+def plan_entries(specs: Sequence[AxisSpec], layout: ImageLayout) -> list[dict[str, Any]]:
+    """The engine plan's ``axes``: each axis's objects as image byte offsets, its scales,
+    limits and policies."""
+    entries: list[dict[str, Any]] = []
+    for spec in specs:
+        area = layout.area(spec.slave)
+        offsets: dict[str, int] = {}
+        for role, var in spec.variables.items():
+            base = area.output_offset if var.direction == "output" else area.input_offset
+            offsets[role] = base + var.bit_offset // 8
+        c = spec.config
+        entries.append(
+            {
+                "name": c.name,
+                "map": offsets,
+                "mode": c.mode,
+                "position_scale": c.position_scale,
+                "position_offset": c.position_offset,
+                "velocity_scale": c.velocity_scale,
+                "torque_scale": c.torque_scale,
+                "position_min": c.position_limits[0],
+                "position_max": c.position_limits[1],
+                "velocity_max": c.velocity_limit,
+                "torque_max": c.torque_limit,
+                "following_error_window": c.following_error_window,
+                "on_stop": c.on_stop,
+                "fault_reset": c.fault_reset,
+                "fault_retries": c.fault_retries,
+                "fault_backoff_ns": round(c.fault_backoff_ms * 1e6),
+            }
+        )
+    return entries
+
+
+def output_bits(specs: Sequence[AxisSpec], layout: ImageLayout) -> dict[int, str]:
+    """Image byte → axis name for every output byte an axis owns (the engine writes them each
+    cycle, so the Bus refuses variable writes there)."""
+    owned: dict[int, str] = {}
+    for spec in specs:
+        area = layout.area(spec.slave)
+        for var in spec.variables.values():
+            if var.direction == "output":
+                start = area.output_offset + var.bit_offset // 8
+                for b in range(start, start + var.bit_length // 8):
+                    owned[b] = spec.name
+    return owned
+
+
+class Axis:
+    """One joint on a CiA 402 drive. Units are SI (rad or m, /s, N·m or N)."""
+
+    def __init__(self, bus: Bus, index: int, spec: AxisSpec) -> None:
+        self._bus = bus
+        self._index = index
+        self.spec = spec
+        self._mode: str = spec.config.mode
+
+    def __repr__(self) -> str:
+        return f"Axis({self.name!r}, slave {self.spec.slave!r}, axis {self.spec.axis_index + 1})"
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    @property
+    def index(self) -> int:
+        """The axis's index in the engine (its ``axis`` argument of ``Engine.axis_*``)."""
+        return self._index
+
+    @property
+    def mode(self) -> str:
+        """The mode last commanded (the drive shows it in ``status()['mode_display']``)."""
+        return self._mode
+
+    # ------------------------------------------------------------------------ status
+    def status(self) -> dict[str, Any]:
+        """Everything the RT thread published about the axis this cycle."""
+        self._require_running()
+        return dict(self._bus.engine.axis_status(self._index))
+
+    @property
+    def state(self) -> str:
+        """The CiA 402 state name (``operation_enabled``, ``fault``, ...)."""
+        return str(self.status()["state"])
+
+    @property
+    def position(self) -> float:
+        return float(self.status()["position"])
+
+    @property
+    def velocity(self) -> float:
+        return float(self.status()["velocity"])
+
+    @property
+    def torque(self) -> float:
+        return float(self.status()["torque"])
+
+    @property
+    def error_code(self) -> int:
+        return int(self.status()["error_code"])
+
+    @property
+    def following_error(self) -> float:
+        return float(self.status()["following_error"])
+
+    # ------------------------------------------------------------------------ power
+    def enable(self, timeout: float = 2.0) -> None:
+        """Fault reset if needed, shutdown, switch on, enable operation; returns once the drive
+        is in Operation Enabled in the commanded mode. Raises :class:`AxisError` naming the
+        state it stuck in and its error code after ``timeout`` seconds (or at once when a fault
+        will not be reset), never hangs."""
+        self._require_running()
+        engine = self._bus.engine
+        st = self.status()
+        if st["state"] in ("fault", "fault_reaction_active"):
+            engine.axis_reset_fault(self._index)
+        engine.axis_enable(self._index, True)
+        deadline = time.monotonic() + timeout
+        while True:
+            st = self.status()
+            if st["state"] == "operation_enabled" and st["mode_reached"]:
+                return
+            # The automatic reset gave up: waiting longer changes nothing.
+            if st["retries_exhausted"] or time.monotonic() > deadline:
+                break
+            time.sleep(POLL_S)
+        raise AxisError(
+            f"axis {self.name}: no operation_enabled within {timeout:g} s: stuck in "
+            f"{st['state']} (statusword 0x{st['statusword']:04X}, error code "
+            f"0x{st['error_code']:04X}, last fault 0x{st['last_fault_code']:04X}, mode display "
+            f"{st['mode_display']})"
+        )
+
+    def disable(self, timeout: float = 1.0) -> None:
+        """The configured stop (``on_stop``: quick stop or disable voltage); returns once the
+        drive has left Operation Enabled."""
+        self._require_running()
+        self._bus.engine.axis_enable(self._index, False)
+        self._wait(
+            lambda st: st["state"] != "operation_enabled", timeout, "leave operation_enabled"
+        )
+
+    def reset_fault(self) -> None:
+        """A rising edge of controlword bit 7 while the drive is in Fault (also gives the
+        automatic reset its retries back). Re-enables if the axis is enabled."""
+        self._require_running()
+        self._bus.engine.axis_reset_fault(self._index)
+
+    def set_mode(self, mode: str, timeout: float = 1.0) -> None:
+        """Command a mode of operation (0x6060) and wait for 0x6061 to show it. Switching
+        between the cyclic modes (csp, csv, cst) is allowed while enabled; to or from a
+        profile mode (pp, pv, hm) only while not in Operation Enabled."""
+        self._require_running()
+        if mode not in MODES:
+            raise AxisCommandError(f"axis {self.name}: unknown mode {mode!r} (modes: "
+                                   f"{', '.join(MODES)})")  # fmt: skip
+        if mode not in self.spec.modes:
+            raise AxisCommandError(f"axis {self.name}: the drive does not offer mode {mode} "
+                                   f"(it offers {', '.join(self.spec.modes)})")  # fmt: skip
+        target = {"position": "target_position", "velocity": "target_velocity",
+                  "torque": "target_torque"}.get(SETPOINT_KIND[mode] or "")  # fmt: skip
+        if target is not None and target not in self.spec.variables:
+            raise AxisCommandError(f"axis {self.name}: mode {mode} needs {target}, which the "
+                                   "PDOs do not map")  # fmt: skip
+        if mode != self._mode and "mode" not in self.spec.variables:
+            raise AxisCommandError(f"axis {self.name}: 0x6060 is not in the PDOs; the mode "
+                                   f"({self._mode}) is set once in PREOP")  # fmt: skip
+        profile_change = mode in PROFILE_MODES or self._mode in PROFILE_MODES
+        if profile_change and mode != self._mode and self.state == "operation_enabled":
+            raise AxisCommandError(f"axis {self.name}: switch from {self._mode} to {mode} only "
+                                   "while disabled (profile modes)")  # fmt: skip
+        self._bus.engine.axis_set_mode(self._index, mode)
+        self._mode = mode
+        if "mode_display" in self.spec.variables:
+            self._wait(lambda st: st["mode_display"] == mode, timeout, f"show mode {mode}")
+
+    # ------------------------------------------------------------------------ motion
+    def command(
+        self,
+        position: float | None = None,
+        velocity: float | None = None,
+        torque: float | None = None,
+    ) -> None:
+        """One setpoint in SI units, of the kind the mode takes (position for csp/pp, velocity
+        for csv/pv, torque for cst). Refused, with nothing written: NaN, beyond the limits, the
+        wrong kind for the mode, or the bus not running."""
+        given = {k: v for k, v in (("position", position), ("velocity", velocity),
+                                   ("torque", torque)) if v is not None}  # fmt: skip
+        if len(given) != 1:
+            raise AxisCommandError(f"axis {self.name}: give exactly one of position, velocity, "
+                                   f"torque (got {', '.join(given) or 'none'})")  # fmt: skip
+        ((kind, value),) = given.items()
+        want = SETPOINT_KIND[self._mode]
+        if kind != want:
+            raise AxisCommandError(f"axis {self.name}: a {kind} command for an axis in mode "
+                                   f"{self._mode} (it takes {want or 'no setpoint'})")  # fmt: skip
+        self._check_value(kind, value)
+        self._require_running()
+        self._bus.engine.axis_setpoint(self._index, kind, float(value))
+
+    def follow(
+        self,
+        trajectory: Iterable[TrajectoryPoint | tuple[float, ...]],
+        start_in: float = 0.0,
+    ) -> float:
+        """Run a timed trajectory on the engine's clock: points ``(t, position, velocity)``
+        (seconds from the start, SI), t strictly increasing; position mode interpolates
+        positions (cubic, with the velocities), velocity mode the velocities. Starts
+        ``start_in`` seconds from now; returns the start time (engine clock, s)."""
+        if self._mode not in ("csp", "csv"):
+            raise AxisCommandError(f"axis {self.name}: trajectories need mode csp or csv "
+                                   f"(the axis is in {self._mode})")  # fmt: skip
+        points = [p if isinstance(p, TrajectoryPoint) else TrajectoryPoint(*p) for p in trajectory]
+        if not points:
+            raise AxisCommandError(f"axis {self.name}: the trajectory has no points")
+        for i, p in enumerate(points):
+            if not all(math.isfinite(x) for x in (p.t, p.position, p.velocity)) or p.t < 0:
+                raise AxisCommandError(f"axis {self.name}: trajectory point {i} {p} is not "
+                                       "finite or has t < 0")  # fmt: skip
+            if i and p.t <= points[i - 1].t:
+                raise AxisCommandError(f"axis {self.name}: trajectory point {i}: t {p.t} is not "
+                                       f"after {points[i - 1].t}")  # fmt: skip
+            if self._mode == "csp":
+                self._check_value("position", p.position, f"trajectory point {i}: ")
+            self._check_value("velocity", p.velocity, f"trajectory point {i}: ")
+        if not math.isfinite(start_in) or start_in < 0:
+            raise AxisCommandError(f"axis {self.name}: start_in must be >= 0 s")
+        self._require_running()
+        engine = self._bus.engine
+        start_ns = int(engine.now_ns() + start_in * 1e9)
+        try:
+            engine.axis_follow(
+                self._index,
+                start_ns,
+                [(round(p.t * 1e9), p.position, p.velocity) for p in points],
+            )
+        except ValueError as exc:
+            raise AxisCommandError(f"axis {self.name}: {exc}") from None
+        return start_ns / 1e9
+
+    def wait_trajectory(self, timeout: float) -> None:
+        """Until the trajectory has run to its end."""
+        self._wait(lambda st: st["trajectory_done"], timeout, "finish its trajectory")
+
+    # ------------------------------------------------------------------------ helpers
+    def _check_value(self, kind: str, value: float, what: str = "") -> None:
+        c = self.spec.config
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, int | float)
+            or not math.isfinite(value)
+        ):
+            raise AxisCommandError(f"axis {self.name}: {what}{kind} {value!r} is not a finite "
+                                   "number")  # fmt: skip
+        if kind == "position":
+            lo, hi = c.position_limits
+            if not lo <= value <= hi:
+                raise AxisCommandError(f"axis {self.name}: {what}position {value:g} is outside "
+                                       f"the limits [{lo:g}, {hi:g}]")  # fmt: skip
+        else:
+            limit = c.velocity_limit if kind == "velocity" else c.torque_limit
+            if abs(value) > limit:
+                raise AxisCommandError(f"axis {self.name}: {what}{kind} {value:g} is beyond the "
+                                       f"limit ±{limit:g}")  # fmt: skip
+
+    def _require_running(self) -> None:
+        if not self._bus.running:
+            raise AxisCommandError(f"axis {self.name}: the bus is not in OP (call start())")
+
+    def _wait(self, done: Any, timeout: float, what: str) -> None:
+        deadline = time.monotonic() + timeout
+        while True:
+            st = self.status()
+            if done(st):
+                return
+            if time.monotonic() > deadline:
+                raise AxisError(
+                    f"axis {self.name}: did not {what} within {timeout:g} s: in {st['state']} "
+                    f"(statusword 0x{st['statusword']:04X}, error code 0x{st['error_code']:04X})"
+                )
+            time.sleep(POLL_S)

@@ -1,0 +1,212 @@
+"""The Axis API over a real bus: config/arm6.yaml brought to OP through the in-process link to
+the simulator (no root needed). Without the drive model the simulator runs its generic
+loopback firmware for ServoDrive2 (each output copied to the input of the same type: the
+statusword echoes the controlword), which never leaves Not Ready to Switch On: enough for the
+refusals, the stuck-enable error and the stop; the drive's behaviour is tested against the
+CiA 402 drive model in tests/acceptance/test_cia402_veth.py."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from ether_ros.config import load_bus_config
+from ether_ros.config.bus import BusConfig
+from ether_ros.config.process import ProcessValueError
+from ether_ros.master import Bus
+from ether_ros.master.axis import AxisCommandError, AxisError
+from ether_ros.testing.wait import wait_for
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _config() -> BusConfig:
+    cfg = load_bus_config(REPO / "config" / "arm6.yaml")
+    # The in-process link takes the GIL per frame: a relaxed cycle, no RT policy needed.
+    cfg.bus.cycle_us = 2000
+    cfg.bus.realtime.policy = "other"
+    cfg.bus.realtime.cpu = None
+    cfg.bus.realtime.lock_memory = False
+    cfg.bus.watchdog_ms = 0
+    for s in cfg.slaves:
+        s.sim.device = "loopback"
+    return cfg
+
+
+@pytest.fixture
+def bus() -> Iterator[Bus]:
+    from ether_ros.sim.network import build_network
+
+    cfg = _config()
+    with Bus.open(cfg, link=build_network(cfg), drift_frames=100) as b:
+        yield b
+
+
+def test_axes_are_listed_and_refuse_commands_before_op(bus: Bus) -> None:
+    names = [a.name for a in bus.axes()]
+    assert names == ["shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3"]
+    assert [a.index for a in bus.axes()] == list(range(6))
+    with pytest.raises(AxisCommandError, match="no axis 'knee' on this bus"):
+        bus.axis("knee")
+    elbow = bus.axis("elbow")
+    with pytest.raises(AxisCommandError, match="the bus is not in OP"):
+        elbow.enable()
+    with pytest.raises(AxisCommandError, match="the bus is not in OP"):
+        elbow.command(position=0.1)
+
+
+def test_bad_commands_are_refused_and_write_nothing(bus: Bus) -> None:
+    bus.start()
+    elbow = bus.axis("elbow")
+    before = elbow.status()["command_seq"]
+    cases = [
+        (dict(position=math.nan), "position nan is not a finite number"),
+        (dict(position=2.6), r"position 2.6 is outside the limits \[-2.5, 2.5\]"),
+        (dict(velocity=0.1), "a velocity command for an axis in mode csp"),
+        (dict(position=0.1, velocity=0.1), "give exactly one of position, velocity, torque"),
+        ({}, "got none"),
+    ]
+    for kwargs, message in cases:
+        with pytest.raises(AxisCommandError, match=message):
+            elbow.command(**kwargs)
+    with pytest.raises(AxisCommandError, match="unknown mode 'vl'"):
+        elbow.set_mode("vl")
+    with pytest.raises(AxisCommandError, match=r"trajectory point 2: t 0\.5 is not after 0\.5"):
+        elbow.follow([(0.0, 0.0, 0.0), (0.5, 0.1, 0.0), (0.5, 0.2, 0.0)])
+    with pytest.raises(AxisCommandError, match=r"trajectory point 0: velocity 9 is beyond"):
+        elbow.follow([(0.0, 0.0, 9.0)])
+    assert elbow.status()["command_seq"] == before
+    # The axis owns its drive's controlword: a variable write there is refused.
+    with pytest.raises(ProcessValueError, match="belongs to axis elbow"):
+        bus.write("elbow_drive", "0x6040:00", 0x0F)
+
+
+def test_a_drive_that_never_enables_is_named_with_its_state(bus: Bus) -> None:
+    bus.start()
+    wrist = bus.axis("wrist_3")
+    with pytest.raises(AxisError, match=r"axis wrist_3: no operation_enabled within 0.3 s: "
+                       r"stuck in not_ready_to_switch_on \(statusword 0x0000, error code "
+                       r"0x0000"):  # fmt: skip
+        wrist.enable(timeout=0.3)
+    st = wrist.status()
+    assert st["enable_wanted"] and st["state"] == "not_ready_to_switch_on"
+    # While not enabled, the target is the actual position (the loopback returns the target as
+    # the actual: it stays where the drive reported it).
+    assert st["target_position_raw"] == st["position_raw"]
+
+
+def test_panic_reaches_every_drive_as_its_stop_command(bus: Bus) -> None:
+    bus.start()
+    axes = bus.axes()
+    # The loopback pairs outputs with inputs in PDO order: only each drive's first axis gets
+    # its controlword back as its statusword.
+    echoing = [a for a in axes if a.spec.axis_index == 0]
+    for a in axes:
+        bus.engine.axis_enable(a.index, True)
+    # Wanted enabled, in Not Ready the controlword is 0.
+    wait_for("controlword 0", lambda: all(a.status()["statusword"] == 0 for a in echoing))
+    bus.panic()
+    # Quick stop (0x0002) went to every drive: it came back from the drives.
+    wait_for("quick stop", lambda: all(a.status()["statusword"] == 0x0002 for a in echoing))
+    assert all(a.status()["halted"] and a.status()["controlword"] == 0x0002 for a in axes)
+    bus.clear_panic()
+    wait_for("enabled again", lambda: all(a.status()["statusword"] == 0 for a in echoing))
+    bus.stop()
+    assert [s.state for s in bus.states()] == ["INIT"] * 3
+
+
+@pytest.fixture
+def drives() -> Iterator[Bus]:
+    """arm6 on the simulator's CiA 402 drive model (its default for ServoDrive2)."""
+    from ether_ros.sim.network import build_network
+
+    cfg = _config()
+    for s in cfg.slaves:
+        s.sim.device = None
+    assert {s.sim_device for s in cfg.slaves} == {"cia402"}
+    with Bus.open(cfg, link=build_network(cfg), drift_frames=100) as b:
+        b.start()
+        yield b
+
+
+def test_every_mode_runs_on_the_drive_model(drives: Bus) -> None:
+    j = drives.axis("elbow")
+    # Cyclic modes switch while enabled; 0x6061 confirms each.
+    j.enable(timeout=3)
+    j.set_mode("csv")
+    j.command(velocity=0.2)
+    wait_for("csv velocity", lambda: abs(j.velocity - 0.2) < 0.01)
+    j.set_mode("cst")
+    assert j.status()["mode_display"] == "cst"
+    j.command(torque=0.0)
+    with pytest.raises(AxisCommandError, match="switch from cst to pp only while disabled"):
+        j.set_mode("pp")
+    j.disable()
+    # Profile position: the new set-point handshake (controlword bit 4, statusword bit 12).
+    j.set_mode("pp")
+    j.enable(timeout=3)
+    start = j.position
+    j.command(position=start + 0.05)
+    wait_for("pp target reached", lambda: abs(j.position - (start + 0.05)) < 0.002)
+    j.disable()
+    # Profile velocity.
+    j.set_mode("pv")
+    j.enable(timeout=3)
+    j.command(velocity=-0.1)
+    wait_for("pv velocity", lambda: abs(j.velocity + 0.1) < 0.01)
+    j.command(velocity=0.0)
+    j.disable()
+    # Homing starts when enabled (controlword bit 4): statusword bit 12, homing attained.
+    j.set_mode("hm")
+    j.enable(timeout=3)
+    wait_for("homing attained", lambda: j.status()["statusword"] & 0x1000 != 0)
+    with pytest.raises(AxisCommandError, match="takes no setpoint"):
+        j.command(position=0.0)
+
+
+def test_an_object_mapped_by_the_master_reaches_the_drive(tmp_path: Path) -> None:
+    """Axis 2's target velocity is missing from the ESI's RxPDO 0x1610: the loader appends it,
+    the master writes the mapping in PREOP, and the drive model (which maps what the master
+    configured) runs the csv axis on it."""
+    from ether_ros.sim.network import build_network
+
+    entry = ("<Entry><Index>#x68FF</Index><SubIndex>0</SubIndex><BitLen>32</BitLen>"
+             "<Name>Target velocity</Name><DataType>DINT</DataType></Entry>")  # fmt: skip
+    esi = tmp_path / "servo.xml"
+    text = (REPO / "devices" / "servo_drive.xml").read_text()
+    esi.write_text(text.replace(entry, "<Entry><Index>#x0</Index><BitLen>32</BitLen></Entry>"))
+    yaml = tmp_path / "bus.yaml"
+    yaml.write_text(
+        f"bus: {{name: one, interface: eth0, cycle_us: 2000, watchdog_ms: 0,\n"
+        f"      realtime: {{policy: other, lock_memory: false}}}}\n"
+        f"esi: [{esi}]\n"
+        "slaves:\n"
+        "  - name: drive\n"
+        "    device: ServoDrive2\n"
+        "    axes:\n"
+        "      - {name: j1, position_scale: 7.66990394e-6}\n"
+        "      - {name: j2, mode: csv, velocity_scale: 7.66990394e-6}\n"
+    )
+    cfg = load_bus_config(yaml)
+    with Bus.open(cfg, link=build_network(cfg), drift_frames=100) as bus:
+        bus.start()
+        j2 = bus.axis("j2")
+        j2.enable(timeout=3)
+        j2.command(velocity=0.25)
+        wait_for("csv velocity through the new mapping", lambda: abs(j2.velocity - 0.25) < 0.01)
+        # Six entries as in the ESI (one now padding), then 0x68FF:00, 32 bits.
+        assert bus.sdo_read("drive", 0x1610, 0) == 7
+        assert bus.sdo_read("drive", 0x1610, 7) == 0x68FF0020
+
+
+def test_stop_takes_every_axis_out_of_operation_enabled_first(drives: Bus) -> None:
+    for a in drives.axes():
+        a.enable(timeout=3)
+    drives.stop()
+    # The last status the RT thread published before the cyclic exchange stopped.
+    states = [drives.engine.axis_status(i)["state"] for i in range(6)]
+    assert "operation_enabled" not in states, states
+    assert all(drives.engine.axis_status(i)["controlword"] == 0x0002 for i in range(6))
