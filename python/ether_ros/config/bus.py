@@ -305,6 +305,7 @@ class BusConfig(_Model):
     def group_of(self, slave: str) -> GroupConfig | None:
         """The group ``slave`` belongs to; None for the default group."""
         return next((g for g in self.groups if slave in g.slaves), None)
+
     def axis_specs(self) -> list[cia402.AxisSpec]:
         """Every CiA 402 axis of the bus, in bus order."""
         return [a for s in self.slaves for a in s.axis_specs]
