@@ -51,9 +51,12 @@ def variable_spec(var: Any, unique_name: bool) -> VariableSpec:
     )
 
 
-def slave_spec(name: str, position: int, device: str, layout: Any) -> SlaveSpec:
+def slave_spec(
+    name: str, position: int, device: str, layout: Any, group: tuple[str, int] = ("default", 0)
+) -> SlaveSpec:
+    """``group``: (slave group, its cycle in µs)."""
     if layout is None:
-        return SlaveSpec(name, position, device)
+        return SlaveSpec(name, position, device, group=group[0], group_cycle_us=group[1])
     counts: dict[str, int] = {}
     for v in (*layout.outputs, *layout.inputs):
         counts[v.name] = counts.get(v.name, 0) + 1
@@ -63,15 +66,24 @@ def slave_spec(name: str, position: int, device: str, layout: Any) -> SlaveSpec:
         device=device,
         inputs=tuple(variable_spec(v, counts[v.name] == 1) for v in layout.inputs),
         outputs=tuple(variable_spec(v, counts[v.name] == 1) for v in layout.outputs),
+        group=group[0],
+        group_cycle_us=group[1],
     )
 
 
 def bus_spec(bus: Any) -> BusSpec:
     """The layout of an opened ``Bus``: slaves in bus order with their mapped variables."""
     slaves = []
+    cycle_us = int(bus.config.bus.cycle_us)
+    group_of = {
+        name: (g.name, g.every * cycle_us)
+        for g in (bus.layout.groups if getattr(bus, "layout", None) is not None else [])
+        for name in g.slaves
+    }
     for s in bus.slaves:
         device = s.device.type_name if getattr(s, "device", None) is not None else ""
-        slaves.append(slave_spec(s.name, int(s.position), device, s.layout))
+        group = group_of.get(s.name, ("default", cycle_us))
+        slaves.append(slave_spec(s.name, int(s.position), device, s.layout, group))
     return BusSpec(
         bus=str(bus.config.bus.name), cycle_us=int(bus.config.bus.cycle_us), slaves=tuple(slaves)
     )
