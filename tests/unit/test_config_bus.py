@@ -280,7 +280,7 @@ def test_esi_path_is_relative_to_the_yaml(tmp_path: Path) -> None:
     assert cfg.slaves[0].esi.source.endswith("leg.xml")
 
 
-GROUPS = "groups:\n  - {name: io_group, cycle_us: 2000, slaves: [io]}\n"
+GROUPS = "groups:\n  - {name: io_group, cycle_us: 2000, slaves: [io], watchdog_ms: 20}\n"
 
 
 def test_groups_run_at_a_multiple_of_the_bus_cycle(tmp_path: Path) -> None:
@@ -288,6 +288,7 @@ def test_groups_run_at_a_multiple_of_the_bus_cycle(tmp_path: Path) -> None:
     assert cfg.group_cycles() == [("default", 1), ("io_group", 5)]
     group = cfg.group_of("io")
     assert group is not None and group.name == "io_group" and group.lrw
+    assert group.watchdog_ms == 20
     assert cfg.group_of("leg_a") is None
 
 

@@ -137,7 +137,7 @@ def test_plan_dict_follows_engine_contract() -> None:
         watchdog_ns=100_000_000,
     )
     (frame,) = plan["frames"]
-    assert frame["every"] == 1
+    assert frame["every"] == 1 and frame["watchdog_ns"] == 0
     kinds = [d["kind"] for d in frame["datagrams"]]
     assert kinds == ["dc_write_ref", "dc_sync", "lrw"]
     assert frame["datagrams"][2] == {
@@ -156,6 +156,18 @@ def test_plan_dict_follows_engine_contract() -> None:
     with pytest.raises(ValueError, match="DC"):
         build_plan(layout_image(LEGS), 400_000, "send_at_wake", safe, safe,
                    DcPlan("ref_follows_master", 0x1001), RtPlan(), 0)  # fmt: skip
+
+
+def test_a_groups_watchdog_goes_to_each_of_its_frames() -> None:
+    slaves = [ImageSlave(p, 0x1001 + p, f"s{p}", 800, 10, "io" if p else "default")
+              for p in range(3)]  # fmt: skip
+    layout = layout_image(slaves, groups=[("default", 1), ("io", 2)])
+    out = bytes(layout.output_bytes)
+    plan = build_plan(layout, 1_000_000, "send_at_wake", out, out, DcPlan(), RtPlan(), 0,
+                      group_watchdog_ns={"io": 50_000_000})  # fmt: skip
+    frames = zip(layout.frames, plan["frames"], strict=True)
+    by_group = [(f.group, p["watchdog_ns"]) for f, p in frames]
+    assert by_group == [("default", 0), ("io", 50_000_000), ("io", 50_000_000)]
 
 
 def test_the_engine_accepts_every_plan_the_builder_makes() -> None:

@@ -58,11 +58,31 @@ pub struct Exchange {
     pub axes: AxisExchange,
     /// Counters and round trip per cyclic frame, in plan order.
     pub frames: Box<[FrameStats]>,
+    /// Per cyclic frame: the last write that touched its output bytes (or feed), ns.
+    pub frame_commands: Box<[AtomicI64]>,
+    /// Per cyclic frame: its output byte runs (what a write must touch to feed its watchdog).
+    pub frame_outputs: Vec<Vec<(usize, usize)>>,
     /// Which cyclic run of the engine this is (1, 2, ...; 0 before `start_cyclic` numbers it).
     pub run: u64,
 }
 
 impl Exchange {
+    /// A command for the watchdogs of the frames whose output bytes `begin..end` touches.
+    pub fn note_command(&self, begin: usize, end: usize, now_ns: i64) {
+        for (k, runs) in self.frame_outputs.iter().enumerate() {
+            if runs.iter().any(|&(o, l)| begin < o + l && o < end) {
+                self.frame_commands[k].store(now_ns, Ordering::Release);
+            }
+        }
+    }
+
+    /// A command for every frame's watchdog (`feed_watchdog`, `start_cyclic`).
+    pub fn note_command_all(&self, now_ns: i64) {
+        for c in self.frame_commands.iter() {
+            c.store(now_ns, Ordering::Release);
+        }
+    }
+
     /// Ok when image bytes `begin..end` lie inside one output run, else the refusal naming
     /// `what` and the ranges a write may touch.
     pub fn check_output_span(&self, begin: usize, end: usize, what: &str) -> Result<(), String> {
@@ -82,6 +102,8 @@ impl Exchange {
     pub fn new(plan: Plan, layout: &CycleLayout) -> Exchange {
         Exchange {
             frames: plan.frames.iter().map(|_| FrameStats::default()).collect(),
+            frame_commands: plan.frames.iter().map(|_| AtomicI64::new(0)).collect(),
+            frame_outputs: layout.frames.iter().map(|f| f.outputs.clone()).collect(),
             output_runs: layout.outputs.clone(),
             outputs: SeqBuffer::new(&plan.initial_image),
             image: SeqBuffer::new(&plan.initial_image),
@@ -205,6 +227,8 @@ pub struct Cyclic {
     last_processed: Vec<Option<u64>>,
     cycle: u64,
     watchdog_tripped: bool,
+    /// Per frame: its own watchdog has tripped (bit k).
+    frame_watchdog_tripped: u32,
     dc: DcFollower,
     /// (reference clock time, our send time of that frame), from this cycle's reply.
     ref_sample: Option<(u64, i64)>,
@@ -250,6 +274,7 @@ impl Cyclic {
             next_index: 0,
             cycle: 0,
             watchdog_tripped: false,
+            frame_watchdog_tripped: 0,
             dc: DcFollower {
                 locked: false,
                 integral: 0.0,
@@ -580,6 +605,25 @@ impl Cyclic {
             if !self.cycle.is_multiple_of(layout.every as u64) {
                 continue;
             }
+            // The group's own watchdog: its output bytes from the safe image (in the image too,
+            // so the samples show what went out).
+            let wd = layout.watchdog_ns as i64;
+            let group_stale =
+                wd > 0 && t_wake - self.ex.frame_commands[k].load(Ordering::Acquire) > wd;
+            let bit = 1u32 << k;
+            if group_stale {
+                if self.frame_watchdog_tripped & bit == 0 {
+                    self.ex.frames[k]
+                        .watchdog_trips
+                        .fetch_add(1, Ordering::Relaxed);
+                }
+                self.flags |= flags::WATCHDOG;
+                for &(o, l) in &layout.outputs {
+                    self.image[o..o + l].copy_from_slice(&plan.safe_image[o..o + l]);
+                }
+            }
+            self.frame_watchdog_tripped =
+                (self.frame_watchdog_tripped & !bit) | if group_stale { bit } else { 0 };
             let frame = &mut self.tx[k];
             for &(f, i, l) in &layout.writes {
                 frame[f..f + l].copy_from_slice(&self.image[i..i + l]);

@@ -315,7 +315,9 @@ impl Engine {
         shared.stop.store(false, Ordering::Release);
         shared.alive.store(false, Ordering::Release);
         shared.cycle_ns.store(cycle_ns as i64, Ordering::Relaxed);
+        // start_cyclic counts as a command for every watchdog.
         shared.last_command_ns.store(now_ns(), Ordering::Release);
+        ex.note_command_all(now_ns());
         let mut cyclic = Cyclic::new(link, shared.clone(), ex.clone(), layout);
         let (ready_tx, ready_rx) = mpsc::sync_channel::<std::result::Result<(), String>>(1);
         let spawned = std::thread::Builder::new()
@@ -400,7 +402,10 @@ impl Engine {
             let _w = lock(&self.output_writer);
             ex.outputs.write(offset, data);
         }
-        self.feed_watchdog();
+        self.shared
+            .last_command_ns
+            .store(now_ns(), Ordering::Release);
+        ex.note_command(offset, end, now_ns());
         Ok(())
     }
 
@@ -447,7 +452,10 @@ impl Engine {
             }
             ex.outputs.write(first, &scratch);
         }
-        self.feed_watchdog();
+        self.shared
+            .last_command_ns
+            .store(now_ns(), Ordering::Release);
+        ex.note_command(first, end, now_ns());
         Ok(())
     }
 
@@ -686,9 +694,11 @@ impl Engine {
 
     /// Count as a fresh command for the watchdog without writing outputs.
     pub fn feed_watchdog(&self) {
-        self.shared
-            .last_command_ns
-            .store(now_ns(), Ordering::Release);
+        let now = now_ns();
+        self.shared.last_command_ns.store(now, Ordering::Release);
+        if let Some(ex) = lock(&self.exchange).as_ref() {
+            ex.note_command_all(now);
+        }
     }
 }
 

@@ -69,6 +69,9 @@ pub struct FramePlan {
     pub datagrams: Vec<CyclicDatagram>,
     /// Sent in the cycles `cycle % every == 0` (a group running at 1/every of the base rate).
     pub every: u32,
+    /// The group's own command watchdog (0: none): when no write touched this frame's output
+    /// bytes (and no `feed_watchdog`) for this long, the frame carries the safe image's bytes.
+    pub watchdog_ns: u64,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -142,6 +145,7 @@ pub struct FrameLayout {
     pub template: Vec<u8>,
     pub len: usize,
     pub every: u32,
+    pub watchdog_ns: u64,
     pub slots: Vec<DatagramSlot>,
     /// (frame offset, image offset, length) of every LRW/LWR datagram: image to frame.
     pub writes: Vec<(usize, usize, usize)>,
@@ -149,6 +153,8 @@ pub struct FrameLayout {
     pub wkc: Vec<(DatagramSlot, u16)>,
     /// (frame offset, image offset, length) of input bytes: copied from the reply to the image.
     pub inputs: Vec<(usize, usize, usize)>,
+    /// (image offset, length) of the output bytes this frame carries.
+    pub outputs: Vec<(usize, usize)>,
     /// Frame offset of the 8 data bytes of the FPWR 0x0910 datagram.
     pub dc_write: Option<usize>,
     /// Slot of the FRMW 0x0910 datagram.
@@ -389,6 +395,7 @@ fn lay_out_frame(k: usize, f: &FramePlan, is_output: &[bool]) -> Result<FrameLay
     let mut layout = FrameLayout {
         len: buf.len(),
         every: f.every,
+        watchdog_ns: f.watchdog_ns,
         ..Default::default()
     };
     for (d, slot) in f.datagrams.iter().zip(&slots) {
@@ -405,6 +412,11 @@ fn lay_out_frame(k: usize, f: &FramePlan, is_output: &[bool]) -> Result<FrameLay
                 layout.wkc.push((*slot, expected_wkc));
                 if command.writes() {
                     layout.writes.push((slot.data, image_offset, length));
+                    for (off, len) in
+                        merge_ranges(&is_output[image_offset..image_offset + length], true)
+                    {
+                        layout.outputs.push((image_offset + off, len));
+                    }
                 }
                 if command.reads() {
                     for (off, len) in
@@ -463,6 +475,7 @@ pub(crate) mod tests {
         FramePlan {
             datagrams,
             every: 1,
+            watchdog_ns: 0,
         }
     }
 

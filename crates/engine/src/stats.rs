@@ -185,17 +185,20 @@ pub struct FrameStats {
     pub wkc_errors: AtomicU64,
     /// Sum of the logical working counters of the last reply.
     pub last_wkc: AtomicU64,
+    /// Times the frame's own (group) watchdog tripped.
+    pub watchdog_trips: AtomicU64,
     pub rtt: Histogram,
 }
 
 impl FrameStats {
-    pub fn named(&self) -> [(&'static str, &AtomicU64); 5] {
+    pub fn named(&self) -> [(&'static str, &AtomicU64); 6] {
         [
             ("sent", &self.sent),
             ("lost", &self.lost),
             ("late", &self.late),
             ("wkc_errors", &self.wkc_errors),
             ("last_wkc", &self.last_wkc),
+            ("watchdog_trips", &self.watchdog_trips),
         ]
     }
 

@@ -170,6 +170,7 @@ fn plan(n: usize, order: Order) -> Plan {
                 .map(|i| logical(Logical::Lrw, i * 2 * AREA, 2 * AREA, 3))
                 .collect(),
             every: 1,
+            watchdog_ns: 0,
         })
         .collect::<Vec<_>>();
     let mut p = Plan {
@@ -378,4 +379,51 @@ fn a_slower_frame_goes_out_every_nth_cycle() {
     assert_eq!(frame_counter(&f[1], "lost"), 0);
     let seen = b.lock().unwrap().seen.clone();
     assert_eq!(seen.len(), 2);
+}
+
+#[test]
+fn a_groups_own_watchdog_puts_only_its_frame_on_safe_outputs() {
+    let b = bus(4);
+    let e = engine(&b);
+    let mut p = plan(4, Order::SendAtWake);
+    // Frame 1 (slaves 2 and 3) is a group with its own 30 ms watchdog; the bus has none.
+    p.frames[1].watchdog_ns = 30_000_000;
+    e.start_cyclic(p).unwrap();
+    let live = |i: usize| vec![0x10 + i as u8; AREA];
+    for i in 0..4 {
+        e.write_outputs(i * 2 * AREA, &live(i)).unwrap();
+    }
+    wait_for(
+        || b.lock().unwrap().slaves[2].out == live(2),
+        "live outputs of frame 1",
+    );
+    // Only slave 0 (frame 0) keeps being written: frame 1 falls to the safe image (0xEE).
+    wait_for(
+        || {
+            e.write_outputs(0, &live(0)).unwrap();
+            let bus = b.lock().unwrap();
+            bus.slaves[2].out == [0xEE; AREA] && bus.slaves[3].out == [0xEE; AREA]
+        },
+        "frame 1 on safe outputs",
+    );
+    {
+        let bus = b.lock().unwrap();
+        assert_eq!(bus.slaves[0].out, live(0));
+        assert_eq!(bus.slaves[1].out, live(1), "frame 0 keeps its live outputs");
+    }
+    assert_eq!(frame_counter(&frames(&e)[1], "watchdog_trips"), 1);
+    assert_eq!(frame_counter(&frames(&e)[0], "watchdog_trips"), 0);
+    assert_eq!(
+        common::counter(&e, "watchdog_trips"),
+        0,
+        "the bus watchdog is off"
+    );
+    assert!(records(&e).iter().any(|r| r.flags & flags::WATCHDOG != 0));
+    // A write to one of its slaves brings the group's live outputs back.
+    e.write_outputs(3 * 2 * AREA, &live(3)).unwrap();
+    wait_for(
+        || b.lock().unwrap().slaves[3].out == live(3),
+        "frame 1 live again",
+    );
+    e.stop_cyclic();
 }

@@ -342,16 +342,19 @@ fn audit_axis() -> AxisPlan {
 
 /// Three frames, so the multi-frame paths run too: the one-LRW frame of the test bus (with the
 /// DC datagrams), an LRD of image bytes 8..12 in a second frame, and an LWR of bytes 12..14 in
-/// a third that goes out every third cycle (a slower group).
+/// a third that goes out every third cycle (a slower group) with its own 3 ms watchdog (the
+/// exercise writes only to the first frame's outputs for stretches, so it trips and recovers).
 fn audit_frames(dc: DcMode) -> Vec<FramePlan> {
     let mut frames = common::cyclic_frame(dc, 8, 3);
     frames.push(FramePlan {
         datagrams: vec![common::logical(Logical::Lrd, 8, 4, 1)],
         every: 1,
+        watchdog_ns: 0,
     });
     frames.push(FramePlan {
         datagrams: vec![common::logical(Logical::Lwr, 12, 2, 1)],
         every: 3,
+        watchdog_ns: 3_000_000,
     });
     frames
 }
@@ -453,6 +456,11 @@ fn exercise(engine: &Engine, seen: &Seen, cycles: u64) {
         if i.is_multiple_of(40) {
             let _ = engine.read_inputs().unwrap();
             let _ = engine.stats();
+        }
+        if i % 100 < 20 {
+            // The third frame's outputs: written for a stretch, then left alone so its own
+            // watchdog trips (after 3 ms) and recovers at the next stretch.
+            engine.write_outputs(12, &[b, b]).unwrap();
         }
         std::thread::sleep(Duration::from_micros(300));
     }

@@ -199,6 +199,7 @@ fn parse_plan(d: &Bound<'_, PyDict>) -> PyResult<Plan> {
                 frames.push(FramePlan {
                     datagrams: parse_datagrams(&item, &path)?,
                     every: opt(&item, &path, "every", "an int 1..=10000", 1)?,
+                    watchdog_ns: opt(&item, &path, "watchdog_ns", "a non-negative int", 0)?,
                 });
             }
             frames
@@ -206,6 +207,7 @@ fn parse_plan(d: &Bound<'_, PyDict>) -> PyResult<Plan> {
         None => vec![FramePlan {
             datagrams: parse_datagrams(d, "")?,
             every: 1,
+            watchdog_ns: 0,
         }],
     };
     let dc = sub_dict(d, "dc")?;

@@ -81,7 +81,7 @@ def summarize(stats: dict[str, Any], seconds: float, cycle_us: int) -> dict[str,
     result["frames"] = len(stats.get("frames") or [])
     result["groups"] = [
         {k: g[k] for k in ("name", "every", "frames", "sent", "lost", "late", "wkc_errors",
-                           "expected_wkc", "last_wkc")}
+                           "watchdog_trips", "expected_wkc", "last_wkc")}
         | {"cycle_us": g["cycle_ns"] / 1000}
         for g in stats.get("groups") or []
     ]  # fmt: skip

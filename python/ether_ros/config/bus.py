@@ -205,6 +205,9 @@ class GroupConfig(_Model):
     slaves: list[Identifier] = Field(default_factory=list)
     # False: every slave of the group gets LRD + LWR instead of LRW.
     lrw: bool = True
+    # The group's own command watchdog: no write to its slaves' outputs for this long puts its
+    # safe outputs on the wire (0: none; the bus watchdog still covers every slave).
+    watchdog_ms: int = Field(default=0, ge=0, le=60_000)
 
 
 class SlaveConfig(_Model):

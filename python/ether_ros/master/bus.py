@@ -376,6 +376,11 @@ class Bus:
             rt=rt_plan,
             watchdog_ns=int(watchdog_ms * 1_000_000),
             axes=axis_mod.plan_entries(self._axis_specs(), self.layout),
+            group_watchdog_ns={
+                g.name: int(g.watchdog_ms) * 1_000_000
+                for g in getattr(self.config, "groups", None) or []
+                if g.watchdog_ms
+            },
         )
 
     # ---------------------------------------------------------------------------- axes

@@ -15,7 +15,7 @@ from typing import Any
 from ether_ros.master.plan import ImageLayout
 
 #: Per-frame counters summed into a group's.
-FRAME_COUNTERS = ("sent", "lost", "late", "wkc_errors")
+FRAME_COUNTERS = ("sent", "lost", "late", "wkc_errors", "watchdog_trips")
 
 
 @dataclass(frozen=True)
@@ -31,6 +31,8 @@ class GroupStats:
     lost: int
     late: int
     wkc_errors: int
+    #: Trips of the group's own watchdog (summed over its frames).
+    watchdog_trips: int = 0
 
     @property
     def wkc_ok(self) -> bool:

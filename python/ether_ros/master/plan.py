@@ -21,7 +21,7 @@ and +1 for every slave whose input area it reads; LWR and LRD +1 per slave.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
 
@@ -348,8 +348,10 @@ def build_plan(
     ring_capacity: int = 65536,
     axes: list[dict[str, Any]] | None = None,
     trajectory_capacity: int = 1024,
+    group_watchdog_ns: Mapping[str, int] | None = None,
 ) -> dict[str, Any]:
-    """The dict ``Engine.start_cyclic`` takes (see the engine's plan contract)."""
+    """The dict ``Engine.start_cyclic`` takes (see the engine's plan contract);
+    ``group_watchdog_ns``: a group's own command watchdog, given to each of its frames."""
     if len(safe_outputs) != layout.output_bytes or len(initial_outputs) != layout.output_bytes:
         raise ValueError("safe/initial output images must cover exactly the output area")
     if order not in ("send_at_wake", "send_then_wait"):
@@ -362,8 +364,9 @@ def build_plan(
         if dc.mode == "ref_follows_master":
             dc_datagrams.insert(0, {"kind": "dc_write_ref", "station": dc.reference_station})
         datagrams[0][:0] = dc_datagrams
+    watchdogs = group_watchdog_ns or {}
     frames = [
-        {"datagrams": dgs, "every": f.every}
+        {"datagrams": dgs, "every": f.every, "watchdog_ns": int(watchdogs.get(f.group, 0))}
         for dgs, f in zip(datagrams, layout.frames, strict=True)
     ]
     inputs_zero = bytes(layout.input_bytes)

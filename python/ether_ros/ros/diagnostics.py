@@ -91,6 +91,7 @@ def group_statuses(node_name: str, groups: Sequence[Any]) -> list[DiagnosticStat
             ("lost_frames", str(g.lost)),
             ("late_frames", str(g.late)),
             ("wkc_errors", str(g.wkc_errors)),
+            ("watchdog_trips", str(g.watchdog_trips)),
             ("working_counter", str(g.last_wkc)),
             ("expected_working_counter", str(g.expected_wkc)),
         ]

@@ -40,6 +40,7 @@ pub fn cyclic_frame(dc: DcMode, length: usize, expected_wkc: u16) -> Vec<FramePl
     vec![FramePlan {
         datagrams,
         every: 1,
+        watchdog_ns: 0,
     }]
 }
 
