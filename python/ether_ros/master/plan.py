@@ -158,17 +158,15 @@ def layout_image(
     five fields: position, station, name, output bytes, input bytes) in bus order; ``groups``:
     (name, every) in plan order; ``dc``: room for the DC datagrams in the first frame."""
     pd = [ImageSlave(*s) for s in slaves]
-    every = dict(groups)
-    unknown = sorted({s.group for s in pd} - every.keys())
+    unknown = sorted({s.group for s in pd} - {name for name, _ in groups})
     if unknown:
         raise ValueError(f"slaves name groups that do not exist: {', '.join(unknown)}")
     # Frames of slaves, group by group; the first frame has room for the DC datagrams.
     frames: list[Frame] = []
     members: list[list[ImageSlave]] = []
     for name, n in groups:
-        for chunk in _pack(
-            [s for s in pd if s.group == name], frame_payload, lambda: not frames and dc
-        ):
+        first_room = frame_payload - (DC_DATAGRAM_BYTES if dc and not frames else 0)
+        for chunk in _pack([s for s in pd if s.group == name], first_room, frame_payload):
             frames.append(Frame(name, n, dc=not frames and dc))
             members.append(chunk)
     if dc and (not frames or frames[0].every != 1):
@@ -231,13 +229,14 @@ def _cost(chunk: Sequence[ImageSlave]) -> int:
 
 
 def _pack(
-    slaves: Sequence[ImageSlave], frame_payload: int, first_has_dc: Any
+    slaves: Sequence[ImageSlave], first_room: int, frame_payload: int
 ) -> list[list[ImageSlave]]:
-    """Slaves in bus order into as few frames as hold them; a slave too large for a frame
-    gets a frame of its own (split later)."""
+    """Slaves in bus order into as few frames as hold them (``first_room`` bytes in the first,
+    ``frame_payload`` in the others); a slave too large for a frame gets a frame of its own
+    (split later)."""
     chunks: list[list[ImageSlave]] = []
     current: list[ImageSlave] = []
-    room = frame_payload - (DC_DATAGRAM_BYTES if first_has_dc() else 0)
+    room = first_room
     for s in slaves:
         if current and _cost([*current, s]) > room:
             chunks.append(current)
