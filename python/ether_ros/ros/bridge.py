@@ -123,11 +123,12 @@ def output_bytes(bus: Any) -> int:
 
 
 def expected_wkc(bus: Any) -> int:
-    """Sum of the cyclic LRW datagrams' expected working counters (what a sample's ``wkc`` is
-    on a healthy bus)."""
-    plan = getattr(bus, "plan", None) or {}
-    lrw = [d for d in plan.get("datagrams", []) if d.get("kind") == "lrw"]
-    return sum(int(d.get("expected_wkc", 0)) for d in lrw)
+    """What a sample's ``wkc`` is on a healthy bus: the expected working counters of the frames
+    that go out every cycle (slave groups at a slower cycle add theirs only in their cycles)."""
+    layout = getattr(bus, "layout", None)
+    if layout is None:
+        return 0
+    return sum(f.expected_wkc for f in layout.frames if f.every == 1)
 
 
 def sample_arrays(batch: Any) -> tuple[Any, Any]:
