@@ -86,7 +86,11 @@ def _measure(config: Path, image: int, seconds: float, sweep_seconds: float) -> 
         try:
             out["pysoem"] = run_pysoem(config, veth.master, CYCLE_US, seconds)
         except ToolError as e:
-            out["pysoem_error"] = str(e).splitlines()[-1][:200] if str(e) else "failed"
+            # First line: how the worker ended (exit code or signal); last: its last words.
+            lines = str(e).splitlines() or ["failed"]
+            out["pysoem_error"] = (
+                f"pysoem: {lines[0][:80]} … {lines[-1][-120:]}" if len(lines) > 1 else lines[0]
+            )
         sweep = {}
         for loop_us in SWEEP_US:
             try:
