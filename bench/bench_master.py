@@ -161,12 +161,14 @@ def pysoem_worker(config: Path, interface: str, cycle_us: int, seconds: float, o
     cfg = load_bus_config(config)
     cfg.bus.cycle_us = cycle_us
     # Like the engine's send_then_wait: wait for the reply at most 3/4 of a cycle.
+    t_open = time.monotonic()
     soem = SoemBus(cfg, interface, receive_timeout_us=cycle_us * 3 // 4)
     try:
         soem.scan()
         soem.configure()
         if not soem.request_op():
             raise SystemExit(f"pysoem: slaves did not reach OP: {soem.states()}")
+        bringup_s = time.monotonic() - t_open
         os.sched_setaffinity(0, {MASTER_CPU})
         _lock_memory()
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(PRIORITY))
@@ -176,6 +178,7 @@ def pysoem_worker(config: Path, interface: str, cycle_us: int, seconds: float, o
         warmup = 200
         total = warmup + int(seconds * 1e6 / cycle_us)
         rtts: list[int] = []
+        execs: list[int] = []
         lat: list[int] = []
         rtts_append, lat_append = rtts.append, lat.append
         lost = wkc_errors = overruns = 0
@@ -188,10 +191,12 @@ def pysoem_worker(config: Path, interface: str, cycle_us: int, seconds: float, o
                 time.sleep(delay / 1e9)
             t0 = clock()
             master.send_processdata()
+            t_sent = clock()
             wkc = master.receive_processdata(soem.receive_timeout_us)
             t1 = clock()
             if n >= warmup:
                 lat_append(t0 - planned)
+                execs.append(t_sent - t0)
                 if wkc <= 0:
                     lost += 1
                 else:
@@ -213,7 +218,9 @@ def pysoem_worker(config: Path, interface: str, cycle_us: int, seconds: float, o
             "wkc_errors": wkc_errors,
             "overruns": overruns,
             "expected_wkc": expected,
+            "bringup_s": bringup_s,
             "rtt_us": _percentiles_us(rtts),
+            "exec_us": _percentiles_us(execs),
             "wake_latency_us": _percentiles_us([max(0, x) for x in lat]),
         }
         out.write_text(json.dumps(result, indent=2) + "\n")

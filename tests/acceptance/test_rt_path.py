@@ -34,6 +34,7 @@ pytestmark = pytest.mark.netns
 
 REPO = Path(__file__).resolve().parents[2]
 LAELAPS = REPO / "config" / "laelaps.yaml"
+LINE128 = REPO / "config" / "line128.yaml"
 RT_THREAD = "ether_ros-rt"
 
 # What one cycle may ask of the kernel (crates/engine/src/cyclic.rs, link.rs, xdp.rs, clock.rs),
@@ -135,18 +136,37 @@ def config_with_order(order: str, tmp_path: Path) -> Path:
     return path
 
 
-@pytest.mark.parametrize("link", ["packet", "xdp"])
-@pytest.mark.parametrize("order", ["send_at_wake", "send_then_wait"])
+@pytest.mark.parametrize(
+    ("bus", "order", "link"),
+    [
+        ("laelaps", "send_at_wake", "packet"),
+        ("laelaps", "send_then_wait", "packet"),
+        ("laelaps", "send_at_wake", "xdp"),
+        ("laelaps", "send_then_wait", "xdp"),
+        # 128 slaves: four cyclic frames per cycle, one sendto each.
+        ("line128", "send_at_wake", "packet"),
+    ],
+)
 def test_rt_thread_makes_only_the_cycles_syscalls_and_runs_as_configured(
-    sim: SimProcess, veth_ns: VethPair, tmp_path: Path, order: str, link: str
+    veth_ns: VethPair, tmp_path: Path, bus: str, order: str, link: str
 ) -> None:
     strace = shutil.which("strace")
     if strace is None:
         pytest.fail("strace is missing: scripts/bootstrap.sh installs it (APT_PACKAGES)")
+    config = config_with_order(order, tmp_path) if bus == "laelaps" else LINE128
+    with SimProcess(config, veth_ns.slave, veth_ns.netns):
+        _trace_the_rt_thread(
+            strace, config, veth_ns, tmp_path, frames=4 if bus == "line128" else 1, link=link
+        )
+
+
+def _trace_the_rt_thread(
+    strace: str, config: Path, veth_ns: VethPair, tmp_path: Path, frames: int, link: str
+) -> None:
     result = tmp_path / "bench.json"
     bench = subprocess.Popen(
         [sys.executable, "-m", "ether_ros.cli.main", "bench", "cycle",
-         str(config_with_order(order, tmp_path)), "--interface", veth_ns.master,
+         str(config), "--interface", veth_ns.master,
          "--cycle-us", "1000", "--seconds", "4", "--drift-frames", "300", "--json", str(result),
          "--link", link],
         stdout=subprocess.PIPE,
@@ -190,6 +210,9 @@ def test_rt_thread_makes_only_the_cycles_syscalls_and_runs_as_configured(
     # Every cycle's timing is recorded: the bench reports the cycles it measured.
     measured = json.loads(result.read_text())
     assert measured["cycles"] > 0 and measured["period_us"]["p50"] is not None, out
+    assert measured["frames"] == frames
+    # One sendto per cyclic frame (plus the few acyclic frames of supervision).
+    assert calls["sendto"] >= frames * calls["clock_nanosleep"] * 0.9, traced
 
 
 def test_the_loop_cycles_and_records_while_python_holds_the_gil(

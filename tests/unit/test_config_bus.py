@@ -296,3 +296,60 @@ def test_esi_path_is_relative_to_the_yaml(tmp_path: Path) -> None:
     (sub / "bus.yaml").write_text(text)
     cfg = load_bus_config(sub / "bus.yaml")
     assert cfg.slaves[0].esi.source.endswith("leg.xml")
+
+
+GROUPS = "groups:\n  - {name: io_group, cycle_us: 2000, slaves: [io], watchdog_ms: 20}\n"
+
+
+def test_groups_run_at_a_multiple_of_the_bus_cycle(tmp_path: Path) -> None:
+    cfg = load_bus_config(write(tmp_path, GOOD + GROUPS))
+    assert cfg.group_cycles() == [("default", 1), ("io_group", 5)]
+    group = cfg.group_of("io")
+    assert group is not None and group.name == "io_group" and group.lrw
+    assert group.watchdog_ms == 20
+    assert cfg.group_of("leg_a") is None
+
+
+@pytest.mark.parametrize(
+    ("groups", "pattern"),
+    [
+        (
+            "groups:\n  - {name: g, cycle_us: 1000, slaves: [io]}\n",
+            r"groups\[0\]\.cycle_us.*group g: cycle_us must be a whole multiple of "
+            r"bus\.cycle_us \(400\).*1000",
+        ),
+        (
+            "groups:\n  - {name: g, cycle_us: 800, slaves: [io]}\n"
+            "  - {name: h, cycle_us: 800, slaves: [leg_b, io]}\n",
+            r"groups\[1\]\.slaves\[1\].*slave io is in two groups \(g and h\)",
+        ),
+        (
+            "groups:\n  - {name: g, cycle_us: 800, slaves: []}\n",
+            r"groups\[0\]\.slaves.*group g has no slaves",
+        ),
+        (
+            "groups:\n  - {name: g, cycle_us: 800, slaves: [nope]}\n",
+            r"groups\[0\]\.slaves\[0\].*group g: no slave named 'nope'",
+        ),
+        (
+            "groups:\n  - {name: default, cycle_us: 800, slaves: [io]}\n",
+            r"groups\[0\]\.name.*'default' is the group of slaves in no group",
+        ),
+        (
+            "groups:\n  - {name: g, cycle_us: 800, slaves: [io]}\n"
+            "  - {name: g, cycle_us: 1200, slaves: [leg_b]}\n",
+            r"groups\[1\]\.name.*'g' is used twice",
+        ),
+    ],
+)
+def test_bad_groups_are_named(tmp_path: Path, groups: str, pattern: str) -> None:
+    with pytest.raises(ConfigError, match=pattern):
+        load_bus_config(write(tmp_path, GOOD + groups))
+
+
+def test_lrw_false_on_a_slave_and_on_the_simulated_esc(tmp_path: Path) -> None:
+    text = GOOD.replace("    device: GenericIO\n", "    device: GenericIO\n    lrw: false\n"
+                        "    sim: {lrw: false}\n")  # fmt: skip
+    cfg = load_bus_config(write(tmp_path, text))
+    io = cfg.slave("io")
+    assert io.lrw is False and io.sim.lrw is False

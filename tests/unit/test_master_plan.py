@@ -13,7 +13,16 @@ from ether_ros.master.datagrams import (
     Datagram,
     DatagramService,
 )
-from ether_ros.master.plan import DcPlan, RtPlan, build_plan, layout_image
+from ether_ros.master.plan import (
+    DcPlan,
+    Frame,
+    ImageLayout,
+    ImageSlave,
+    LogicalDatagram,
+    RtPlan,
+    build_plan,
+    layout_image,
+)
 from ether_ros.master.sm_fmmu import FMMU_READ, FMMU_WRITE, Fmmu, SyncManager, mailbox_sms
 
 LEGS = [(p, 0x1001 + p, f"leg{p}", 38, 22) for p in range(4)]
@@ -24,7 +33,8 @@ def test_outputs_of_all_slaves_then_inputs() -> None:
     assert layout.output_bytes == 152 and layout.input_bytes == 88 and layout.image_len == 240
     assert [a.output_offset for a in layout.slaves] == [0, 38, 76, 114]
     assert [a.input_offset for a in layout.slaves] == [152, 174, 196, 218]
-    assert len(layout.chunks) == 1
+    # One frame, one LRW over the whole image.
+    assert [f.datagrams for f in layout.frames] == [[LogicalDatagram("lrw", 0, 240, 0, 12)]]
     assert layout.expected_wkc == 4 * 3
 
 
@@ -33,19 +43,88 @@ def test_wkc_counts_only_directions_a_slave_has() -> None:
     assert layout.expected_wkc == 2 + 1
 
 
-def test_large_image_is_split_and_each_chunk_counts_the_fmmus_it_touches() -> None:
-    slaves = [(p, 0x1001 + p, f"s{p}", 300, 300) for p in range(4)]
-    layout = layout_image(slaves, max_chunk=1000)
-    assert [c.length for c in layout.chunks] == [1000, 1000, 400]
-    # chunk 0: outputs of s0..s3 (0..1200 → s0,s1,s2,s3 partially) → 4 write FMMUs
-    assert layout.chunks[0].expected_wkc == 2 * 4
-    # chunk 1 (1000..2000): s3 outputs tail (900..1200) + inputs of s0..s2 (1200..2100)
-    assert layout.chunks[1].expected_wkc == 2 + 3 * 1
-    assert layout.chunks[2].expected_wkc == 2
+def _frame_of_slaves(layout: ImageLayout, frame: Frame) -> set[str]:
+    return {a.name for a in layout.slaves if a.frame == layout.frames.index(frame)}
+
+
+def test_an_image_larger_than_a_frame_is_split_between_slaves() -> None:
+    # 6 slaves of 300 + 300 bytes: two per frame (3 would need 1800 bytes).
+    slaves = [(p, 0x1001 + p, f"s{p}", 300, 300) for p in range(6)]
+    layout = layout_image(slaves, dc=True)
+    assert len(layout.frames) == 3
+    assert layout.frames[0].dc and not layout.frames[1].dc
+    for k, f in enumerate(layout.frames):
+        assert f.payload <= FRAME_PAYLOAD
+        assert _frame_of_slaves(layout, f) == {f"s{2 * k}", f"s{2 * k + 1}"}
+        # Outputs and inputs of the frame's two slaves: one LRW each, +2 per output area,
+        # +1 per input area.
+        assert [(d.command, d.length, d.expected_wkc) for d in f.datagrams] == [
+            ("lrw", 600, 4),
+            ("lrw", 600, 2),
+        ]
+    # No datagram cuts through a slave's area.
+    for d in layout.datagrams:
+        for a in layout.slaves:
+            for off, n in ((a.output_offset, a.output_bytes), (a.input_offset, a.input_bytes)):
+                inside = d.image_offset <= off and off + n <= d.image_offset + d.length
+                outside = off + n <= d.image_offset or d.image_offset + d.length <= off
+                assert inside or outside
+    assert layout.expected_wkc == 6 * 3
+
+
+def test_a_slave_larger_than_a_frame_gets_frames_of_its_own() -> None:
+    layout = layout_image([(0, 1, "big", 2000, 1000), (1, 2, "small", 4, 4)])
+    assert all(f.payload <= FRAME_PAYLOAD for f in layout.frames)
+    big = layout.area("big")
+    covered = sum(d.length for d in layout.datagrams if d.image_offset < 2000 + 4 + 1000)
+    assert covered >= 3000
+    # Every piece of the big slave's outputs counts its write FMMU (+2).
+    pieces = [d for d in layout.datagrams if d.image_offset < big.output_bytes]
+    assert len(pieces) == 2 and all(d.expected_wkc == 2 for d in pieces)
+    assert layout.frames[layout.area("small").frame].expected_wkc == 3
+
+
+def test_slaves_without_lrw_get_lwr_and_lrd_with_their_own_working_counters() -> None:
+    slaves = [ImageSlave(0, 1, "a", 4, 2), ImageSlave(1, 2, "yaskawa", 8, 6, lrw=False),
+              ImageSlave(2, 3, "b", 4, 2)]  # fmt: skip
+    layout = layout_image(slaves)
+    (frame,) = layout.frames
+    # LWR of the LRD/LWR slave's outputs first, one LRW over the others' outputs and inputs,
+    # then the LRD: LRW +2/+1 per slave, LWR and LRD +1.
+    assert [(d.command, d.length, d.expected_wkc) for d in frame.datagrams] == [
+        ("lwr", 8, 1),
+        ("lrw", 12, 6),
+        ("lrd", 6, 1),
+    ]
+    y = layout.area("yaskawa")
+    assert (y.output_offset, y.input_offset) == (0, 16 + 4)
+    assert layout.expected_wkc == 8
+
+
+def test_groups_have_their_own_frames_and_rate() -> None:
+    slaves = [ImageSlave(p, 0x1001 + p, f"s{p}", 10, 10, "io" if p % 2 else "default")
+              for p in range(4)]  # fmt: skip
+    layout = layout_image(slaves, groups=[("default", 1), ("io", 8)], dc=True)
+    assert [(f.group, f.every, f.dc) for f in layout.frames] == [
+        ("default", 1, True),
+        ("io", 8, False),
+    ]
+    io = layout.group("io")
+    assert io.slaves == ("s1", "s3") and io.frames == (1,) and io.every == 8
+    assert layout.group_wkc("io") == 6 and layout.group_wkc("default") == 6
+    # The group's outputs and inputs are contiguous (outputs first overall).
+    assert [layout.area(n).output_offset for n in ("s0", "s2", "s1", "s3")] == [0, 10, 20, 30]
+    # All slaves in a slow group: the DC datagrams get a frame of their own, every cycle.
+    slow = layout_image(
+        [ImageSlave(0, 1, "a", 2, 2, "io")], groups=[("default", 1), ("io", 4)], dc=True
+    )
+    assert [(f.every, f.dc, len(f.datagrams)) for f in slow.frames] == [(1, True, 0), (4, False, 1)]
+    with pytest.raises(ValueError, match="nope"):
+        layout_image([ImageSlave(0, 1, "a", 2, 2, "nope")])
 
 
 def test_plan_dict_follows_engine_contract() -> None:
-    layout = layout_image(LEGS)
+    layout = layout_image(LEGS, dc=True)
     safe = bytes(range(152))
     plan = build_plan(
         layout,
@@ -57,9 +136,11 @@ def test_plan_dict_follows_engine_contract() -> None:
         rt=RtPlan(),
         watchdog_ns=100_000_000,
     )
-    kinds = [d["kind"] for d in plan["datagrams"]]
+    (frame,) = plan["frames"]
+    assert frame["every"] == 1 and frame["watchdog_ns"] == 0
+    kinds = [d["kind"] for d in frame["datagrams"]]
     assert kinds == ["dc_write_ref", "dc_sync", "lrw"]
-    assert plan["datagrams"][2] == {
+    assert frame["datagrams"][2] == {
         "kind": "lrw", "address": 0, "length": 240, "image_offset": 0, "expected_wkc": 12,
     }  # fmt: skip
     assert plan["output_ranges"] == [(0, 152)]
@@ -68,9 +149,45 @@ def test_plan_dict_follows_engine_contract() -> None:
                           "sync0_shift_ns": 55_000}  # fmt: skip
     follow = build_plan(layout, 400_000, "send_then_wait", safe, safe,
                         DcPlan("master_follows_ref", 0x1001), RtPlan(), 0)  # fmt: skip
-    assert [d["kind"] for d in follow["datagrams"]] == ["dc_sync", "lrw"]
+    assert [d["kind"] for d in follow["frames"][0]["datagrams"]] == ["dc_sync", "lrw"]
     with pytest.raises(ValueError):
         build_plan(layout, 400_000, "sideways", safe, safe, DcPlan(), RtPlan(), 0)
+    # A layout without room for the DC datagrams is refused, not sent oversized.
+    with pytest.raises(ValueError, match="DC"):
+        build_plan(layout_image(LEGS), 400_000, "send_at_wake", safe, safe,
+                   DcPlan("ref_follows_master", 0x1001), RtPlan(), 0)  # fmt: skip
+
+
+def test_a_groups_watchdog_goes_to_each_of_its_frames() -> None:
+    slaves = [ImageSlave(p, 0x1001 + p, f"s{p}", 800, 10, "io" if p else "default")
+              for p in range(3)]  # fmt: skip
+    layout = layout_image(slaves, groups=[("default", 1), ("io", 2)])
+    out = bytes(layout.output_bytes)
+    plan = build_plan(layout, 1_000_000, "send_at_wake", out, out, DcPlan(), RtPlan(), 0,
+                      group_watchdog_ns={"io": 50_000_000})  # fmt: skip
+    frames = zip(layout.frames, plan["frames"], strict=True)
+    by_group = [(f.group, p["watchdog_ns"]) for f, p in frames]
+    assert by_group == [("default", 0), ("io", 50_000_000), ("io", 50_000_000)]
+
+
+def test_the_engine_accepts_every_plan_the_builder_makes() -> None:
+    from ether_ros._native import Engine, SimNetwork
+
+    slaves = [ImageSlave(p, 0x1001 + p, f"s{p}", 300, 300, "io" if p > 3 else "default", p != 2)
+              for p in range(7)]  # fmt: skip
+    layout = layout_image(slaves, groups=[("default", 1), ("io", 4)], dc=True)
+    assert len(layout.frames) >= 3
+    out = bytes(layout.output_bytes)
+    plan = build_plan(layout, 1_000_000, "send_at_wake", out, out,
+                      DcPlan("ref_follows_master", 0x1001), RtPlan("other", 0), 0)  # fmt: skip
+    engine = Engine.open_sim(SimNetwork())
+    try:
+        engine.start_cyclic(plan)
+        engine.stop_cyclic()
+        frames = engine.stats()["frames"]
+        assert [f["every"] for f in frames] == [f.every for f in layout.frames]
+    finally:
+        engine.close()
 
 
 def test_sync_manager_and_fmmu_bytes() -> None:

@@ -9,6 +9,7 @@ from typing import Any
 from ether_ros.errors import BusError, LinkError
 from ether_ros.master.al import AlState, AlStatus, SlaveRef
 from ether_ros.master.events import BusEvent
+from ether_ros.master.groups import GroupStats
 from ether_ros.master.supervisor import Supervisor, counter
 from ether_ros.topology import Link, line
 
@@ -42,6 +43,8 @@ class FakeBus:
         self.events: list[BusEvent] = []
         self._acyclic = threading.RLock()
         self.layout = None
+        # Per-group working-counter errors (name -> errors); empty: a bus without groups info.
+        self.group_errors: dict[str, int] = {}
         bus = self
 
         class Engine:
@@ -63,6 +66,12 @@ class FakeBus:
                 return bus.dl_status.get(station, 0xAA00).to_bytes(2, "little"), 1
 
         self.engine, self.al, self.dg = Engine(), Al(), Dg()
+
+    def group_stats(self, stats: dict[str, Any]) -> list[GroupStats]:
+        return [
+            GroupStats(name, 1, 1_000_000, (), (k,), 6, 6, 0, 0, 0, errors)
+            for k, (name, errors) in enumerate(self.group_errors.items())
+        ]
 
     def emit(self, event: BusEvent) -> None:
         self.events.append(event)
@@ -90,7 +99,21 @@ def test_wkc_errors_reported_once_per_burst() -> None:
         bus.wkc_errors = errors
         sup.check()
     assert bus.kinds() == ["wkc_error", "wkc_error"]
-    assert bus.events[0].message.startswith("5 cycle(s) with a wrong working counter")
+    assert bus.events[0].message.startswith("5 frame(s) with a wrong working counter")
+
+
+def test_wkc_errors_are_reported_per_group() -> None:
+    bus = FakeBus()
+    bus.group_errors = {"default": 0, "io": 0}
+    sup = Supervisor(bus, retry_s=0)  # type: ignore[arg-type]
+    for errors in (3, 7, 7):
+        bus.group_errors["io"] = errors
+        sup.check()
+    assert bus.kinds() == ["wkc_error"]
+    assert bus.events[0].message == "group io: 3 frame(s) with a wrong working counter (expected 6)"
+    bus.group_errors["default"] = 1
+    sup.check()
+    assert bus.events[-1].message.startswith("group default: 1 frame(s)")
 
 
 def test_lost_slave_is_reported_then_recovered() -> None:

@@ -53,6 +53,29 @@ def test_spec_names_types_and_ranges() -> None:
     assert parse_address("0x7030:04") == (0x7030, 4) and parse_address("x:y") is None
 
 
+def test_bus_layout_carries_each_slaves_group_and_its_cycle() -> None:
+    from types import SimpleNamespace
+
+    from ether_ros.master.plan import ImageSlave, layout_image
+    from ether_ros.ros.convert import layout_msg, spec_from_msg
+
+    cfg = load_bus_config(Path(__file__).resolve().parents[2] / "config" / "mixed.yaml")
+    slaves = [
+        SimpleNamespace(name=s.name, position=i, device=s.esi, layout=s.layout)
+        for i, s in enumerate(cfg.slaves)
+    ]
+    image = layout_image(
+        [ImageSlave(i, 0x1001 + i, s.name, 1, 1, "io" if s.name == "io_box" else "default")
+         for i, s in enumerate(cfg.slaves)],
+        groups=[("default", 1), ("io", 5)],
+    )  # fmt: skip
+    bus = SimpleNamespace(config=cfg, slaves=slaves, layout=image)
+    spec = spec_from_msg(layout_msg(bridge.bus_spec(bus)))
+    assert (spec.slave("io_box").group, spec.slave("io_box").group_cycle_us) == ("io", 2000)
+    leg = spec.slave("hind_right_leg")
+    assert (leg.group, leg.group_cycle_us) == ("default", 400)
+
+
 def test_resolve_write_by_name_position_all_and_text() -> None:
     s = spec_of("laelaps.yaml")
     [(slave, var, value)] = bridge.resolve_write(s, "", 3, False, "Kp100_knee", 8000.0, "")

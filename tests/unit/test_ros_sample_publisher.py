@@ -41,7 +41,6 @@ class FakeBus:
             FakeSlave(s.name, i, s.layout, a)
             for i, (s, a) in enumerate(zip(cfg.slaves, self.layout.slaves, strict=True))
         ]
-        self.plan = {"datagrams": [{"kind": "lrw", "expected_wkc": 12}]}
 
 
 class Sink:

@@ -15,6 +15,7 @@ from ether_ros.tools.live import (
     TopApp,
     histogram_text,
     snapshot_from_diagnostics,
+    stats_text,
     timing_text,
 )
 
@@ -128,6 +129,22 @@ def test_snapshot_from_the_nodes_diagnostics_shows_quantiles() -> None:
     text = timing_text(snap)
     assert "round trip       p50    110.0  p99    130.0  max    150.0 µs" in text
     assert "execution        no data" in text
+
+
+def test_groups_from_the_nodes_diagnostics_are_shown() -> None:
+    from diagnostic_msgs.msg import DiagnosticStatus
+
+    from ether_ros.master.groups import GroupStats
+    from ether_ros.ros.diagnostics import group_statuses, values_of
+
+    groups = [GroupStats("io", 4, 4_000_000, ("io_a",), (2,), 3, 0, 250, 1, 0, 40)]
+    (status,) = group_statuses("ether_comm", groups)
+    assert (
+        status.level == DiagnosticStatus.WARN and status.message == "working counter 0, expected 3"
+    )
+    snap = snapshot_from_diagnostics({"cycles": "1"}, {}, "b", groups={"io": values_of(status)})
+    text = stats_text(snap)
+    assert "group io: every 4000 µs   lost 1   late 0   WKC errors 40   WKC 0/3" in text
 
 
 @pytest.mark.ros

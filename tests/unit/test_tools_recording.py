@@ -37,7 +37,7 @@ BUS = BusInfo(
     400,
     (
         SlaveInfo("leg", 0, "LaelapsII_Leg", (var("hip_angle"), var("knee_angle")), (var("a"),)),
-        SlaveInfo("io", 1, "GenericIO", (var("in0"),), ()),
+        SlaveInfo("io", 1, "GenericIO", (var("in0"),), (), "io_group", 4000),
     ),
 )
 

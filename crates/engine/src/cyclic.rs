@@ -12,14 +12,18 @@ use crate::clock::{now_ns, sleep_until};
 use crate::frames::{frame_index, reply_matches};
 use crate::handover::{flags, Mailbox, SampleRecord, SampleRing, SeqBuffer};
 use crate::link::{Link, Received};
-use crate::plan::{DcMode, FrameLayout, Order, Plan};
-use crate::stats::Stats;
+use crate::plan::{CycleLayout, DcMode, Order, Plan};
+use crate::stats::{FrameStats, Stats};
 
-/// Cyclic frames carry indices 0x80..=0xFF (rotating), acyclic ones 0x00..=0x7F, so a reply
-/// tells at a glance which path it belongs to.
+/// Cyclic frames carry indices 0x80..=0xFF (rotating, one per frame sent), acyclic ones
+/// 0x00..=0x7F, so a reply tells at a glance which path it belongs to.
 pub const CYCLIC_INDEX_BIT: u8 = 0x80;
-/// At most this many frames are read per cycle, so a flood cannot hold the loop.
-const MAX_FRAMES_PER_CYCLE: usize = 32;
+/// Number of cyclic indices: at most two cycles of frames are in flight (send_at_wake), and
+/// `plan::MAX_FRAMES` keeps them apart.
+const CYCLIC_INDICES: usize = 128;
+/// At most this many frames are read per receive pass beyond the cycle's own, so a flood cannot
+/// hold the loop.
+const MAX_EXTRA_FRAMES_PER_CYCLE: usize = 32;
 
 /// State shared by the engine and its RT thread for the engine's whole life.
 #[derive(Default)]
@@ -52,11 +56,33 @@ pub struct Exchange {
     pub ring: SampleRing,
     /// Command, trajectory and status slots of the CiA 402 axes.
     pub axes: AxisExchange,
+    /// Counters and round trip per cyclic frame, in plan order.
+    pub frames: Box<[FrameStats]>,
+    /// Per cyclic frame: the last write that touched its output bytes (or feed), ns.
+    pub frame_commands: Box<[AtomicI64]>,
+    /// Per cyclic frame: its output byte runs (what a write must touch to feed its watchdog).
+    pub frame_outputs: Vec<Vec<(usize, usize)>>,
     /// Which cyclic run of the engine this is (1, 2, ...; 0 before `start_cyclic` numbers it).
     pub run: u64,
 }
 
 impl Exchange {
+    /// A command for the watchdogs of the frames whose output bytes `begin..end` touches.
+    pub fn note_command(&self, begin: usize, end: usize, now_ns: i64) {
+        for (k, runs) in self.frame_outputs.iter().enumerate() {
+            if runs.iter().any(|&(o, l)| begin < o + l && o < end) {
+                self.frame_commands[k].store(now_ns, Ordering::Release);
+            }
+        }
+    }
+
+    /// A command for every frame's watchdog (`feed_watchdog`, `start_cyclic`).
+    pub fn note_command_all(&self, now_ns: i64) {
+        for c in self.frame_commands.iter() {
+            c.store(now_ns, Ordering::Release);
+        }
+    }
+
     /// Ok when image bytes `begin..end` lie inside one output run, else the refusal naming
     /// `what` and the ranges a write may touch.
     pub fn check_output_span(&self, begin: usize, end: usize, what: &str) -> Result<(), String> {
@@ -73,8 +99,11 @@ impl Exchange {
         ))
     }
 
-    pub fn new(plan: Plan, layout: &FrameLayout) -> Exchange {
+    pub fn new(plan: Plan, layout: &CycleLayout) -> Exchange {
         Exchange {
+            frames: plan.frames.iter().map(|_| FrameStats::default()).collect(),
+            frame_commands: plan.frames.iter().map(|_| AtomicI64::new(0)).collect(),
+            frame_outputs: layout.frames.iter().map(|f| f.outputs.clone()).collect(),
             output_runs: layout.outputs.clone(),
             outputs: SeqBuffer::new(&plan.initial_image),
             image: SeqBuffer::new(&plan.initial_image),
@@ -149,11 +178,12 @@ fn tick_clearance(t: i64, cycle: i64) -> i64 {
     }
 }
 
-/// A cyclic frame on the wire.
+/// A cyclic frame on the wire, filed under its index.
 #[derive(Clone, Copy, Debug)]
 struct Pending {
     cycle: u64,
-    index: u8,
+    /// Which frame of the plan.
+    frame: usize,
     /// When it was handed to the link, CLOCK_MONOTONIC ns.
     tx_ns: i64,
 }
@@ -172,8 +202,9 @@ pub struct Cyclic {
     pub link: Box<dyn Link>,
     shared: Arc<Shared>,
     ex: Arc<Exchange>,
-    layout: FrameLayout,
-    frame: Vec<u8>,
+    layout: CycleLayout,
+    /// One transmit buffer per cyclic frame, from the layout's templates.
+    tx: Vec<Vec<u8>>,
     rx: Vec<u8>,
     image: Vec<u8>,
     live_out: Vec<u8>,
@@ -181,13 +212,23 @@ pub struct Cyclic {
     out_version: u64,
     /// The axis stage (CiA 402 drives), run on the image before the frame is filled.
     axes: Axes,
-    /// Cyclic frames whose reply is awaited, in slot `cycle % 2`: in send_at_wake the frame
-    /// just sent and the previous one can both be in flight.
-    pending: [Option<Pending>; 2],
-    /// Cycle of the newest reply processed: an older reply arriving later is only counted.
-    last_processed: Option<u64>,
+    /// Cyclic frames whose reply is awaited, by index (low 7 bits): in send_at_wake the
+    /// frames just sent and those of the previous cycle can all be in flight.
+    pending: [Option<Pending>; CYCLIC_INDICES],
+    /// The frame last sent under each index: a reply arriving after its frame was declared
+    /// lost is counted late against that frame.
+    sent_as: [usize; CYCLIC_INDICES],
+    /// Frames of each cycle (slot `cycle % 2`) still awaiting their reply.
+    outstanding: [usize; 2],
+    /// Index of the next cyclic frame sent (low 7 bits).
+    next_index: u8,
+    /// Per frame, the cycle of the newest reply processed: an older reply arriving later is
+    /// only counted.
+    last_processed: Vec<Option<u64>>,
     cycle: u64,
     watchdog_tripped: bool,
+    /// Per frame: its own watchdog has tripped (bit k).
+    frame_watchdog_tripped: u32,
     dc: DcFollower,
     /// (reference clock time, our send time of that frame), from this cycle's reply.
     ref_sample: Option<(u64, i64)>,
@@ -196,7 +237,12 @@ pub struct Cyclic {
     rtt_ns: u32,
     send_ns: u64,
     wkc: u16,
+    /// Working counter of each frame's reply processed this cycle (bit k of `wkc_seen`): when
+    /// two replies of one frame come in one cycle, the newer counts.
+    frame_wkc: Vec<u16>,
+    wkc_seen: u32,
     dc_diff_ns: i32,
+    lost_mask: u32,
 }
 
 impl Cyclic {
@@ -204,12 +250,15 @@ impl Cyclic {
         link: Box<dyn Link>,
         shared: Arc<Shared>,
         ex: Arc<Exchange>,
-        layout: FrameLayout,
+        layout: CycleLayout,
     ) -> Cyclic {
         let image = ex.plan.initial_image.clone();
         Cyclic {
             link,
-            frame: layout.template.clone(),
+            tx: layout.frames.iter().map(|f| f.template.clone()).collect(),
+            last_processed: vec![None; layout.frames.len()],
+            frame_wkc: vec![0; layout.frames.len()],
+            wkc_seen: 0,
             rx: vec![0u8; MAX_FRAME_LEN],
             live_out: image.clone(),
             scratch: image.clone(),
@@ -219,10 +268,13 @@ impl Cyclic {
             layout,
             shared,
             ex,
-            pending: [None, None],
-            last_processed: None,
+            pending: [None; CYCLIC_INDICES],
+            sent_as: [0; CYCLIC_INDICES],
+            outstanding: [0; 2],
+            next_index: 0,
             cycle: 0,
             watchdog_tripped: false,
+            frame_watchdog_tripped: 0,
             dc: DcFollower {
                 locked: false,
                 integral: 0.0,
@@ -234,6 +286,7 @@ impl Cyclic {
             send_ns: 0,
             wkc: 0,
             dc_diff_ns: 0,
+            lost_mask: 0,
         }
     }
 
@@ -260,12 +313,15 @@ impl Cyclic {
             let t_wake = now_ns();
             if self.shared.reset_requested.load(Ordering::Acquire) {
                 self.shared.stats.reset();
+                self.ex.frames.iter().for_each(FrameStats::reset);
                 self.shared.reset_requested.store(false, Ordering::Release);
             }
             self.flags = std::mem::take(&mut carry_flags);
             self.rtt_ns = 0;
             self.wkc = 0;
+            self.wkc_seen = 0;
             self.dc_diff_ns = 0;
+            self.lost_mask = 0;
             self.ref_sample = None;
             let t_sent = match order {
                 Order::SendAtWake => {
@@ -314,6 +370,7 @@ impl Cyclic {
                 wkc: self.wkc,
                 flags: self.flags,
                 dc_diff_ns: self.dc_diff_ns,
+                lost_mask: self.lost_mask,
             };
             self.account(&record);
             if !self.ex.ring.push(&record, &self.image) {
@@ -345,6 +402,9 @@ impl Cyclic {
     fn account(&self, r: &SampleRecord) {
         let s = &self.shared.stats;
         s.counters.cycles.fetch_add(1, Ordering::Relaxed);
+        if r.flags & flags::WKC_ERROR != 0 {
+            s.counters.wkc_errors.fetch_add(1, Ordering::Relaxed);
+        }
         s.wake_latency.record(r.wake_latency_ns.max(0) as u64);
         s.exec.record(r.exec_ns as u64);
         if r.period_ns > 0 {
@@ -356,12 +416,22 @@ impl Cyclic {
         s.send.record(self.send_ns);
     }
 
-    /// The frame of cycle `cycle` had its chance: no reply means lost.
+    /// The frames of cycle `cycle` had their chance: those without a reply are lost.
     fn check_lost(&mut self, cycle: u64) {
-        let slot = &mut self.pending[(cycle % 2) as usize];
-        if slot.is_some_and(|p| p.cycle == cycle) {
-            *slot = None;
+        let slot = (cycle % 2) as usize;
+        if self.outstanding[slot] == 0 {
+            return;
+        }
+        self.outstanding[slot] = 0;
+        for entry in self.pending.iter_mut() {
+            let Some(p) = *entry else { continue };
+            if p.cycle != cycle {
+                continue;
+            }
+            *entry = None;
             self.flags |= flags::LOST;
+            self.lost_mask |= 1 << p.frame;
+            self.ex.frames[p.frame].lost.fetch_add(1, Ordering::Relaxed);
             self.shared
                 .stats
                 .counters
@@ -370,15 +440,12 @@ impl Cyclic {
         }
     }
 
-    fn awaiting(&self, cycle: u64) -> bool {
-        self.pending[(cycle % 2) as usize].is_some_and(|p| p.cycle == cycle)
-    }
-
-    /// Read frames until the cyclic reply is in (when `until_cyclic`) or nothing more arrives
-    /// before `deadline_ns`.
+    /// Read frames until every cyclic reply of this cycle is in (when `until_cyclic`) or
+    /// nothing more arrives before `deadline_ns`.
     fn receive(&mut self, deadline_ns: i64, until_cyclic: bool) {
-        for _ in 0..MAX_FRAMES_PER_CYCLE {
-            if until_cyclic && !self.awaiting(self.cycle) {
+        let limit = self.tx.len() * 2 + MAX_EXTRA_FRAMES_PER_CYCLE;
+        for _ in 0..limit {
+            if until_cyclic && self.outstanding[(self.cycle % 2) as usize] == 0 {
                 return;
             }
             let got = self.link.recv(&mut self.rx, deadline_ns);
@@ -389,27 +456,41 @@ impl Cyclic {
         }
     }
 
+    /// Does `rx` have the datagram structure of cyclic frame `frame`?
+    fn is_reply_to(&self, frame: usize, rx: &[u8]) -> bool {
+        let f = &self.layout.frames[frame];
+        reply_matches(&f.template[..f.len], rx, true)
+    }
+
     fn handle(&mut self, r: Received) {
         let rx = &self.rx[..r.len];
-        let tx = &self.frame[..self.layout.len];
         let index = frame_index(rx);
         let counters = &self.shared.stats.counters;
-        let slot = index.map(|i| (i & 1) as usize);
-        let pending = slot
-            .and_then(|s| self.pending[s])
-            .filter(|p| Some(p.index) == index);
         match index {
-            Some(_) if pending.is_some() && reply_matches(tx, rx, true) => {
-                let p = pending.unwrap();
-                self.pending[(p.cycle % 2) as usize] = None;
-                if self.last_processed.is_none_or(|c| p.cycle > c) {
-                    self.last_processed = Some(p.cycle);
-                    self.process_reply(r, p.tx_ns);
+            Some(i) if i & CYCLIC_INDEX_BIT != 0 => {
+                let key = (i & !CYCLIC_INDEX_BIT) as usize;
+                match self.pending[key] {
+                    Some(p) if self.is_reply_to(p.frame, rx) => {
+                        self.pending[key] = None;
+                        let slot = (p.cycle % 2) as usize;
+                        self.outstanding[slot] = self.outstanding[slot].saturating_sub(1);
+                        if self.last_processed[p.frame].is_none_or(|c| p.cycle > c) {
+                            self.last_processed[p.frame] = Some(p.cycle);
+                            self.process_reply(r, p);
+                        }
+                    }
+                    None if self.is_reply_to(self.sent_as[key], rx) => {
+                        self.flags |= flags::LATE;
+                        counters.late_frames.fetch_add(1, Ordering::Relaxed);
+                        self.ex.frames[self.sent_as[key]]
+                            .late
+                            .fetch_add(1, Ordering::Relaxed);
+                    }
+                    _ => {
+                        self.flags |= flags::UNMATCHED;
+                        counters.unmatched_frames.fetch_add(1, Ordering::Relaxed);
+                    }
                 }
-            }
-            Some(i) if i & CYCLIC_INDEX_BIT != 0 && reply_matches(tx, rx, true) => {
-                self.flags |= flags::LATE;
-                counters.late_frames.fetch_add(1, Ordering::Relaxed);
             }
             Some(_)
                 if self
@@ -427,33 +508,40 @@ impl Cyclic {
         }
     }
 
-    /// The reply to our cyclic frame: inputs into the image, working counters, DC time.
-    fn process_reply(&mut self, r: Received, tx_ns: i64) {
+    /// The reply to cyclic frame `p.frame`: inputs into the image, working counter of every
+    /// logical datagram, DC time.
+    fn process_reply(&mut self, r: Received, p: Pending) {
         let rx = &self.rx[..r.len];
-        self.rtt_ns = (r.rx_ns - tx_ns).clamp(0, u32::MAX as i64) as u32;
+        let layout = &self.layout.frames[p.frame];
+        let stats = &self.ex.frames[p.frame];
+        let rtt = (r.rx_ns - p.tx_ns).clamp(0, u32::MAX as i64) as u32;
+        // The cycle's round trip is that of its slowest frame.
+        self.rtt_ns = self.rtt_ns.max(rtt);
+        stats.rtt.record(rtt as u64);
         let mut total = 0u16;
         let mut bad = false;
-        for (slot, expected) in &self.layout.lrw_wkc {
+        for (slot, expected) in &layout.wkc {
             let w = wire::read_wkc(rx, slot);
             total = total.wrapping_add(w);
             bad |= w != *expected;
         }
-        self.wkc = total;
+        self.frame_wkc[p.frame] = total;
+        self.wkc_seen |= 1 << p.frame;
+        self.wkc = (0..self.frame_wkc.len())
+            .filter(|k| self.wkc_seen & (1 << k) != 0)
+            .fold(0u16, |sum, k| sum.wrapping_add(self.frame_wkc[k]));
+        stats.last_wkc.store(total as u64, Ordering::Relaxed);
         if bad {
             self.flags |= flags::WKC_ERROR;
-            self.shared
-                .stats
-                .counters
-                .wkc_errors
-                .fetch_add(1, Ordering::Relaxed);
+            stats.wkc_errors.fetch_add(1, Ordering::Relaxed);
         }
-        for &(f, i, len) in &self.layout.inputs {
+        for &(f, i, len) in &layout.inputs {
             self.image[i..i + len].copy_from_slice(&rx[f..f + len]);
         }
-        if let Some(slot) = self.layout.dc_sync {
+        if let Some(slot) = layout.dc_sync {
             if wire::read_wkc(rx, &slot) > 0 {
                 let t = u64::from_le_bytes(rx[slot.data..slot.data + 8].try_into().unwrap());
-                self.ref_sample = Some((t, tx_ns));
+                self.ref_sample = Some((t, p.tx_ns));
             }
         }
     }
@@ -507,49 +595,85 @@ impl Cyclic {
             panic || stale,
             &self.ex.axes,
         );
-        for &(f, i, l) in &self.layout.lrw {
-            self.frame[f..f + l].copy_from_slice(&self.image[i..i + l]);
-        }
-        let index = CYCLIC_INDEX_BIT | (self.cycle as u8 & 0x7f);
-        for slot in &self.layout.slots {
-            self.frame[slot.header + 1] = index;
-            self.frame[slot.wkc..slot.wkc + 2].fill(0);
-        }
-        if let Some(slot) = self.layout.dc_sync {
-            self.frame[slot.data..slot.data + 8].fill(0);
-        }
-        // The round trip starts as the frame is handed to the link (a synchronous in-process
-        // link answers before `send` returns); execution time ends when `send` returned.
-        let t_handed = now_ns();
-        if let Some(d) = self.layout.dc_write {
-            // The master's system time as the frame leaves, not at the planned wake-up: the
-            // reference clock's drift loop then sees the transit time only, without this
-            // cycle's wake-up and build jitter.
-            let t = (t_handed + plan.dc.time_offset_ns) as u64;
-            self.frame[d..d + 8].copy_from_slice(&t.to_le_bytes());
-        }
-        let sent = self.link.send(&self.frame[..self.layout.len]);
-        let t_sent = now_ns();
-        self.send_ns = (t_sent - t_handed).max(0) as u64;
-        match sent {
-            Ok(()) => {
-                let cycle = self.cycle;
-                self.pending[(cycle % 2) as usize] = Some(Pending {
-                    cycle,
-                    index,
-                    tx_ns: t_handed,
-                });
+        // The frames due this cycle go out back to back; the round trip of each starts as it
+        // is handed to the link (a synchronous in-process link answers before `send` returns),
+        // execution time ends when the last `send` returned.
+        let mut t_sent = now_ns();
+        let mut send_ns = 0;
+        for k in 0..self.tx.len() {
+            let layout = &self.layout.frames[k];
+            if !self.cycle.is_multiple_of(layout.every as u64) {
+                continue;
             }
-            Err(_) => {
-                self.pending[(self.cycle % 2) as usize] = None;
-                self.flags |= flags::SEND_ERROR;
-                self.shared
-                    .stats
-                    .counters
-                    .send_errors
-                    .fetch_add(1, Ordering::Relaxed);
+            // The group's own watchdog: its output bytes from the safe image (in the image too,
+            // so the samples show what went out).
+            let wd = layout.watchdog_ns as i64;
+            let group_stale =
+                wd > 0 && t_wake - self.ex.frame_commands[k].load(Ordering::Acquire) > wd;
+            let bit = 1u32 << k;
+            if group_stale {
+                if self.frame_watchdog_tripped & bit == 0 {
+                    self.ex.frames[k]
+                        .watchdog_trips
+                        .fetch_add(1, Ordering::Relaxed);
+                }
+                self.flags |= flags::WATCHDOG;
+                for &(o, l) in &layout.outputs {
+                    self.image[o..o + l].copy_from_slice(&plan.safe_image[o..o + l]);
+                }
+            }
+            self.frame_watchdog_tripped =
+                (self.frame_watchdog_tripped & !bit) | if group_stale { bit } else { 0 };
+            let frame = &mut self.tx[k];
+            for &(f, i, l) in &layout.writes {
+                frame[f..f + l].copy_from_slice(&self.image[i..i + l]);
+            }
+            let key = self.next_index as usize;
+            self.next_index = (self.next_index + 1) % CYCLIC_INDICES as u8;
+            let index = CYCLIC_INDEX_BIT | key as u8;
+            for slot in &layout.slots {
+                frame[slot.header + 1] = index;
+                frame[slot.wkc..slot.wkc + 2].fill(0);
+            }
+            if let Some(slot) = layout.dc_sync {
+                frame[slot.data..slot.data + 8].fill(0);
+            }
+            let t_handed = now_ns();
+            if let Some(d) = layout.dc_write {
+                // The master's system time as the frame leaves, not at the planned wake-up:
+                // the reference clock's drift loop then sees the transit time only, without
+                // this cycle's wake-up and build jitter.
+                let t = (t_handed + plan.dc.time_offset_ns) as u64;
+                frame[d..d + 8].copy_from_slice(&t.to_le_bytes());
+            }
+            let sent = self.link.send(&frame[..layout.len]);
+            t_sent = now_ns();
+            send_ns += (t_sent - t_handed).max(0) as u64;
+            // An index still filed belongs to a frame two cycles old that check_lost already
+            // handled; overwriting it is what a reply-less slot means.
+            self.pending[key] = None;
+            match sent {
+                Ok(()) => {
+                    self.pending[key] = Some(Pending {
+                        cycle: self.cycle,
+                        frame: k,
+                        tx_ns: t_handed,
+                    });
+                    self.sent_as[key] = k;
+                    self.outstanding[(self.cycle % 2) as usize] += 1;
+                    self.ex.frames[k].sent.fetch_add(1, Ordering::Relaxed);
+                }
+                Err(_) => {
+                    self.flags |= flags::SEND_ERROR;
+                    self.shared
+                        .stats
+                        .counters
+                        .send_errors
+                        .fetch_add(1, Ordering::Relaxed);
+                }
             }
         }
+        self.send_ns = send_ns;
         t_sent
     }
 

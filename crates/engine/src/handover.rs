@@ -93,11 +93,11 @@ pub const RECORD_LEN: usize = 48;
 
 /// Flags of a sample (bit values shared with `python/ether_ros/master/samples.py`).
 pub mod flags {
-    /// The reply to the cyclic frame did not arrive in time.
+    /// The reply to a cyclic frame did not arrive in time (which: the record's `lost_mask`).
     pub const LOST: u16 = 1 << 0;
     /// A reply to an older cyclic frame arrived (after it was already counted lost).
     pub const LATE: u16 = 1 << 1;
-    /// An LRW datagram's working counter differed from the expected one.
+    /// A logical datagram's working counter differed from the expected one.
     pub const WKC_ERROR: u16 = 1 << 2;
     /// Panic latched: the safe image went on the wire.
     pub const PANIC: u16 = 1 << 3;
@@ -129,16 +129,18 @@ pub struct SampleRecord {
     pub period_ns: u32,
     /// Round trip of the cyclic reply processed in this cycle (0 when none).
     pub rtt_ns: u32,
-    /// Sum of the LRW working counters of that reply.
+    /// Sum of the logical datagrams' working counters of the replies processed this cycle.
     pub wkc: u16,
     pub flags: u16,
     /// Distributed-clock difference (see docs/engine.md, "DC modes").
     pub dc_diff_ns: i32,
+    /// Bit k: the reply to cyclic frame k was declared lost in this cycle.
+    pub lost_mask: u32,
 }
 
 impl SampleRecord {
     /// Little-endian layout: cycle u64, t_wake u64, latency i64, exec u32, period u32, rtt u32,
-    /// wkc u16, flags u16, dc_diff i32, 4 bytes padding.
+    /// wkc u16, flags u16, dc_diff i32, lost_mask u32.
     pub fn encode(&self, out: &mut [u8]) {
         out[0..8].copy_from_slice(&self.cycle.to_le_bytes());
         out[8..16].copy_from_slice(&self.t_wake_ns.to_le_bytes());
@@ -149,7 +151,7 @@ impl SampleRecord {
         out[36..38].copy_from_slice(&self.wkc.to_le_bytes());
         out[38..40].copy_from_slice(&self.flags.to_le_bytes());
         out[40..44].copy_from_slice(&self.dc_diff_ns.to_le_bytes());
-        out[44..48].fill(0);
+        out[44..48].copy_from_slice(&self.lost_mask.to_le_bytes());
     }
 
     pub fn decode(b: &[u8]) -> SampleRecord {
@@ -166,6 +168,7 @@ impl SampleRecord {
             wkc: u16_at(36),
             flags: u16_at(38),
             dc_diff_ns: u32_at(40) as i32,
+            lost_mask: u32_at(44),
         }
     }
 }
@@ -482,6 +485,7 @@ mod tests {
             wkc: 12,
             flags: flags::LOST | flags::PANIC,
             dc_diff_ns: -99,
+            lost_mask: 0b101,
         };
         let mut b = [0u8; RECORD_LEN];
         r.encode(&mut b);

@@ -35,6 +35,7 @@ use handover::mailbox_state;
 pub use handover::{flags, SampleRecord, RECORD_LEN};
 pub use link::{InProcessLink, Link, LinkKind, LinkOptions, RawSocketLink, Received, Responder};
 pub use plan::Plan;
+
 use stats::Summary;
 pub use xdp::{XdpLink, XdpMode};
 
@@ -82,6 +83,17 @@ enum LinkState {
 pub struct StatsSnapshot {
     pub counters: Vec<(&'static str, u64)>,
     pub histograms: Vec<(&'static str, Summary)>,
+    /// Per cyclic frame of the current (or last) run, in plan order.
+    pub frames: Vec<FrameSnapshot>,
+}
+
+/// One cyclic frame's counters and round trip.
+#[derive(Clone, Debug, Default)]
+pub struct FrameSnapshot {
+    /// Sent every this many cycles.
+    pub every: u32,
+    pub counters: Vec<(&'static str, u64)>,
+    pub rtt: Summary,
 }
 
 pub struct Engine {
@@ -321,7 +333,9 @@ impl Engine {
         shared.stop.store(false, Ordering::Release);
         shared.alive.store(false, Ordering::Release);
         shared.cycle_ns.store(cycle_ns as i64, Ordering::Relaxed);
+        // start_cyclic counts as a command for every watchdog.
         shared.last_command_ns.store(now_ns(), Ordering::Release);
+        ex.note_command_all(now_ns());
         let mut cyclic = Cyclic::new(link, shared.clone(), ex.clone(), layout);
         let (ready_tx, ready_rx) = mpsc::sync_channel::<std::result::Result<(), String>>(1);
         let spawned = std::thread::Builder::new()
@@ -406,7 +420,10 @@ impl Engine {
             let _w = lock(&self.output_writer);
             ex.outputs.write(offset, data);
         }
-        self.feed_watchdog();
+        self.shared
+            .last_command_ns
+            .store(now_ns(), Ordering::Release);
+        ex.note_command(offset, end, now_ns());
         Ok(())
     }
 
@@ -453,7 +470,10 @@ impl Engine {
             }
             ex.outputs.write(first, &scratch);
         }
-        self.feed_watchdog();
+        self.shared
+            .last_command_ns
+            .store(now_ns(), Ordering::Release);
+        ex.note_command(first, end, now_ns());
         Ok(())
     }
 
@@ -625,6 +645,24 @@ impl Engine {
                 .iter()
                 .map(|(n, h)| (*n, h.summary()))
                 .collect(),
+            frames: lock(&self.exchange)
+                .as_ref()
+                .map(|ex| {
+                    ex.frames
+                        .iter()
+                        .zip(&ex.plan.frames)
+                        .map(|(f, p)| FrameSnapshot {
+                            every: p.every,
+                            counters: f
+                                .named()
+                                .iter()
+                                .map(|(n, c)| (*n, c.load(Ordering::Relaxed)))
+                                .collect(),
+                            rtt: f.rtt.summary(),
+                        })
+                        .collect()
+                })
+                .unwrap_or_default(),
         }
     }
 
@@ -646,6 +684,9 @@ impl Engine {
             }
         }
         self.shared.stats.reset();
+        if let Some(ex) = lock(&self.exchange).as_ref() {
+            ex.frames.iter().for_each(stats::FrameStats::reset);
+        }
     }
 
     /// Latch the safe image onto the wire from the next cyclic frame on.
@@ -671,9 +712,11 @@ impl Engine {
 
     /// Count as a fresh command for the watchdog without writing outputs.
     pub fn feed_watchdog(&self) {
-        self.shared
-            .last_command_ns
-            .store(now_ns(), Ordering::Release);
+        let now = now_ns();
+        self.shared.last_command_ns.store(now, Ordering::Release);
+        if let Some(ex) = lock(&self.exchange).as_ref() {
+            ex.note_command_all(now);
+        }
     }
 }
 

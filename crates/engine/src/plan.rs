@@ -1,6 +1,7 @@
-//! The cyclic plan: what the RT thread puts in every frame and how it runs. The Python binding
-//! fills it from the plan dict (python/ether_ros/master/plan.py); `validate` names the key that
-//! is wrong.
+//! The cyclic plan: which frames the RT thread sends, what each carries and how the loop runs.
+//! The Python binding fills it from the plan dict (python/ether_ros/master/plan.py, the one place
+//! that decides which datagram goes in which frame); `validate` names the key that is wrong and
+//! `layout` lays every frame out once.
 
 use crate::cia402::{AxisPlan, MAX_TRAJECTORY_CAPACITY};
 use ether_ros_wire::{
@@ -22,13 +23,55 @@ pub enum CyclicDatagram {
     DcWriteRef { station: u16 },
     /// FRMW 0x0910: the reference clock's time to every other DC slave.
     DcSync { station: u16 },
-    /// LRW of `length` image bytes at `image_offset`.
-    Lrw {
+    /// LRW, LRD or LWR of `length` image bytes at `image_offset`.
+    Logical {
+        command: Logical,
         address: u32,
         length: usize,
         image_offset: usize,
         expected_wkc: u16,
     },
+}
+
+/// The logical commands of the process image. LRW reads and writes in one pass (working
+/// counter +1 per slave read, +2 per slave written); devices that refuse LRW (ESC register
+/// 0x0008 bit 9) get an LRD for their inputs and an LWR for their outputs (+1 each).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Logical {
+    Lrw,
+    Lrd,
+    Lwr,
+}
+
+impl Logical {
+    pub fn command(self) -> Command {
+        match self {
+            Logical::Lrw => Command::Lrw,
+            Logical::Lrd => Command::Lrd,
+            Logical::Lwr => Command::Lwr,
+        }
+    }
+
+    /// Does the frame carry image bytes to the slaves?
+    pub fn writes(self) -> bool {
+        self != Logical::Lrd
+    }
+
+    /// Does the reply carry image bytes back?
+    pub fn reads(self) -> bool {
+        self != Logical::Lwr
+    }
+}
+
+/// One cyclic frame: its datagrams and how often it goes out.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct FramePlan {
+    pub datagrams: Vec<CyclicDatagram>,
+    /// Sent in the cycles `cycle % every == 0` (a group running at 1/every of the base rate).
+    pub every: u32,
+    /// The group's own command watchdog (0: none): when no write touched this frame's output
+    /// bytes (and no `feed_watchdog`) for this long, the frame carries the safe image's bytes.
+    pub watchdog_ns: u64,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -66,7 +109,8 @@ pub struct RtPlan {
 pub struct Plan {
     pub cycle_ns: u64,
     pub order: Order,
-    pub datagrams: Vec<CyclicDatagram>,
+    /// The cyclic frames, all sent back to back at the cycle's wake-up (those due).
+    pub frames: Vec<FramePlan>,
     pub image_len: usize,
     pub output_ranges: Vec<(usize, usize)>,
     pub initial_image: Vec<u8>,
@@ -88,26 +132,41 @@ pub const MIN_CYCLE_NS: u64 = 20_000;
 pub const MAX_CYCLE_NS: u64 = 1_000_000_000;
 /// Largest sample ring accepted.
 pub const MAX_RING: usize = 1 << 20;
+/// Most cyclic frames per plan: two cycles of frames in flight need distinct indices among the
+/// 128 cyclic ones, and a sample's `lost_mask` has a bit per frame.
+pub const MAX_FRAMES: usize = 32;
+/// Slowest frame: once every this many base cycles.
+pub const MAX_EVERY: u32 = 10_000;
 
-/// Where the cyclic datagrams sit in the frame, and which frame bytes map to which image bytes.
+/// Where one frame's datagrams sit, and which frame bytes map to which image bytes.
 #[derive(Clone, Debug, Default)]
 pub struct FrameLayout {
     /// The frame with everything fixed filled in (headers); data is refreshed every cycle.
     pub template: Vec<u8>,
     pub len: usize,
+    pub every: u32,
+    pub watchdog_ns: u64,
     pub slots: Vec<DatagramSlot>,
-    /// (frame offset, image offset, length) of every LRW datagram.
-    pub lrw: Vec<(usize, usize, usize)>,
-    /// Expected working counter per LRW datagram, same order as `lrw`.
-    pub lrw_wkc: Vec<(DatagramSlot, u16)>,
+    /// (frame offset, image offset, length) of every LRW/LWR datagram: image to frame.
+    pub writes: Vec<(usize, usize, usize)>,
+    /// Slot and expected working counter of every logical datagram.
+    pub wkc: Vec<(DatagramSlot, u16)>,
     /// (frame offset, image offset, length) of input bytes: copied from the reply to the image.
     pub inputs: Vec<(usize, usize, usize)>,
-    /// Image output ranges (image offset, length).
+    /// (image offset, length) of the output bytes this frame carries.
     pub outputs: Vec<(usize, usize)>,
     /// Frame offset of the 8 data bytes of the FPWR 0x0910 datagram.
     pub dc_write: Option<usize>,
-    /// Frame offset and slot of the FRMW 0x0910 datagram.
+    /// Slot of the FRMW 0x0910 datagram.
     pub dc_sync: Option<DatagramSlot>,
+}
+
+/// The layout of the whole cycle: every frame, and the image's output ranges.
+#[derive(Clone, Debug, Default)]
+pub struct CycleLayout {
+    pub frames: Vec<FrameLayout>,
+    /// Image output ranges (image offset, length), merged into runs.
+    pub outputs: Vec<(usize, usize)>,
 }
 
 impl Plan {
@@ -119,8 +178,22 @@ impl Plan {
                 self.cycle_ns
             ));
         }
-        if self.datagrams.is_empty() {
-            return Err("datagrams is empty: the cyclic frame needs at least one datagram".into());
+        if self.frames.is_empty() || self.frames.len() > MAX_FRAMES {
+            return Err(format!(
+                "frames holds {} frames: the plan needs 1..={MAX_FRAMES}",
+                self.frames.len()
+            ));
+        }
+        for (k, f) in self.frames.iter().enumerate() {
+            if f.datagrams.is_empty() {
+                return Err(format!("frames[{k}] has no datagram"));
+            }
+            if !(1..=MAX_EVERY).contains(&f.every) {
+                return Err(format!(
+                    "frames[{k}].every = {} must be 1..={MAX_EVERY}",
+                    f.every
+                ));
+            }
         }
         for (name, img) in [
             ("initial_image", &self.initial_image),
@@ -144,43 +217,54 @@ impl Plan {
         }
         let mut covered = vec![false; self.image_len];
         let mut sync = false;
-        for (i, d) in self.datagrams.iter().enumerate() {
-            match *d {
-                CyclicDatagram::Lrw {
-                    length,
-                    image_offset,
-                    ..
-                } => {
-                    if length == 0 || length > wire::MAX_DATAGRAM_DATA {
-                        return Err(format!(
-                            "datagrams[{i}].length = {length} must be 1..={}",
-                            wire::MAX_DATAGRAM_DATA
-                        ));
-                    }
-                    if image_offset + length > self.image_len {
-                        return Err(format!(
-                            "datagrams[{i}]: image_offset {image_offset} + length {length} runs \
-                             past image_len {}",
-                            self.image_len
-                        ));
-                    }
-                    for c in &mut covered[image_offset..image_offset + length] {
-                        if *c {
+        for (k, f) in self.frames.iter().enumerate() {
+            for (i, d) in f.datagrams.iter().enumerate() {
+                let at = format!("frames[{k}].datagrams[{i}]");
+                match *d {
+                    CyclicDatagram::Logical {
+                        length,
+                        image_offset,
+                        ..
+                    } => {
+                        if length == 0 || length > wire::MAX_DATAGRAM_DATA {
                             return Err(format!(
-                                "datagrams[{i}] overlaps another LRW datagram in the image"
+                                "{at}.length = {length} must be 1..={}",
+                                wire::MAX_DATAGRAM_DATA
                             ));
                         }
-                        *c = true;
+                        if image_offset + length > self.image_len {
+                            return Err(format!(
+                                "{at}: image_offset {image_offset} + length {length} runs past \
+                                 image_len {}",
+                                self.image_len
+                            ));
+                        }
+                        for c in &mut covered[image_offset..image_offset + length] {
+                            if *c {
+                                return Err(format!(
+                                    "{at} overlaps another logical datagram in the image"
+                                ));
+                            }
+                            *c = true;
+                        }
+                    }
+                    CyclicDatagram::DcWriteRef { .. } | CyclicDatagram::DcSync { .. } => {
+                        // The DC datagrams go out every cycle, ahead of the process data.
+                        if k != 0 || f.every != 1 {
+                            return Err(format!(
+                                "{at} is a DC datagram: those belong in frames[0], sent every \
+                                 cycle"
+                            ));
+                        }
+                        if matches!(d, CyclicDatagram::DcSync { .. }) {
+                            sync = true;
+                        } else if self.dc.mode != DcMode::RefFollowsMaster {
+                            return Err(format!(
+                                "{at} is dc_write_ref but dc.mode is not ref_follows_master"
+                            ));
+                        }
                     }
                 }
-                CyclicDatagram::DcWriteRef { .. } => {
-                    if self.dc.mode != DcMode::RefFollowsMaster {
-                        return Err(format!(
-                            "datagrams[{i}] is dc_write_ref but dc.mode is not ref_follows_master"
-                        ));
-                    }
-                }
-                CyclicDatagram::DcSync { .. } => sync = true,
             }
         }
         if self.dc.mode == DcMode::MasterFollowsRef && !sync {
@@ -214,7 +298,7 @@ impl Plan {
         self.validate_axes(&layout)
     }
 
-    fn validate_axes(&self, layout: &FrameLayout) -> Result<(), String> {
+    fn validate_axes(&self, layout: &CycleLayout) -> Result<(), String> {
         if self.axes.is_empty() {
             return Ok(());
         }
@@ -248,57 +332,93 @@ impl Plan {
         Ok(())
     }
 
-    /// Lay the cyclic frame out once; the RT thread only refreshes data and indices.
-    pub fn layout(&self) -> Result<FrameLayout, String> {
-        let mut buf = vec![0u8; MAX_FRAME_LEN];
-        let mut slots = Vec::new();
-        {
-            let mut b = FrameBuilder::new(&mut buf, MASTER_MAC).map_err(|e| e.to_string())?;
-            for (i, d) in self.datagrams.iter().enumerate() {
-                let (cmd, address, len) = match *d {
-                    CyclicDatagram::DcWriteRef { station } => (
-                        Command::Fpwr,
-                        wire::fixed_address(station, reg::DC_SYSTEM_TIME),
-                        8,
-                    ),
-                    CyclicDatagram::DcSync { station } => (
-                        Command::Frmw,
-                        wire::fixed_address(station, reg::DC_SYSTEM_TIME),
-                        8,
-                    ),
-                    CyclicDatagram::Lrw {
-                        address, length, ..
-                    } => (Command::Lrw, address, length),
-                };
-                let slot = b.push(cmd, 0x80, address, None, len).map_err(|e| {
-                    format!("datagrams[{i}] does not fit in one Ethernet frame: {e}")
-                })?;
-                slots.push(slot);
-            }
-            let len = b.finish();
-            buf.truncate(len.max(wire::MIN_FRAME_LEN));
-        }
-        let mut layout = FrameLayout {
-            len: buf.len(),
-            ..Default::default()
-        };
+    /// Lay every cyclic frame out once; the RT thread only refreshes data and indices.
+    pub fn layout(&self) -> Result<CycleLayout, String> {
         let mut is_output = vec![false; self.image_len];
         for &(off, len) in &self.output_ranges {
             is_output[off..off + len].iter_mut().for_each(|o| *o = true);
         }
-        layout.outputs = merge_ranges(&is_output, true);
-        for (d, slot) in self.datagrams.iter().zip(&slots) {
-            match *d {
-                CyclicDatagram::DcWriteRef { .. } => layout.dc_write = Some(slot.data),
-                CyclicDatagram::DcSync { .. } => layout.dc_sync = Some(*slot),
-                CyclicDatagram::Lrw {
+        let frames = self
+            .frames
+            .iter()
+            .enumerate()
+            .map(|(k, f)| lay_out_frame(k, f, &is_output))
+            .collect::<Result<_, _>>()?;
+        Ok(CycleLayout {
+            frames,
+            outputs: merge_ranges(&is_output, true),
+        })
+    }
+
+    /// Is `[offset, offset+len)` inside one output range?
+    pub fn output_range_containing(&self, offset: usize, len: usize) -> Option<(usize, usize)> {
+        self.output_ranges
+            .iter()
+            .copied()
+            .find(|&(o, l)| offset >= o && offset + len <= o + l)
+    }
+}
+
+/// Frame `k` laid out: headers in a template, and the frame ↔ image byte maps.
+fn lay_out_frame(k: usize, f: &FramePlan, is_output: &[bool]) -> Result<FrameLayout, String> {
+    let mut buf = vec![0u8; MAX_FRAME_LEN];
+    let mut slots = Vec::new();
+    {
+        let mut b = FrameBuilder::new(&mut buf, MASTER_MAC).map_err(|e| e.to_string())?;
+        for (i, d) in f.datagrams.iter().enumerate() {
+            let (cmd, address, len) = match *d {
+                CyclicDatagram::DcWriteRef { station } => (
+                    Command::Fpwr,
+                    wire::fixed_address(station, reg::DC_SYSTEM_TIME),
+                    8,
+                ),
+                CyclicDatagram::DcSync { station } => (
+                    Command::Frmw,
+                    wire::fixed_address(station, reg::DC_SYSTEM_TIME),
+                    8,
+                ),
+                CyclicDatagram::Logical {
+                    command,
+                    address,
                     length,
-                    image_offset,
-                    expected_wkc,
                     ..
-                } => {
-                    layout.lrw.push((slot.data, image_offset, length));
-                    layout.lrw_wkc.push((*slot, expected_wkc));
+                } => (command.command(), address, length),
+            };
+            let slot = b.push(cmd, 0x80, address, None, len).map_err(|e| {
+                format!("frames[{k}].datagrams[{i}] does not fit in one Ethernet frame: {e}")
+            })?;
+            slots.push(slot);
+        }
+        let len = b.finish();
+        buf.truncate(len.max(wire::MIN_FRAME_LEN));
+    }
+    let mut layout = FrameLayout {
+        len: buf.len(),
+        every: f.every,
+        watchdog_ns: f.watchdog_ns,
+        ..Default::default()
+    };
+    for (d, slot) in f.datagrams.iter().zip(&slots) {
+        match *d {
+            CyclicDatagram::DcWriteRef { .. } => layout.dc_write = Some(slot.data),
+            CyclicDatagram::DcSync { .. } => layout.dc_sync = Some(*slot),
+            CyclicDatagram::Logical {
+                command,
+                length,
+                image_offset,
+                expected_wkc,
+                ..
+            } => {
+                layout.wkc.push((*slot, expected_wkc));
+                if command.writes() {
+                    layout.writes.push((slot.data, image_offset, length));
+                    for (off, len) in
+                        merge_ranges(&is_output[image_offset..image_offset + length], true)
+                    {
+                        layout.outputs.push((image_offset + off, len));
+                    }
+                }
+                if command.reads() {
                     for (off, len) in
                         merge_ranges(&is_output[image_offset..image_offset + length], false)
                     {
@@ -309,18 +429,10 @@ impl Plan {
                 }
             }
         }
-        layout.slots = slots;
-        layout.template = buf;
-        Ok(layout)
     }
-
-    /// Is `[offset, offset+len)` inside one output range?
-    pub fn output_range_containing(&self, offset: usize, len: usize) -> Option<(usize, usize)> {
-        self.output_ranges
-            .iter()
-            .copied()
-            .find(|&(o, l)| offset >= o && offset + len <= o + l)
-    }
+    layout.slots = slots;
+    layout.template = buf;
+    Ok(layout)
 }
 
 /// Runs of `flags[i] == want` as (offset, length).
@@ -344,21 +456,39 @@ fn merge_ranges(flags: &[bool], want: bool) -> Vec<(usize, usize)> {
 pub(crate) mod tests {
     use super::*;
 
+    pub fn logical(
+        command: Logical,
+        image_offset: usize,
+        length: usize,
+        wkc: u16,
+    ) -> CyclicDatagram {
+        CyclicDatagram::Logical {
+            command,
+            address: 0x10000 + image_offset as u32,
+            length,
+            image_offset,
+            expected_wkc: wkc,
+        }
+    }
+
+    fn frame(datagrams: Vec<CyclicDatagram>) -> FramePlan {
+        FramePlan {
+            datagrams,
+            every: 1,
+            watchdog_ns: 0,
+        }
+    }
+
     /// Two slaves, 4 output + 2 input bytes each, DC reference at station 0x1001.
     pub fn sample_plan() -> Plan {
         Plan {
             cycle_ns: 1_000_000,
             order: Order::SendAtWake,
-            datagrams: vec![
+            frames: vec![frame(vec![
                 CyclicDatagram::DcWriteRef { station: 0x1001 },
                 CyclicDatagram::DcSync { station: 0x1001 },
-                CyclicDatagram::Lrw {
-                    address: 0x10000,
-                    length: 12,
-                    image_offset: 0,
-                    expected_wkc: 6,
-                },
-            ],
+                logical(Logical::Lrw, 0, 12, 6),
+            ])],
             image_len: 12,
             output_ranges: vec![(0, 4), (6, 4)],
             initial_image: vec![0; 12],
@@ -382,17 +512,82 @@ pub(crate) mod tests {
         }
     }
 
+    /// `n` slaves of 600 output + 600 input bytes, one LRW per slave, each in its own frame
+    /// (two would not fit in one), the DC datagrams in the first.
+    fn big_plan(n: usize) -> Plan {
+        let mut p = sample_plan();
+        p.frames = (0..n)
+            .map(|k| frame(vec![logical(Logical::Lrw, k * 1200, 1200, 3)]))
+            .collect();
+        p.frames[0]
+            .datagrams
+            .insert(0, CyclicDatagram::DcSync { station: 0x1001 });
+        p.frames[0]
+            .datagrams
+            .insert(0, CyclicDatagram::DcWriteRef { station: 0x1001 });
+        p.image_len = n * 1200;
+        p.output_ranges = (0..n).map(|k| (k * 1200, 600)).collect();
+        p.initial_image = vec![0; p.image_len];
+        p.safe_image = vec![0; p.image_len];
+        p
+    }
+
     #[test]
     fn layout_maps_inputs_and_outputs() {
         let p = sample_plan();
         p.validate().unwrap();
         let l = p.layout().unwrap();
-        assert_eq!(l.slots.len(), 3);
+        let f = &l.frames[0];
+        assert_eq!(f.slots.len(), 3);
         assert_eq!(l.outputs, vec![(0, 4), (6, 4)]);
-        let d = l.lrw[0].0;
-        assert_eq!(l.inputs, vec![(d + 4, 4, 2), (d + 10, 10, 2)]);
-        assert_eq!(l.dc_write, Some(l.slots[0].data));
-        assert_eq!(l.dc_sync, Some(l.slots[1]));
+        let d = f.writes[0].0;
+        assert_eq!(f.inputs, vec![(d + 4, 4, 2), (d + 10, 10, 2)]);
+        assert_eq!(f.dc_write, Some(f.slots[0].data));
+        assert_eq!(f.dc_sync, Some(f.slots[1]));
+    }
+
+    #[test]
+    fn an_image_larger_than_a_frame_is_laid_out_over_several_frames() {
+        let p = big_plan(3);
+        p.validate().unwrap();
+        let l = p.layout().unwrap();
+        assert_eq!(l.frames.len(), 3);
+        for (k, f) in l.frames.iter().enumerate() {
+            assert!(f.len <= MAX_FRAME_LEN);
+            assert_eq!(f.writes.len(), 1);
+            let (frame_off, image_off, len) = f.writes[0];
+            assert_eq!((image_off, len), (k * 1200, 1200));
+            assert_eq!(f.inputs, vec![(frame_off + 600, k * 1200 + 600, 600)]);
+            assert_eq!(f.wkc.len(), 1);
+            assert_eq!(f.dc_sync.is_some(), k == 0);
+        }
+        // The same datagrams in one frame do not fit: the error names the datagram.
+        let mut one = big_plan(2);
+        let second = one.frames.pop().unwrap();
+        one.frames[0].datagrams.extend(second.datagrams);
+        let e = one.validate().unwrap_err();
+        assert!(e.contains("frames[0].datagrams[3] does not fit"), "{e}");
+    }
+
+    #[test]
+    fn lrd_and_lwr_map_only_their_direction() {
+        let mut p = sample_plan();
+        // Slave 1 by LRW (bytes 0..6: 4 out, 2 in); slave 2 by LWR (6..10) and LRD (10..12).
+        p.frames[0].datagrams.pop();
+        p.frames[0].datagrams.extend([
+            logical(Logical::Lrw, 0, 6, 3),
+            logical(Logical::Lwr, 6, 4, 1),
+            logical(Logical::Lrd, 10, 2, 1),
+        ]);
+        p.validate().unwrap();
+        let f = &p.layout().unwrap().frames[0];
+        assert_eq!(f.wkc.len(), 3);
+        assert_eq!(f.writes.len(), 2, "LRW and LWR carry outputs");
+        assert_eq!(f.writes[1].1..f.writes[1].1 + f.writes[1].2, 6..10);
+        let lrd = f.slots[4].data;
+        assert_eq!(f.inputs, vec![(f.slots[2].data + 4, 4, 2), (lrd, 10, 2)]);
+        assert_eq!(f.template[f.slots[3].header], Command::Lwr as u8);
+        assert_eq!(f.template[f.slots[4].header], Command::Lrd as u8);
     }
 
     #[test]
@@ -410,16 +605,36 @@ pub(crate) mod tests {
         p.cycle_ns = 10;
         assert!(p.validate().unwrap_err().contains("cycle_ns"));
         let mut p = sample_plan();
-        p.datagrams.push(CyclicDatagram::Lrw {
-            address: 0,
-            length: 1400,
-            image_offset: 0,
-            expected_wkc: 1,
-        });
+        p.frames[0]
+            .datagrams
+            .push(logical(Logical::Lrw, 0, 1400, 1));
         p.image_len = 1400;
         p.initial_image = vec![0; 1400];
         p.safe_image = vec![0; 1400];
         let e = p.validate().unwrap_err();
-        assert!(e.contains("datagrams[3]"), "{e}");
+        assert!(e.contains("frames[0].datagrams[3]"), "{e}");
+        // DC datagrams only in the first frame, which goes out every cycle.
+        let mut p = big_plan(2);
+        let dc = p.frames[0].datagrams.remove(0);
+        p.frames[1].datagrams.push(dc);
+        let e = p.validate().unwrap_err();
+        assert!(e.contains("frames[1].datagrams[1] is a DC datagram"), "{e}");
+        let mut p = big_plan(2);
+        p.frames[0].every = 2;
+        assert!(p
+            .validate()
+            .unwrap_err()
+            .contains("frames[0].datagrams[0] is a DC"));
+        let mut p = big_plan(2);
+        p.frames[1].every = 0;
+        assert!(p.validate().unwrap_err().contains("frames[1].every = 0"));
+        let mut p = big_plan(2);
+        p.frames.push(frame(vec![]));
+        assert!(p
+            .validate()
+            .unwrap_err()
+            .contains("frames[2] has no datagram"));
+        let p = big_plan(MAX_FRAMES + 1);
+        assert!(p.validate().unwrap_err().contains("frames holds 33 frames"));
     }
 }

@@ -173,6 +173,43 @@ impl Counters {
     }
 }
 
+/// Counters and round trip of one cyclic frame (one per frame of the plan, allocated with
+/// the run's exchange).
+#[derive(Default)]
+pub struct FrameStats {
+    /// Times the frame went out.
+    pub sent: AtomicU64,
+    pub lost: AtomicU64,
+    pub late: AtomicU64,
+    /// Replies with a logical datagram's working counter other than expected.
+    pub wkc_errors: AtomicU64,
+    /// Sum of the logical working counters of the last reply.
+    pub last_wkc: AtomicU64,
+    /// Times the frame's own (group) watchdog tripped.
+    pub watchdog_trips: AtomicU64,
+    pub rtt: Histogram,
+}
+
+impl FrameStats {
+    pub fn named(&self) -> [(&'static str, &AtomicU64); 6] {
+        [
+            ("sent", &self.sent),
+            ("lost", &self.lost),
+            ("late", &self.late),
+            ("wkc_errors", &self.wkc_errors),
+            ("last_wkc", &self.last_wkc),
+            ("watchdog_trips", &self.watchdog_trips),
+        ]
+    }
+
+    pub fn reset(&self) {
+        for (_, c) in self.named() {
+            c.store(0, Relaxed);
+        }
+        self.rtt.reset();
+    }
+}
+
 /// Everything `stats()` reports.
 #[derive(Default)]
 pub struct Stats {

@@ -104,13 +104,7 @@ impl Link for FakeLink {
     }
 
     fn recv(&mut self, buf: &mut [u8], _deadline_ns: i64) -> io::Result<Option<Received>> {
-        Ok(self.queue.pop_front().map(|f| {
-            buf[..f.len()].copy_from_slice(&f);
-            Received {
-                len: f.len(),
-                rx_ns: now_ns(),
-            }
-        }))
+        Ok(common::pop_reply(&mut self.queue, buf))
     }
 
     fn describe(&self) -> String {
@@ -131,7 +125,7 @@ fn plan(order: Order, mode: DcMode) -> Plan {
     Plan {
         cycle_ns: 1_000_000,
         order,
-        datagrams: common::cyclic_datagrams(mode, 12, 6),
+        frames: common::cyclic_frame(mode, 12, 6),
         image_len: 12,
         output_ranges: vec![(0, 4), (6, 4)],
         initial_image: vec![1; 12],
@@ -328,7 +322,7 @@ fn a_bad_output_field_writes_nothing() {
     p.initial_image = vec![1; 16];
     p.safe_image = vec![0xEE; 16];
     p.output_ranges = vec![(0, 4), (6, 4), (12, 4)];
-    p.datagrams = common::cyclic_datagrams(DcMode::Off, 16, 6);
+    p.frames = common::cyclic_frame(DcMode::Off, 16, 6);
     e.start_cyclic(p).unwrap();
     let before = e.outputs().unwrap();
     let cases = [

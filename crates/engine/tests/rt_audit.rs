@@ -16,7 +16,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use ether_ros_engine::cia402::{AxisMap, AxisPlan, FaultReset, Limits, OnStop};
-use ether_ros_engine::plan::{DcMode, DcPlan, Order, Policy, RtPlan};
+use ether_ros_engine::plan::{DcMode, DcPlan, FramePlan, Logical, Order, Policy, RtPlan};
 use ether_ros_engine::{
     now_ns, Engine, Error, InProcessLink, Link, LinkOptions, Mode, Plan, Point, RawSocketLink,
     Received, Request, SetpointKind, XdpLink,
@@ -295,6 +295,25 @@ fn audit_axis() -> AxisPlan {
     }
 }
 
+/// Three frames, so the multi-frame paths run too: the one-LRW frame of the test bus (with the
+/// DC datagrams), an LRD of image bytes 8..12 in a second frame, and an LWR of bytes 12..14 in
+/// a third that goes out every third cycle (a slower group) with its own 3 ms watchdog (the
+/// exercise writes only to the first frame's outputs for stretches, so it trips and recovers).
+fn audit_frames(dc: DcMode) -> Vec<FramePlan> {
+    let mut frames = common::cyclic_frame(dc, 8, 3);
+    frames.push(FramePlan {
+        datagrams: vec![common::logical(Logical::Lrd, 8, 4, 1)],
+        every: 1,
+        watchdog_ns: 0,
+    });
+    frames.push(FramePlan {
+        datagrams: vec![common::logical(Logical::Lwr, 12, 2, 1)],
+        every: 3,
+        watchdog_ns: 3_000_000,
+    });
+    frames
+}
+
 fn plan(order: Order, dc: DcMode, rt: RtPlan) -> Plan {
     let axes = if DRIVE.load(Ordering::Relaxed) {
         vec![audit_axis()]
@@ -304,11 +323,11 @@ fn plan(order: Order, dc: DcMode, rt: RtPlan) -> Plan {
     Plan {
         cycle_ns: 250_000,
         order,
-        datagrams: common::cyclic_datagrams(dc, 8, 3),
-        image_len: 8,
-        output_ranges: vec![(0, 4), (6, 2)],
-        initial_image: vec![0; 8],
-        safe_image: vec![0xEE; 8],
+        frames: audit_frames(dc),
+        image_len: 14,
+        output_ranges: vec![(0, 4), (6, 2), (12, 2)],
+        initial_image: vec![0; 14],
+        safe_image: vec![0xEE; 14],
         dc: DcPlan {
             mode: dc,
             time_offset_ns: 0,
@@ -392,6 +411,11 @@ fn exercise(engine: &Engine, seen: &Seen, cycles: u64) {
         if i.is_multiple_of(40) {
             let _ = engine.read_inputs().unwrap();
             let _ = engine.stats();
+        }
+        if i % 100 < 20 {
+            // The third frame's outputs: written for a stretch, then left alone so its own
+            // watchdog trips (after 3 ms) and recovers at the next stretch.
+            engine.write_outputs(12, &[b, b]).unwrap();
         }
         std::thread::sleep(Duration::from_micros(300));
     }

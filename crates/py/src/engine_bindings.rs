@@ -9,7 +9,10 @@ use ether_ros_engine::cia402::{
     status_flags, AxisMap, AxisPlan, DriveState, FaultReset, Limits, OnStop,
     DEFAULT_TRAJECTORY_CAPACITY,
 };
-use ether_ros_engine::plan::{CyclicDatagram, DcMode, DcPlan, Order, Policy, RtPlan};
+use ether_ros_engine::plan::{
+    CyclicDatagram, DcMode, DcPlan, FramePlan, Logical, Order, Policy, RtPlan,
+};
+use ether_ros_engine::stats::Summary;
 use ether_ros_engine::{
     flags, AxisStatus, Engine, Error, InProcessLink, LinkKind, LinkOptions, Mode, OutputField,
     Plan, Point, Request, Responder, SetpointKind, RECORD_LEN,
@@ -126,6 +129,50 @@ fn sub_dict<'py>(d: &Bound<'py, PyDict>, key: &str) -> PyResult<Bound<'py, PyDic
         .map_err(|_| PyValueError::new_err(format!("plan['{key}'] must be a dict")))
 }
 
+/// `{path}datagrams`: the datagrams of one cyclic frame.
+fn parse_datagrams(d: &Bound<'_, PyDict>, path: &str) -> PyResult<Vec<CyclicDatagram>> {
+    let list = get(d, path, "datagrams")?;
+    let list = list.cast::<PyList>().map_err(|_| {
+        PyValueError::new_err(format!("plan['{path}datagrams'] must be a list of dicts"))
+    })?;
+    let mut datagrams = Vec::new();
+    for (i, item) in list.iter().enumerate() {
+        let at = format!("{path}datagrams[{i}]");
+        let path = format!("{at}.");
+        let item = item
+            .cast_into::<PyDict>()
+            .map_err(|_| PyValueError::new_err(format!("plan['{at}'] must be a dict")))?;
+        let kind: String = req(&item, &path, "kind", "a str")?;
+        let logical = |command| -> PyResult<CyclicDatagram> {
+            Ok(CyclicDatagram::Logical {
+                command,
+                address: req(&item, &path, "address", "an int 0..=2**32-1")?,
+                length: req(&item, &path, "length", "a non-negative int")?,
+                image_offset: req(&item, &path, "image_offset", "a non-negative int")?,
+                expected_wkc: req(&item, &path, "expected_wkc", "an int 0..=65535")?,
+            })
+        };
+        datagrams.push(match kind.as_str() {
+            "dc_write_ref" => CyclicDatagram::DcWriteRef {
+                station: req(&item, &path, "station", "an int 0..=65535")?,
+            },
+            "dc_sync" => CyclicDatagram::DcSync {
+                station: req(&item, &path, "station", "an int 0..=65535")?,
+            },
+            "lrw" => logical(Logical::Lrw)?,
+            "lrd" => logical(Logical::Lrd)?,
+            "lwr" => logical(Logical::Lwr)?,
+            k => {
+                return Err(PyValueError::new_err(format!(
+                    "plan['{at}']['kind'] = '{k}': expected 'dc_write_ref', 'dc_sync', 'lrw', \
+                     'lrd' or 'lwr'"
+                )))
+            }
+        });
+    }
+    Ok(datagrams)
+}
+
 fn parse_plan(d: &Bound<'_, PyDict>) -> PyResult<Plan> {
     let order = match req::<String>(d, "", "order", "a str")?.as_str() {
         "send_at_wake" => Order::SendAtWake,
@@ -136,33 +183,33 @@ fn parse_plan(d: &Bound<'_, PyDict>) -> PyResult<Plan> {
             )))
         }
     };
-    let mut datagrams = Vec::new();
-    let list = get(d, "", "datagrams")?;
-    let list = list
-        .cast::<PyList>()
-        .map_err(|_| PyValueError::new_err("plan['datagrams'] must be a list of dicts"))?;
-    for (i, item) in list.iter().enumerate() {
-        let path = format!("datagrams[{i}].");
-        let item = item
-            .cast_into::<PyDict>()
-            .map_err(|_| PyValueError::new_err(format!("plan['datagrams'][{i}] must be a dict")))?;
-        let kind: String = req(&item, &path, "kind", "a str")?;
-        datagrams.push(match kind.as_str() {
-            "dc_write_ref" => CyclicDatagram::DcWriteRef { station: req(&item, &path, "station", "an int 0..=65535")? },
-            "dc_sync" => CyclicDatagram::DcSync { station: req(&item, &path, "station", "an int 0..=65535")? },
-            "lrw" => CyclicDatagram::Lrw {
-                address: req(&item, &path, "address", "an int 0..=2**32-1")?,
-                length: req(&item, &path, "length", "a non-negative int")?,
-                image_offset: req(&item, &path, "image_offset", "a non-negative int")?,
-                expected_wkc: req(&item, &path, "expected_wkc", "an int 0..=65535")?,
-            },
-            k => {
-                return Err(PyValueError::new_err(format!(
-                    "plan['datagrams'][{i}]['kind'] = '{k}': expected 'dc_write_ref', 'dc_sync' or 'lrw'"
-                )))
+    // `frames` (a list of {"datagrams": [...], "every": n}) or, for a one-frame plan,
+    // `datagrams` alone.
+    let frames = match d.get_item("frames")? {
+        Some(list) => {
+            let list = list
+                .cast_into::<PyList>()
+                .map_err(|_| PyValueError::new_err("plan['frames'] must be a list of dicts"))?;
+            let mut frames = Vec::new();
+            for (k, item) in list.iter().enumerate() {
+                let path = format!("frames[{k}].");
+                let item = item.cast_into::<PyDict>().map_err(|_| {
+                    PyValueError::new_err(format!("plan['frames'][{k}] must be a dict"))
+                })?;
+                frames.push(FramePlan {
+                    datagrams: parse_datagrams(&item, &path)?,
+                    every: opt(&item, &path, "every", "an int 1..=10000", 1)?,
+                    watchdog_ns: opt(&item, &path, "watchdog_ns", "a non-negative int", 0)?,
+                });
             }
-        });
-    }
+            frames
+        }
+        None => vec![FramePlan {
+            datagrams: parse_datagrams(d, "")?,
+            every: 1,
+            watchdog_ns: 0,
+        }],
+    };
     let dc = sub_dict(d, "dc")?;
     let mode = match req::<String>(&dc, "dc.", "mode", "a str")?.as_str() {
         "off" => DcMode::Off,
@@ -188,7 +235,7 @@ fn parse_plan(d: &Bound<'_, PyDict>) -> PyResult<Plan> {
     Ok(Plan {
         cycle_ns: req(d, "", "cycle_ns", "a positive int")?,
         order,
-        datagrams,
+        frames,
         image_len: req(d, "", "image_len", "a non-negative int")?,
         output_ranges: opt(
             d,
@@ -515,6 +562,19 @@ fn _close_all_engines(py: Python<'_>) {
     py.detach(move || all.iter().for_each(|e| e.close()));
 }
 
+/// A histogram summary as `stats()` reports it.
+fn summary_dict<'py>(py: Python<'py>, s: &Summary) -> PyResult<Bound<'py, PyDict>> {
+    let h = PyDict::new(py);
+    h.set_item("count", s.count)?;
+    h.set_item("min", s.min)?;
+    h.set_item("max", s.max)?;
+    h.set_item("mean", s.mean)?;
+    h.set_item("p50", s.p50)?;
+    h.set_item("p99", s.p99)?;
+    h.set_item("p999", s.p999)?;
+    Ok(h)
+}
+
 /// The master's engine: the link, acyclic datagrams, and the cyclic real-time thread.
 #[pyclass(name = "Engine", module = "ether_ros._native", frozen)]
 pub struct PyEngine {
@@ -759,16 +819,19 @@ impl PyEngine {
             out.set_item(name, v)?;
         }
         for (name, s) in snap.histograms {
-            let h = PyDict::new(py);
-            h.set_item("count", s.count)?;
-            h.set_item("min", s.min)?;
-            h.set_item("max", s.max)?;
-            h.set_item("mean", s.mean)?;
-            h.set_item("p50", s.p50)?;
-            h.set_item("p99", s.p99)?;
-            h.set_item("p999", s.p999)?;
-            out.set_item(name, h)?;
+            out.set_item(name, summary_dict(py, &s)?)?;
         }
+        let frames = PyList::empty(py);
+        for f in snap.frames {
+            let d = PyDict::new(py);
+            d.set_item("every", f.every)?;
+            for (name, v) in f.counters {
+                d.set_item(name, v)?;
+            }
+            d.set_item("rtt", summary_dict(py, &f.rtt)?)?;
+            frames.append(d)?;
+        }
+        out.set_item("frames", frames)?;
         Ok(out)
     }
 

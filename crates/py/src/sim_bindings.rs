@@ -25,6 +25,7 @@
 //! | `pdram_kib` | int | process-data RAM size in KiB (register 0x0006), 1..=60; default the chip's (ET1100 8, ET1200 1, LAN9252 4) |
 //! | `loopback_links` | list[(out_index, out_sub, in_index, in_sub)] | output → input pairs of the `loopback` model (built by `ether_ros.sim.spec.loopback_pairs`) |
 //! | `esc` | str | slave controller chip whose registers the ESC presents: "et1100" (default), "et1200", "lan9252" |
+//! | `lrw` | bool | False: the ESC reports "LRW not supported" (0x0008 bit 9) and ignores LRW datagrams (no data, no working counter); default True |
 //! | `safeop_op_timeout_ms` | int | how long a SAFEOP->OP request waits for valid outputs before it is refused (ESI `<SafeopOpTimeout>`, default 10000) |
 
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -96,6 +97,7 @@ fn parse_spec(spec: &Bound<'_, PyDict>) -> PyResult<SlaveSpec> {
         "esc",
         "safeop_op_timeout_ms",
         "loopback_links",
+        "lrw",
     ];
     for k in spec.keys() {
         let k: String = k
@@ -227,6 +229,9 @@ fn parse_spec(spec: &Bound<'_, PyDict>) -> PyResult<SlaveSpec> {
     }
     if let Some(name) = get::<String>(spec, "esc", "str")? {
         s.esc = EscChip::from_name(&name).map_err(|e| bad_key("esc", &e))?;
+    }
+    if let Some(lrw) = get::<bool>(spec, "lrw", "bool")? {
+        s.lrw_supported = lrw;
     }
     if let Some(ms) = get::<u32>(spec, "safeop_op_timeout_ms", "int >= 0")? {
         s.safeop_op_timeout_ms = ms;
@@ -571,6 +576,7 @@ impl SimNetwork {
         d.set_item("dc_drift_ppm", s.dc.drift_ppm())?;
         d.set_item("dc_correction_ppm", s.dc.correction_ppm())?;
         d.set_item("sync0_active", s.sync0_active())?;
+        d.set_item("sync0_cycle_ns", s.get32(reg::DC_SYNC0_CYCLE))?;
         d.set_item("watchdog_expired", s.watchdog_expired)?;
         d.set_item("refuse_op", s.refuse_op)?;
         d.set_item("mailbox_stalled", s.mailbox_stalled)?;
@@ -579,6 +585,7 @@ impl SimNetwork {
         d.set_item("inputs_bytes", s.in_map.bytes())?;
         let c = &s.counters;
         d.set_item("frames", c.frames)?;
+        d.set_item("process_data_frames", c.process_data_frames)?;
         d.set_item("device_steps", c.device_steps)?;
         d.set_item("device_steps_skipped", c.device_steps_skipped)?;
         d.set_item("sync0_events", c.sync0_events)?;

@@ -39,6 +39,9 @@ const MAILBOX_QUEUE_LIMIT: usize = 32;
 #[derive(Clone, Debug, Default)]
 pub struct SlaveCounters {
     pub frames: u64,
+    /// Frames in which a logical datagram reached this slave's FMMUs (its process data went
+    /// by): with groups at their own cycles, this is the slave's own exchange rate.
+    pub process_data_frames: u64,
     pub device_steps: u64,
     pub device_steps_skipped: u64,
     pub sync0_events: u64,
@@ -121,6 +124,8 @@ pub struct Esc {
     op_pending_since: Option<u64>,
     pub mailbox_stalled: bool,
     pub counters: SlaveCounters,
+    /// A logical datagram of the current frame hit an FMMU.
+    process_data_seen: bool,
 }
 
 impl Esc {
@@ -207,6 +212,7 @@ impl Esc {
             op_pending_since: None,
             mailbox_stalled: false,
             counters: SlaveCounters::default(),
+            process_data_seen: false,
             spec,
         };
         esc.power_on_registers();
@@ -260,7 +266,11 @@ impl Esc {
         self.mem[reg::SM_COUNT as usize] = chip.sync_managers;
         self.mem[reg::RAM_SIZE as usize] = ((self.pdram_end - REGISTER_END) / 1024) as u8;
         self.mem[reg::PORT_DESC as usize] = chip.port_descriptor;
-        self.put16(reg::FEATURES, chip.features(self.spec.dc_supported));
+        let mut features = chip.features(self.spec.dc_supported);
+        if !self.spec.lrw_supported {
+            features |= crate::chip::feature::LRW_NOT_SUPPORTED;
+        }
+        self.put16(reg::FEATURES, features);
         self.put16(reg::WATCHDOG_DIVIDER, DEFAULT_WD_DIVIDER);
         self.put16(reg::WATCHDOG_TIME_PDI, DEFAULT_WD_TIME);
         self.put16(reg::WATCHDOG_TIME_PD, DEFAULT_WD_TIME);
@@ -767,7 +777,7 @@ impl Esc {
 
     /// Process a logical datagram (`data` covers logical bytes from `laddr`). `incoming` holds
     /// the data as it arrived when the command both reads and writes. Returns the working
-    /// counter increment (+1 read, +2 write).
+    /// counter increment (LRW: +1 read, +2 write; LRD, LWR: +1).
     pub fn logical(
         &mut self,
         laddr: u32,
@@ -777,6 +787,11 @@ impl Esc {
         incoming: &mut Vec<u8>,
     ) -> u16 {
         if self.fmmus.is_empty() || data.is_empty() {
+            return 0;
+        }
+        let rw = reads && writes;
+        if rw && !self.spec.lrw_supported {
+            // 0x0008 bit 9: this ESC ignores LRW; the working counter stays as it came.
             return 0;
         }
         let d0 = laddr as u64 * 8;
@@ -792,7 +807,7 @@ impl Esc {
         if !any {
             return 0;
         }
-        let rw = reads && writes;
+        self.process_data_seen = true;
         if rw {
             incoming.clear();
             incoming.extend_from_slice(data);
@@ -813,7 +828,10 @@ impl Esc {
                 write_ok |= self.fmmu_write(&f, d0, d1, src);
             }
         }
-        read_ok as u16 + 2 * write_ok as u16
+        // ESC datasheet, "Working counter": LRW counts +1 for a read and +2 for a write; LRD
+        // and LWR count +1 each.
+        let write_increment = if rw { 2 } else { 1 };
+        read_ok as u16 + write_increment * write_ok as u16
     }
 
     fn fmmu_read(&mut self, f: &Fmmu, d0: u64, d1: u64, data: &mut [u8]) -> bool {
@@ -1382,6 +1400,9 @@ impl Esc {
 
     /// Per-frame work after the datagrams: free-run output latch and the mailbox.
     pub fn after_frame(&mut self) {
+        if std::mem::take(&mut self.process_data_seen) {
+            self.counters.process_data_frames += 1;
+        }
         if !self.sync0_active() {
             self.latch_outputs();
         }

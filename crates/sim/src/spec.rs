@@ -47,6 +47,9 @@ pub struct SlaveSpec {
     pub safeop_op_timeout_ms: u32,
     /// Output → input pairs of the `loopback` device model.
     pub loopback_links: Vec<crate::devices::loopback::Link>,
+    /// False: the ESC reports "LRW not supported" (0x0008 bit 9) and does not process LRW
+    /// (no data, no working counter), as such ESCs do; the master must use LRD + LWR.
+    pub lrw_supported: bool,
 }
 
 impl Default for SlaveSpec {
@@ -73,6 +76,7 @@ impl Default for SlaveSpec {
             esc: EscChip::Et1100,
             safeop_op_timeout_ms: 10_000,
             loopback_links: Vec::new(),
+            lrw_supported: true,
         }
     }
 }

@@ -3,6 +3,7 @@
 mod common;
 
 use common::*;
+use ether_ros_sim::{Network, SlaveSpec};
 use ether_ros_wire::{self as wire, Command, FrameBuilder};
 
 #[test]
@@ -238,8 +239,9 @@ fn fmmu_maps_bits_onto_physical_memory() {
         0x0600,
         &fmmu_bytes(0x101, 1, 0, 7, 0x1400, 0, 2),
     );
+    // LWR: +1 for each slave written (ESC datasheet; +2 is LRW's write increment).
     let (_, wkc) = xfer(&mut net, Command::Lwr, 0x100, &[0b0010_1000, 0x5a]);
-    assert_eq!(wkc, 2 + 2);
+    assert_eq!(wkc, 1 + 1);
     let m = net.slaves[0].memory();
     assert_eq!((m[0x1400], m[0x1401]), (0b0100_0000, 0b0000_0001));
     assert_eq!(net.slaves[1].memory()[0x1400], 0x5a);
@@ -252,6 +254,40 @@ fn fmmu_maps_bits_onto_physical_memory() {
     assert_eq!(wkc, 3 + 2);
     // A datagram outside every mapping: nobody counts.
     assert_eq!(xfer(&mut net, Command::Lrd, 0x2000, &[0; 4]).1, 0);
+}
+
+#[test]
+fn an_esc_without_lrw_says_so_and_ignores_lrw_but_serves_lrd_and_lwr() {
+    let mut net = Network::with_manual_clock(1_000_000_000);
+    net.add_slave(io_spec()).unwrap();
+    net.add_slave(SlaveSpec {
+        lrw_supported: false,
+        ..io_spec()
+    })
+    .unwrap();
+    assign_addresses(&mut net);
+    // Register 0x0008 bit 9: LRW not supported (ESC datasheet, "ESC Features supported").
+    assert_eq!(fprd(&mut net, station(0), 0x0008, 2).0[1] & 0x02, 0);
+    assert_eq!(fprd(&mut net, station(1), 0x0008, 2).0[1] & 0x02, 0x02);
+    for k in 0..2 {
+        // Logical byte 0x100 + k read/write at 0x1400 of slave k.
+        fpwr(
+            &mut net,
+            station(k),
+            0x0600,
+            &fmmu_bytes(0x100 + k as u32, 1, 0, 7, 0x1400, 0, 3),
+        );
+    }
+    // LRW: only slave 0 takes part (+3); slave 1 neither writes nor counts.
+    let (_, wkc) = xfer(&mut net, Command::Lrw, 0x100, &[0x11, 0x22]);
+    assert_eq!(wkc, 3);
+    assert_eq!(net.slaves[0].memory()[0x1400], 0x11);
+    assert_eq!(net.slaves[1].memory()[0x1400], 0);
+    // LWR and LRD reach it: +1 each per slave.
+    assert_eq!(xfer(&mut net, Command::Lwr, 0x100, &[0x33, 0x44]).1, 2);
+    assert_eq!(net.slaves[1].memory()[0x1400], 0x44);
+    let (d, wkc) = xfer(&mut net, Command::Lrd, 0x100, &[0, 0]);
+    assert_eq!((d, wkc), (vec![0x33, 0x44], 2));
 }
 
 #[test]

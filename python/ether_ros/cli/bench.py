@@ -80,6 +80,13 @@ def summarize(stats: dict[str, Any], seconds: float, cycle_us: int) -> dict[str,
         result[key + "_us"] = {
             p: (float(h[p]) / 1000.0 if p in h else None) for p, _ in PERCENTILES
         }
+    result["frames"] = len(stats.get("frames") or [])
+    result["groups"] = [
+        {k: g[k] for k in ("name", "every", "frames", "sent", "lost", "late", "wkc_errors",
+                           "watchdog_trips", "expected_wkc", "last_wkc")}
+        | {"cycle_us": g["cycle_ns"] / 1000}
+        for g in stats.get("groups") or []
+    ]  # fmt: skip
     return result
 
 
@@ -96,6 +103,12 @@ def format_result(result: dict[str, Any]) -> str:
             f"{row[p]:>10.1f}" if row[p] is not None else f"{'-':>10}" for p, _ in PERCENTILES
         )
         lines.append(f"{label:<18}{cells}")
+    for g in result.get("groups") or []:
+        lines.append(
+            f"group {g['name']}: cycle {g['cycle_us']:g} µs, frames {g['frames']}, "
+            f"{g['sent']} sent, {g['lost']} lost, {g['late']} late, {g['wkc_errors']} WKC "
+            f"errors, WKC {g['last_wkc']}/{g['expected_wkc']}"
+        )
     return "\n".join(lines)
 
 
@@ -109,12 +122,17 @@ def run_cycle(args: argparse.Namespace) -> int:
     if args.cycle_us is not None:
         if not 20 <= args.cycle_us <= 1_000_000:
             raise ConfigError(f"--cycle-us must be 20..1000000, got {args.cycle_us}")
+        # Groups keep their rate in bus cycles.
+        for g in cfg.groups:
+            g.cycle_us = g.cycle_us // cfg.bus.cycle_us * args.cycle_us
         cfg.bus.cycle_us = args.cycle_us
         shift = cfg.bus.dc.sync0_shift_us
         if shift >= args.cycle_us:
             cfg.bus.dc.sync0_shift_us = args.cycle_us / 2
+    t_open = time.monotonic()
     with Bus.open(cfg, drift_frames=args.drift_frames) as bus:
         bus.start()
+        bringup_s = time.monotonic() - t_open
         # Measure the steady state in OP only, not the bring-up before it.
         bus.engine.reset_stats()
         bus.samples()
@@ -126,6 +144,8 @@ def run_cycle(args: argparse.Namespace) -> int:
         stats = dict(bus.stats())
         bus.stop()
     result = summarize(stats, args.seconds, int(cfg.bus.cycle_us))
+    # Scan, SII, configuration and DC setup to OP (Bus.open + start).
+    result["bringup_s"] = bringup_s
     print(format_result(result))
     if args.json_file:
         Path(args.json_file).write_text(json.dumps(result, indent=2) + "\n")

@@ -29,8 +29,11 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=run)
 
 
-def describe(found: Any, status: Any, configured: str | None) -> dict[str, Any]:
-    """One slave's listing entry (also the JSON object)."""
+def describe(
+    found: Any, status: Any, configured: str | None, group: str | None = None
+) -> dict[str, Any]:
+    """One slave's listing entry (also the JSON object); ``group``: its slave group in the
+    configuration, if one was given."""
     h = found.header
     rx_off, rx_size, tx_off, tx_size = h.mailbox
     return {
@@ -48,6 +51,8 @@ def describe(found: Any, status: Any, configured: str | None) -> dict[str, Any]:
         "configured_name": configured,
         "esc_type": found.esc_type,
         "dc": found.dc_supported,
+        "lrw": found.lrw_supported,
+        "group": group,
         "mailbox": {
             "rx": [rx_off, rx_size],
             "tx": [tx_off, tx_size],
@@ -63,6 +68,8 @@ def line(entry: dict[str, Any]) -> str:
     name = entry["name"] or "?"
     if entry["configured_name"]:
         name += f" ({entry['configured_name']})"
+    if entry.get("group"):
+        name += f" [group {entry['group']}]"
     return (
         f"{entry['position']:>3}  0x{entry['station']:04X}  {state:<8}  "
         f"0x{entry['vendor_id']:08X}  0x{entry['product_code']:08X}  {name}"
@@ -76,7 +83,7 @@ def details(entry: dict[str, Any]) -> list[str]:
     out = [
         f"     alias {entry['alias']}  revision 0x{entry['revision']:08X}  "
         f"serial 0x{entry['serial']:08X}  ESC type 0x{entry['esc_type']:02X}  "
-        f"DC {'yes' if entry['dc'] else 'no'}",
+        f"DC {'yes' if entry['dc'] else 'no'}  LRW {'yes' if entry['lrw'] else 'no (LRD + LWR)'}",
         f"     mailbox out 0x{mb['rx'][0]:04X}/{mb['rx'][1]}  in 0x{mb['tx'][0]:04X}/{mb['tx'][1]}"
         f"  protocols 0x{mb['protocols']:02X}",
         f"     RxPDOs {' '.join(entry['rx_pdos']) or '-'}  "
@@ -95,6 +102,7 @@ def run(args: argparse.Namespace) -> int:
     from ether_ros.master.scan import Expected, match_configuration, scan
 
     names: dict[int, str] = {}
+    groups: dict[str, str] = {}
     expected: list[Expected] = []
     if args.config:
         from ether_ros.config import load_bus_config
@@ -102,6 +110,7 @@ def run(args: argparse.Namespace) -> int:
 
         cfg = load_bus_config(args.config)
         expected = [_expected(s, i) for i, s in enumerate(cfg.slaves)]
+        groups = {s.name: g.name for g in cfg.groups for s in cfg.slaves if s.name in g.slaves}
     engine = open_engine(args.interface, args.link or "packet")
     try:
         dg = DatagramService(engine)
@@ -114,7 +123,8 @@ def run(args: argparse.Namespace) -> int:
     finally:
         engine.close()
     entries = [
-        describe(f, st, names.get(f.position)) for f, st in zip(found, statuses, strict=True)
+        describe(f, st, names.get(f.position), groups.get(names.get(f.position, "")))
+        for f, st in zip(found, statuses, strict=True)
     ]
     if args.json:
         json.dump(entries, sys.stdout, indent=2)

@@ -32,6 +32,9 @@ from ether_ros.config.yamlsrc import KeyPath, SourceMap, load_yaml
 from ether_ros.errors import ConfigError
 from ether_ros.topology import Link, visit_order
 
+#: The group of the slaves no ``groups`` entry names: exchanged every bus cycle.
+DEFAULT_GROUP = "default"
+
 # The default simulator device model per ESI type (crates/sim/src/devices).
 SIM_DEVICE_FOR_ESI = {"LaelapsII_Leg": "laelaps_leg", "GenericIO": "generic_io"}
 
@@ -196,6 +199,22 @@ class SimConfig(_Model):
     drift_ppm: float = Field(default=0.0, ge=-1000.0, le=1000.0)
     delay_ns: int = Field(default=0, ge=0, le=1_000_000)
     serial: HexInt | None = Field(default=None, ge=0, le=0xFFFFFFFF)
+    # False: the virtual ESC reports "LRW not supported" (0x0008 bit 9) and ignores LRW.
+    lrw: bool = True
+
+
+class GroupConfig(_Model):
+    """Slaves exchanged at their own cycle, in frames of their own (docs/configuration.md)."""
+
+    name: Identifier
+    # An integer multiple of bus.cycle_us.
+    cycle_us: int = Field(ge=20, le=1_000_000)
+    slaves: list[Identifier] = Field(default_factory=list)
+    # False: every slave of the group gets LRD + LWR instead of LRW.
+    lrw: bool = True
+    # The group's own command watchdog: no write to its slaves' outputs for this long puts its
+    # safe outputs on the wire (0: none; the bus watchdog still covers every slave).
+    watchdog_ms: int = Field(default=0, ge=0, le=60_000)
 
 
 class ConnectedTo(_Model):
@@ -217,6 +236,8 @@ class SlaveConfig(_Model):
     sdo_init: list[SdoInit] = Field(default_factory=list)
     safe_outputs: dict[str, int | float | bool] = Field(default_factory=dict)
     joints: list[Joint] = Field(default_factory=list)
+    # False: LRD + LWR instead of LRW (also chosen when the ESC reports LRW unsupported).
+    lrw: bool = True
     # CiA 402 drives (docs/cia402.md): the profile (also taken from the ESI's ProfileNo 402
     # when axes are given) and one entry per axis.
     profile: Literal["cia402"] | None = None
@@ -274,6 +295,7 @@ class BusConfig(_Model):
     )
     ros: RosConfig = Field(default_factory=RosConfig)
     slaves: list[SlaveConfig] = Field(min_length=1)
+    groups: list[GroupConfig] = Field(default_factory=list)
     _source: Path | None = PrivateAttr(default=None)
     _devices: list[EsiDevice] = PrivateAttr(default_factory=list)
 
@@ -314,6 +336,16 @@ class BusConfig(_Model):
             else Link(k - 1, 1)
             for k, s in enumerate(ordered)
         ]
+
+    def group_cycles(self) -> list[tuple[str, int]]:
+        """(group name, cycle in base cycles) of every group, the default group first."""
+        return [(DEFAULT_GROUP, 1)] + [
+            (g.name, g.cycle_us // self.bus.cycle_us) for g in self.groups
+        ]
+
+    def group_of(self, slave: str) -> GroupConfig | None:
+        """The group ``slave`` belongs to; None for the default group."""
+        return next((g for g in self.groups if slave in g.slaves), None)
 
     def axis_specs(self) -> list[cia402.AxisSpec]:
         """Every CiA 402 axis of the bus, in bus order."""
@@ -470,6 +502,7 @@ def _resolve(cfg: BusConfig, file: Path, smap: SourceMap) -> None:
                   show=False)  # fmt: skip
     if cfg.declares_topology:
         _check_topology(cfg, err)
+    _check_groups(cfg, err)
     ref = cfg.bus.dc.reference
     if ref is not None and cfg.bus.dc.enabled:
         slave = next((s for s in cfg.slaves if s.position == ref), None)
@@ -527,6 +560,41 @@ def _check_topology(cfg: BusConfig, err: Any) -> None:
             raise err(("slaves", i, "position"), f"the frame reaches '{names[visited]}' (position"
                       f" {visited}) before '{names[pos]}': ports are visited 0, 3, 1, 2, depth"
                       " first, and positions follow that order", pos)  # fmt: skip
+
+
+def _check_groups(cfg: BusConfig, err: Any) -> None:
+    """Groups name known slaves, each slave at most once, and run at a whole multiple of the
+    bus cycle."""
+    known = {s.name for s in cfg.slaves}
+    member: dict[str, str] = {}
+    names: set[str] = set()
+    for i, g in enumerate(cfg.groups):
+        at = ("groups", i)
+        if g.name == DEFAULT_GROUP or g.name in names:
+            why = (
+                "is the group of slaves in no group" if g.name == DEFAULT_GROUP else "is used twice"
+            )
+            raise err((*at, "name"), f"group name {g.name!r} {why}", g.name)
+        names.add(g.name)
+        if g.cycle_us % cfg.bus.cycle_us:
+            raise err(
+                (*at, "cycle_us"),
+                f"group {g.name}: cycle_us must be a whole multiple of bus.cycle_us "
+                f"({cfg.bus.cycle_us})",
+                g.cycle_us,
+            )
+        if not g.slaves:
+            raise err((*at, "slaves"), f"group {g.name} has no slaves", g.slaves)
+        for k, name in enumerate(g.slaves):
+            if name not in known:
+                raise err((*at, "slaves", k), f"group {g.name}: no slave named {name!r}", name)
+            if name in member:
+                raise err(
+                    (*at, "slaves", k),
+                    f"slave {name} is in two groups ({member[name]} and {g.name})",
+                    name,
+                )
+            member[name] = g.name
 
 
 def _match_device(s: SlaveConfig, devices: list[EsiDevice], at: KeyPath, err: Any) -> EsiDevice:

@@ -25,6 +25,7 @@ from ether_ros.master.configure import (
 from ether_ros.master.datagrams import DatagramService
 from ether_ros.master.pdo import assignment_writes
 from ether_ros.master.plan import LOGICAL_BASE
+from ether_ros.master.shared_frames import run_in_parallel
 from ether_ros.master.slave import Slave
 
 log = logging.getLogger(__name__)
@@ -140,5 +141,19 @@ def write_pdo_assignment(slave: Slave) -> None:
 
 
 def configure_all_preop(dg: DatagramService, slaves: Sequence[Slave]) -> None:
-    for s in slaves:
-        configure_preop(dg, s)
+    """``configure_preop`` of every slave at once, their datagrams (SDO init, PDO assignment,
+    SyncManagers, FMMUs) sharing frames (``shared_frames.py``)."""
+    run_in_parallel(dg, slaves, _configure_preop_over)
+
+
+def _configure_preop_over(dg: DatagramService, slave: Slave) -> None:
+    """``configure_preop`` with the slave's mailbox on ``dg`` for the time of it."""
+    mailbox = slave.mailbox
+    before = mailbox.dg if mailbox is not None else None
+    if mailbox is not None:
+        mailbox.dg = dg
+    try:
+        configure_preop(dg, slave)
+    finally:
+        if mailbox is not None:
+            mailbox.dg = before

@@ -25,6 +25,7 @@ from types import TracebackType
 from typing import Any
 
 from ether_ros.config import types as dt
+from ether_ros.config.bus import DEFAULT_GROUP
 from ether_ros.config.cia402 import AxisSpec
 from ether_ros.config.esi import EsiDevice
 from ether_ros.config.process import (
@@ -41,9 +42,17 @@ from ether_ros.master.al import AlState, AlStateMachine, AlStatus, al_code_text
 from ether_ros.master.datagrams import DatagramService
 from ether_ros.master.dc import EPOCH_2000_S, DcSlave, DistributedClocks
 from ether_ros.master.events import BusEvent
+from ether_ros.master.groups import GroupStats, group_stats
 from ether_ros.master.link import open_engine
 from ether_ros.master.pdo import select_pdos
-from ether_ros.master.plan import DcPlan, ImageLayout, RtPlan, build_plan, layout_image
+from ether_ros.master.plan import (
+    DcPlan,
+    ImageLayout,
+    ImageSlave,
+    RtPlan,
+    build_plan,
+    layout_image,
+)
 from ether_ros.master.samples import Samples, decode_samples
 from ether_ros.master.scan import (
     Expected,
@@ -53,6 +62,7 @@ from ether_ros.master.scan import (
     match_topology,
     scan,
 )
+from ether_ros.master.shared_frames import run_in_parallel
 from ether_ros.master.slave import Slave
 from ether_ros.master.supervisor import Supervisor
 from ether_ros.topology import Link, line
@@ -183,24 +193,41 @@ class Bus:
                 for cfg, pos in zip(self.config.slaves, positions, strict=True)
             ]
             slaves.sort(key=lambda s: s.position)
+            self.slaves = slaves
+            self._setup_dc_roles()
             self.layout = layout_image(
-                [
-                    (
-                        s.position,
-                        s.station,
-                        s.name,
-                        s.layout.output_bytes if s.layout else 0,
-                        s.layout.input_bytes if s.layout else 0,
-                    )
-                    for s in slaves
-                ]
+                [self._image_slave(s) for s in slaves],
+                groups=self._group_cycles(),
+                dc=self.dc_reference is not None,
             )
             for s, area in zip(slaves, self.layout.slaves, strict=True):
                 s.area = area
-            self.slaves = slaves
             self._safe = self._safe_image()
             self._outputs = bytearray(self._safe)
-            self._setup_dc_roles()
+
+    def _group_cycles(self) -> list[tuple[str, int]]:
+        """(group, base cycles per group cycle): the default group first."""
+        cycles = getattr(self.config, "group_cycles", None)
+        return cycles() if cycles is not None else [(DEFAULT_GROUP, 1)]
+
+    def _image_slave(self, s: Slave) -> ImageSlave:
+        """What the image layout needs of ``s``: sizes, group, and whether it takes LRW (not
+        when its ESC says LRW is unsupported, nor when the config asks for LRD + LWR)."""
+        group = self._group(s.name)
+        lrw = (
+            s.found.lrw_supported
+            and bool(getattr(s.config, "lrw", True))
+            and (group is None or group.lrw)
+        )
+        return ImageSlave(
+            s.position,
+            s.station,
+            s.name,
+            s.layout.output_bytes if s.layout else 0,
+            s.layout.input_bytes if s.layout else 0,
+            group.name if group is not None else DEFAULT_GROUP,
+            lrw,
+        )
 
     def _make_slave(self, cfg: Any, found: FoundSlave) -> Slave:
         who = f"slave {found.position} ({cfg.name})"
@@ -248,7 +275,20 @@ class Bus:
             aa = s.device.assign_activate if s.device is not None else 0
             if s.device is None and s.found.header.dc:
                 aa = next((m.assign_activate for m in s.found.header.dc if m.assign_activate), 0)
-            s.dc = DcSlave(s.position, s.station, s.name, assign_activate=aa)
+            s.dc = DcSlave(
+                s.position, s.station, s.name, assign_activate=aa,
+                sync0_cycle_ns=self._group_every(s.name) * self.cycle_ns,
+            )  # fmt: skip
+
+    def _group(self, slave: str) -> Any:
+        """The config's group of ``slave`` (None: the default group)."""
+        group_of = getattr(self.config, "group_of", None)
+        return group_of(slave) if group_of is not None else None
+
+    def _group_every(self, slave: str) -> int:
+        """Base cycles per cycle of ``slave``'s group."""
+        group = self._group(slave)
+        return dict(self._group_cycles())[group.name] if group is not None else 1
 
     def _safe_image(self) -> bytes:
         assert self.layout is not None
@@ -279,8 +319,7 @@ class Bus:
             self._reset_and_verify()
             refs = [s.ref for s in self.slaves]
             self.al.transition(refs, AlState.INIT)
-            for s in self.slaves:
-                bringup.setup_mailbox(self.dg, s)
+            run_in_parallel(self.dg, self.slaves, bringup.setup_mailbox)
             self.al.transition(refs, AlState.PREOP)
             bringup.configure_all_preop(self.dg, self.slaves)
             dc_slaves = [s.dc for s in self.slaves if s.dc is not None]
@@ -363,6 +402,11 @@ class Bus:
             rt=rt_plan,
             watchdog_ns=int(watchdog_ms * 1_000_000),
             axes=axis_mod.plan_entries(self._axis_specs(), self.layout),
+            group_watchdog_ns={
+                g.name: int(g.watchdog_ms) * 1_000_000
+                for g in getattr(self.config, "groups", None) or []
+                if g.watchdog_ms
+            },
         )
 
     # ---------------------------------------------------------------------------- axes
@@ -597,10 +641,20 @@ class Bus:
         return s.layout.unpack(data, "input")
 
     def stats(self) -> dict[str, Any]:
+        """The engine's counters and histograms (with ``frames``: per cyclic frame), ``groups``
+        (per slave group, ``master/groups.py``) and the supervisor's counters."""
         out: dict[str, Any] = dict(self.engine.stats())
+        out["groups"] = [g.as_dict() for g in self.group_stats(out)]
         if self.supervisor is not None:
             out["supervisor"] = self.supervisor.counters()
         return out
+
+    def group_stats(self, engine_stats: dict[str, Any] | None = None) -> list[GroupStats]:
+        """Each slave group's frames, rate, working counter and frame statistics."""
+        if self.layout is None:
+            return []
+        stats = engine_stats if engine_stats is not None else dict(self.engine.stats())
+        return group_stats(self.layout, stats, self.cycle_ns)
 
     # ---------------------------------------------------------------------------- safety
     def panic(self) -> None:

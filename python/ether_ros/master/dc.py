@@ -182,6 +182,8 @@ class DcSlave:
     station: int
     name: str
     assign_activate: int = 0  # 0: no SYNC0 for this slave (DC used as a time base only)
+    # SYNC0 period when the slave's group runs slower than the bus cycle (0: the bus cycle).
+    sync0_cycle_ns: int = 0
     delay_ns: int = 0
     offset: int = 0
 
@@ -313,7 +315,8 @@ class DistributedClocks:
             unit, activation = assign_activate_bytes(s.assign_activate)
             who = f"slave {s.position} ({s.name})"
             self.dg.write_checked(s.station, ACTIVATION, b"\0", "DC activation", who)
-            self.dg.write_checked(s.station, SYNC0_CYCLE, u32(cycle_ns), "SYNC0 cycle", who)
+            period = s.sync0_cycle_ns or cycle_ns
+            self.dg.write_checked(s.station, SYNC0_CYCLE, u32(period), "SYNC0 cycle", who)
             self.dg.write_checked(s.station, SYNC1_CYCLE, u32(0), "SYNC1 cycle", who)
             self.dg.write_checked(s.station, START_TIME, u64(start), "SYNC0 start time", who)
             self.dg.write_checked(

@@ -23,10 +23,10 @@ SAMPLE_DTYPE = np.dtype(
         ("exec_ns", "<u4"),  # wake-up to cyclic frame sent
         ("period_ns", "<u4"),  # since the previous wake-up (0 in the first cycle)
         ("rtt_ns", "<u4"),  # round trip of the reply processed this cycle (0: none)
-        ("wkc", "<u2"),  # sum of the LRW working counters of that reply
+        ("wkc", "<u2"),  # sum of the logical datagrams' working counters of the replies
         ("flags", "<u2"),  # FLAG_* bits
         ("dc_diff_ns", "<i4"),  # see docs/engine.md, "Distributed clocks"
-        ("_pad", "<u4"),
+        ("lost_mask", "<u4"),  # bit k: cyclic frame k's reply declared lost this cycle
     ]
 )
 RECORD_LEN = SAMPLE_DTYPE.itemsize  # 48

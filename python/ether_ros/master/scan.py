@@ -39,6 +39,7 @@ DL_STATUS = 0x0110
 DL_CONTROL_LOOP = 0x0101  # DL control byte 1: loop control of ports 0..3 (0 = automatic)
 FEATURE_DC = 0x0004
 FEATURE_DC_64 = 0x0008
+FEATURE_NO_LRW = 0x0200  # ESC features bit 9: LRW not supported, use LRD + LWR
 
 
 def station_address(position: int) -> int:
@@ -83,6 +84,10 @@ class FoundSlave:
     @property
     def dc_supported(self) -> bool:
         return bool(self.esc_features & FEATURE_DC)
+
+    @property
+    def lrw_supported(self) -> bool:
+        return not self.esc_features & FEATURE_NO_LRW
 
     def identity(self) -> str:
         return (

@@ -29,6 +29,7 @@ from ether_ros.errors import EtherRosError
 from ether_ros.master.al import AlState, AlStateMachine
 from ether_ros.master.datagrams import DatagramService
 from ether_ros.master.events import BusEvent
+from ether_ros.master.groups import GroupStats
 from ether_ros.master.scan import DL_STATUS
 from ether_ros.master.slave import Slave
 from ether_ros.topology import Link, behind, cut_branches, open_ports
@@ -52,6 +53,8 @@ class SupervisedBus(Protocol):
     def recover_slave(self, s: Slave) -> None: ...
 
     def emit(self, event: BusEvent) -> None: ...
+
+    def group_stats(self, engine_stats: dict[str, Any] | None = None) -> list[GroupStats]: ...
 
 
 def branch_message(parent: Slave, port: int, cut_off: list[Slave]) -> str:
@@ -88,8 +91,11 @@ class Supervisor:
         self._next_emergency_poll = 0.0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="ether_ros-supervisor", daemon=True)
-        self._wkc_errors = counter(bus.engine.stats(), "wkc_errors")
-        self._wkc_burst = False
+        # Working-counter errors seen so far and groups in a burst of them, per slave group.
+        self._wkc_errors = {
+            name: errors for name, (errors, _) in self._errors_by_group(bus.engine.stats()).items()
+        }
+        self._wkc_burst: set[str] = set()
         self._next_try: dict[str, float] = {}
         self._backoff: dict[str, float] = {}
         self._last_failure: dict[str, str] = {}
@@ -128,17 +134,7 @@ class Supervisor:
     def check(self) -> None:
         """One supervision round (also callable directly, e.g. from tests)."""
         bus = self.bus
-        wkc = counter(bus.engine.stats(), "wkc_errors")
-        # One event per burst of bad cycles, not one per supervision round.
-        if wkc > self._wkc_errors and not self._wkc_burst:
-            self._emit(
-                "wkc_error",
-                None,
-                f"{wkc - self._wkc_errors} cycle(s) with a wrong working counter "
-                f"(expected {bus.layout.expected_wkc if bus.layout else '?'})",
-            )
-        self._wkc_burst = wkc > self._wkc_errors
-        self._wkc_errors = wkc
+        self._check_wkc(dict(bus.engine.stats()))
         try:
             with bus._acyclic:
                 statuses = bus.al.read([s.ref for s in bus.slaves])
@@ -223,6 +219,34 @@ class Supervisor:
             if s.position in behind(self.bus.tree, first):
                 return message
         return ""
+
+    def _errors_by_group(self, stats: dict[str, Any]) -> dict[str, tuple[int, int | None]]:
+        """(working-counter errors, expected working counter) per slave group; the engine's
+        total under "" for a bus without a layout yet."""
+        groups = self.bus.group_stats(stats)
+        if not groups:
+            return {"": (counter(stats, "wkc_errors"), None)}
+        return {g.name: (g.wkc_errors, g.expected_wkc) for g in groups}
+
+    def _check_wkc(self, stats: dict[str, Any]) -> None:
+        """One ``wkc_error`` event per burst of bad cycles (a run of supervision rounds that
+        each saw new errors), per slave group: a group whose slaves are gone is named alone."""
+        now = self._errors_by_group(stats)
+        for name, (errors, expected) in now.items():
+            seen = self._wkc_errors.get(name, 0)
+            if errors > seen and name not in self._wkc_burst:
+                where = f"group {name}: " if len(now) > 1 else ""
+                self._emit(
+                    "wkc_error",
+                    None,
+                    f"{where}{errors - seen} frame(s) with a wrong working counter "
+                    f"(expected {expected if expected is not None else '?'})",
+                )
+            if errors > seen:
+                self._wkc_burst.add(name)
+            else:
+                self._wkc_burst.discard(name)
+            self._wkc_errors[name] = errors
 
     def _poll_emergencies(self) -> None:
         for s in self.bus.slaves:

@@ -51,9 +51,12 @@ def variable_spec(var: Any, unique_name: bool) -> VariableSpec:
     )
 
 
-def slave_spec(name: str, position: int, device: str, layout: Any) -> SlaveSpec:
+def slave_spec(
+    name: str, position: int, device: str, layout: Any, group: tuple[str, int] = ("default", 0)
+) -> SlaveSpec:
+    """``group``: (slave group, its cycle in µs)."""
     if layout is None:
-        return SlaveSpec(name, position, device)
+        return SlaveSpec(name, position, device, group=group[0], group_cycle_us=group[1])
     counts: dict[str, int] = {}
     for v in (*layout.outputs, *layout.inputs):
         counts[v.name] = counts.get(v.name, 0) + 1
@@ -63,15 +66,24 @@ def slave_spec(name: str, position: int, device: str, layout: Any) -> SlaveSpec:
         device=device,
         inputs=tuple(variable_spec(v, counts[v.name] == 1) for v in layout.inputs),
         outputs=tuple(variable_spec(v, counts[v.name] == 1) for v in layout.outputs),
+        group=group[0],
+        group_cycle_us=group[1],
     )
 
 
 def bus_spec(bus: Any) -> BusSpec:
     """The layout of an opened ``Bus``: slaves in bus order with their mapped variables."""
     slaves = []
+    cycle_us = int(bus.config.bus.cycle_us)
+    group_of = {
+        name: (g.name, g.every * cycle_us)
+        for g in (bus.layout.groups if getattr(bus, "layout", None) is not None else [])
+        for name in g.slaves
+    }
     for s in bus.slaves:
         device = s.device.type_name if getattr(s, "device", None) is not None else ""
-        slaves.append(slave_spec(s.name, int(s.position), device, s.layout))
+        group = group_of.get(s.name, ("default", cycle_us))
+        slaves.append(slave_spec(s.name, int(s.position), device, s.layout, group))
     return BusSpec(
         bus=str(bus.config.bus.name), cycle_us=int(bus.config.bus.cycle_us), slaves=tuple(slaves)
     )
@@ -111,11 +123,12 @@ def output_bytes(bus: Any) -> int:
 
 
 def expected_wkc(bus: Any) -> int:
-    """Sum of the cyclic LRW datagrams' expected working counters (what a sample's ``wkc`` is
-    on a healthy bus)."""
-    plan = getattr(bus, "plan", None) or {}
-    lrw = [d for d in plan.get("datagrams", []) if d.get("kind") == "lrw"]
-    return sum(int(d.get("expected_wkc", 0)) for d in lrw)
+    """What a sample's ``wkc`` is on a healthy bus: the expected working counters of the frames
+    that go out every cycle (slave groups at a slower cycle add theirs only in their cycles)."""
+    layout = getattr(bus, "layout", None)
+    if layout is None:
+        return 0
+    return sum(f.expected_wkc for f in layout.frames if f.every == 1)
 
 
 def sample_arrays(batch: Any) -> tuple[Any, Any]:

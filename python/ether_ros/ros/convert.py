@@ -28,6 +28,8 @@ def layout_msg(spec: BusSpec) -> BusLayout:
             slave=s.name,
             position=s.position,
             device=s.device,
+            group=s.group,
+            group_cycle_us=s.group_cycle_us,
             inputs=[variable_msg(v) for v in s.inputs],
             outputs=[variable_msg(v) for v in s.outputs],
         )
@@ -59,6 +61,8 @@ def spec_from_msg(msg: BusLayout) -> BusSpec:
                 device=s.device,
                 inputs=tuple(variable_from_msg(v) for v in s.inputs),
                 outputs=tuple(variable_from_msg(v) for v in s.outputs),
+                group=s.group or "default",
+                group_cycle_us=int(s.group_cycle_us),
             )
             for s in msg.slaves
         ),

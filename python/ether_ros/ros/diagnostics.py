@@ -4,9 +4,11 @@ Master status: lifecycle state, cycles, lost/late frames, working-counter errors
 panics, overruns, samples dropped (engine ring and ROS side), loop timing (wake-up latency,
 execution time, period, round trip: p50/p99/max) and the largest DC sync error since the last
 report; cables found broken on a branch (``link lost behind slave 'coupler' port 2: slaves …
-unreachable``) make it WARN. One status per slave: its AL state and AL status code, and the
-supervisor's reason when the slave is lost (e.g. the broken cable that cut it off). One per CiA
-402 axis: its state, mode, error code with its text, following error and clamp counts.
+unreachable``) make it WARN. One status per slave group (``master/groups.py``): its cycle,
+frames, frames sent, lost and late, working-counter errors and last working counter against the
+expected one. One status per slave: its AL state and AL status code, and the supervisor's reason
+when the slave is lost (e.g. the broken cable that cut it off). One per CiA 402 axis: its state,
+mode, error code with its text, following error and clamp counts.
 """
 
 from __future__ import annotations
@@ -81,6 +83,35 @@ def master_status(
     else:
         st.level, st.message = OK, "running"
     return st
+
+
+def group_statuses(node_name: str, groups: Sequence[Any]) -> list[DiagnosticStatus]:
+    """One status per slave group (``GroupStats``): WARN while its working counter is off."""
+    out = []
+    for g in groups:
+        st = DiagnosticStatus()
+        st.name = f"{node_name}: group {g.name}"
+        st.hardware_id = node_name
+        values = [
+            ("cycle_us", f"{g.cycle_ns / 1000:g}"),
+            ("frames", " ".join(str(k) for k in g.frames)),
+            ("slaves", " ".join(g.slaves)),
+            ("sent", str(g.sent)),
+            ("lost_frames", str(g.lost)),
+            ("late_frames", str(g.late)),
+            ("wkc_errors", str(g.wkc_errors)),
+            ("watchdog_trips", str(g.watchdog_trips)),
+            ("working_counter", str(g.last_wkc)),
+            ("expected_working_counter", str(g.expected_wkc)),
+        ]
+        st.values = [KeyValue(key=k, value=v) for k, v in values]
+        if g.sent and not g.wkc_ok:
+            st.level = WARN
+            st.message = f"working counter {g.last_wkc}, expected {g.expected_wkc}"
+        else:
+            st.level, st.message = OK, f"every {g.cycle_ns / 1000:g} µs"
+        out.append(st)
+    return out
 
 
 def slave_statuses(node_name: str, states: Sequence[Any]) -> list[DiagnosticStatus]:

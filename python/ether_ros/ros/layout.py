@@ -42,6 +42,9 @@ class SlaveSpec:
     device: str
     inputs: tuple[VariableSpec, ...] = ()
     outputs: tuple[VariableSpec, ...] = ()
+    # The slave group and its cycle (0: unknown, e.g. a layout from an older node).
+    group: str = "default"
+    group_cycle_us: int = 0
 
     def output(self, ref: str) -> VariableSpec:
         """The output variable named ``ref`` or addressed by ``ref`` ("0x7030:03", "7030:3")."""

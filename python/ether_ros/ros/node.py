@@ -567,6 +567,7 @@ class EtherRosNode(LifecycleNode):
             # Not under _bus_lock: reading the AL states is acyclic traffic (a few cycles) and
             # writes must not wait for it. A bus closed meanwhile just skips this report.
             try:
+                statuses.extend(diagnostics.group_statuses(name, bus.group_stats()))
                 statuses.extend(diagnostics.slave_statuses(name, bus.states()))
             except Exception as exc:
                 self.get_logger().warning(f"reading slave states: {exc}")

@@ -82,6 +82,7 @@ def device_spec(
     drift_ppm: float = 0.0,
     delay_ns: int = 500,
     esc: str = "et1100",
+    lrw: bool = True,
 ) -> dict[str, Any]:
     """The ``add_slave`` spec of one slave running ``device``."""
     objects = [(o.index, o.name, o.object_code) for o in device.objects]
@@ -124,6 +125,7 @@ def device_spec(
         "dc_required": device.dc_required,
         "mailbox": mailbox_spec(device),
         "esc": esc,
+        "lrw": lrw,
         "loopback_links": loopback_pairs(device) if sim_device == "loopback" else [],
         "safeop_op_timeout_ms": device.timeouts.safeop_op_ms,
     }
@@ -148,6 +150,7 @@ def slave_spec(slave: SlaveConfig, position: int) -> dict[str, Any]:
         drift_ppm=slave.sim.drift_ppm,
         delay_ns=slave.sim.delay_ns,
         esc=slave.sim.esc,
+        lrw=slave.sim.lrw,
     )
 
 

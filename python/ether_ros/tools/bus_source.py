@@ -42,13 +42,19 @@ def _variable_info(var: Any) -> VariableInfo:
 def bus_info(bus: Any) -> BusInfo:
     """The recording's description of an opened bus: slaves and their variables."""
     slaves = []
+    cycle_us = int(bus.config.bus.cycle_us)
+    groups = getattr(getattr(bus, "layout", None), "groups", None) or []
+    group_of = {name: (g.name, g.every * cycle_us) for g in groups for name in g.slaves}
     for s in bus.slaves:
         layout = s.layout
         inputs = tuple(_variable_info(v) for v in layout.inputs) if layout else ()
         outputs = tuple(_variable_info(v) for v in layout.outputs) if layout else ()
         device = getattr(s.device, "type_name", "") if s.device is not None else ""
-        slaves.append(SlaveInfo(s.name, s.position, str(device), inputs, outputs))
-    return BusInfo(str(bus.config.bus.name), int(bus.config.bus.cycle_us), tuple(slaves))
+        group, group_cycle_us = group_of.get(s.name, ("default", cycle_us))
+        slaves.append(
+            SlaveInfo(s.name, s.position, str(device), inputs, outputs, group, group_cycle_us)
+        )
+    return BusInfo(str(bus.config.bus.name), cycle_us, tuple(slaves))
 
 
 def split_samples(samples: Any) -> tuple[Any, Any]:

@@ -42,6 +42,26 @@ class AxisRow:
 
 
 @dataclass
+class GroupRow:
+    """One slave group: its cycle, frames and working counter (``master/groups.py``)."""
+
+    name: str
+    cycle_us: float
+    lost_frames: int
+    late_frames: int
+    wkc_errors: int
+    wkc: int
+    expected_wkc: int
+
+    def text(self) -> str:
+        return (
+            f"group {self.name}: every {self.cycle_us:g} µs   lost {self.lost_frames}   "
+            f"late {self.late_frames}   WKC errors {self.wkc_errors}   "
+            f"WKC {self.wkc}/{self.expected_wkc}"
+        )
+
+
+@dataclass
 class LiveSnapshot:
     bus: str = ""
     cycle_us: int = 0
@@ -53,6 +73,7 @@ class LiveSnapshot:
     panic: bool = False
     slaves: list[SlaveRow] = field(default_factory=list)
     axes: list[AxisRow] = field(default_factory=list)
+    groups: list[GroupRow] = field(default_factory=list)
     # Recent per-cycle values, µs (what the histograms are made of).
     wake_latency_us: Sequence[float] = ()
     exec_us: Sequence[float] = ()
@@ -106,6 +127,7 @@ def stats_text(s: LiveSnapshot) -> str:
         f"lost frames {s.lost_frames}   late frames {s.late_frames}   "
         f"working counter errors {s.wkc_errors}   DC sync error {dc}",
     ]
+    lines.extend(g.text() for g in s.groups)
     if s.error:
         lines.append(f"source: {s.error}")
     return "\n".join(lines)
@@ -282,6 +304,18 @@ class BusLiveSource:
             dc_sync_error_ns=max((abs(x) for x in dc), default=None),
             panic=bool(stat(stats, "panic")),
             slaves=slaves,
+            groups=[
+                GroupRow(
+                    g.name,
+                    g.cycle_ns / 1000,
+                    g.lost,
+                    g.late,
+                    g.wkc_errors,
+                    g.last_wkc,
+                    g.expected_wkc,
+                )
+                for g in self.bus.group_stats(stats)
+            ],
             wake_latency_us=list(self._columns["wake_latency_ns"]),
             exec_us=list(self._columns["exec_ns"]),
             period_us=list(self._columns["period_ns"]),
@@ -309,6 +343,7 @@ def snapshot_from_diagnostics(
     slaves: dict[str, tuple[str, dict[str, str]]],
     bus: str = "",
     axes: dict[str, dict[str, str]] | None = None,
+    groups: dict[str, dict[str, str]] | None = None,
 ) -> LiveSnapshot:
     """A snapshot from the node's diagnostics (``ether_ros.ros.diagnostics``).
 
@@ -316,8 +351,9 @@ def snapshot_from_diagnostics(
     late_frames, wkc_errors, panic, <h>_p50_ns/_p99_ns/_max_ns for the loop timing,
     dc_sync_error_max_ns). ``slaves``: slave name -> (message, key/values of its status:
     position, al_state, al_error, al_status_code). ``axes``: joint -> key/values of its
-    "axis" status (state, mode, position, error_code/_text, last_fault_code/_text). The node
-    sends quantiles, not every cycle, so the timing is shown as p50/p99/max.
+    "axis" status (state, mode, position, error_code/_text, last_fault_code/_text).
+    ``groups``: group name -> key/values of its "<node>: group <name>" status. The node sends
+    quantiles, not every cycle, so the timing is shown as p50/p99/max.
     """
 
     def num(key: str, default: float = 0.0) -> float:
@@ -368,8 +404,27 @@ def snapshot_from_diagnostics(
         dc_sync_error_ns=None if dc in (None, "") else num("dc_sync_error_max_ns"),
         panic=master.get("panic", "false") == "true",
         slaves=rows,
+        groups=[_group_row(name, kv) for name, kv in (groups or {}).items()],
         quantiles_us=quantiles,
         source=f"ROS 2 diagnostics ({master.get('lifecycle_state', '?')})",
+    )
+
+
+def _group_row(name: str, kv: dict[str, str]) -> GroupRow:
+    def num(key: str) -> float:
+        try:
+            return float(kv.get(key, 0))
+        except ValueError:
+            return 0.0
+
+    return GroupRow(
+        name,
+        num("cycle_us"),
+        int(num("lost_frames")),
+        int(num("late_frames")),
+        int(num("wkc_errors")),
+        int(num("working_counter")),
+        int(num("expected_working_counter")),
     )
 
 
@@ -402,6 +457,7 @@ class DiagnosticsLiveSource:
         self._node_name = ""
         self._slaves: dict[str, tuple[str, dict[str, str]]] = {}
         self._axes: dict[str, dict[str, str]] = {}
+        self._groups: dict[str, dict[str, str]] = {}
         self._node.create_subscription(DiagnosticArray, topic, self._on_message, 10)
         self._bus_name = ""
         self._cycle_us = 0
@@ -432,6 +488,8 @@ class DiagnosticsLiveSource:
                 self._slaves[what[len("slave ") :]] = (status.message, values)
             elif what.startswith("axis "):
                 self._axes[what[len("axis ") :]] = values
+            elif what.startswith("group "):
+                self._groups[what[len("group ") :]] = values
 
     def poll(self) -> LiveSnapshot:
         self._rclpy.spin_once(self._node, timeout_sec=0.0)
@@ -439,7 +497,9 @@ class DiagnosticsLiveSource:
             return LiveSnapshot(
                 source="ROS 2 diagnostics", error="waiting for the node's diagnostics"
             )
-        snap = snapshot_from_diagnostics(self._master, self._slaves, self._bus_name, self._axes)
+        snap = snapshot_from_diagnostics(
+            self._master, self._slaves, self._bus_name, axes=self._axes, groups=self._groups
+        )
         snap.cycle_us = self._cycle_us
         snap.source = f"node {self._node_name}, {snap.source}"
         return snap

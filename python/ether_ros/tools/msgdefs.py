@@ -35,6 +35,8 @@ SLAVE_LAYOUT = """\
 string slave              # configured slave name
 uint16 position           # position on the bus
 string device             # ESI device type
+string group              # slave group ("default": exchanged every bus cycle)
+uint32 group_cycle_us     # the group's cycle: a whole multiple of the bus cycle
 VariableInfo[] inputs     # order of SlaveValues.values on the inputs topic
 VariableInfo[] outputs    # order of SlaveValues.values on the outputs topics
 """

@@ -83,6 +83,9 @@ class SlaveInfo:
     device: str
     inputs: tuple[VariableInfo, ...]
     outputs: tuple[VariableInfo, ...]
+    # Slave group and its cycle (recordings made before groups existed: "default", 0).
+    group: str = "default"
+    group_cycle_us: int = 0
 
 
 @dataclass(frozen=True)
@@ -226,6 +229,8 @@ class RecordingWriter:
                         "slave": s.name,
                         "position": s.position,
                         "device": s.device,
+                        "group": s.group,
+                        "group_cycle_us": s.group_cycle_us,
                         "inputs": [var(v) for v in s.inputs],
                         "outputs": [var(v) for v in s.outputs],
                     }
@@ -649,6 +654,8 @@ def _bus_from_msg(msg: Any) -> BusInfo:
                 s.device,
                 tuple(var(v) for v in s.inputs),
                 tuple(var(v) for v in s.outputs),
+                getattr(s, "group", "default") or "default",
+                int(getattr(s, "group_cycle_us", 0)),
             )
             for s in msg.slaves
         ),

@@ -4,18 +4,31 @@
 // Each test binary uses a part of these helpers.
 #![allow(dead_code)]
 
+use std::collections::VecDeque;
 use std::process::Command as Process;
 use std::time::{Duration, Instant};
 
-use ether_ros_engine::plan::{CyclicDatagram, DcMode, Policy, RtPlan};
-use ether_ros_engine::Engine;
+use ether_ros_engine::plan::{CyclicDatagram, DcMode, FramePlan, Logical, Policy, RtPlan};
+use ether_ros_engine::{now_ns, Engine, Received};
 
 /// Station address of the DC reference slave on the test buses.
 pub const DC_REF_STATION: u16 = 0x1001;
 
-/// The cyclic datagrams of a test bus: the DC datagrams `dc` asks for, then one LRW of
+/// A logical datagram of the image bytes `image_offset..+length` at logical address
+/// 0x1_0000 + image_offset.
+pub fn logical(command: Logical, image_offset: usize, length: usize, wkc: u16) -> CyclicDatagram {
+    CyclicDatagram::Logical {
+        command,
+        address: 0x1_0000 + image_offset as u32,
+        length,
+        image_offset,
+        expected_wkc: wkc,
+    }
+}
+
+/// The one cyclic frame of a test bus: the DC datagrams `dc` asks for, then one LRW of
 /// `length` bytes at logical address 0x1_0000 expecting working counter `expected_wkc`.
-pub fn cyclic_datagrams(dc: DcMode, length: usize, expected_wkc: u16) -> Vec<CyclicDatagram> {
+pub fn cyclic_frame(dc: DcMode, length: usize, expected_wkc: u16) -> Vec<FramePlan> {
     let mut datagrams = vec![];
     if dc == DcMode::RefFollowsMaster {
         datagrams.push(CyclicDatagram::DcWriteRef {
@@ -27,13 +40,12 @@ pub fn cyclic_datagrams(dc: DcMode, length: usize, expected_wkc: u16) -> Vec<Cyc
             station: DC_REF_STATION,
         });
     }
-    datagrams.push(CyclicDatagram::Lrw {
-        address: 0x1_0000,
-        length,
-        image_offset: 0,
-        expected_wkc,
-    });
-    datagrams
+    datagrams.push(logical(Logical::Lrw, 0, length, expected_wkc));
+    vec![FramePlan {
+        datagrams,
+        every: 1,
+        watchdog_ns: 0,
+    }]
 }
 
 /// Thread settings any process may use: policy "other", no CPU pinning, no locked memory.
@@ -112,4 +124,17 @@ impl Drop for Veth {
             .args(["link", "del", &self.master])
             .output();
     }
+}
+
+/// A test link's receive: the next queued reply into `buf`, stamped now (rt_audit's links
+/// answer in place and do not use it).
+#[allow(dead_code)]
+pub fn pop_reply(queue: &mut VecDeque<Vec<u8>>, buf: &mut [u8]) -> Option<Received> {
+    queue.pop_front().map(|f| {
+        buf[..f.len()].copy_from_slice(&f);
+        Received {
+            len: f.len(),
+            rx_ns: now_ns(),
+        }
+    })
 }
