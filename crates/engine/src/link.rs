@@ -267,20 +267,7 @@ impl Link for RawSocketLink {
             if remaining <= 0 {
                 return Ok(None);
             }
-            let mut pfd = libc::pollfd {
-                fd: self.fd,
-                events: libc::POLLIN,
-                revents: 0,
-            };
-            let ts = timespec(remaining);
-            // SAFETY: one valid pollfd; timeout timespec is valid; no signal mask change.
-            let r = unsafe { libc::ppoll(&mut pfd, 1, &ts, std::ptr::null()) };
-            if r < 0 {
-                let err = io::Error::last_os_error();
-                if err.raw_os_error() != Some(libc::EINTR) {
-                    return Err(err);
-                }
-            }
+            wait_readable(self.fd, remaining)?;
         }
     }
 
@@ -366,4 +353,24 @@ impl Link for InProcessLink {
     fn describe(&self) -> String {
         format!("in-process {}", self.name)
     }
+}
+
+/// Wait until `fd` is readable or `remaining_ns` have passed (one `ppoll`); an interrupted
+/// wait is not an error, the caller looks again. Shared by the links' `recv`.
+pub(crate) fn wait_readable(fd: libc::c_int, remaining_ns: i64) -> io::Result<()> {
+    let mut pfd = libc::pollfd {
+        fd,
+        events: libc::POLLIN,
+        revents: 0,
+    };
+    let ts = timespec(remaining_ns);
+    // SAFETY: one valid pollfd; the timeout timespec is valid; no signal mask change.
+    let r = unsafe { libc::ppoll(&mut pfd, 1, &ts, std::ptr::null()) };
+    if r < 0 {
+        let err = io::Error::last_os_error();
+        if err.raw_os_error() != Some(libc::EINTR) {
+            return Err(err);
+        }
+    }
+    Ok(())
 }

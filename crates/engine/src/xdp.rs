@@ -15,8 +15,8 @@ use std::io;
 use std::sync::atomic::{AtomicU32, Ordering};
 
 use crate::bpf::{self, bind_queue, Attached, Fd};
-use crate::clock::{now_ns, timespec};
-use crate::link::{set_busy_poll, Link, LinkOptions, Received};
+use crate::clock::now_ns;
+use crate::link::{set_busy_poll, wait_readable, Link, LinkOptions, Received};
 use ether_ros_wire::MAX_FRAME_LEN;
 
 /// UMEM chunk size: one page, so a chunk never straddles pages.
@@ -442,20 +442,7 @@ impl Link for XdpLink {
                 }
                 return Ok(None);
             }
-            let mut pfd = libc::pollfd {
-                fd: self.socket.0,
-                events: libc::POLLIN,
-                revents: 0,
-            };
-            let ts = timespec(remaining);
-            // SAFETY: one valid pollfd; the timeout is valid; no signal mask change.
-            let r = unsafe { libc::ppoll(&mut pfd, 1, &ts, std::ptr::null()) };
-            if r < 0 {
-                let err = io::Error::last_os_error();
-                if err.raw_os_error() != Some(libc::EINTR) {
-                    return Err(err);
-                }
-            }
+            wait_readable(self.socket.0, remaining)?;
         }
     }
 
