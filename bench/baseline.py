@@ -378,3 +378,39 @@ def run_worker(script: Path, mode: str, args: list[str], timeout: float) -> dict
             raise ToolError(f"the {mode} worker failed ({r.returncode}): {detail}")
         result: dict[str, Any] = json.loads(out.read_text())
         return result
+
+
+def one_lrw_plan(
+    *,
+    cycle_us: int,
+    order: str,
+    image: bytes,
+    output_bytes: int,
+    sync0_shift_ns: int,
+    priority: int,
+) -> dict[str, Any]:
+    """The engine plan of the benchmarks' synthetic bus: DC write + sync to station 0x1001 and
+    one LRW of ``image`` (outputs first), no watchdog, a large sample ring."""
+    return {
+        "cycle_ns": cycle_us * 1000,
+        "order": order,
+        "datagrams": [
+            {"kind": "dc_write_ref", "station": 0x1001},
+            {"kind": "dc_sync", "station": 0x1001},
+            {
+                "kind": "lrw",
+                "address": 0x10000,
+                "length": len(image),
+                "image_offset": 0,
+                "expected_wkc": 0,
+            },
+        ],
+        "image_len": len(image),
+        "output_ranges": [(0, output_bytes)],
+        "initial_image": image,
+        "safe_image": image,
+        "dc": {"mode": "ref_follows_master", "time_offset_ns": 0, "sync0_shift_ns": sync0_shift_ns},
+        "rt": {"policy": "fifo", "priority": priority, "cpu": None, "lock_memory": True},
+        "watchdog_ns": 0,
+        "ring_capacity": 65536,
+    }

@@ -23,7 +23,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from baseline import ToolError, simulator
+from baseline import ToolError, one_lrw_plan, simulator
 from bench_engine import address_slaves
 from ether_ros.testing.netns import VethPair
 from report import BenchSkipped, Report, us
@@ -84,31 +84,16 @@ def _initial_image() -> bytes:
 
 
 def _plan(axes: int) -> dict[str, Any]:
-    image = _initial_image()
-    return {
-        "cycle_ns": CYCLE_US * 1000,
-        "order": "send_at_wake",
-        "datagrams": [
-            {"kind": "dc_write_ref", "station": 0x1001},
-            {"kind": "dc_sync", "station": 0x1001},
-            {
-                "kind": "lrw",
-                "address": 0x10000,
-                "length": IMAGE,
-                "image_offset": 0,
-                "expected_wkc": 0,
-            },
-        ],
-        "image_len": IMAGE,
-        "output_ranges": [(0, OUTPUTS)],
-        "initial_image": image,
-        "safe_image": image,
-        "dc": {"mode": "ref_follows_master", "time_offset_ns": 0, "sync0_shift_ns": 100_000},
-        "rt": {"policy": "fifo", "priority": PRIORITY, "cpu": None, "lock_memory": True},
-        "watchdog_ns": 0,
-        "ring_capacity": 65536,
-        "axes": [_axis(n) for n in range(axes)],
-    }
+    plan = one_lrw_plan(
+        cycle_us=CYCLE_US,
+        order="send_at_wake",
+        image=_initial_image(),
+        output_bytes=OUTPUTS,
+        sync0_shift_ns=100_000,
+        priority=PRIORITY,
+    )
+    plan["axes"] = [_axis(n) for n in range(axes)]
+    return plan
 
 
 def _run(engine: Any, axes: int, seconds: float) -> dict[str, Any]:

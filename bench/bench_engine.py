@@ -32,7 +32,14 @@ import time
 from pathlib import Path
 from typing import Any
 
-from baseline import LatencyHistogram, ToolError, cyclictest, rtt_probe, simulator
+from baseline import (
+    LatencyHistogram,
+    ToolError,
+    cyclictest,
+    one_lrw_plan,
+    rtt_probe,
+    simulator,
+)
 from ether_ros.testing.netns import VethPair
 from report import BenchSkipped, Report, us
 
@@ -48,33 +55,14 @@ LATENCY_RATIO = 1.1
 
 
 def _plan(order: str, cycle_us: int = CYCLE_US) -> dict[str, Any]:
-    return {
-        "cycle_ns": cycle_us * 1000,
-        "order": order,
-        "datagrams": [
-            {"kind": "dc_write_ref", "station": 0x1001},
-            {"kind": "dc_sync", "station": 0x1001},
-            {
-                "kind": "lrw",
-                "address": 0x10000,
-                "length": IMAGE,
-                "image_offset": 0,
-                "expected_wkc": 0,
-            },
-        ],
-        "image_len": IMAGE,
-        "output_ranges": [(0, LEGS * 38)],
-        "initial_image": bytes(IMAGE),
-        "safe_image": bytes(IMAGE),
-        "dc": {
-            "mode": "ref_follows_master",
-            "time_offset_ns": 0,
-            "sync0_shift_ns": min(55_000, cycle_us * 500),
-        },
-        "rt": {"policy": "fifo", "priority": PRIORITY, "cpu": None, "lock_memory": True},
-        "watchdog_ns": 0,
-        "ring_capacity": 65536,
-    }
+    return one_lrw_plan(
+        cycle_us=cycle_us,
+        order=order,
+        image=bytes(IMAGE),
+        output_bytes=LEGS * 38,
+        sync0_shift_ns=min(55_000, cycle_us * 500),
+        priority=PRIORITY,
+    )
 
 
 def _run_engine(engine: Any, order: str, seconds: float, cycle_us: int = CYCLE_US) -> None:

@@ -154,6 +154,26 @@ fn main() -> ExitCode {
     }
 }
 
+/// Exchange process data until every slave reports OP (at most 10 s): after `request_into_op`
+/// the slaves enter OP once valid outputs arrive. Written once for both group kinds, like
+/// `cycle_loop!`.
+macro_rules! enter_op {
+    ($group:expr, $maindevice:expr, $args:expr, $report:expr, $tx_rx:ident) => {{
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while !$report.op {
+            let r = $group
+                .$tx_rx($maindevice)
+                .await
+                .map_err(|e| format!("tx/rx while entering OP: {e}"))?;
+            $report.op = r.all_op();
+            if Instant::now() > deadline {
+                return Err("slaves did not reach OP within 10 s".into());
+            }
+            smol::Timer::after($args.cycle).await;
+        }
+    }};
+}
+
 /// The cyclic exchange, written once for both kinds of OP group (with DC: `tx_rx_dc`, free run:
 /// `tx_rx`): the group types differ, the loop does not.
 macro_rules! cycle_loop {
@@ -304,18 +324,7 @@ async fn run(args: &Args, report: &mut Report) -> Result<(), String> {
             .await
             .map_err(|e| format!("request OP: {e}"))?;
         // Cyclic exchange starts after the request: the slaves go to OP on valid outputs.
-        let deadline = Instant::now() + Duration::from_secs(10);
-        while !report.op {
-            let r = group
-                .tx_rx_dc(&maindevice)
-                .await
-                .map_err(|e| format!("tx/rx while entering OP: {e}"))?;
-            report.op = r.all_op();
-            if Instant::now() > deadline {
-                return Err("slaves did not reach OP within 10 s".into());
-            }
-            smol::Timer::after(args.cycle).await;
-        }
+        enter_op!(&group, &maindevice, args, report, tx_rx_dc);
         cycle_loop!(&group, &maindevice, args, report, tx_rx_dc)
     } else {
         // ethercrab's own order: request OP, then start the cyclic exchange; the slaves
@@ -327,18 +336,7 @@ async fn run(args: &Args, report: &mut Report) -> Result<(), String> {
             .request_into_op(&maindevice)
             .await
             .map_err(|e| format!("request OP: {e}"))?;
-        let deadline = Instant::now() + Duration::from_secs(10);
-        while !report.op {
-            let r = group
-                .tx_rx(&maindevice)
-                .await
-                .map_err(|e| format!("tx/rx while entering OP: {e}"))?;
-            report.op = r.all_op();
-            if Instant::now() > deadline {
-                return Err("slaves did not reach OP within 10 s".into());
-            }
-            smol::Timer::after(args.cycle).await;
-        }
+        enter_op!(&group, &maindevice, args, report, tx_rx);
         cycle_loop!(&group, &maindevice, args, report, tx_rx)
     }
 }
