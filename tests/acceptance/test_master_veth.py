@@ -10,8 +10,7 @@ outcome is checked.
 
 from __future__ import annotations
 
-import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -21,6 +20,7 @@ from ether_ros.errors import EtherRosError, MailboxError
 from ether_ros.master import Bus, BusEvent
 from ether_ros.sim.proof import SimProcess, table_6_1
 from ether_ros.testing.netns import VethPair
+from ether_ros.testing.wait import wait_for
 
 pytestmark = pytest.mark.netns
 
@@ -41,15 +41,6 @@ def _config(path: Path, interface: str, link: str = "packet", watchdog_ms: int =
     cfg.bus.realtime.lock_memory = False
     cfg.bus.watchdog_ms = watchdog_ms
     return cfg
-
-
-def wait_for(what: str, check: Callable[[], bool], timeout: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if check():
-            return
-        time.sleep(0.02)
-    raise AssertionError(f"timed out waiting for {what}")
 
 
 class Recorder:

@@ -15,7 +15,6 @@ Timing is never asserted: rates are compared as ratios of counts over the same i
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -24,6 +23,7 @@ from ether_ros.config import BusConfig, load_bus_config
 from ether_ros.master import Bus, BusEvent
 from ether_ros.sim.proof import SimProcess
 from ether_ros.testing.netns import VethPair
+from ether_ros.testing.wait import wait_for
 
 pytestmark = pytest.mark.netns
 
@@ -55,15 +55,6 @@ slaves:
 groups:
   - {{name: io, cycle_us: 4000, slaves: [io_a, io_b]}}
 """
-
-
-def wait_for(what: str, check: Callable[[], bool], timeout: float = 15.0) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if check():
-            return
-        time.sleep(0.02)
-    raise AssertionError(f"timed out waiting for {what}")
 
 
 def _write(tmp_path: Path, text: str) -> Path:
