@@ -9,6 +9,7 @@ reaches the process image. Types, ranges and the check itself are the protocol c
 
 from __future__ import annotations
 
+import functools
 import math
 
 from ether_ros._native import protocol
@@ -21,6 +22,7 @@ class InvalidValue(EtherRosError):
     """A value that does not fit its variable (names the variable, type and range)."""
 
 
+@functools.lru_cache(maxsize=256)
 def data_type(type_name: str) -> dt.DataType:
     """The type a name denotes (``int16``, ``INT``, ``UINT``, ``bool``, ``real32`` ...)."""
     t = dt.config_type(type_name)
