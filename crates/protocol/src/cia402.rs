@@ -208,6 +208,15 @@ impl State {
         )
     }
 
+    /// The state a statusword codes, taking the codings the standard leaves undefined as "not
+    /// ready to switch on" (nothing is enabled): what a master acts on.
+    pub const fn decode(word: u16) -> State {
+        match State::from_statusword(word) {
+            Some(s) => s,
+            None => State::NotReadyToSwitchOn,
+        }
+    }
+
     /// The state by number (`State::ALL[n]`).
     pub const fn from_number(n: u8) -> Option<State> {
         if (n as usize) < Self::ALL.len() {
