@@ -13,6 +13,8 @@
 //! motor rated torque 0x6076 (mNm). One joint revolution is `counts_per_rev · gear_ratio`
 //! increments. What is modelled and what is not: docs/cia402-simulator.md.
 
+use ether_ros_protocol::cia402::object as obj;
+
 use super::od_slots::OdSlots;
 use super::period_clock::PeriodClock;
 use super::servo_motor::{limit, Cascade, Mechanics, MotorParams};
@@ -25,11 +27,10 @@ pub const PERIOD_NS: u64 = 125_000;
 const SUBSTEPS: u32 = 2;
 /// Longest stretch of time one `step` catches up on (100 ms).
 const MAX_CATCH_UP_PERIODS: u64 = 800;
-/// Axes a drive may have (objects up to 0x6040 + 7·0x800 = 0x9840 would leave the profile
-/// area; eight is ETG.6010's limit).
-pub const MAX_AXES: usize = 8;
+/// Axes a drive may have (ETG.6010's limit, the protocol crate's).
+pub const MAX_AXES: usize = obj::MAX_AXES as usize;
 /// Object index distance between axes (ETG.6010 multi-axis layout).
-pub const AXIS_OFFSET: u16 = 0x800;
+pub const AXIS_OFFSET: u16 = obj::AXIS_OFFSET;
 /// Motor speed under which a stop (quick stop, fault reaction, halt) counts as done, rad/s.
 const STANDSTILL_SPEED: f64 = 0.5;
 /// Interpolation period when 0x60C2 holds no usable value, s.
@@ -179,134 +180,27 @@ mod slot {
 /// The device's error register (CiA 301), shared by the axes.
 const ERROR_REGISTER: [(u16, u8); 1] = [(0x1001, 0)];
 
-/// Modes of operation (0x6060 values).
+/// Modes of operation (0x6060 values): the protocol crate's codes.
 pub mod mode {
-    pub const NONE: i8 = 0;
-    pub const PP: i8 = 1;
-    pub const PV: i8 = 3;
-    pub const HM: i8 = 6;
-    pub const CSP: i8 = 8;
-    pub const CSV: i8 = 9;
-    pub const CST: i8 = 10;
+    pub use ether_ros_protocol::cia402::mode::{CSP, CST, CSV, HM, NONE, PP, PV};
     /// The modes this model implements.
     pub const IMPLEMENTED: [i8; 6] = [PP, PV, HM, CSP, CSV, CST];
 
-    /// The 0x6502 bit of a mode (bit 0 PP ... bit 9 CST), None for modes without one.
+    /// The 0x6502 mask of a mode (bit 0 PP ... bit 9 CST), None for modes without one.
     pub fn supported_bit(m: i8) -> Option<u32> {
-        (1..=10).contains(&m).then(|| 1u32 << (m - 1))
+        ether_ros_protocol::cia402::mode::supported_bit(m).map(|bit| 1u32 << bit)
     }
 }
 
-/// Statusword bits (IEC 61800-7-201).
-pub mod sw {
-    pub const READY_TO_SWITCH_ON: u16 = 1 << 0;
-    pub const SWITCHED_ON: u16 = 1 << 1;
-    pub const OPERATION_ENABLED: u16 = 1 << 2;
-    pub const FAULT: u16 = 1 << 3;
-    pub const VOLTAGE_ENABLED: u16 = 1 << 4;
-    pub const QUICK_STOP: u16 = 1 << 5;
-    pub const SWITCH_ON_DISABLED: u16 = 1 << 6;
-    pub const WARNING: u16 = 1 << 7;
-    pub const REMOTE: u16 = 1 << 9;
-    pub const TARGET_REACHED: u16 = 1 << 10;
-    pub const INTERNAL_LIMIT: u16 = 1 << 11;
-    /// CSP/CSV/CST: drive follows the command value; PP: set-point acknowledge; PV: speed
-    /// is zero; HM: homing attained.
-    pub const MODE_12: u16 = 1 << 12;
-    /// CSP/PP: following error; HM: homing error.
-    pub const MODE_13: u16 = 1 << 13;
-}
+/// Statusword bits (IEC 61800-7-201): the protocol crate's.
+pub use ether_ros_protocol::cia402::sw;
 
-/// Controlword bits.
-pub mod cw {
-    pub const NEW_SETPOINT: u16 = 1 << 4; // PP; HM: homing operation start
-    pub const CHANGE_SET_IMMEDIATELY: u16 = 1 << 5;
-    pub const RELATIVE: u16 = 1 << 6;
-    pub const FAULT_RESET: u16 = 1 << 7;
-    pub const HALT: u16 = 1 << 8;
-}
+/// Controlword bits: the protocol crate's.
+pub use ether_ros_protocol::cia402::cw;
 
-/// States of the power drive state machine.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum State {
-    NotReadyToSwitchOn,
-    SwitchOnDisabled,
-    ReadyToSwitchOn,
-    SwitchedOn,
-    OperationEnabled,
-    QuickStopActive,
-    FaultReactionActive,
-    Fault,
-}
-
-impl State {
-    /// Statusword bits 0–3, 5 and 6 coding the state (bit 5 "quick stop" is active low: set in
-    /// the states where no quick stop is under way).
-    pub fn statusword_bits(self) -> u16 {
-        match self {
-            State::NotReadyToSwitchOn => 0x0000,
-            State::SwitchOnDisabled => 0x0040,
-            State::ReadyToSwitchOn => 0x0021,
-            State::SwitchedOn => 0x0023,
-            State::OperationEnabled => 0x0027,
-            State::QuickStopActive => 0x0007,
-            State::FaultReactionActive => 0x000F,
-            State::Fault => 0x0008,
-        }
-    }
-
-    /// The state a statusword codes (masks 0x4F / 0x6F of the standard), for masters and tests.
-    pub fn from_statusword(word: u16) -> Option<State> {
-        match (word & 0x4F, word & 0x6F) {
-            (0x00, _) => Some(State::NotReadyToSwitchOn),
-            (0x40, _) => Some(State::SwitchOnDisabled),
-            (_, 0x21) => Some(State::ReadyToSwitchOn),
-            (_, 0x23) => Some(State::SwitchedOn),
-            (_, 0x27) => Some(State::OperationEnabled),
-            (_, 0x07) => Some(State::QuickStopActive),
-            (0x0F, _) => Some(State::FaultReactionActive),
-            (0x08, _) => Some(State::Fault),
-            _ => None,
-        }
-    }
-
-    /// Number used by `probe` (the order of the standard's state diagram).
-    pub fn number(self) -> f64 {
-        self as u8 as f64
-    }
-}
-
-/// The device control command coded in controlword bits 0–3 (bit 7, fault reset, acts on its
-/// rising edge and is handled apart).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Command {
-    /// xxxx xx0x
-    DisableVoltage,
-    /// xxxx x01x
-    QuickStop,
-    /// xxxx x110
-    Shutdown,
-    /// xxxx 0111: "switch on", and in Operation enabled "disable operation".
-    SwitchOn,
-    /// xxxx 1111: "enable operation" (and "switch on" from Ready to switch on).
-    EnableOperation,
-}
-
-impl Command {
-    pub fn decode(controlword: u16) -> Command {
-        if controlword & 0x0002 == 0 {
-            Command::DisableVoltage
-        } else if controlword & 0x0004 == 0 {
-            Command::QuickStop
-        } else if controlword & 0x0001 == 0 {
-            Command::Shutdown
-        } else if controlword & 0x0008 == 0 {
-            Command::SwitchOn
-        } else {
-            Command::EnableOperation
-        }
-    }
-}
+/// States of the power drive state machine (coded in the statusword) and the device control
+/// commands (coded in the controlword): the protocol crate's.
+pub use ether_ros_protocol::cia402::{Command, State};
 
 /// The controlword transitions of the state diagram (IEC 61800-7-201, transitions 2–12, 15,
 /// 16): `(transition number, next state)` for `controlword` (with `previous` for the fault
@@ -1500,7 +1394,7 @@ impl DeviceApp for Cia402Drive {
                 (names[2], a.torque * gear),
                 (names[3], a.torque),
                 (names[4], a.demand / gear),
-                (names[5], a.state.number()),
+                (names[5], f64::from(a.state as u8)),
                 (names[6], f64::from(a.mode)),
                 (names[7], a.fault.map_or(0.0, |f| f64::from(f.error_code()))),
                 (
