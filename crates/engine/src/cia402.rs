@@ -14,120 +14,32 @@
 
 use crate::handover::SeqBuffer;
 
-/// Statusword decoding and controlword commands (the standard's Tables "state coding" and
-/// "device control commands").
+/// Controlword commands and bits (the standard's "device control commands"): the protocol
+/// crate's (`ether_ros_protocol::cia402`).
 pub mod word {
-    pub const SHUTDOWN: u16 = 0x0006;
-    pub const SWITCH_ON: u16 = 0x0007;
-    pub const ENABLE_OPERATION: u16 = 0x000F;
-    pub const DISABLE_VOLTAGE: u16 = 0x0000;
-    pub const QUICK_STOP: u16 = 0x0002;
-    /// Bit 7: a rising edge resets a fault.
-    pub const FAULT_RESET: u16 = 0x0080;
-    /// Bit 4 in pp (new set-point) and hm (homing operation start).
-    pub const OPERATION_BIT4: u16 = 0x0010;
+    pub use ether_ros_protocol::cia402::command::{
+        DISABLE_VOLTAGE, ENABLE_OPERATION, FAULT_RESET, QUICK_STOP, SHUTDOWN, SWITCH_ON,
+    };
     /// Bit 5 in pp: change set immediately.
-    pub const CHANGE_IMMEDIATELY: u16 = 0x0020;
+    pub use ether_ros_protocol::cia402::cw::CHANGE_SET_IMMEDIATELY as CHANGE_IMMEDIATELY;
+    /// Bit 4 in pp (new set-point) and hm (homing operation start).
+    pub use ether_ros_protocol::cia402::cw::NEW_SETPOINT as OPERATION_BIT4;
     /// Statusword bit 12 in pp: set-point acknowledge.
-    pub const SETPOINT_ACK: u16 = 0x1000;
+    pub use ether_ros_protocol::cia402::sw::MODE_12 as SETPOINT_ACK;
 }
 
-/// The power states of the drive.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[repr(u8)]
-pub enum DriveState {
-    NotReadyToSwitchOn = 0,
-    SwitchOnDisabled = 1,
-    ReadyToSwitchOn = 2,
-    SwitchedOn = 3,
-    OperationEnabled = 4,
-    QuickStopActive = 5,
-    FaultReactionActive = 6,
-    Fault = 7,
-}
+/// Modes of operation (0x6060 values): the protocol crate's.
+pub use ether_ros_protocol::cia402::Mode;
+/// The power states of the drive, decoded from the statusword: the protocol crate's.
+pub use ether_ros_protocol::cia402::State as DriveState;
 
-impl DriveState {
-    pub const NAMES: [&'static str; 8] = [
-        "not_ready_to_switch_on",
-        "switch_on_disabled",
-        "ready_to_switch_on",
-        "switched_on",
-        "operation_enabled",
-        "quick_stop_active",
-        "fault_reaction_active",
-        "fault",
-    ];
-
-    pub fn name(self) -> &'static str {
-        Self::NAMES[self as usize]
-    }
-
-    /// The state the statusword shows (bits 0–3, 5, 6).
-    pub fn decode(sw: u16) -> DriveState {
-        match (sw & 0x4F, sw & 0x6F) {
-            (0x00, _) => DriveState::NotReadyToSwitchOn,
-            (0x40, _) => DriveState::SwitchOnDisabled,
-            (0x0F, _) => DriveState::FaultReactionActive,
-            (0x08, _) => DriveState::Fault,
-            (_, 0x21) => DriveState::ReadyToSwitchOn,
-            (_, 0x23) => DriveState::SwitchedOn,
-            (_, 0x27) => DriveState::OperationEnabled,
-            (_, 0x07) => DriveState::QuickStopActive,
-            // Codes the standard leaves undefined: treat as not ready (nothing is enabled).
-            _ => DriveState::NotReadyToSwitchOn,
-        }
-    }
-
-    pub fn is_fault(self) -> bool {
-        matches!(self, DriveState::Fault | DriveState::FaultReactionActive)
-    }
-}
-
-/// Modes of operation (0x6060 values).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[repr(i8)]
-pub enum Mode {
-    ProfilePosition = 1,
-    ProfileVelocity = 3,
-    Homing = 6,
-    CyclicPosition = 8,
-    CyclicVelocity = 9,
-    CyclicTorque = 10,
-}
-
-impl Mode {
-    pub fn from_code(code: i8) -> Option<Mode> {
-        Some(match code {
-            1 => Mode::ProfilePosition,
-            3 => Mode::ProfileVelocity,
-            6 => Mode::Homing,
-            8 => Mode::CyclicPosition,
-            9 => Mode::CyclicVelocity,
-            10 => Mode::CyclicTorque,
-            _ => return None,
-        })
-    }
-
-    pub fn from_name(name: &str) -> Option<Mode> {
-        Some(match name {
-            "pp" => Mode::ProfilePosition,
-            "pv" => Mode::ProfileVelocity,
-            "hm" => Mode::Homing,
-            "csp" => Mode::CyclicPosition,
-            "csv" => Mode::CyclicVelocity,
-            "cst" => Mode::CyclicTorque,
-            _ => return None,
-        })
-    }
-
-    /// Which kind of setpoint the mode takes.
-    pub fn setpoint(self) -> Option<SetpointKind> {
-        match self {
-            Mode::ProfilePosition | Mode::CyclicPosition => Some(SetpointKind::Position),
-            Mode::ProfileVelocity | Mode::CyclicVelocity => Some(SetpointKind::Velocity),
-            Mode::CyclicTorque => Some(SetpointKind::Torque),
-            Mode::Homing => None,
-        }
+/// Which kind of setpoint a mode takes (None for homing).
+pub fn setpoint_kind(mode: Mode) -> Option<SetpointKind> {
+    match mode {
+        Mode::ProfilePosition | Mode::CyclicPosition => Some(SetpointKind::Position),
+        Mode::ProfileVelocity | Mode::CyclicVelocity => Some(SetpointKind::Velocity),
+        Mode::CyclicTorque => Some(SetpointKind::Torque),
+        Mode::Homing => None,
     }
 }
 
@@ -306,7 +218,7 @@ impl AxisPlan {
                  fault_backoff_ns >= 0 and interpolation_max_ns > 0"
             ));
         }
-        let needs = match self.mode.setpoint() {
+        let needs = match setpoint_kind(self.mode) {
             Some(SetpointKind::Position) => self.map.target_position,
             Some(SetpointKind::Velocity) => self.map.target_velocity,
             Some(SetpointKind::Torque) => self.map.target_torque,
@@ -954,7 +866,7 @@ impl AxisController {
                 } else {
                     status_flags::TRAJECTORY_ACTIVE
                 };
-                match cmd.mode.setpoint() {
+                match setpoint_kind(cmd.mode) {
                     Some(SetpointKind::Position) => self.interpolator.reset(p),
                     Some(SetpointKind::Velocity) => self.setpoint_value = v,
                     _ => {}
