@@ -79,34 +79,34 @@ class EntryDescription:
 
     @property
     def readable(self) -> bool:
-        return bool(self.access & 0x07)
+        return bool(self.access & coe.ACCESS_READ)
 
     @property
     def writable(self) -> bool:
-        return bool(self.access & 0x38)
+        return bool(self.access & coe.ACCESS_WRITE)
 
     @property
     def rx_mappable(self) -> bool:
-        return bool(self.access & 0x40)
+        return bool(self.access & coe.ACCESS_RXPDO)
 
     @property
     def tx_mappable(self) -> bool:
-        return bool(self.access & 0x80)
+        return bool(self.access & coe.ACCESS_TXPDO)
 
     @property
     def access_text(self) -> str:
         """ESI-style access: ro, rw, wo, or per state like ``rw(PREOP) ro``."""
-        read, write = self.access & 0x07, (self.access >> 3) & 0x07
+        read, write = self.access & coe.ACCESS_READ, (self.access & coe.ACCESS_WRITE) >> 3
         if write == 0:
             return "ro" if read else "none"
-        if write == 0x07:
-            return "rw" if read == 0x07 else "wo"
+        if write == coe.ACCESS_READ:  # written in all three states
+            return "rw" if read == coe.ACCESS_READ else "wo"
         states = "/".join(n for bit, n in ((1, "PREOP"), (2, "SAFEOP"), (4, "OP")) if write & bit)
         return f"rw({states}) ro" if read else f"wo({states})"
 
 
 def _coe_header(service: int) -> bytes:
-    return struct.pack("<H", service << 12)
+    return struct.pack("<H", service << 12)  # CoE header: number 0, service in bits 12..15
 
 
 def _sdo(command: int, index: int, subindex: int, data: bytes = b"\x00\x00\x00\x00") -> bytes:
@@ -165,7 +165,7 @@ class SdoClient:
             reply = self.mailbox.receive(MailboxType.COE, self.timeout_s)
         except MailboxError as e:
             raise MailboxError(f"{what} failed: {_after_slave(e)}") from None
-        if len(reply) >= coe.SDO_HEADER_LEN and reply[2] >> 5 == coe.CS_ABORT:
+        if len(reply) >= coe.SDO_HEADER_LEN and reply[2] >> coe.SPECIFIER_SHIFT == coe.CS_ABORT:
             code = struct.unpack_from("<I", reply, 6)[0]
             raise self._fail(what, f"aborted: {abort_description(code)}")
         if _service(reply) != coe.SERVICE_SDO_RESPONSE or len(reply) < coe.SDO_HEADER_LEN:
@@ -177,13 +177,13 @@ class SdoClient:
         with contextlib.suppress(MailboxError):
             self.mailbox.send(
                 MailboxType.COE,
-                _sdo(coe.CS_ABORT << 5, index, subindex, struct.pack("<I", code)),
+                _sdo(coe.CS_ABORT << coe.SPECIFIER_SHIFT, index, subindex, struct.pack("<I", code)),
                 0.1,
             )
 
     def _check_echo(self, reply: bytes, scs: int, index: int, subindex: int, what: str) -> None:
         got_index, got_sub = struct.unpack_from("<HB", reply, 3)
-        if reply[2] >> 5 != scs or (got_index, got_sub) != (index, subindex):
+        if reply[2] >> coe.SPECIFIER_SHIFT != scs or (got_index, got_sub) != (index, subindex):
             self._abort(index, subindex, sdo_abort.ABORT_INVALID_COMMAND)
             raise self._fail(
                 what,
@@ -197,19 +197,25 @@ class SdoClient:
         """Read an entry (or, with complete access, the whole object from ``subindex`` 0 or 1)."""
         what = self._what("upload", index, subindex, complete_access)
         self.mailbox.flush()
-        command = coe.CCS_UPLOAD_INITIATE << 5 | (coe.COMPLETE_ACCESS if complete_access else 0)
+        command = coe.CCS_UPLOAD_INITIATE << coe.SPECIFIER_SHIFT | (
+            coe.COMPLETE_ACCESS if complete_access else 0
+        )
         reply = self._exchange(_sdo(command, index, subindex), what)
         self._check_echo(reply, coe.SCS_UPLOAD_INITIATE, index, subindex, what)
         flags = reply[2]
-        if flags & 0x02:  # expedited: the data is in the 4 data bytes
-            size = 4 - ((flags >> 2) & 0x03) if flags & 0x01 else 4
+        if flags & coe.EXPEDITED:  # the data is in the 4 data bytes
+            size = (
+                4 - ((flags >> coe.EXPEDITED_UNUSED_SHIFT) & 0x03)
+                if flags & coe.SIZE_INDICATED
+                else 4
+            )
             return reply[6 : 6 + size]
         size = struct.unpack_from("<I", reply, 6)[0]
         data = bytearray(reply[coe.SDO_HEADER_LEN : coe.SDO_HEADER_LEN + size])
         toggle = 0
         while len(data) < size:
             segment = self._exchange(_segment_request(toggle), what)
-            if segment[2] >> 5 != coe.SCS_UPLOAD_SEGMENT:
+            if segment[2] >> coe.SPECIFIER_SHIFT != coe.SCS_UPLOAD_SEGMENT:
                 self._abort(index, subindex, sdo_abort.ABORT_INVALID_COMMAND)
                 raise self._fail(
                     what, f"failed: expected an upload segment, got 0x{segment[2]:02X}"
@@ -219,9 +225,9 @@ class SdoClient:
                 raise self._fail(what, "failed: slave did not alternate the toggle bit")
             body = segment[SEGMENT_HEADER_LEN:]
             if len(body) <= MIN_SEGMENT_DATA:
-                body = body[: MIN_SEGMENT_DATA - ((segment[2] >> 1) & 0x07)]
+                body = body[: MIN_SEGMENT_DATA - ((segment[2] >> coe.SEGMENT_UNUSED_SHIFT) & 0x07)]
             data += body
-            last = bool(segment[2] & 0x01)
+            last = bool(segment[2] & coe.LAST_SEGMENT)
             if last or not body:
                 break
             toggle ^= coe.TOGGLE
@@ -239,13 +245,19 @@ class SdoClient:
         self.mailbox.flush()
         ca = coe.COMPLETE_ACCESS if complete_access else 0
         if 0 < len(data) <= 4:
-            command = coe.CCS_DOWNLOAD_INITIATE << 5 | ca | (4 - len(data)) << 2 | 0x03
+            command = (
+                coe.CCS_DOWNLOAD_INITIATE << coe.SPECIFIER_SHIFT
+                | ca
+                | (4 - len(data)) << coe.EXPEDITED_UNUSED_SHIFT
+                | coe.EXPEDITED
+                | coe.SIZE_INDICATED
+            )
             reply = self._exchange(_sdo(command, index, subindex, data.ljust(4, b"\x00")), what)
             self._check_echo(reply, coe.SCS_DOWNLOAD_INITIATE, index, subindex, what)
             return
         room = self.mailbox.max_send_payload - coe.SDO_HEADER_LEN
         first = data[:room]
-        command = coe.CCS_DOWNLOAD_INITIATE << 5 | ca | 0x01
+        command = coe.CCS_DOWNLOAD_INITIATE << coe.SPECIFIER_SHIFT | ca | coe.SIZE_INDICATED
         request = _sdo(command, index, subindex, struct.pack("<I", len(data))) + first
         reply = self._exchange(request, what)
         self._check_echo(reply, coe.SCS_DOWNLOAD_INITIATE, index, subindex, what)
@@ -255,13 +267,18 @@ class SdoClient:
         while sent < len(data):
             chunk = data[sent : sent + segment_room]
             sent += len(chunk)
-            last = 0x01 if sent == len(data) else 0
+            last = coe.LAST_SEGMENT if sent == len(data) else 0
             unused = MIN_SEGMENT_DATA - len(chunk) if len(chunk) < MIN_SEGMENT_DATA else 0
-            command = coe.CCS_DOWNLOAD_SEGMENT << 5 | toggle | unused << 1 | last
+            command = (
+                coe.CCS_DOWNLOAD_SEGMENT << coe.SPECIFIER_SHIFT
+                | toggle
+                | unused << coe.SEGMENT_UNUSED_SHIFT
+                | last
+            )
             segment = _coe_header(coe.SERVICE_SDO_REQUEST) + bytes([command])
             segment += chunk.ljust(MIN_SEGMENT_DATA, b"\x00")
             reply = self._exchange(segment, what)
-            if reply[2] >> 5 != coe.SCS_DOWNLOAD_SEGMENT:
+            if reply[2] >> coe.SPECIFIER_SHIFT != coe.SCS_DOWNLOAD_SEGMENT:
                 self._abort(index, subindex, sdo_abort.ABORT_INVALID_COMMAND)
                 raise self._fail(what, f"failed: expected a segment answer, got 0x{reply[2]:02X}")
             if reply[2] & coe.TOGGLE != toggle:
@@ -287,11 +304,14 @@ class SdoClient:
                 raise MailboxError(f"{what} failed: {_after_slave(e)}") from None
             if _service(reply) != coe.SERVICE_SDO_INFORMATION or len(reply) < coe.INFO_HEADER_LEN:
                 # An SDO abort in answer to an information request: the service is missing.
-                if len(reply) >= coe.SDO_HEADER_LEN and reply[2] >> 5 == coe.CS_ABORT:
+                if (
+                    len(reply) >= coe.SDO_HEADER_LEN
+                    and reply[2] >> coe.SPECIFIER_SHIFT == coe.CS_ABORT
+                ):
                     code = struct.unpack_from("<I", reply, 6)[0]
                     raise self._fail(what, f"failed: {abort_description(code)}")
                 raise self._fail(what, f"failed: unexpected CoE reply {reply[:10].hex(' ')}")
-            got = reply[2] & 0x7F
+            got = reply[2] & coe.INFO_OPCODE_MASK
             if got == coe.INFO_ERROR:
                 code = struct.unpack_from("<I", reply.ljust(10, b"\x00"), 6)[0]
                 raise self._fail(what, f"failed: {abort_description(code)}")
@@ -348,7 +368,7 @@ class SdoClient:
 def _segment_request(toggle: int) -> bytes:
     return (
         _coe_header(coe.SERVICE_SDO_REQUEST)
-        + bytes([coe.CCS_UPLOAD_SEGMENT << 5 | toggle])
+        + bytes([coe.CCS_UPLOAD_SEGMENT << coe.SPECIFIER_SHIFT | toggle])
         + bytes(7)
     )
 

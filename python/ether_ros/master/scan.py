@@ -85,7 +85,7 @@ class FoundSlave:
 
     @property
     def lrw_supported(self) -> bool:
-        return not self.esc_features & features.NO_LRW
+        return not self.esc_features & features.LRW_NOT_SUPPORTED
 
     def identity(self) -> str:
         return (
