@@ -1516,16 +1516,7 @@ mod tests {
             (Fault, 0x80, 15, SwitchOnDisabled),
         ]
     };
-    const ALL_STATES: [State; 8] = [
-        State::NotReadyToSwitchOn,
-        State::SwitchOnDisabled,
-        State::ReadyToSwitchOn,
-        State::SwitchedOn,
-        State::OperationEnabled,
-        State::QuickStopActive,
-        State::FaultReactionActive,
-        State::Fault,
-    ];
+    const ALL_STATES: [State; 8] = State::ALL;
     /// One controlword per command, plus fault reset.
     const WORDS: [u16; 7] = [0x00, 0x02, 0x06, 0x07, 0x0F, 0x80, 0x8F];
 
