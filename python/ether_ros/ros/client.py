@@ -138,9 +138,13 @@ class EtherRosClient:
             self._executor.spin()
 
     def close(self) -> None:
-        self._executor.shutdown(timeout_sec=1.0)
-        self.node.destroy_node()
-        self._thread.join(timeout=2)
+        self._executor.shutdown(timeout_sec=5.0)
+        # The spin thread must be out of the executor's wait before the node's handles go:
+        # destroying the node first crashed rclpy (a segfault in wait_for_ready_callbacks) when
+        # a loaded host made the shutdown slower than its timeout.
+        self._thread.join(timeout=5)
+        if not self._thread.is_alive():
+            self.node.destroy_node()
         if self._own_context and rclpy.ok():
             rclpy.try_shutdown()
 
