@@ -840,7 +840,31 @@ impl Axis {
         }
     }
 
-    /// Start from where the motor is: no jump on enabling or on a mode change.
+    /// A mode change: the new mode starts from the motor's position and speed, the loops
+    /// keep their state (no jump, no torque step).
+    fn continue_here(&mut self) {
+        self.demand = self.measured_angle();
+        self.demand_speed = self.mechanics.speed;
+        self.pp_goal = None;
+        self.pp_last_goal = self.demand;
+        self.pp_buffered = None;
+        self.fe_outside_s = 0.0;
+    }
+
+    /// Is the axis at or beyond a software position limit (0x607D) in the direction of
+    /// `direction` (> 0: towards max)? Motion that way is refused in the velocity and torque
+    /// modes (statusword bit 11).
+    fn at_software_limit(&self, inp: &Inputs, direction: f64) -> bool {
+        match inp.sw_limits {
+            Some((min, max)) => {
+                let p = self.position_actual();
+                direction > 0.0 && p >= max || direction < 0.0 && p <= min
+            }
+            None => false,
+        }
+    }
+
+    /// Start from where the motor is, at rest: no jump on enabling.
     fn hold_here(&mut self) {
         self.demand = self.measured_angle();
         self.demand_speed = 0.0;
@@ -907,9 +931,10 @@ impl Axis {
         }
         self.previous_controlword = cw_now;
         if inp.mode != self.mode && inp.mode_supported(inp.mode) {
-            // A mode change is bumpless: the new mode starts from the present position.
+            // A mode change is bumpless: the new mode starts from the present position and
+            // speed.
             self.mode = inp.mode;
-            self.hold_here();
+            self.continue_here();
             self.homing_attained = false;
             self.homing_error = false;
             self.setpoint_acknowledge = false;
@@ -1083,16 +1108,28 @@ impl Axis {
                 torque
             }
             mode::CSV => {
-                let speed = inp.target_velocity as f64 / self.params().counts_per_rad();
+                let mut speed = inp.target_velocity as f64 / self.params().counts_per_rad();
+                self.target_limited = self.at_software_limit(inp, speed);
+                if self.target_limited {
+                    speed = 0.0;
+                }
                 self.demand_speed = speed;
                 self.velocity_control(inp, speed, dt)
             }
             mode::CST => {
-                let (torque, cut) = limit(
+                let (mut torque, cut) = limit(
                     inp.target_torque as f64 * 1e-3 * inp.rated_torque_nm,
                     inp.max_torque(),
                 );
                 self.limit_active |= cut;
+                // At a software limit, pushing or moving outward: the velocity loop stops the
+                // motor there instead (a drive's limit stop).
+                let speed = self.mechanics.speed;
+                self.target_limited =
+                    self.at_software_limit(inp, torque) || self.at_software_limit(inp, speed);
+                if self.target_limited {
+                    torque = self.velocity_control(inp, 0.0, dt);
+                }
                 torque
             }
             mode::PP => {
@@ -1101,7 +1138,9 @@ impl Axis {
                 } else {
                     inp.profile_velocity
                 };
-                if halt {
+                if halt || self.pp_goal.is_none() {
+                    // Halt, or no target yet (entered moving, from another mode): stop at the
+                    // profile deceleration.
                     self.demand_speed = ramp(
                         self.demand_speed,
                         0.0,
@@ -1136,11 +1175,15 @@ impl Axis {
                 torque
             }
             mode::PV => {
-                let target = if halt {
+                let mut target = if halt {
                     0.0
                 } else {
                     inp.target_velocity as f64 / self.params().counts_per_rad()
                 };
+                self.target_limited = self.at_software_limit(inp, target);
+                if self.target_limited {
+                    target = 0.0;
+                }
                 self.demand_speed = ramp(
                     self.demand_speed,
                     target,
@@ -2134,6 +2177,51 @@ mod tests {
         b.run_ms(100.0);
         assert!((b.position(0) - 1000).abs() <= 3);
         assert_ne!(b.statusword(0) & sw::INTERNAL_LIMIT, 0);
+    }
+
+    #[test]
+    fn software_position_limits_hold_in_the_velocity_and_torque_modes() {
+        // CSV towards max: stops at the limit (the speed is cut there, bit 11), then moves
+        // back in when asked.
+        let mut b = Bench::new(1);
+        b.set(0, 0x607D, 1, -20_000);
+        b.set(0, 0x607D, 2, 20_000);
+        b.enable(0, mode::CSV);
+        b.set(0, 0x60FF, 0, 50_000);
+        b.run_ms(1000.0);
+        let p = b.position(0);
+        assert!((20_000..21_000).contains(&p), "{p}");
+        assert_eq!(b.get(0, 0x606C, 0).abs() < 500, true);
+        assert_ne!(b.statusword(0) & sw::INTERNAL_LIMIT, 0);
+        b.set(0, 0x60FF, 0, -50_000);
+        b.run_ms(100.0);
+        assert!(b.position(0) < p - 1000);
+        // CST: an outward torque at the limit is refused, the motor stopped there.
+        b.set(0, 0x60FF, 0, 0);
+        b.set(0, 0x6060, 0, i64::from(mode::CST));
+        b.set(0, 0x6071, 0, -100);
+        b.run_ms(3000.0);
+        let p = b.position(0);
+        assert!(p > -22_000, "{p}");
+        assert_ne!(b.statusword(0) & sw::INTERNAL_LIMIT, 0);
+    }
+
+    #[test]
+    fn a_mode_change_continues_from_the_present_speed() {
+        // PV at speed, then PP without a target: the profile stops at 0x6084, no jump.
+        let mut b = Bench::new(1);
+        b.enable(0, mode::PV);
+        b.set(0, 0x60FF, 0, 16_384);
+        b.run_ms(500.0);
+        let v0 = b.get(0, 0x606C, 0);
+        assert!((v0 - 16_384).abs() < 400, "{v0}");
+        let p0 = b.position(0);
+        b.set(0, 0x6060, 0, i64::from(mode::PP));
+        b.run_ms(400.0);
+        // 1 rev/s at 10 rev/s²: 0.1 s and 819 increments to stop.
+        let p1 = b.position(0);
+        assert!((p1 - p0 - 819).abs() < 200, "{}", p1 - p0);
+        assert!(b.get(0, 0x606C, 0).abs() < 200);
     }
 
     #[test]
