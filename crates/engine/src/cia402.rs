@@ -403,9 +403,11 @@ fn read_i16(io: &[u8], off: usize) -> i16 {
     read_u16(io, off) as i16
 }
 
-/// Commands (velocity, torque) reach the drive about this many cycles after the actual
-/// values they are computed from were sampled: the braking envelope looks that far ahead.
-const COMMAND_LATENCY_CYCLES: f64 = 2.0;
+/// A target written now takes effect this many cycles after the actual values it is computed
+/// from were sampled (the inputs read were latched a cycle or two ago, the drive latches the
+/// target at its next SYNC0 and, in csp, interpolates over one more period): position targets
+/// that follow a moving axis, and the braking envelope, look that far ahead.
+const COMMAND_LATENCY_CYCLES: f64 = 3.0;
 /// Operation Enabled this long without a fault gives the automatic reset its retries back.
 const FAULT_RETRY_RESET_NS: i64 = 2_000_000_000;
 
@@ -446,6 +448,8 @@ pub struct AxisController {
     interpolator: Interpolator,
     /// The quiet stop a mode change or an enable starts with (until the first command).
     ramp: Option<StopRamp>,
+    /// The old mode's quiet stop while the drive has not shown the new mode yet.
+    switch_ramp: Option<StopRamp>,
     /// The first running cycle after an enable or a mode change has yet to come.
     entry_pending: bool,
     /// Last position target written (SI) and the velocity the axis is commanded to have.
@@ -495,6 +499,7 @@ impl AxisController {
             cursor: 0,
             interpolator: Interpolator::default(),
             ramp: None,
+            switch_ramp: None,
             entry_pending: true,
             target_position: 0.0,
             desired_velocity: 0.0,
@@ -573,8 +578,10 @@ impl AxisController {
         let cmd = self.command;
         let st = &mut self.status;
         if cmd.reset_count != self.reset_seen {
+            // A reset asked for gives the automatic reset its retries back; it resets a fault
+            // that is there now, not one that may come later.
             self.reset_seen = cmd.reset_count;
-            self.reset_pending = true;
+            self.reset_pending = fb.state.is_fault();
             self.retries = 0;
         }
         let mut began = false;
@@ -664,22 +671,31 @@ impl AxisController {
 
     /// The first running cycle of a mode (after a mode change or an enable): start from the
     /// actual state, with a quiet stop from the actual (or zero) velocity.
-    fn enter_mode(&mut self, fb: &Feedback) {
+    fn enter_mode(&mut self, fb: &Feedback, dt: f64) {
         self.entry_pending = false;
         let vmax = self.plan.limits.velocity_max;
-        let v0 = match self.plan.mode_change_velocity {
-            ModeChangeVelocity::Actual => fb.velocity.clamp(-vmax, vmax),
-            ModeChangeVelocity::Zero => 0.0,
+        // After a mode change: where the old motion's quiet stop is now (the drive may have
+        // been following it for a cycle or two already). After an enable: the actual state,
+        // the position where the axis is when the drive takes the first target.
+        let (p0, v0) = match self.switch_ramp.take() {
+            Some(r) => (r.position, r.velocity),
+            None => (
+                fb.position + fb.velocity * dt * COMMAND_LATENCY_CYCLES,
+                match self.plan.mode_change_velocity {
+                    ModeChangeVelocity::Actual => fb.velocity.clamp(-vmax, vmax),
+                    ModeChangeVelocity::Zero => 0.0,
+                },
+            ),
         };
-        self.interpolator.reset(fb.position);
-        self.target_position = fb.position;
+        self.interpolator.reset(p0);
+        self.target_position = p0;
         self.setpoint_value = 0.0;
         self.desired_velocity = 0.0;
         self.trajectory_running = false;
         self.ramp = match self.command.mode {
             Mode::CyclicPosition | Mode::CyclicVelocity | Mode::ProfileVelocity if v0 != 0.0 => {
                 Some(StopRamp {
-                    position: fb.position,
+                    position: p0,
                     velocity: v0,
                 })
             }
@@ -767,13 +783,33 @@ impl AxisController {
     pub fn step(&mut self, io: &mut [u8], now: i64, cycle_ns: i64, halt: bool, start_ok: bool) {
         let fb = self.read_feedback(io);
         let cmd = self.command;
+        let dt = cycle_ns as f64 * 1e-9;
+        let vmax = self.plan.limits.velocity_max;
+        // Where the axis will be when the drive takes a target written now (moving, it is
+        // ahead of the position read).
+        let ahead = fb.position + fb.velocity * dt * COMMAND_LATENCY_CYCLES;
         if cmd.mode != self.mode_commanded {
-            // A new mode starts from the actual state once the drive shows it.
+            // A new mode starts from the actual state once the drive shows it. Until then the
+            // drive runs the old mode: its targets make a quiet stop from the actual state.
             self.mode_commanded = cmd.mode;
             self.entry_pending = true;
             self.trajectory_running = false;
             self.ramp = None;
             self.pp_new_setpoint = false;
+            // The old motion continues open loop from here (a target re-read from the moving
+            // axis every cycle would chase it through the loop's latency).
+            let (position, velocity) = if fb.mode_display == Mode::CyclicPosition as i8 {
+                (self.target_position, self.desired_velocity)
+            } else {
+                (ahead, fb.velocity)
+            };
+            self.switch_ramp = Some(StopRamp {
+                position,
+                velocity: match self.plan.mode_change_velocity {
+                    ModeChangeVelocity::Actual => velocity.clamp(-vmax, vmax),
+                    ModeChangeVelocity::Zero => 0.0,
+                },
+            });
         }
         let mode_reached = fb.mode_display == cmd.mode as i8;
         let fault_began = self.supervise_faults(&fb, now, halt);
@@ -812,31 +848,43 @@ impl AxisController {
         let waiting_for_mode = fb.state == DriveState::OperationEnabled && enable && !mode_reached;
         let limits = self.plan.limits;
         let decel = self.plan.deceleration;
-        let dt = cycle_ns as f64 * 1e-9;
         let mut velocity_target = 0.0;
         let mut torque_target = 0.0;
         let mut limit_active = false;
         let mut idle = true;
         if !running {
+            self.target_position = fb.position;
+            self.desired_velocity = 0.0;
             if !waiting_for_mode {
                 // Commands given while the axis cannot run are dropped, so that enabling
                 // never starts a motion that was asked for before.
                 self.seq_seen = cmd.seq;
-            } else if self.plan.mode_change_velocity == ModeChangeVelocity::Actual {
-                // The drive still runs the old mode: a velocity mode keeps its speed.
-                velocity_target = fb.velocity.clamp(-limits.velocity_max, limits.velocity_max);
+                self.switch_ramp = None;
+            } else {
+                // The drive still shows the old mode: its targets continue from where they
+                // were with a quiet stop (a position mode's target would otherwise fall
+                // behind the moving axis, a velocity mode's drop to zero at once).
+                let r = self.switch_ramp.get_or_insert(StopRamp {
+                    position: fb.position,
+                    velocity: 0.0,
+                });
+                r.advance(decel, dt);
+                // The drive takes whichever target its new mode uses in the cycle it
+                // switches: both continue the old motion.
+                self.target_position = r.position;
+                velocity_target = r.velocity;
+                self.desired_velocity = r.velocity;
             }
-            self.target_position = fb.position;
-            self.desired_velocity = 0.0;
+            // Whatever ran ends; the mode starts afresh from the actual state once it runs.
             self.setpoint_value = 0.0;
             self.entry_pending = true;
-            self.interpolator.reset(fb.position);
+            self.interpolator.reset(self.target_position);
             self.trajectory_running = false;
             self.ramp = None;
             self.pp_new_setpoint = false;
         } else {
             if self.entry_pending {
-                self.enter_mode(&fb);
+                self.enter_mode(&fb, dt);
             }
             if cmd.seq != self.seq_seen {
                 match SetpointKind::from_code(cmd.setpoint_kind) {
@@ -931,7 +979,6 @@ impl AxisController {
                     if v_out != v {
                         st.velocity_clamps += 1;
                     }
-                    let ahead = fb.position + fb.velocity * dt * COMMAND_LATENCY_CYCLES;
                     let braked = limit_velocity(
                         v_out,
                         ahead,
@@ -946,7 +993,7 @@ impl AxisController {
                     }
                     velocity_target = v_out;
                     self.desired_velocity = v_out;
-                    self.target_position = fb.position;
+                    self.target_position = ahead;
                     idle = !self.trajectory_running && v_out == 0.0;
                 }
                 Mode::CyclicTorque => {
@@ -964,7 +1011,6 @@ impl AxisController {
                     } else {
                         0.1
                     };
-                    let ahead = fb.position + fb.velocity * dt * COMMAND_LATENCY_CYCLES;
                     let braked = limit_torque(
                         t_out,
                         ahead,
@@ -985,7 +1031,7 @@ impl AxisController {
                     }
                     torque_target = t_out;
                     self.desired_velocity = 0.0;
-                    self.target_position = fb.position;
+                    self.target_position = ahead;
                     idle = t_out == 0.0;
                 }
                 Mode::Homing => {
@@ -1749,15 +1795,18 @@ mod tests {
         set_mode(&mut b, Mode::CyclicVelocity);
         command(&mut b, SetpointKind::Velocity, 1.0);
         b.run(300);
-        // Moving at 1 rad/s (1000 raw/s): the position target followed the actual position.
+        // Moving at 1 rad/s (1000 raw/s): the position target followed the actual position
+        // (where the axis is when the drive can take the target: three cycles on).
         assert!((b.velocity - 1000.0).abs() < 1e-6, "{}", b.velocity);
         let st = b.status();
-        assert!((st.target_position - st.position).abs() < 1e-9);
+        assert!((st.target_position - (st.position + 0.003)).abs() < 1e-9);
         let (p0, n) = (b.position, b.targets.len());
         // To csp without a command: a quiet stop from the actual state, never a jump.
         set_mode(&mut b, Mode::CyclicPosition);
         let rest = settle(&mut b, 500);
-        assert!((rest - (p0 + 50.0)).abs() <= 2.0, "rest {rest} from {p0}");
+        // From where the axis is when the drive takes the target (3 cycles at 1 raw/cycle
+        // ahead of the position read), 50 raw to stop.
+        assert!((rest - (p0 + 53.0)).abs() <= 2.0, "rest {rest} from {p0}");
         let steps: Vec<i32> = b.targets[n..].windows(2).map(|w| w[1] - w[0]).collect();
         assert!(steps.iter().all(|&d| (0..=2).contains(&d)), "{steps:?}");
         // To cst: torque from zero; the position target follows the actual position.
@@ -1768,7 +1817,8 @@ mod tests {
         b.run(100);
         assert!(b.velocity < -500.0);
         let st = b.status();
-        assert!((st.target_position - st.position).abs() < 1e-9);
+        let ahead = st.position + st.velocity * 0.003;
+        assert!((st.target_position - ahead).abs() < 1e-6);
         // To csv at -0.9 rad/s or so: the velocity target starts at the actual velocity and
         // ramps to zero at the deceleration.
         let v0 = b.velocity;
@@ -1776,7 +1826,8 @@ mod tests {
         b.cycle(false);
         b.cycle(false);
         let first = read_i32(&b.io, TVEL) as f64;
-        assert!((first - v0).abs() <= 10.0 + 1e-9, "{first} vs {v0}");
+        // Two cycles of the ramp at 10 raw/s per cycle.
+        assert!((first - v0).abs() <= 20.0 + 1e-6, "{first} vs {v0}");
         let rest = settle(&mut b, 500);
         assert_eq!(read_i32(&b.io, TVEL), 0);
         assert!(rest < b.targets[b.targets.len() - 1] as f64 + 1.0);
@@ -1838,6 +1889,33 @@ mod tests {
         }
         assert!(top <= 10_000.0 + 10.0, "{top}");
         assert!(b.velocity.abs() < 200.0, "{}", b.velocity);
+    }
+
+    #[test]
+    fn a_stop_ends_the_trajectory_and_the_enable_after_it_holds_still() {
+        let mut p = plan();
+        p.restart = Restart::Manual;
+        let mut b = enabled(p, 0);
+        let pts = [
+            Point { t_ns: 0, position: 0.0, velocity: 0.0 },
+            Point { t_ns: 1_000_000_000, position: 1.0, velocity: 0.0 },
+        ];
+        b.command.seq += 1;
+        write_points(&b.ex, 0, b.command.seq, &pts);
+        b.command.setpoint_kind = 0;
+        b.command.trajectory_len = 2;
+        b.command.t_ns = b.now;
+        b.send();
+        b.run(300);
+        b.cycle(true);
+        b.run(10);
+        let here = b.position_raw;
+        assert_eq!(b.status().flags & status_flags::TRAJECTORY_ACTIVE, 0);
+        b.command.enable_count += 1;
+        b.send();
+        b.run(300);
+        assert_eq!(b.state, DriveState::OperationEnabled);
+        assert_eq!(b.position_raw, here, "the trajectory did not resume");
     }
 
     #[test]

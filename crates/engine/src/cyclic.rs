@@ -344,7 +344,7 @@ impl Cyclic {
                 Order::SendAtWake => {
                     // Nothing in the frame depends on the previous reply, so the frame goes
                     // first and the reply is read after: the earliest, steadiest send instant.
-                    let t = self.build_and_send(t_wake);
+                    let t = self.build_and_send(t_wake, planned);
                     self.send_mailbox();
                     self.receive(0, false);
                     if let Some(prev) = self.cycle.checked_sub(1) {
@@ -353,7 +353,7 @@ impl Cyclic {
                     t
                 }
                 Order::SendThenWait => {
-                    let t = self.build_and_send(t_wake);
+                    let t = self.build_and_send(t_wake, planned);
                     self.send_mailbox();
                     self.receive(planned + window, true);
                     self.receive(0, false);
@@ -565,7 +565,9 @@ impl Cyclic {
 
     /// Fill the cyclic frame (outputs or the safe image, DC time, fresh index) and send it.
     /// Returns the time the frame was handed to the link.
-    fn build_and_send(&mut self, t_wake: i64) -> i64 {
+    /// `t_planned`: the cycle's planned wake-up, the time the axis stage computes its targets
+    /// for (on the cycle grid, whatever the wake-up's latency).
+    fn build_and_send(&mut self, t_wake: i64, t_planned: i64) -> i64 {
         let plan = &self.ex.plan;
         let panic = self.shared.panic.load(Ordering::Acquire);
         let stale = plan.watchdog_ns > 0
@@ -633,7 +635,7 @@ impl Cyclic {
         // group's watchdog holds between the cycles its frame goes out).
         let moving = self.axes.step(
             &mut self.image,
-            t_wake,
+            t_planned,
             plan.cycle_ns as i64,
             panic || stale,
             self.frame_watchdog_tripped,

@@ -507,7 +507,7 @@ impl Engine {
         &self,
         axes: &[usize],
         mut change: impl FnMut(usize, &mut AxisCommand, u64),
-    ) -> Result<()> {
+    ) -> Result<u64> {
         let ex = self.exchange()?;
         let mut slots = lock(&self.axis_writer);
         if slots.run != ex.run {
@@ -541,7 +541,7 @@ impl Engine {
         }
         self.feed_watchdog();
         ex.axes.commands.write(0, &bytes);
-        Ok(())
+        Ok(seq)
     }
 
     fn update_axis(&self, axis: usize, change: impl FnOnce(&mut AxisCommand)) -> Result<()> {
@@ -551,6 +551,7 @@ impl Engine {
                 f(c)
             }
         })
+        .map(|_| ())
     }
 
     /// Ask for Operation Enabled (`true`: an explicit enable, also the deliberate action a
@@ -610,18 +611,21 @@ impl Engine {
             c.value = setpoints[k].2;
             c.t_ns = t;
         })
+        .map(|_| ())
     }
 
     /// Execute `points` (times from `start_ns`, CLOCK_MONOTONIC; strictly increasing, finite
-    /// values, at most the plan's trajectory_capacity) on the engine's clock.
-    pub fn axis_follow(&self, axis: usize, start_ns: i64, points: &[Point]) -> Result<()> {
+    /// values, at most the plan's trajectory_capacity) on the engine's clock. Returns the
+    /// command's number (`AxisStatus::command_seq` once taken over).
+    pub fn axis_follow(&self, axis: usize, start_ns: i64, points: &[Point]) -> Result<u64> {
         self.axis_follow_many(start_ns, &[(axis, points)])
     }
 
     /// One trajectory for several axes, handed over at once: every axis starts it in the same
     /// cycle (once all of them have their points), from the state it is commanded to have
-    /// then, on the common `start_ns` (docs/cia402.md, "Trajectories").
-    pub fn axis_follow_many(&self, start_ns: i64, tracks: &[(usize, &[Point])]) -> Result<()> {
+    /// then, on the common `start_ns` (docs/cia402.md, "Trajectories"). Returns the command's
+    /// number, the same for all of them.
+    pub fn axis_follow_many(&self, start_ns: i64, tracks: &[(usize, &[Point])]) -> Result<u64> {
         let ex = self.exchange()?;
         let cap = ex.axes.trajectory_capacity;
         if tracks.is_empty() {

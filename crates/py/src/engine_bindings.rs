@@ -817,7 +817,7 @@ impl PyEngine {
         py: Python<'_>,
         start_ns: i64,
         tracks: Vec<(usize, Vec<PointTuple>)>,
-    ) -> PyResult<()> {
+    ) -> PyResult<u64> {
         let tracks: Vec<(usize, Vec<Point>)> = tracks
             .into_iter()
             .map(|(axis, pts)| {
@@ -845,7 +845,7 @@ impl PyEngine {
         axis: usize,
         start_ns: i64,
         points: Vec<(i64, f64, f64)>,
-    ) -> PyResult<()> {
+    ) -> PyResult<u64> {
         let points: Vec<Point> = points
             .into_iter()
             .map(|(t_ns, position, velocity)| Point {
