@@ -1897,8 +1897,16 @@ mod tests {
         p.restart = Restart::Manual;
         let mut b = enabled(p, 0);
         let pts = [
-            Point { t_ns: 0, position: 0.0, velocity: 0.0 },
-            Point { t_ns: 1_000_000_000, position: 1.0, velocity: 0.0 },
+            Point {
+                t_ns: 0,
+                position: 0.0,
+                velocity: 0.0,
+            },
+            Point {
+                t_ns: 1_000_000_000,
+                position: 1.0,
+                velocity: 0.0,
+            },
         ];
         b.command.seq += 1;
         write_points(&b.ex, 0, b.command.seq, &pts);
