@@ -26,120 +26,23 @@ pub use records::{
 
 use crate::handover::SeqBuffer;
 
-/// Statusword decoding and controlword commands (the standard's Tables "state coding" and
-/// "device control commands").
-pub mod word {
-    pub const SHUTDOWN: u16 = 0x0006;
-    pub const SWITCH_ON: u16 = 0x0007;
-    pub const ENABLE_OPERATION: u16 = 0x000F;
-    pub const DISABLE_VOLTAGE: u16 = 0x0000;
-    pub const QUICK_STOP: u16 = 0x0002;
-    /// Bit 7: a rising edge resets a fault.
-    pub const FAULT_RESET: u16 = 0x0080;
-    /// Bit 4 in pp (new set-point) and hm (homing operation start).
-    pub const OPERATION_BIT4: u16 = 0x0010;
-    /// Bit 5 in pp: change set immediately.
-    pub const CHANGE_IMMEDIATELY: u16 = 0x0020;
-    /// Statusword bit 12 in pp: set-point acknowledge.
-    pub const SETPOINT_ACK: u16 = 0x1000;
+/// The standard's facts — controlword and statusword bits, device control commands, the
+/// states and their statusword coding, the modes — are the protocol crate's.
+pub use ether_ros_protocol::cia402::{command, cw, sw, Mode, State as DriveState};
+
+/// The state a statusword shows; codings the standard leaves undefined count as Not Ready to
+/// Switch On (nothing is enabled).
+pub fn drive_state(statusword: u16) -> DriveState {
+    DriveState::from_statusword(statusword).unwrap_or(DriveState::NotReadyToSwitchOn)
 }
 
-/// The power states of the drive.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[repr(u8)]
-pub enum DriveState {
-    NotReadyToSwitchOn = 0,
-    SwitchOnDisabled = 1,
-    ReadyToSwitchOn = 2,
-    SwitchedOn = 3,
-    OperationEnabled = 4,
-    QuickStopActive = 5,
-    FaultReactionActive = 6,
-    Fault = 7,
-}
-
-impl DriveState {
-    pub const NAMES: [&'static str; 8] = [
-        "not_ready_to_switch_on",
-        "switch_on_disabled",
-        "ready_to_switch_on",
-        "switched_on",
-        "operation_enabled",
-        "quick_stop_active",
-        "fault_reaction_active",
-        "fault",
-    ];
-
-    pub fn name(self) -> &'static str {
-        Self::NAMES[self as usize]
-    }
-
-    /// The state the statusword shows (bits 0–3, 5, 6).
-    pub fn decode(sw: u16) -> DriveState {
-        match (sw & 0x4F, sw & 0x6F) {
-            (0x00, _) => DriveState::NotReadyToSwitchOn,
-            (0x40, _) => DriveState::SwitchOnDisabled,
-            (0x0F, _) => DriveState::FaultReactionActive,
-            (0x08, _) => DriveState::Fault,
-            (_, 0x21) => DriveState::ReadyToSwitchOn,
-            (_, 0x23) => DriveState::SwitchedOn,
-            (_, 0x27) => DriveState::OperationEnabled,
-            (_, 0x07) => DriveState::QuickStopActive,
-            // Codes the standard leaves undefined: treat as not ready (nothing is enabled).
-            _ => DriveState::NotReadyToSwitchOn,
-        }
-    }
-
-    pub fn is_fault(self) -> bool {
-        matches!(self, DriveState::Fault | DriveState::FaultReactionActive)
-    }
-}
-
-/// Modes of operation (0x6060 values).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[repr(i8)]
-pub enum Mode {
-    ProfilePosition = 1,
-    ProfileVelocity = 3,
-    Homing = 6,
-    CyclicPosition = 8,
-    CyclicVelocity = 9,
-    CyclicTorque = 10,
-}
-
-impl Mode {
-    pub fn from_code(code: i8) -> Option<Mode> {
-        Some(match code {
-            1 => Mode::ProfilePosition,
-            3 => Mode::ProfileVelocity,
-            6 => Mode::Homing,
-            8 => Mode::CyclicPosition,
-            9 => Mode::CyclicVelocity,
-            10 => Mode::CyclicTorque,
-            _ => return None,
-        })
-    }
-
-    pub fn from_name(name: &str) -> Option<Mode> {
-        Some(match name {
-            "pp" => Mode::ProfilePosition,
-            "pv" => Mode::ProfileVelocity,
-            "hm" => Mode::Homing,
-            "csp" => Mode::CyclicPosition,
-            "csv" => Mode::CyclicVelocity,
-            "cst" => Mode::CyclicTorque,
-            _ => return None,
-        })
-    }
-
-    /// Which kind of setpoint the mode takes.
-    pub fn setpoint(self) -> Option<SetpointKind> {
-        match self {
-            Mode::ProfilePosition | Mode::CyclicPosition => Some(SetpointKind::Position),
-            Mode::ProfileVelocity | Mode::CyclicVelocity => Some(SetpointKind::Velocity),
-            Mode::CyclicTorque => Some(SetpointKind::Torque),
-            Mode::Homing => None,
-        }
+/// Which kind of setpoint a mode takes (None: homing takes none).
+pub fn setpoint_kind(mode: Mode) -> Option<SetpointKind> {
+    match mode {
+        Mode::ProfilePosition | Mode::CyclicPosition => Some(SetpointKind::Position),
+        Mode::ProfileVelocity | Mode::CyclicVelocity => Some(SetpointKind::Velocity),
+        Mode::CyclicTorque => Some(SetpointKind::Torque),
+        Mode::Homing => None,
     }
 }
 
@@ -173,8 +76,8 @@ pub enum OnStop {
 impl OnStop {
     fn controlword(self) -> u16 {
         match self {
-            OnStop::QuickStop => word::QUICK_STOP,
-            OnStop::Disable => word::DISABLE_VOLTAGE,
+            OnStop::QuickStop => command::QUICK_STOP,
+            OnStop::Disable => command::DISABLE_VOLTAGE,
         }
     }
 }
@@ -339,7 +242,7 @@ impl AxisPlan {
                  fault_backoff_ns >= 0 and interpolation_max_ns > 0"
             ));
         }
-        let needs = match self.mode.setpoint() {
+        let needs = match setpoint_kind(self.mode) {
             Some(SetpointKind::Position) => self.map.target_position,
             Some(SetpointKind::Velocity) => self.map.target_velocity,
             Some(SetpointKind::Torque) => self.map.target_torque,
@@ -560,7 +463,7 @@ impl AxisController {
         let velocity_raw = map.velocity.map_or(0, |o| read_i32(io, o));
         Feedback {
             statusword,
-            state: DriveState::decode(statusword),
+            state: drive_state(statusword),
             position_raw,
             position: self.plan.position_si(position_raw),
             velocity_raw,
@@ -731,7 +634,7 @@ impl AxisController {
             self.points_len = len;
             k - 1
         };
-        let position = match self.command.mode.setpoint() {
+        let position = match setpoint_kind(self.command.mode) {
             Some(SetpointKind::Position) => self.target_position,
             _ => fb.position,
         };
@@ -821,23 +724,23 @@ impl AxisController {
             // Rising edge of bit 7: one cycle low, then high until the drive leaves Fault.
             if self.reset_phase == 0 {
                 self.reset_phase = 1;
-                word::DISABLE_VOLTAGE
+                command::DISABLE_VOLTAGE
             } else {
                 self.reset_phase = 2;
-                word::FAULT_RESET
+                command::FAULT_RESET
             }
         } else if !enable {
             self.plan.on_stop.controlword()
         } else {
             match fb.state {
-                DriveState::SwitchOnDisabled => word::SHUTDOWN,
-                DriveState::ReadyToSwitchOn => word::SWITCH_ON,
-                DriveState::SwitchedOn | DriveState::OperationEnabled => word::ENABLE_OPERATION,
+                DriveState::SwitchOnDisabled => command::SHUTDOWN,
+                DriveState::ReadyToSwitchOn => command::SWITCH_ON,
+                DriveState::SwitchedOn | DriveState::OperationEnabled => command::ENABLE_OPERATION,
                 // Back through Switch On Disabled (transition 12) and up again.
-                DriveState::QuickStopActive => word::DISABLE_VOLTAGE,
+                DriveState::QuickStopActive => command::DISABLE_VOLTAGE,
                 DriveState::NotReadyToSwitchOn
                 | DriveState::FaultReactionActive
-                | DriveState::Fault => word::DISABLE_VOLTAGE,
+                | DriveState::Fault => command::DISABLE_VOLTAGE,
             }
         };
 
@@ -900,7 +803,7 @@ impl AxisController {
                     Some(kind) => {
                         self.seq_seen = cmd.seq;
                         self.trajectory_done = false;
-                        if cmd.mode.setpoint() == Some(kind) {
+                        if setpoint_kind(cmd.mode) == Some(kind) {
                             self.apply_setpoint(kind, cycle_ns);
                         }
                     }
@@ -1041,14 +944,14 @@ impl AxisController {
             }
             match cmd.mode {
                 Mode::ProfilePosition => {
-                    if fb.statusword & word::SETPOINT_ACK != 0 {
+                    if fb.statusword & sw::MODE_12 != 0 {
                         self.pp_new_setpoint = false;
                     }
                     if self.pp_new_setpoint {
-                        cw |= word::OPERATION_BIT4 | word::CHANGE_IMMEDIATELY;
+                        cw |= cw::NEW_SETPOINT | cw::CHANGE_SET_IMMEDIATELY;
                     }
                 }
-                Mode::Homing => cw |= word::OPERATION_BIT4,
+                Mode::Homing => cw |= cw::NEW_SETPOINT,
                 _ => {}
             }
         }
@@ -1279,17 +1182,7 @@ mod tests {
     }
 
     fn statusword(s: DriveState) -> u16 {
-        use DriveState::*;
-        match s {
-            NotReadyToSwitchOn => 0x0000,
-            SwitchOnDisabled => 0x0040,
-            ReadyToSwitchOn => 0x0021,
-            SwitchedOn => 0x0023,
-            OperationEnabled => 0x0027,
-            QuickStopActive => 0x0007,
-            FaultReactionActive => 0x000F,
-            Fault => 0x0008,
-        }
+        s.statusword_bits()
     }
 
     const CW: usize = 0;
@@ -1442,25 +1335,11 @@ mod tests {
     }
 
     #[test]
-    fn statusword_decoding_follows_the_standard() {
-        use DriveState::*;
-        for s in [
-            NotReadyToSwitchOn,
-            SwitchOnDisabled,
-            ReadyToSwitchOn,
-            SwitchedOn,
-            OperationEnabled,
-            QuickStopActive,
-            FaultReactionActive,
-            Fault,
-        ] {
-            // Manufacturer and mode bits (4, 7–15) do not change the state.
-            assert_eq!(DriveState::decode(statusword(s)), s);
-            assert_eq!(DriveState::decode(statusword(s) | 0xFF90), s, "{s:?}");
-        }
-        // Bit 5 (quick stop) is "don't care" in Switch On Disabled and Fault.
-        assert_eq!(DriveState::decode(0x0060), SwitchOnDisabled);
-        assert_eq!(DriveState::decode(0x0028), Fault);
+    fn undefined_statuswords_count_as_not_ready() {
+        // The coding is the protocol crate's (tested there); what it leaves undefined enables
+        // nothing here.
+        assert_eq!(drive_state(0x0001), DriveState::NotReadyToSwitchOn);
+        assert_eq!(drive_state(0x0027 | 0xFF90), DriveState::OperationEnabled);
     }
 
     #[test]
@@ -1503,7 +1382,7 @@ mod tests {
         b.cycle(false);
         assert_eq!(read_u16(&b.io, CW), 0x0000);
         b.cycle(false);
-        assert_eq!(read_u16(&b.io, CW), word::FAULT_RESET);
+        assert_eq!(read_u16(&b.io, CW), command::FAULT_RESET);
         assert_eq!(b.state, DriveState::SwitchOnDisabled);
         b.run(5);
         assert_eq!(b.state, DriveState::OperationEnabled);
@@ -1568,12 +1447,12 @@ mod tests {
         for (on_stop, cw, after) in [
             (
                 OnStop::QuickStop,
-                word::QUICK_STOP,
+                command::QUICK_STOP,
                 DriveState::QuickStopActive,
             ),
             (
                 OnStop::Disable,
-                word::DISABLE_VOLTAGE,
+                command::DISABLE_VOLTAGE,
                 DriveState::SwitchOnDisabled,
             ),
         ] {
@@ -1747,7 +1626,7 @@ mod tests {
         );
         // The drive acknowledges (statusword bit 12): bit 4 drops.
         let mut io = b.io.clone();
-        io[SW..SW + 2].copy_from_slice(&(0x0027u16 | word::SETPOINT_ACK).to_le_bytes());
+        io[SW..SW + 2].copy_from_slice(&(0x0027u16 | sw::MODE_12).to_le_bytes());
         b.axes.step(&mut io, b.now, CYCLE, false, 0, &b.ex);
         assert_eq!(read_u16(&io, CW) & 0x0010, 0);
     }

@@ -292,14 +292,15 @@ fn choice<T: Copy>(
         })
 }
 
-const MODES: [(&str, Mode); 6] = [
-    ("pp", Mode::ProfilePosition),
-    ("pv", Mode::ProfileVelocity),
-    ("hm", Mode::Homing),
-    ("csp", Mode::CyclicPosition),
-    ("csv", Mode::CyclicVelocity),
-    ("cst", Mode::CyclicTorque),
-];
+/// The modes by short name (the protocol crate's names and codes).
+fn modes() -> [(&'static str, Mode); 6] {
+    Mode::ALL.map(|m| (m.name(), m))
+}
+
+/// "pp, pv, hm, csp, csv, cst".
+fn mode_names() -> String {
+    Mode::ALL.map(|m| m.name()).join(", ")
+}
 
 /// `plan['axes']`: CiA 402 axes (docs/engine.md, "The axis stage").
 fn parse_axes(d: &Bound<'_, PyDict>) -> PyResult<Vec<AxisPlan>> {
@@ -340,7 +341,7 @@ fn parse_axes(d: &Bound<'_, PyDict>) -> PyResult<Vec<AxisPlan>> {
         axes.push(AxisPlan {
             name: req(&a, &path, "name", "a str")?,
             map,
-            mode: choice(&a, &path, "mode", &MODES)?,
+            mode: choice(&a, &path, "mode", &modes())?,
             position_scale: opt(&a, &path, "position_scale", num, 1.0)?,
             position_offset: opt(&a, &path, "position_offset", num, 0.0)?,
             velocity_scale: opt(&a, &path, "velocity_scale", num, 1.0)?,
@@ -429,10 +430,7 @@ fn axis_status_dict<'py>(py: Python<'py>, s: &AxisStatus) -> PyResult<Bound<'py,
         .get(s.state as usize)
         .copied()
         .unwrap_or("not_ready_to_switch_on");
-    let mode = MODES
-        .iter()
-        .find(|(_, m)| *m as i8 == s.mode_display)
-        .map(|(n, _)| *n);
+    let mode = Mode::from_code(s.mode_display).map(Mode::name);
     d.set_item("cycle", s.cycle)?;
     d.set_item("state", state)?;
     d.set_item("statusword", s.statusword)?;
@@ -781,9 +779,7 @@ impl PyEngine {
     /// Command a mode of operation by name: pp, pv, hm, csp, csv, cst.
     fn axis_set_mode(&self, py: Python<'_>, axis: usize, mode: &str) -> PyResult<()> {
         let m = Mode::from_name(mode).ok_or_else(|| {
-            PyValueError::new_err(format!(
-                "mode '{mode}': expected one of pp, pv, hm, csp, csv, cst"
-            ))
+            PyValueError::new_err(format!("mode '{mode}': expected one of {}", mode_names()))
         })?;
         self.inner.axis_set_mode(axis, m).map_err(|e| to_py(py, e))
     }

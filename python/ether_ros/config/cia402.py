@@ -16,6 +16,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
+from ether_ros._native import protocol
 from ether_ros._native.protocol import CIA402_MODES
 from ether_ros._native.protocol import cia402 as cia402_facts
 from ether_ros.config.esi import EsiDevice, Pdo, PdoEntry
@@ -214,15 +215,15 @@ def _maps(p: Pdo, key: tuple[int, int]) -> bool:
     return any((e.index, e.subindex) == key for e in p.entries)
 
 
-SOFTWARE_POSITION_LIMIT = 0x607D
-INT32_RANGE = (-(2**31), 2**31 - 1)
-UINT32_MAX = 2**32 - 1
+SOFTWARE_POSITION_LIMIT = cia402_facts.SOFTWARE_POSITION_LIMIT
+INT32_MIN, INT32_MAX = (int(x) for x in protocol.value_range("int", 32))
+UINT32_MAX = int(protocol.value_range("uint", 32)[1])
 # The pp/pv profile (config key → object): in the drive's velocity units (per second for the
 # accelerations), i.e. SI / velocity_scale.
 PROFILE_OBJECTS = {
-    "profile_velocity": 0x6081,
-    "profile_acceleration": 0x6083,
-    "profile_deceleration": 0x6084,
+    "profile_velocity": cia402_facts.PROFILE_VELOCITY,
+    "profile_acceleration": cia402_facts.PROFILE_ACCELERATION,
+    "profile_deceleration": cia402_facts.PROFILE_DECELERATION,
 }
 
 
@@ -244,7 +245,7 @@ def software_limits_raw(cfg: AxisConfig) -> tuple[int, int] | None:
         return None
     raw_lo = math.ceil((lo - cfg.position_offset) / cfg.position_scale - 1e-9)
     raw_hi = math.floor((hi - cfg.position_offset) / cfg.position_scale + 1e-9)
-    return max(raw_lo, INT32_RANGE[0]), min(raw_hi, INT32_RANGE[1])
+    return max(raw_lo, INT32_MIN), min(raw_hi, INT32_MAX)
 
 
 def axis_sdo_inits(specs: Sequence[AxisSpec], dev: EsiDevice) -> list[tuple[int, int, int, str]]:

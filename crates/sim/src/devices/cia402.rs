@@ -18,6 +18,7 @@ use super::period_clock::PeriodClock;
 use super::servo_motor::{limit, Cascade, Mechanics, MotorParams};
 use crate::device::{DeviceApp, Emergency};
 use crate::od::{dtype, Access, Entry, ObjectDictionary};
+use ether_ros_protocol::cia402::object;
 
 /// Drive loop period: 8 kHz (position and velocity loops).
 pub const PERIOD_NS: u64 = 125_000;
@@ -25,11 +26,10 @@ pub const PERIOD_NS: u64 = 125_000;
 const SUBSTEPS: u32 = 2;
 /// Longest stretch of time one `step` catches up on (100 ms).
 const MAX_CATCH_UP_PERIODS: u64 = 800;
-/// Axes a drive may have (objects up to 0x6040 + 7·0x800 = 0x9840 would leave the profile
-/// area; eight is ETG.6010's limit).
-pub const MAX_AXES: usize = 8;
+/// Axes a drive may have (objects up to 0x6040 + 7·0x800 = 0x9840; eight is ETG.6010's limit).
+pub const MAX_AXES: usize = object::MAX_AXES as usize;
 /// Object index distance between axes (ETG.6010 multi-axis layout).
-pub const AXIS_OFFSET: u16 = 0x800;
+pub const AXIS_OFFSET: u16 = object::AXIS_OFFSET;
 /// Motor speed under which a stop (quick stop, fault reaction, halt) counts as done, rad/s.
 const STANDSTILL_SPEED: f64 = 0.5;
 /// Interpolation period when 0x60C2 holds no usable value, s.
@@ -39,41 +39,41 @@ const DEFAULT_INTERPOLATION_S: f64 = 1e-3;
 /// with the value the drive uses when the dictionary lacks the object (a vendor ESI without it):
 /// the defaults of devices/servo_drive.xml.
 const AXIS_KEYS: [(u16, u8, i64); 35] = [
-    (0x6040, 0, 0),               // 0 controlword
-    (0x6060, 0, 0),               // 1 modes of operation
-    (0x607A, 0, 0),               // 2 target position
-    (0x60FF, 0, 0),               // 3 target velocity
-    (0x6071, 0, 0),               // 4 target torque
-    (0x6041, 0, 0),               // 5 statusword
-    (0x6061, 0, 0),               // 6 modes of operation display
-    (0x6064, 0, 0),               // 7 position actual value
-    (0x606C, 0, 0),               // 8 velocity actual value
-    (0x6077, 0, 0),               // 9 torque actual value
-    (0x603F, 0, 0),               // 10 error code
-    (0x60F4, 0, 0),               // 11 following error actual value
-    (0x6065, 0, 16_384),          // 12 following error window
-    (0x6066, 0, 10),              // 13 following error time out (ms)
-    (0x6502, 0, 0x3A5),           // 14 supported drive modes
-    (0x6076, 0, 200),             // 15 motor rated torque (mNm)
-    (0x6072, 0, 3000),            // 16 max torque (per mille)
-    (0x6080, 0, 6000),            // 17 max motor speed (rpm)
-    (0x605A, 0, 2),               // 18 quick stop option code
-    (0x6085, 0, 1_638_400),       // 19 quick stop deceleration
-    (0x607D, 1, i32::MIN as i64), // 20 software position limit min
-    (0x607D, 2, i32::MAX as i64), // 21 software position limit max
-    (0x60C2, 1, 1),               // 22 interpolation time period value
-    (0x60C2, 2, -3),              // 23 interpolation time index
-    (0x6081, 0, 16_384),          // 24 profile velocity
-    (0x6083, 0, 163_840),         // 25 profile acceleration
-    (0x6084, 0, 163_840),         // 26 profile deceleration
-    (0x6098, 0, 37),              // 27 homing method
-    (0x607C, 0, 0),               // 28 home offset
-    (0x6067, 0, 163),             // 29 position window
-    (0x606D, 0, 1_638),           // 30 velocity window
-    (0x608F, 1, 16_384),          // 31 encoder increments
-    (0x608F, 2, 1),               // 32 motor revolutions
-    (0x6091, 1, 50),              // 33 gear ratio: motor revolutions
-    (0x6091, 2, 1),               // 34 gear ratio: shaft revolutions
+    (object::CONTROLWORD, 0, 0),                           // 0
+    (object::MODES_OF_OPERATION, 0, 0),                    // 1
+    (object::TARGET_POSITION, 0, 0),                       // 2
+    (object::TARGET_VELOCITY, 0, 0),                       // 3
+    (object::TARGET_TORQUE, 0, 0),                         // 4
+    (object::STATUSWORD, 0, 0),                            // 5
+    (object::MODES_OF_OPERATION_DISPLAY, 0, 0),            // 6
+    (object::POSITION_ACTUAL, 0, 0),                       // 7
+    (object::VELOCITY_ACTUAL, 0, 0),                       // 8
+    (object::TORQUE_ACTUAL, 0, 0),                         // 9
+    (object::ERROR_CODE, 0, 0),                            // 10
+    (object::FOLLOWING_ERROR_ACTUAL, 0, 0),                // 11
+    (object::FOLLOWING_ERROR_WINDOW, 0, 16_384),           // 12
+    (object::FOLLOWING_ERROR_TIMEOUT, 0, 10),              // 13 (ms)
+    (object::SUPPORTED_MODES, 0, 0x3A5),                   // 14
+    (object::MOTOR_RATED_TORQUE, 0, 200),                  // 15 (mNm)
+    (object::MAX_TORQUE, 0, 3000),                         // 16 (per mille)
+    (object::MAX_MOTOR_SPEED, 0, 6000),                    // 17 (rpm)
+    (object::QUICK_STOP_OPTION, 0, 2),                     // 18
+    (object::QUICK_STOP_DECELERATION, 0, 1_638_400),       // 19
+    (object::SOFTWARE_POSITION_LIMIT, 1, i32::MIN as i64), // 20 min
+    (object::SOFTWARE_POSITION_LIMIT, 2, i32::MAX as i64), // 21 max
+    (object::INTERPOLATION_TIME_PERIOD, 1, 1),             // 22 value
+    (object::INTERPOLATION_TIME_PERIOD, 2, -3),            // 23 index
+    (object::PROFILE_VELOCITY, 0, 16_384),                 // 24
+    (object::PROFILE_ACCELERATION, 0, 163_840),            // 25
+    (object::PROFILE_DECELERATION, 0, 163_840),            // 26
+    (object::HOMING_METHOD, 0, 37),                        // 27
+    (object::HOME_OFFSET, 0, 0),                           // 28
+    (object::POSITION_WINDOW, 0, 163),                     // 29
+    (object::VELOCITY_WINDOW, 0, 1_638),                   // 30
+    (object::POSITION_ENCODER_RESOLUTION, 1, 16_384),      // 31 increments
+    (object::POSITION_ENCODER_RESOLUTION, 2, 1),           // 32 motor revolutions
+    (object::GEAR_RATIO, 1, 50),                           // 33 motor revolutions
+    (object::GEAR_RATIO, 2, 1),                            // 34 shaft revolutions
 ];
 /// Data type and bit length of each `AXIS_KEYS` object (as in devices/servo_drive.xml).
 const AXIS_TYPES: [(u16, u16); 35] = [
@@ -177,134 +177,22 @@ mod slot {
     pub const GEAR_SHAFT: usize = 34;
 }
 /// The device's error register (CiA 301), shared by the axes.
-const ERROR_REGISTER: [(u16, u8); 1] = [(0x1001, 0)];
+const ERROR_REGISTER: [(u16, u8); 1] = [(ether_ros_protocol::coe::ERROR_REGISTER, 0)];
 
-/// Modes of operation (0x6060 values).
+/// The standard's facts — modes, statusword and controlword bits, the states and their
+/// coding, the device control commands — are the protocol crate's.
+pub use ether_ros_protocol::cia402::{cw, sw, Command, State};
+
+/// Modes of operation (0x6060 values), and the ones this model implements.
 pub mod mode {
-    pub const NONE: i8 = 0;
-    pub const PP: i8 = 1;
-    pub const PV: i8 = 3;
-    pub const HM: i8 = 6;
-    pub const CSP: i8 = 8;
-    pub const CSV: i8 = 9;
-    pub const CST: i8 = 10;
+    pub use ether_ros_protocol::cia402::mode::*;
+
     /// The modes this model implements.
     pub const IMPLEMENTED: [i8; 6] = [PP, PV, HM, CSP, CSV, CST];
 
-    /// The 0x6502 bit of a mode (bit 0 PP ... bit 9 CST), None for modes without one.
-    pub fn supported_bit(m: i8) -> Option<u32> {
-        (1..=10).contains(&m).then(|| 1u32 << (m - 1))
-    }
-}
-
-/// Statusword bits (IEC 61800-7-201).
-pub mod sw {
-    pub const READY_TO_SWITCH_ON: u16 = 1 << 0;
-    pub const SWITCHED_ON: u16 = 1 << 1;
-    pub const OPERATION_ENABLED: u16 = 1 << 2;
-    pub const FAULT: u16 = 1 << 3;
-    pub const VOLTAGE_ENABLED: u16 = 1 << 4;
-    pub const QUICK_STOP: u16 = 1 << 5;
-    pub const SWITCH_ON_DISABLED: u16 = 1 << 6;
-    pub const WARNING: u16 = 1 << 7;
-    pub const REMOTE: u16 = 1 << 9;
-    pub const TARGET_REACHED: u16 = 1 << 10;
-    pub const INTERNAL_LIMIT: u16 = 1 << 11;
-    /// CSP/CSV/CST: drive follows the command value; PP: set-point acknowledge; PV: speed
-    /// is zero; HM: homing attained.
-    pub const MODE_12: u16 = 1 << 12;
-    /// CSP/PP: following error; HM: homing error.
-    pub const MODE_13: u16 = 1 << 13;
-}
-
-/// Controlword bits.
-pub mod cw {
-    pub const NEW_SETPOINT: u16 = 1 << 4; // PP; HM: homing operation start
-    pub const CHANGE_SET_IMMEDIATELY: u16 = 1 << 5;
-    pub const RELATIVE: u16 = 1 << 6;
-    pub const FAULT_RESET: u16 = 1 << 7;
-    pub const HALT: u16 = 1 << 8;
-}
-
-/// States of the power drive state machine.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum State {
-    NotReadyToSwitchOn,
-    SwitchOnDisabled,
-    ReadyToSwitchOn,
-    SwitchedOn,
-    OperationEnabled,
-    QuickStopActive,
-    FaultReactionActive,
-    Fault,
-}
-
-impl State {
-    /// Statusword bits 0–3, 5 and 6 coding the state (bit 5 "quick stop" is active low: set in
-    /// the states where no quick stop is under way).
-    pub fn statusword_bits(self) -> u16 {
-        match self {
-            State::NotReadyToSwitchOn => 0x0000,
-            State::SwitchOnDisabled => 0x0040,
-            State::ReadyToSwitchOn => 0x0021,
-            State::SwitchedOn => 0x0023,
-            State::OperationEnabled => 0x0027,
-            State::QuickStopActive => 0x0007,
-            State::FaultReactionActive => 0x000F,
-            State::Fault => 0x0008,
-        }
-    }
-
-    /// The state a statusword codes (masks 0x4F / 0x6F of the standard), for masters and tests.
-    pub fn from_statusword(word: u16) -> Option<State> {
-        match (word & 0x4F, word & 0x6F) {
-            (0x00, _) => Some(State::NotReadyToSwitchOn),
-            (0x40, _) => Some(State::SwitchOnDisabled),
-            (_, 0x21) => Some(State::ReadyToSwitchOn),
-            (_, 0x23) => Some(State::SwitchedOn),
-            (_, 0x27) => Some(State::OperationEnabled),
-            (_, 0x07) => Some(State::QuickStopActive),
-            (0x0F, _) => Some(State::FaultReactionActive),
-            (0x08, _) => Some(State::Fault),
-            _ => None,
-        }
-    }
-
-    /// Number used by `probe` (the order of the standard's state diagram).
-    pub fn number(self) -> f64 {
-        self as u8 as f64
-    }
-}
-
-/// The device control command coded in controlword bits 0–3 (bit 7, fault reset, acts on its
-/// rising edge and is handled apart).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Command {
-    /// xxxx xx0x
-    DisableVoltage,
-    /// xxxx x01x
-    QuickStop,
-    /// xxxx x110
-    Shutdown,
-    /// xxxx 0111: "switch on", and in Operation enabled "disable operation".
-    SwitchOn,
-    /// xxxx 1111: "enable operation" (and "switch on" from Ready to switch on).
-    EnableOperation,
-}
-
-impl Command {
-    pub fn decode(controlword: u16) -> Command {
-        if controlword & 0x0002 == 0 {
-            Command::DisableVoltage
-        } else if controlword & 0x0004 == 0 {
-            Command::QuickStop
-        } else if controlword & 0x0001 == 0 {
-            Command::Shutdown
-        } else if controlword & 0x0008 == 0 {
-            Command::SwitchOn
-        } else {
-            Command::EnableOperation
-        }
+    /// The 0x6502 mask of a mode (bit 0 PP ... bit 9 CST), None for modes without one.
+    pub fn supported_mask(m: i8) -> Option<u32> {
+        supported_bit(m).map(|b| 1u32 << b)
     }
 }
 
@@ -594,7 +482,7 @@ impl Inputs {
 
     fn mode_supported(&self, m: i8) -> bool {
         mode::IMPLEMENTED.contains(&m)
-            && mode::supported_bit(m).is_some_and(|b| self.supported_modes & b != 0)
+            && mode::supported_mask(m).is_some_and(|b| self.supported_modes & b != 0)
     }
 }
 
@@ -1543,7 +1431,7 @@ impl DeviceApp for Cia402Drive {
                 (names[2], a.torque * gear),
                 (names[3], a.torque),
                 (names[4], a.demand / gear),
-                (names[5], a.state.number()),
+                (names[5], f64::from(a.state as u8)),
                 (names[6], f64::from(a.mode)),
                 (names[7], a.fault.map_or(0.0, |f| f64::from(f.error_code()))),
                 (
