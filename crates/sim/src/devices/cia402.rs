@@ -2079,7 +2079,7 @@ mod tests {
         b.run_ms(1000.0);
         let p = b.position(0);
         assert!((20_000..21_000).contains(&p), "{p}");
-        assert_eq!(b.get(0, 0x606C, 0).abs() < 500, true);
+        assert!(b.get(0, 0x606C, 0).abs() < 500);
         assert_ne!(b.statusword(0) & sw::INTERNAL_LIMIT, 0);
         b.set(0, 0x60FF, 0, -50_000);
         b.run_ms(100.0);
