@@ -33,7 +33,13 @@ def register(subparsers: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ether_ros.errors import EtherRosError
-    from ether_ros.tools.live import BusLiveSource, DiagnosticsLiveSource, LiveSource, TopApp
+    from ether_ros.tools.live import (
+        BusLiveSource,
+        DiagnosticsLiveSource,
+        LiveSource,
+        TopApp,
+        run_top,
+    )
 
     if args.interval <= 0:
         raise EtherRosError(f"--interval must be positive, got {args.interval}")
@@ -60,5 +66,5 @@ def run(args: argparse.Namespace) -> int:
         if args.interface:
             raise EtherRosError("--interface needs --config (a standalone bus)")
         source = DiagnosticsLiveSource(args.topic)
-    TopApp(source, interval=args.interval).run()
+    run_top(TopApp(source, interval=args.interval))
     return 0

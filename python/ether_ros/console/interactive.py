@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import os
 import signal
 import sys
 import threading
@@ -217,7 +218,10 @@ class Repl:
         # The key guard takes the panic keys out before the prompt sees them; these catch an
         # F1 whose bytes a read happened to split.
         def panic() -> None:
-            panic_line.press()
+            if panic_line.watching:
+                panic_line.claim_keys()  # the native reader has sent it already
+            else:
+                panic_line.press()
 
         @bindings.add("c-p", eager=True)
         @bindings.add("f1", eager=True)
@@ -252,14 +256,25 @@ class Repl:
                 input=pipe,
                 output=output,
             )
+            # The terminal -> the native key reader (sends a panic at once) -> a pipe -> the
+            # key guard (bounds, Ctrl-C) -> the prompt. Without the native reader, the guard
+            # reads the terminal and sends the panic itself.
+            keys_r, keys_w = os.pipe()
+            stack.callback(os.close, keys_r)
+            native = panic_line.watch_terminal(self.fd, keys_w)
+            if native:
+                stack.callback(panic_line.stop_watching)
+            else:
+                os.close(keys_w)
             guard = KeyGuard(
-                self.fd,
+                keys_r if native else self.fd,
                 pipe.pipe.write_fd,
                 busy=lambda: bool(self.running),
                 on_panic=panic,
                 on_interrupt=lambda: self.console.interrupt("Ctrl-C"),
                 on_refused=self._refused,
                 on_end=lambda: self._soon(self._end, "the terminal is gone"),
+                after_read=panic_line.claim_keys if native else None,
             )
             guard.start()
             stack.callback(guard.stop)

@@ -1,11 +1,14 @@
 """The console's keyboard: one thread reads the terminal, and panic comes first.
 
-The prompt (prompt_toolkit) never reads the terminal itself. A thread of its own
-(:class:`KeyGuard`) reads it in raw mode, chunk by chunk, and looks at every chunk before
-anything else happens to it (:class:`KeyFilter`):
+The prompt (prompt_toolkit) never reads the terminal itself. The native key reader
+(``ether_ros._native.PanicKeys``, started by :meth:`ether_ros.ros.panic_line.PanicLine.
+watch_terminal`) reads it in raw mode and sends the panic request the moment a panic key
+arrives, without Python; it passes the bytes on to a thread of ours (:class:`KeyGuard`), which
+looks at every chunk before anything else happens to it (:class:`KeyFilter`):
 
 1. **panic keys** — Ctrl-P and F1 (``ESC O P``, ``ESC [ 1 1 ~``, the Linux console's
-   ``ESC [ [ A``) anywhere in the chunk send the panic at once and are taken out;
+   ``ESC [ [ A``) anywhere in the chunk are taken out; the guard picks up what the native
+   reader sent (or, without it, sends the panic itself);
 2. **Ctrl-C while a command runs** interrupts that command (and is taken out); at the prompt it
    goes on to the prompt, which clears the line;
 3. **bounds** — a line longer than :data:`LINE_LIMIT` bytes, a bracketed paste longer than that,
@@ -28,6 +31,8 @@ import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from ether_ros import _native
+
 # A console line is a command: a few hundred bytes at most (a `set all` of ten variables).
 LINE_LIMIT = 1024
 # Input stops for this long: a refused paste without a line end is over.
@@ -35,9 +40,9 @@ QUIET_S = 0.25
 READ_CHUNK = 65536
 
 CTRL_C = b"\x03"
-CTRL_P = b"\x10"
-# F1 as xterm (SS3 P), VT220/rxvt (CSI 11 ~) and the Linux console (CSI [ A) send it.
-PANIC_SEQUENCES = (CTRL_P, b"\x1bOP", b"\x1b[11~", b"\x1b[[A")
+# Ctrl-P and F1 (as xterm, VT220/rxvt and the Linux console send it): the native key reader's
+# list, the one definition.
+PANIC_SEQUENCES = tuple(_native.PANIC_KEYS)
 PASTE_START = b"\x1b[200~"
 PASTE_END = b"\x1b[201~"
 
@@ -174,11 +179,12 @@ class KeyFilter:
 
 
 class KeyGuard:
-    """The thread that reads the terminal (``fd``, already in raw mode) and acts on
-    :class:`KeyFilter`'s verdicts: ``on_panic()`` first, then ``on_interrupt()``,
-    ``on_refused(message, clear_line)``, and the rest written to ``forward_fd`` (non-blocking:
-    input the prompt cannot take is dropped, never waited for). ``on_end()`` when the terminal
-    is gone."""
+    """The thread that reads the keys (``fd``: the terminal in raw mode, or the pipe the native
+    key reader passes the terminal's bytes on to) and acts on :class:`KeyFilter`'s verdicts:
+    ``after_read()`` first (the native reader has sent a panic already: pick up what it did),
+    then ``on_panic()`` for a panic key, ``on_interrupt()``, ``on_refused(message, clear_line)``,
+    and the rest written to ``forward_fd`` (non-blocking: input the prompt cannot take is
+    dropped, never waited for). ``on_end()`` when the input ends (the terminal is gone)."""
 
     def __init__(
         self,
@@ -190,6 +196,7 @@ class KeyGuard:
         on_refused: Callable[[str, bool], None],
         on_end: Callable[[], None],
         key_filter: KeyFilter | None = None,
+        after_read: Callable[[], object] | None = None,
     ) -> None:
         self.fd = fd
         self.forward_fd = forward_fd
@@ -199,6 +206,7 @@ class KeyGuard:
         self._on_interrupt = on_interrupt
         self._on_refused = on_refused
         self._on_end = on_end
+        self._after_read = after_read
         os.set_blocking(forward_fd, False)
         self._wake_r, self._wake_w = os.pipe()
         self._thread = threading.Thread(target=self._run, name="ether_ros-keys", daemon=True)
@@ -236,6 +244,8 @@ class KeyGuard:
         self._on_end()
 
     def handle(self, data: bytes) -> None:
+        if self._after_read is not None:
+            self._after_read()
         verdict = self.filter.feed(data, self._busy())
         if verdict.panic:
             self._on_panic()

@@ -16,12 +16,13 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
+import os
 import signal
 import threading
 from collections import deque
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Protocol
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 import numpy as np
 from textual import events
@@ -32,6 +33,9 @@ from textual.driver import Driver
 from textual.widgets import DataTable, Footer, Header, Static
 
 from ether_ros.ros.freshness import Arrivals, describe_age
+
+if TYPE_CHECKING:
+    from ether_ros.ros.panic_line import PanicLine
 
 HISTOGRAM_BINS = 12
 PANIC_KEYS = ("ctrl+p", "f1")
@@ -287,6 +291,36 @@ class TopApp(App[None]):
 
     def on_unmount(self) -> None:
         self.source.close()
+
+
+def run_top(app: TopApp, terminal: int = 0) -> None:
+    """Run ``app`` on this terminal. For the node, the native key reader
+    (:meth:`PanicLine.watch_terminal`) sits between the terminal and textual: it sends the panic
+    the moment a panic key arrives, whatever the screen is doing, and passes every byte on to
+    textual through a pipe that takes the terminal's place as stdin (fd 0)."""
+    from prompt_toolkit.input.vt100 import raw_mode
+
+    line: PanicLine | None = getattr(app.source, "panic_line", None)
+    if line is None or not os.isatty(terminal):
+        app.run()
+        return
+    tty = os.dup(terminal)
+    keys_r, keys_w = os.pipe()
+    try:
+        with raw_mode(tty):  # textual's own settings fail on the pipe: the same ones here
+            if not line.watch_terminal(tty, keys_w):
+                os.close(keys_w)
+                app.run()
+                return
+            os.dup2(keys_r, terminal)
+            try:
+                app.run()
+            finally:
+                os.dup2(tty, terminal)
+                line.stop_watching()
+    finally:
+        os.close(tty)
+        os.close(keys_r)
 
 
 # ---- sources ------------------------------------------------------------------------------
@@ -583,6 +617,7 @@ class DiagnosticsLiveSource:
                 self._groups[what[len("group ") :]] = values
 
     def poll(self) -> LiveSnapshot:
+        self._panic_line.claim_keys()  # a key the screen did not see as one is still answered
         self._rclpy.spin_once(self._node, timeout_sec=0.0)
         if self._master is None:
             return LiveSnapshot(
@@ -597,9 +632,16 @@ class DiagnosticsLiveSource:
             mark_stale(snap, self._node_name, self.arrivals)
         return snap
 
+    @property
+    def panic_line(self) -> PanicLine:
+        return self._panic_line
+
     def panic(self, report: Callable[[str], None]) -> None:
         self._panic_line.report = report
-        self._panic_line.press()
+        if self._panic_line.watching:
+            self._panic_line.claim_keys()  # the native key reader has sent it already
+        else:
+            self._panic_line.press()
 
     def close(self) -> None:
         self._panic_line.close()
