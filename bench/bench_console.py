@@ -160,6 +160,7 @@ def run(report: Report) -> None:
 
     n = 5 if report.quick else 25
     results: dict[str, list[float]] = {}
+    load: list[float] = []
     with RosRig(CONFIG) as rig, contextlib.ExitStack() as stack:
         client = rig.client
         client.wait_for_node()
@@ -172,23 +173,14 @@ def run(report: Report) -> None:
         env = dict(rig.env, PROMPT_TOOLKIT_NO_CPR="1", ETHER_ROS_PANIC_TRACE=str(trace))
         cli = [sys.executable, "-m", "ether_ros.cli.main"]
 
-        def measure(
-            name: str,
-            press: Callable[[], None],
-            prepare: Callable[[], None] | None = None,
-            after: Callable[[], None] | None = None,
-        ) -> None:
-            results[name] = [trials.one(name, press, prepare, after) for _ in range(n)]
-
-        measure("baseline: the panic service called directly", lambda: client.panic())
-
         console = stack.enter_context(Pty([*cli, "console"], env=env))
         console.expect("ether_ros>", timeout=60)
+        top = stack.enter_context(Pty([*cli, "top"], env=env))
+        top.expect("OP", timeout=60)
+        time.sleep(1.0)  # the screens settled
 
         def key() -> None:
             console.write(CTRL_P)
-
-        measure("console idle (at its prompt)", key)
 
         marks: list[int] = []
 
@@ -200,23 +192,32 @@ def run(report: Report) -> None:
         def wait_interrupted() -> None:  # the console is idle again before the next trial
             console.expect(r"interrupted \(panic\)", since=marks[-1])
 
-        measure("console during `wait 600`", key, start_wait, wait_interrupted)
-
         paste = b"set all b_ellipse100=4 " + b"x" * PASTE
 
         def paste_then_key() -> None:
             console.write(paste)  # returns once the terminal took the last byte of it
             console.write(CTRL_P)
 
-        measure("console during a 100k-character paste", paste_then_key)
-        console.write(b"\rquit\r")  # the Enter ends the refused paste's line
-        console.wait(30)
+        def end_refused_line() -> None:  # its Enter ends the refused paste's line
+            console.write(b"\r")
 
-        top = stack.enter_context(Pty([*cli, "top"], env=env))
-        top.expect("OP", timeout=60)
-        time.sleep(1.0)  # the screen settled
-        measure("top (node mode)", lambda: top.write(CTRL_P))
+        states: list[tuple[str, Callable[[], None], Any, Any]] = [
+            ("baseline: the panic service called directly", lambda: client.panic(), None, None),
+            ("console idle (at its prompt)", key, None, None),
+            ("console during `wait 600`", key, start_wait, wait_interrupted),
+            ("console during a 100k-character paste", paste_then_key, None, end_refused_line),
+            ("top (node mode)", lambda: top.write(CTRL_P), None, None),
+        ]
+        load.append(os.getloadavg()[0])
+        # Round by round, one trial of each state: every state sees the same load on the
+        # (shared) machine.
+        for _ in range(n):
+            for name, press, prepare, after in states:
+                results.setdefault(name, []).append(trials.one(name, press, prepare, after))
+        load.append(os.getloadavg()[0])
         client.command("clear_panic")
+        console.write(b"quit\r")
+        console.wait(30)
 
     base = _percentile(results["baseline: the panic service called directly"], 0.5)
     rows = []
@@ -265,7 +266,13 @@ def run(report: Report) -> None:
         ],
         rows,
     )
+    report.value("load_average", load)
     worst = max(max(v) for v in results.values())
+    report.text(
+        f"Load average of the machine (1 min) at the start and the end: {load[0]:.1f}, "
+        f"{load[1]:.1f} ({os.cpu_count()} CPUs); the trials ran round by round, one of each "
+        "state per round."
+    )
     report.text(
         f"Worst case over all states: {worst:.1f} ms "
         + ("(within the target)." if worst <= TARGET_MS else f"(**beyond {TARGET_MS:g} ms**).")

@@ -201,12 +201,12 @@ def test_ctrl_c_stops_the_running_command_not_the_console(rig: RosRig, tmp_path:
     with pty_console(rig) as term:
         term.write(b"wait 600\r")
         term.expect(r"\[running: wait 600")
-        term.write(b"states\r")  # busy: refused, put back on the line
+        term.write(b"layout hind_right_leg\r")  # busy: refused, put back on the line
         term.expect("busy: 'wait 600' is running")
         term.write(b"\x03")
         term.expect(r"interrupted \(Ctrl-C\)")
         term.write(b"\r")  # the refused line, back on the prompt, now runs
-        term.expect("front_right_leg +OP")
+        term.expect(r"hind_right_leg \(position \d")
         assert leg_value(rig) == 1212.0 and not panicked(rig)  # outputs as commanded
         term.write(b"quit\r")
         assert term.wait() == 0

@@ -17,6 +17,14 @@ def test_a_report_is_stale_after_two_of_its_periods() -> None:
     assert a.age("diagnostics", now=19.0) == 6.0
 
 
+def test_one_late_report_does_not_change_the_period() -> None:
+    a = Arrivals()
+    for t in (0.0, 1.0, 2.0, 3.4, 4.0):  # every second, one of them 0.4 s late
+        a.note("diagnostics", now=t)
+    assert a.period("diagnostics") == 1.0
+    assert a.fresh("diagnostics", now=5.9) and not a.fresh("diagnostics", now=6.1)
+
+
 def test_a_fast_stream_is_not_stale_within_the_floor() -> None:
     a = Arrivals()
     a.note("inputs/leg", now=1.000)

@@ -57,6 +57,9 @@ SENT_MEMORY_S = 2.0
 MOVE_ANSWER_S = 0.3
 # `states` asks the node for its lifecycle state with this timeout (a dead node never answers).
 STATE_TIMEOUT_S = 2.0
+# How long a write waits for the node's answer (as long as an SDO transfer: a node on a loaded
+# machine may take seconds; a panic never waits for it).
+WRITE_TIMEOUT_S = 10.0
 # What a successful panic answer adds: the console command that clears it.
 CLEAR_HINT = "type 'clear' to resume the commanded outputs"
 
@@ -104,6 +107,9 @@ class Console:
         # Set to stop the running command at its next interruption point.
         self.cancel = threading.Event()
         self._reason = ""
+        # When this console last had a lifecycle command answered (start, stop, restart): the
+        # node's reports from before it show the old states.
+        self._lifecycle_at = 0.0
         self._own_panic_line = panic_line is None
         self.panic_line = panic_line or PanicLine(
             client.prefix, client.node.context, report=lambda m: self.out(m), hint=CLEAR_HINT
@@ -207,6 +213,8 @@ class Console:
             return self.panic()
         sent = time.monotonic()
         ok, message = self.client.command(command)
+        if command in ("start", "stop", "restart"):
+            self._lifecycle_at = time.monotonic()
         if self.panic_line.last_press > sent:
             # A panic key was pressed while this command (a clear, a start) was on its way:
             # the node may have served the panic first. The panic stands: send it again.
@@ -221,7 +229,7 @@ class Console:
             ok, message = self._control(command.command)
         elif isinstance(command, Write):
             writes = [make_write(op.slave, op.variable, op.value) for op in command.ops]
-            ok, message = self.client.write_many(writes)
+            ok, message = self.client.write_many(writes, timeout=WRITE_TIMEOUT_S)
             if ok:
                 now = time.monotonic()
                 for op in command.ops:
@@ -314,9 +322,11 @@ class Console:
         return True
 
     def _states(self) -> bool:
-        """The node's lifecycle state and the slaves' AL states from a report the node sent
-        after this command began (the slaves are never shown from an old report: right after
-        a `start` the last one still says INIT, and a dead node's last one says OP)."""
+        """The node's lifecycle state and the slaves' AL states from a report that is fresh
+        (not older than two of the node's periods) and came after this console's last `start`,
+        `stop` or `restart` — else from the next one: the slaves are never shown from an old
+        report (right after a `start` the last one still says INIT, and a dead node's last one
+        says OP)."""
         asked = time.monotonic()
         arrivals = self.client.latest.arrivals
         try:
@@ -324,17 +334,18 @@ class Console:
         except EtherRosError as exc:
             self.out(f"node {self.client.target}: gone — it does not answer ({exc})")
             age = arrivals.age("diagnostics")
-            last = "none received" if age is None else f"the last is {describe_age(age)} old"
-            self.out(f"  slave states unknown: no report from the node ({last})")
+            seen = "none received" if age is None else f"the last is {describe_age(age)} old"
+            self.out(f"  slave states unknown: no report from the node ({seen})")
             return False
         self.out(f"node {self.client.target}: {state}")
-        fresh = self._wait_report(asked)
-        if not fresh:
+        last = arrivals.last.get("diagnostics", 0.0)
+        current = last > self._lifecycle_at and arrivals.fresh("diagnostics")
+        if not current and not self._wait_report(asked):
             age = arrivals.age("diagnostics")
-            last = "none received" if age is None else f"the last is {describe_age(age)} old"
+            seen = "none received" if age is None else f"the last is {describe_age(age)} old"
             self.out(
                 f"  slave states unknown: no new report within "
-                f"{describe_age(arrivals.stale_after('diagnostics'))} ({last})"
+                f"{describe_age(arrivals.stale_after('diagnostics'))} ({seen})"
             )
             return False
         states = self.client.slave_states()

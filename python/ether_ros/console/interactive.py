@@ -259,22 +259,19 @@ class Repl:
             # The terminal -> the native key reader (sends a panic at once) -> a pipe -> the
             # key guard (bounds, Ctrl-C) -> the prompt. Without the native reader, the guard
             # reads the terminal and sends the panic itself.
-            keys_r, keys_w = os.pipe()
-            stack.callback(os.close, keys_r)
-            native = panic_line.watch_terminal(self.fd, keys_w)
-            if native:
+            keys = panic_line.watch_terminal(self.fd)
+            if keys is not None:
+                stack.callback(os.close, keys)
                 stack.callback(panic_line.stop_watching)
-            else:
-                os.close(keys_w)
             guard = KeyGuard(
-                keys_r if native else self.fd,
+                self.fd if keys is None else keys,
                 pipe.pipe.write_fd,
                 busy=lambda: bool(self.running),
                 on_panic=panic,
                 on_interrupt=lambda: self.console.interrupt("Ctrl-C"),
                 on_refused=self._refused,
                 on_end=lambda: self._soon(self._end, "the terminal is gone"),
-                after_read=panic_line.claim_keys if native else None,
+                after_read=None if keys is None else panic_line.claim_keys,
             )
             guard.start()
             stack.callback(guard.stop)

@@ -21,6 +21,7 @@ So the panic request goes its own way:
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import itertools
 import os
 import threading
@@ -39,7 +40,10 @@ _names = itertools.count()
 _WAIT_NS = 200_000_000
 # SCHED_FIFO priority of the native key reader when the process may have it (CAP_SYS_NICE):
 # the node's default for its own command path (ros.command_priority), below real-time threads.
-KEY_READER_PRIORITY = int(RosConfig.model_fields["command_priority"].default)  # how long the answer thread waits before looking at its stop flag
+KEY_READER_PRIORITY = int(RosConfig.model_fields["command_priority"].default)
+# The pipe from the native key reader on: Linux's largest pipe without privileges
+# (/proc/sys/fs/pipe-max-size).
+KEYS_PIPE_BYTES = 1 << 20  # how long the answer thread waits before looking at its stop flag
 
 
 class PanicAnswer:
@@ -163,13 +167,19 @@ class PanicLine:
         timer.start()
 
     # ------------------------------------------------------------------ the native key reader
-    def watch_terminal(self, terminal: int, forward: int) -> bool:
-        """Start the native key reader on ``terminal`` (in raw mode), passing its bytes on to
-        the pipe ``forward`` (closed when the reader ends). False when it cannot start (then
-        the caller reads the terminal itself)."""
+    def watch_terminal(self, terminal: int) -> int | None:
+        """Start the native key reader on ``terminal`` (in raw mode). It passes every byte on
+        to a pipe whose read end this returns (the caller reads and closes it; it reads the end
+        of input once the reader stops). None when the reader cannot start (then the caller
+        reads the terminal itself)."""
         from ether_ros import _native
         from ether_ros.ros.native_commands import CommandPathError, loaded_library
 
+        keys_r, keys_w = os.pipe()
+        # Room for a whole refused paste, so the reader never has to drop a line end that
+        # follows one while the reader of the pipe is still busy with it.
+        with contextlib.suppress(OSError):
+            fcntl.fcntl(keys_w, fcntl.F_SETPIPE_SZ, KEYS_PIPE_BYTES)
         try:
             self._keys = _native.PanicKeys(
                 librcl=loaded_library("librcl"),
@@ -177,12 +187,14 @@ class PanicLine:
                 node=self._node.handle.pointer,
                 client=self._client.handle.pointer,
                 terminal=terminal,
-                forward=forward,
+                forward=keys_w,  # the reader's from now on
                 priority=KEY_READER_PRIORITY,
             )
         except (RuntimeError, CommandPathError):
-            return False
-        return True
+            os.close(keys_r)
+            os.close(keys_w)
+            return None
+        return keys_r
 
     def scheduling(self) -> str:
         """How the native key reader runs ("" when there is none)."""

@@ -305,22 +305,21 @@ def run_top(app: TopApp, terminal: int = 0) -> None:
         app.run()
         return
     tty = os.dup(terminal)
-    keys_r, keys_w = os.pipe()
     try:
         with raw_mode(tty):  # textual's own settings fail on the pipe: the same ones here
-            if not line.watch_terminal(tty, keys_w):
-                os.close(keys_w)
+            keys = line.watch_terminal(tty)
+            if keys is None:
                 app.run()
                 return
-            os.dup2(keys_r, terminal)
+            os.dup2(keys, terminal)
             try:
                 app.run()
             finally:
                 os.dup2(tty, terminal)
                 line.stop_watching()
+                os.close(keys)
     finally:
         os.close(tty)
-        os.close(keys_r)
 
 
 # ---- sources ------------------------------------------------------------------------------
