@@ -39,7 +39,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from bench_ros import WireSniffer, _variable_offset
+from bench_ros import WireSniffer, _percentile, _variable_offset
+from ether_ros.testing.wait import wait_for
 from report import BenchSkipped, Report
 
 REPO = Path(__file__).resolve().parent.parent
@@ -51,19 +52,6 @@ TARGET_MS = 50.0
 PASTE = 100_000
 # The node's log line for a panic (rcutils format: [LEVEL] [sec.nsec] [node]: message).
 PANIC_LOG = re.compile(r"\[ERROR\] \[(\d+)\.(\d{9})\] \[[^\]]*\]: PANIC: safe outputs")
-
-
-def _percentile(values: list[float], q: float) -> float:
-    s = sorted(values)
-    return s[min(len(s) - 1, int(q * (len(s) - 1) + 0.5))] if s else float("nan")
-
-
-def _wait(what: str, check: Callable[[], object], timeout: float = 20.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not check():
-        if time.monotonic() > deadline:
-            raise RuntimeError(f"timed out waiting for {what}")
-        time.sleep(0.002)
 
 
 class Trials:
@@ -98,14 +86,14 @@ class Trials:
         ok, message = c.write(SLAVE, VARIABLE, value)
         if not ok:
             raise RuntimeError(message)
-        _wait(f"{VARIABLE}={value} on the wire", lambda: self._on_wire(value))
+        wait_for(f"{VARIABLE}={value} on the wire", lambda: self._on_wire(value))
         if prepare is not None:
             prepare()
         seen = len(self.sniffer.changes)
         t_key_mono = time.monotonic_ns()
         t_key = time.time_ns()
         press()
-        _wait("the safe outputs on the wire", lambda: self._safe_after(seen, t_key) is not None)
+        wait_for("the safe outputs on the wire", lambda: self._safe_after(seen, t_key) is not None)
         stamp = self._safe_after(seen, t_key)
         assert stamp is not None
         logged = self._logged(t_key)
