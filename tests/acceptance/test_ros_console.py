@@ -231,6 +231,22 @@ def test_a_100k_paste_is_refused_and_panic_still_acts(rig: RosRig, bracketed: bo
         assert term.wait() == 0
 
 
+def test_command_lines_on_a_terminal_still_take_the_panic_key(rig: RosRig) -> None:
+    """`console -c ...` on a terminal reads the keys while its lines run: Ctrl-P panics, stops
+    the running line and the run (exit code 1); the lines after it never run."""
+    commanded(rig, 1515)
+    env = dict(rig.env, PROMPT_TOOLKIT_NO_CPR="1")
+    argv = [sys.executable, "-m", "ether_ros.cli.main", "console"]
+    with Pty([*argv, "-c", "wait 600", "-c", "set hind_right_leg Kp100_hip=3535"], env=env) as term:
+        term.expect(r"\[running: wait 600", timeout=60)
+        term.write(CTRL_P)
+        wait_for("the safe outputs on the wire", lambda: leg_value(rig) == 0.0, 20)
+        term.expect(r"interrupted \(panic\)")
+        assert term.wait() == 1
+    assert rig.client.command("clear_panic")[0]
+    wire(rig, "hind_right_leg", "Kp100_hip", 1515.0)  # the second line never ran (not 3535)
+
+
 def test_step_mode_runs_a_step_only_on_an_explicit_yes(rig: RosRig, tmp_path: Path) -> None:
     commanded(rig, 1414)
     seq = tmp_path / "steps.yaml"
