@@ -51,6 +51,9 @@ SAFE = 0  # Kp100_hip in the safe outputs
 TARGET_MS = 50.0
 PASTE = 100_000
 MISS_S = 30.0  # a panic not on the wire by then is counted as missed
+# Safe outputs that last this long are the panic's (the engine's watchdog lets go of them as soon
+# as the node feeds it again, within a few cycles once it runs).
+STAY_NS = 300_000_000
 # The node's log line for a panic (rcutils format: [LEVEL] [sec.nsec] [node]: message).
 PANIC_LOG = re.compile(r"\[ERROR\] \[(\d+)\.(\d{9})\] \[[^\]]*\]: PANIC: safe outputs")
 
@@ -68,6 +71,8 @@ class Trials:
         self.to_read: dict[str, list[float]] = {}  # key -> the reader's read returned
         self.to_sent: dict[str, list[float]] = {}  # key -> the request sent
         self.missed: dict[str, int] = {}
+        self.disturbed: dict[str, int] = {}  # a watchdog trip came between key and panic
+        self.screen: Callable[[], str] | None = None  # the tool's screen, shown for a miss
 
     def _on_wire(self, value: int) -> bool:
         changes = self.sniffer.changes
@@ -93,13 +98,16 @@ class Trials:
         wait_for(f"{VARIABLE}={value} on the wire", lambda: self._on_wire(value))
         if prepare is not None:
             prepare()
+        # The engine's own watchdog (bus.watchdog_ms) may have put the safe outputs on the wire
+        # meanwhile (a node starved of CPU stops feeding it): the key must find the value.
+        wait_for(f"{VARIABLE}={value} back on the wire", lambda: self._on_wire(value))
         seen = len(self.sniffer.changes)
         t_key_mono = time.monotonic_ns()
         t_key = time.time_ns()
         press()
         try:
             wait_for(
-                "the safe outputs on the wire",
+                "the safe outputs on the wire, to stay",
                 lambda: self._safe_after(seen, t_key) is not None,
                 MISS_S,
             )
@@ -107,11 +115,22 @@ class Trials:
             self.missed.setdefault(name, 0)
             self.missed[name] += 1
             print(f"[bench console] {name}: no safe outputs on the wire within {MISS_S:g} s")
+            print(f"  panic state reported by the node: {c.master_status().get('panic')}")
+            print(f"  sniffer changes since the key: {self.sniffer.changes[seen:][-5:]}")
+            with contextlib.suppress(OSError):
+                print("  trace:", self.trace.read_text().splitlines()[-3:])
+            print("  node log:", self.rig.node_log.read_text(errors="replace")[-800:])
+            if self.screen is not None:
+                print("  screen:", self.screen()[-1500:])
             if after is not None:
-                after()
+                with contextlib.suppress(AssertionError):
+                    after()
             return None
         stamp = self._safe_after(seen, t_key)
         assert stamp is not None
+        if any(v == value for _t, v in self.sniffer.changes[seen:]):
+            # The value came back after a safe frame: a watchdog trip came between.
+            self.disturbed[name] = self.disturbed.get(name, 0) + 1
         logged = self._logged(t_key)
         if logged is not None:
             self.to_node.setdefault(name, []).append((logged - t_key) / 1e6)
@@ -124,9 +143,15 @@ class Trials:
         return (stamp - t_key) / 1e6
 
     def _safe_after(self, start: int, t_key: int) -> int | None:
-        for stamp, value in self.sniffer.changes[start:]:
-            if value == SAFE and stamp >= t_key:
-                return stamp
+        """The kernel stamp of the frame that began the safe outputs that stay (a panic holds
+        them until it is cleared; a watchdog trip ends at the next write): the last change,
+        when it is to the safe value, after the key, and has lasted STAY_NS."""
+        changes = self.sniffer.changes[start:]
+        if not changes:
+            return None
+        stamp, value = changes[-1]
+        if value == SAFE and stamp >= t_key and time.time_ns() - stamp >= STAY_NS:
+            return stamp
         return None
 
     def _sent(self, t_key: int) -> tuple[int, int] | None:
@@ -217,6 +242,7 @@ def run(report: Report) -> None:
         # (shared) machine.
         for _ in range(n):
             for name, press, prepare, after in states:
+                trials.screen = top.text if name.startswith("top") else console.text
                 latency = trials.one(name, press, prepare, after)
                 results.setdefault(name, [])
                 if latency is not None:
@@ -297,6 +323,14 @@ def run(report: Report) -> None:
             "a loaded machine) or after it (sent → node: the node's Python command executor)."
         )
     worst = max(max(v) for v in results.values() if v)
+    if trials.disturbed:
+        report.text(
+            "The engine's watchdog put the safe outputs on the wire on its own (the node, "
+            "starved of CPU, did not feed it for `bus.watchdog_ms`) between the key and the "
+            f"panic in {sum(trials.disturbed.values())} trial(s) "
+            f"({', '.join(f'{k}: {v}' for k, v in trials.disturbed.items())}); those count "
+            "from the key to the start of the safe outputs that stayed."
+        )
     if trials.missed:
         report.text(
             f"**Missed**: {sum(trials.missed.values())} trial(s) saw no safe outputs on the wire "
