@@ -5,7 +5,7 @@
 use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, AtomicU8, Ordering};
 use std::sync::Arc;
 
-use ether_ros_wire::{self as wire, MAX_FRAME_LEN};
+use ether_ros_protocol::{self as wire, MAX_FRAME_LEN};
 
 use crate::cia402::{Axes, AxisExchange};
 use crate::clock::{now_ns, sleep_until};

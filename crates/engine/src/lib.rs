@@ -39,7 +39,7 @@ pub use plan::Plan;
 use stats::Summary;
 pub use xdp::{XdpLink, XdpMode};
 
-use ether_ros_wire::MAX_FRAME_LEN;
+use ether_ros_protocol::MAX_FRAME_LEN;
 
 /// What went wrong, by kind (the Python binding maps kinds to exception types).
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -21,7 +21,7 @@ use ether_ros_engine::{
     now_ns, Engine, Error, InProcessLink, Link, LinkOptions, Mode, Plan, Point, RawSocketLink,
     Received, Request, SetpointKind, XdpLink,
 };
-use ether_ros_wire::{self as wire, Command, MAX_FRAME_LEN};
+use ether_ros_protocol::{self as wire, Command, MAX_FRAME_LEN};
 
 mod common;
 use common::{counter, wait_for, Veth};

@@ -17,8 +17,8 @@ use ether_ros_engine::{
     flags, AxisStatus, Engine, Error, InProcessLink, LinkKind, LinkOptions, Mode, OutputField,
     Plan, Point, Request, Responder, SetpointKind, RECORD_LEN,
 };
+use ether_ros_protocol::{Command, MAX_FRAME_LEN};
 use ether_ros_sim::network::Network;
-use ether_ros_wire::{Command, MAX_FRAME_LEN};
 use pyo3::exceptions::{PyException, PyValueError};
 use pyo3::prelude::*;
 use pyo3::sync::PyOnceLock;

@@ -8,7 +8,7 @@
 
 use std::collections::VecDeque;
 
-use ether_ros_wire::reg;
+use ether_ros_protocol::reg;
 
 use crate::coe::CoeServer;
 use crate::dc::{encode_time_difference, DcClock};
@@ -195,7 +195,7 @@ impl Esc {
             in_sm,
             out_map: PdoMap::default(),
             in_map: PdoMap::default(),
-            al_state: reg::al::INIT,
+            al_state: ether_ros_protocol::al::INIT,
             al_error: false,
             al_code: 0,
             now,
@@ -292,7 +292,7 @@ impl Esc {
     fn load_eeprom(&mut self) {
         let mut status = self.sii.static_status();
         if self.sii.image.len() >= 16 && !self.sii.checksum_ok() {
-            status |= sii::ERR_CHECKSUM | sii::ERR_NOT_LOADED;
+            status |= sii::CHECKSUM_ERROR | sii::NOT_LOADED;
             self.put16(reg::SII_CONTROL, status);
             return;
         }
@@ -309,7 +309,7 @@ impl Esc {
     }
 
     pub fn eeprom_loaded(&self) -> bool {
-        self.get16(reg::SII_CONTROL) & sii::ERR_NOT_LOADED == 0
+        self.get16(reg::SII_CONTROL) & sii::NOT_LOADED == 0
     }
 
     /// DL status (0x0110) from the ports' link state: per port p, a link is bit 4+p and an
@@ -658,7 +658,7 @@ impl Esc {
         }
         if ctl & sii::CMD_MASK == 0 {
             // Writing no command clears the error bits.
-            self.put16(reg::SII_CONTROL, cur & !(0x7800 | sii::CMD_MASK));
+            self.put16(reg::SII_CONTROL, cur & !(sii::ERROR_MASK | sii::CMD_MASK));
             return;
         }
         let address = self.get32(reg::SII_ADDRESS);
@@ -668,7 +668,7 @@ impl Esc {
         if ctl & sii::CMD_MASK == sii::CMD_READ {
             self.mem[0x0508..0x0510].copy_from_slice(&data);
         }
-        if ctl & sii::CMD_MASK == sii::CMD_RELOAD && status & sii::ERR_CHECKSUM == 0 {
+        if ctl & sii::CMD_MASK == sii::CMD_RELOAD && status & sii::CHECKSUM_ERROR == 0 {
             self.load_eeprom();
         }
         status &= !sii::CMD_MASK;
@@ -901,8 +901,7 @@ impl Esc {
 
     /// The master wrote AL control.
     pub fn request_state(&mut self, ctl: u16) {
-        use reg::al::*;
-        use reg::al_code::*;
+        use ether_ros_protocol::al::*;
         let requested = (ctl & 0x0f) as u8;
         let ack = ctl & 0x10 != 0;
         if self.al_error {
@@ -969,16 +968,16 @@ impl Esc {
         self.al_code = code;
         self.counters.al_errors += 1;
         self.update_al_registers();
-        if self.mailbox.is_some() && self.al_state != reg::al::INIT {
+        if self.mailbox.is_some() && self.al_state != ether_ros_protocol::al::INIT {
             // CoE emergency "state machine transition error" carrying the AL status code.
             let c = code.to_le_bytes();
             let msg = CoeServer::emergency(emergency, 0x01, [c[0], c[1], 0, 0, 0]);
-            self.queue_mailbox(reg::mbx::TYPE_COE, msg);
+            self.queue_mailbox(ether_ros_protocol::mailbox::TYPE_COE, msg);
         }
     }
 
     fn enter_state(&mut self, state: u8) {
-        use reg::al::*;
+        use ether_ros_protocol::al::*;
         let prev = self.al_state;
         self.al_state = state;
         self.apply_sm_enables();
@@ -1008,7 +1007,7 @@ impl Esc {
     /// The slave application enables the mailbox SyncManagers from PREOP on and the
     /// process-data ones in SAFEOP and OP (PDI control bit 0), as SOES-style stacks do.
     fn apply_sm_enables(&mut self) {
-        use reg::al::*;
+        use ether_ros_protocol::al::*;
         let state = self.al_state;
         let mbx_on = state != INIT;
         let pd_on = matches!(state, SAFEOP | OP);
@@ -1028,7 +1027,7 @@ impl Esc {
     }
 
     fn check_mailbox(&self, mbx: Option<MailboxSpec>, boot: bool) -> Result<(), u16> {
-        use reg::al_code::*;
+        use ether_ros_protocol::al::*;
         let Some(m) = mbx else {
             return if boot {
                 Err(BOOTSTRAP_NOT_SUPPORTED)
@@ -1054,7 +1053,7 @@ impl Esc {
 
     /// Recompute the process-data maps from the dictionary (or the SII).
     fn build_maps(&mut self) -> Result<(), u16> {
-        use reg::al_code::*;
+        use ether_ros_protocol::al::*;
         let out = match crate::pdo::from_od(&self.od, 0x1C12) {
             Some(Ok(m)) => m,
             Some(Err(_)) => return Err(INVALID_OUTPUT_MAPPING),
@@ -1081,7 +1080,7 @@ impl Esc {
     }
 
     fn check_process_data(&mut self) -> Result<(), u16> {
-        use reg::al_code::*;
+        use ether_ros_protocol::al::*;
         self.build_maps()?;
         let check = |s: &SyncManager, bytes: usize, control: u8| {
             if bytes == 0 {
@@ -1103,7 +1102,7 @@ impl Esc {
     }
 
     fn check_op(&self) -> Result<(), u16> {
-        use reg::al_code::*;
+        use ether_ros_protocol::al::*;
         if self.refuse_op {
             return Err(SYNCHRONIZATION_ERROR);
         }
@@ -1129,19 +1128,22 @@ impl Esc {
         let Some(since) = self.op_pending_since else {
             return;
         };
-        if self.al_state != reg::al::SAFEOP || self.al_error {
+        if self.al_state != ether_ros_protocol::al::SAFEOP || self.al_error {
             self.op_pending_since = None;
             return;
         }
         if !self.waits_for_outputs() {
             self.op_pending_since = None;
-            self.enter_state(reg::al::OP);
+            self.enter_state(ether_ros_protocol::al::OP);
             return;
         }
         let timeout = u64::from(self.spec.safeop_op_timeout_ms) * 1_000_000;
         if self.now.saturating_sub(since) > timeout {
             self.op_pending_since = None;
-            self.fail_with_emergency(reg::al_code::NO_VALID_OUTPUTS, EMERGENCY_SAFEOP_TO_OP);
+            self.fail_with_emergency(
+                ether_ros_protocol::al::NO_VALID_OUTPUTS,
+                EMERGENCY_SAFEOP_TO_OP,
+            );
         }
     }
 
@@ -1149,7 +1151,8 @@ impl Esc {
 
     fn queue_mailbox(&mut self, kind: u8, payload: Vec<u8>) {
         if self.mbx_queue.len() < MAILBOX_QUEUE_LIMIT {
-            let mut msg = Vec::with_capacity(reg::mbx::HEADER_LEN + payload.len());
+            let mut msg =
+                Vec::with_capacity(ether_ros_protocol::mailbox::HEADER_LEN + payload.len());
             msg.extend_from_slice(&(payload.len() as u16).to_le_bytes());
             msg.extend_from_slice(&[0, 0, 0, kind & 0x0f]);
             msg.extend_from_slice(&payload);
@@ -1162,7 +1165,7 @@ impl Esc {
         let mut p = Vec::with_capacity(4);
         p.extend_from_slice(&1u16.to_le_bytes());
         p.extend_from_slice(&detail.to_le_bytes());
-        self.queue_mailbox(reg::mbx::TYPE_ERR, p);
+        self.queue_mailbox(ether_ros_protocol::mailbox::TYPE_ERR, p);
     }
 
     /// The slave application's mailbox work: consume a full write mailbox, fill an empty read
@@ -1177,7 +1180,7 @@ impl Esc {
             let end = (start + self.sm[0].len as usize).min(MEM_SIZE);
             let area = &self.mem[start..end];
             let len = area.len();
-            let (msg_len, kind, counter) = if len >= reg::mbx::HEADER_LEN {
+            let (msg_len, kind, counter) = if len >= ether_ros_protocol::mailbox::HEADER_LEN {
                 let l = u16::from_le_bytes([area[0], area[1]]) as usize;
                 (l, area[5] & 0x0f, (area[5] >> 4) & 0x07)
             } else {
@@ -1187,21 +1190,24 @@ impl Esc {
             self.counters.mailbox_received += 1;
             let repeated = counter != 0 && counter == self.mbx_last_rx_counter;
             self.mbx_last_rx_counter = counter;
-            if len < reg::mbx::HEADER_LEN || msg_len + reg::mbx::HEADER_LEN > len {
+            if len < ether_ros_protocol::mailbox::HEADER_LEN
+                || msg_len + ether_ros_protocol::mailbox::HEADER_LEN > len
+            {
                 self.mailbox_error(0x0008); // invalid size
-            } else if msg_len < 2 && kind == reg::mbx::TYPE_COE {
+            } else if msg_len < 2 && kind == ether_ros_protocol::mailbox::TYPE_COE {
                 self.mailbox_error(0x0006); // size too short
             } else if repeated {
                 // A retry of the message already handled: ignore it.
-            } else if kind == reg::mbx::TYPE_COE {
+            } else if kind == ether_ros_protocol::mailbox::TYPE_COE {
                 let mut out = Vec::new();
-                let max_payload = (self.sm[1].len as usize).saturating_sub(reg::mbx::HEADER_LEN);
-                let data_start = start + reg::mbx::HEADER_LEN;
+                let max_payload = (self.sm[1].len as usize)
+                    .saturating_sub(ether_ros_protocol::mailbox::HEADER_LEN);
+                let data_start = start + ether_ros_protocol::mailbox::HEADER_LEN;
                 let request = self.mem[data_start..data_start + msg_len].to_vec();
                 self.coe
                     .handle(&request, &mut self.od, self.al_state, max_payload, &mut out);
                 for p in out {
-                    self.queue_mailbox(reg::mbx::TYPE_COE, p);
+                    self.queue_mailbox(ether_ros_protocol::mailbox::TYPE_COE, p);
                 }
             } else {
                 self.mailbox_error(0x0002); // unsupported protocol
@@ -1252,12 +1258,14 @@ impl Esc {
     // ------------------------------------------------------------------ application side
 
     fn outputs_valid(&self) -> bool {
-        self.al_state == reg::al::OP && !self.watchdog_expired && self.outputs_received
+        self.al_state == ether_ros_protocol::al::OP
+            && !self.watchdog_expired
+            && self.outputs_received
     }
 
     /// SM buffer of outputs → dictionary (only in OP: SAFEOP keeps outputs safe).
     pub fn latch_outputs(&mut self) {
-        if self.al_state != reg::al::OP {
+        if self.al_state != ether_ros_protocol::al::OP {
             return;
         }
         let k = self.out_sm;
@@ -1268,7 +1276,10 @@ impl Esc {
 
     /// Dictionary → SM buffer of inputs (SAFEOP and OP).
     pub fn latch_inputs(&mut self) {
-        if !matches!(self.al_state, reg::al::SAFEOP | reg::al::OP) {
+        if !matches!(
+            self.al_state,
+            ether_ros_protocol::al::SAFEOP | ether_ros_protocol::al::OP
+        ) {
             return;
         }
         let k = self.in_sm;
@@ -1357,9 +1368,9 @@ impl Esc {
     /// for the state machine's own emergencies); they are dropped otherwise.
     fn send_device_emergencies(&mut self) {
         while let Some(e) = self.device.as_mut().and_then(|d| d.take_emergency()) {
-            if self.mailbox.is_some() && self.al_state != reg::al::INIT {
+            if self.mailbox.is_some() && self.al_state != ether_ros_protocol::al::INIT {
                 let msg = CoeServer::emergency(e.error_code, e.error_register, e.data);
-                self.queue_mailbox(reg::mbx::TYPE_COE, msg);
+                self.queue_mailbox(ether_ros_protocol::mailbox::TYPE_COE, msg);
             }
         }
     }
@@ -1383,9 +1394,9 @@ impl Esc {
             self.put16(reg::WATCHDOG_STATUS_PD, 0);
             let c = self.mem[reg::WATCHDOG_COUNTER_PD as usize];
             self.mem[reg::WATCHDOG_COUNTER_PD as usize] = c.saturating_add(1);
-            if self.al_state == reg::al::OP {
-                self.enter_state(reg::al::SAFEOP);
-                self.fail(reg::al_code::SM_WATCHDOG);
+            if self.al_state == ether_ros_protocol::al::OP {
+                self.enter_state(ether_ros_protocol::al::SAFEOP);
+                self.fail(ether_ros_protocol::al::SM_WATCHDOG);
             }
         }
     }
@@ -1443,20 +1454,20 @@ mod tests {
     #[test]
     fn refused_safeop_to_op_sends_emergency_a001() {
         let mut esc = slave_with_mailbox();
-        esc.al_state = reg::al::SAFEOP;
+        esc.al_state = ether_ros_protocol::al::SAFEOP;
         esc.refuse_op = true;
-        esc.request_state(reg::al::OP as u16);
-        assert_eq!(esc.al_code, reg::al_code::SYNCHRONIZATION_ERROR);
+        esc.request_state(ether_ros_protocol::al::OP as u16);
+        assert_eq!(esc.al_code, ether_ros_protocol::al::SYNCHRONIZATION_ERROR);
         assert_eq!(last_emergency_code(&esc), Some(0xA001));
     }
 
     #[test]
     fn refused_preop_to_safeop_sends_emergency_a000() {
         let mut esc = slave_with_mailbox();
-        esc.al_state = reg::al::PREOP;
+        esc.al_state = ether_ros_protocol::al::PREOP;
         // The slave needs SYNC0, which is not running: SAFEOP is refused.
-        esc.request_state(reg::al::SAFEOP as u16);
-        assert_eq!(esc.al_code, reg::al_code::INVALID_DC_SYNC_CONFIG);
+        esc.request_state(ether_ros_protocol::al::SAFEOP as u16);
+        assert_eq!(esc.al_code, ether_ros_protocol::al::INVALID_DC_SYNC_CONFIG);
         assert_eq!(last_emergency_code(&esc), Some(0xA000));
     }
 }

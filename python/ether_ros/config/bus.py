@@ -24,6 +24,7 @@ from pydantic import (
     model_validator,
 )
 
+from ether_ros._native.protocol import format_address
 from ether_ros.config import cia402
 from ether_ros.config import types as dt
 from ether_ros.config.esi import EsiDevice, esi_files, load_esi
@@ -737,12 +738,13 @@ def _resolve_slave(
             t = dt.BY_CODE.get(entry.data_type) or dt.OCTET_STRING
             bits = entry.bit_length
         else:
+            address = format_address(init.index, init.subindex)
             raise err((*path, "index"),
-                      f"object {init.index:#06x}:{init.subindex:02x} is not in the {dev.type_name}"
-                      " dictionary; give its type", f"{init.index:#06x}")  # fmt: skip
+                      f"object {address} is not in the {dev.type_name} dictionary; give its type",
+                      f"{init.index:#06x}")  # fmt: skip
         if entry is not None and entry.access == "ro":
-            raise err((*path, "index"),
-                      f"object {init.index:#06x}:{init.subindex:02x} ({entry.name}) is read-only",
+            address = format_address(init.index, init.subindex)
+            raise err((*path, "index"), f"object {address} ({entry.name}) is read-only",
                       f"{init.index:#06x}")  # fmt: skip
         if dev.objects and entry is None and dev.od_object(init.index) is None:
             raise err((*path, "index"), f"no object {init.index:#06x} in the {dev.type_name}"

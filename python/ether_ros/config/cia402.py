@@ -16,6 +16,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
+from ether_ros._native.protocol import CIA402_MODES
+from ether_ros._native.protocol import cia402 as cia402_facts
 from ether_ros.config.esi import EsiDevice, Pdo, PdoEntry
 from ether_ros.config.process import ProcessLayout, ProcessVariable
 
@@ -23,43 +25,53 @@ if TYPE_CHECKING:
     from ether_ros.config.bus import AxisConfig
 
 PROFILE_NUMBER = 402
-AXIS_STRIDE = 0x800
-MAX_AXES = 8
+# The index distance between axes, the axis limit, the objects and the mode codes are the
+# protocol crate's (``ether_ros._native.protocol.cia402``, ``CIA402_MODES``).
+AXIS_STRIDE = cia402_facts.AXIS_OFFSET
+MAX_AXES = cia402_facts.MAX_AXES
 
-# Standard objects of axis 0: (name, index, direction, bit length, signed).
-CONTROLWORD = 0x6040
-STATUSWORD = 0x6041
+# Standard objects of axis 0 by role: (index, direction, bit length).
+CONTROLWORD = cia402_facts.CONTROLWORD
+STATUSWORD = cia402_facts.STATUSWORD
 OBJECTS: dict[str, tuple[int, str, int]] = {
-    "controlword": (0x6040, "output", 16),
-    "statusword": (0x6041, "input", 16),
-    "mode": (0x6060, "output", 8),
-    "mode_display": (0x6061, "input", 8),
-    "target_position": (0x607A, "output", 32),
-    "target_velocity": (0x60FF, "output", 32),
-    "target_torque": (0x6071, "output", 16),
-    "position": (0x6064, "input", 32),
-    "velocity": (0x606C, "input", 32),
-    "torque": (0x6077, "input", 16),
-    "error_code": (0x603F, "input", 16),
-    "following_error": (0x60F4, "input", 32),
+    "controlword": (cia402_facts.CONTROLWORD, "output", 16),
+    "statusword": (cia402_facts.STATUSWORD, "input", 16),
+    "mode": (cia402_facts.MODES_OF_OPERATION, "output", 8),
+    "mode_display": (cia402_facts.MODES_OF_OPERATION_DISPLAY, "input", 8),
+    "target_position": (cia402_facts.TARGET_POSITION, "output", 32),
+    "target_velocity": (cia402_facts.TARGET_VELOCITY, "output", 32),
+    "target_torque": (cia402_facts.TARGET_TORQUE, "output", 16),
+    "position": (cia402_facts.POSITION_ACTUAL, "input", 32),
+    "velocity": (cia402_facts.VELOCITY_ACTUAL, "input", 32),
+    "torque": (cia402_facts.TORQUE_ACTUAL, "input", 16),
+    "error_code": (cia402_facts.ERROR_CODE, "input", 16),
+    "following_error": (cia402_facts.FOLLOWING_ERROR_ACTUAL, "input", 32),
 }
-SUPPORTED_MODES = 0x6502
+SUPPORTED_MODES = cia402_facts.SUPPORTED_MODES
 
+# The target object each mode needs in the PDOs (None: homing needs none).
+_MODE_TARGETS: dict[str, str | None] = {
+    "pp": "target_position",
+    "pv": "target_velocity",
+    "hm": None,
+    "csp": "target_position",
+    "csv": "target_velocity",
+    "cst": "target_torque",
+}
 # Mode name → (0x6060 value, bit in 0x6502, the target object it needs in the PDOs).
 MODES: dict[str, tuple[int, int, str | None]] = {
-    "pp": (1, 0, "target_position"),
-    "pv": (3, 2, "target_velocity"),
-    "hm": (6, 5, None),
-    "csp": (8, 7, "target_position"),
-    "csv": (9, 8, "target_velocity"),
-    "cst": (10, 9, "target_torque"),
+    name: (code, bit, _MODE_TARGETS[name]) for name, code, bit in CIA402_MODES
 }
 # Objects a profile mode (pp, pv, hm) needs in the dictionary besides its target (SDO set-up
 # the drive must have: profile velocity/acceleration, homing method).
 MODE_DICTIONARY: dict[str, tuple[int, ...]] = {
-    "pp": (0x607A, 0x6081, 0x6083),
-    "pv": (0x60FF, 0x6083),
-    "hm": (0x6098,),
+    "pp": (
+        cia402_facts.TARGET_POSITION,
+        cia402_facts.PROFILE_VELOCITY,
+        cia402_facts.PROFILE_ACCELERATION,
+    ),
+    "pv": (cia402_facts.TARGET_VELOCITY, cia402_facts.PROFILE_ACCELERATION),
+    "hm": (cia402_facts.HOMING_METHOD,),
 }
 # Objects the axis stage cannot work without, whatever the mode.
 REQUIRED = ("controlword", "statusword")

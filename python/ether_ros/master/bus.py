@@ -24,6 +24,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
+from ether_ros._native.protocol import reg
 from ether_ros.config import types as dt
 from ether_ros.config.bus import DEFAULT_GROUP
 from ether_ros.config.cia402 import AxisSpec
@@ -769,19 +770,21 @@ class Bus:
         """A slave that lost its station address (power cycle) gets it again by position —
         only if the slave now at that position has no other address: on a tree, a cable pulled
         on one branch moves the slaves of later branches up to lower positions."""
-        from ether_ros.master.scan import STATION_ADDRESS, count_slaves, station_address
+        from ether_ros.master.scan import count_slaves, station_address
 
         count = count_slaves(self.dg)
         if count <= s.position:
             raise BusError(f"{s}: not on the bus ({count} slaves answer)")
-        data, wkc = self.dg.aprd(s.position, STATION_ADDRESS, 2)
+        data, wkc = self.dg.aprd(s.position, reg.STATION_ADDRESS, 2)
         current = int.from_bytes(data, "little") if wkc == 1 else 0
         if current not in (0, s.station):
             raise BusError(
                 f"{s}: position {s.position} now holds station 0x{current:04X}: the slave is"
                 " not where it was (a branch before it is cut off?)"
             )
-        wkc = self.dg.apwr(s.position, 0x0010, station_address(s.position).to_bytes(2, "little"))
+        wkc = self.dg.apwr(
+            s.position, reg.STATION_ADDRESS, station_address(s.position).to_bytes(2, "little")
+        )
         if wkc != 1:
             raise BusError(f"{s}: re-assigning its station address failed")
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from ether_ros._native.protocol import coe
 from ether_ros.config.bus import BusConfig, SlaveConfig
 from ether_ros.config.esi import EsiDevice, Pdo, PdoEntry
 from ether_ros.config.sii import build_sii
@@ -87,7 +88,7 @@ def device_spec(
     """The ``add_slave`` spec of one slave running ``device``."""
     objects = [(o.index, o.name, o.object_code) for o in device.objects]
     # The identity object carries this slave's serial number (the ESI can't know it).
-    identity = {(0x1018, 4): serial}
+    identity = {(coe.IDENTITY, 4): serial}
     entries = [
         (
             e.index,

@@ -1,10 +1,15 @@
 """Type stub of the Rust extension ``ether_ros._native`` (crates/py). Keep in step with
-``crates/py/src/sim_bindings.rs`` and ``crates/py/src/engine_bindings.rs``."""
+``crates/py/src/sim_bindings.rs``, ``engine_bindings.rs`` and ``command_bindings.rs``; the
+``protocol`` submodule's stub is ``protocol.pyi`` beside this file.
+
+(This folder holds stubs only: at run time ``ether_ros._native`` is the extension module file,
+which Python's import takes before a folder without ``__init__.py``.)"""
 
 from collections.abc import Sequence
 from types import TracebackType
 from typing import Any
 
+from ether_ros._native import protocol as protocol
 from ether_ros.errors import LinkError
 
 __version__: str
