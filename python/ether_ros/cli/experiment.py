@@ -24,8 +24,8 @@ def register(subparsers: Any) -> None:
         "b go back to 0. Afterwards it prints, per leg and joint over the steady trot, the share "
         "of time the PWM command sat at its limit (Figs. 6.8/6.9), the peak PWM and speed "
         "(Figs. 6.10/6.11) and the toe's distance from the desired path (Fig. 6.5). "
-        "Example: ether-ros experiment trot config/laelaps.yaml -i veth0 --record trot.mcap "
-        "&& ether-ros plot trot.mcap",
+        "Example: ether-ros experiment trot config/laelaps.yaml --interface veth0 "
+        "--record trot.mcap && ether-ros plot trot.mcap",
     )
     trot.add_argument("config", help="bus configuration (YAML) with Laelaps II legs")
     trot.add_argument("--interface", help="network interface (overrides bus.interface)")
