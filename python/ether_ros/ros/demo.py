@@ -39,7 +39,7 @@ from ether_ros.errors import EtherRosError
 from ether_ros.ros.client import EtherRosClient
 from ether_ros.ros.layout import BusSpec, VariableSpec
 from ether_ros.ros.rig import RosRig
-from ether_ros.tools.recording import BusInfo, SlaveInfo, VariableInfo
+from ether_ros.tools.recording import BusInfo, Recording, SlaveInfo, VariableInfo
 
 REPO = Path(__file__).resolve().parents[3]
 DEFAULT_CONFIG = REPO / "config" / "laelaps.yaml"
@@ -268,7 +268,30 @@ def save_run(recorder: TrotRecorder, output: Path) -> list[Path]:
     rec = read_recording(path)
     written = [path, *save_figures(build_figures(rec), output, ("png",))]
     print(format_trot_report(trot_report(rec)))
+    sparse = sparse_share(rec)
+    if sparse > 0.5:
+        print(
+            f"note: {100 * sparse:.0f} % of the node's decoded samples never reached this client "
+            "(the node drops what it cannot publish in time on a loaded host: 'samples dropped "
+            "by ROS' above); the figures and the report have gaps accordingly. `ether-ros "
+            "experiment trot --record` records every sample on the master's side."
+        )
     return written
+
+
+def sparse_share(rec: Recording) -> float:
+    """The share of decoded samples missing from the recording: the node publishes every
+    ``ros.decoded_decimation`` cycles, the smallest step between two received cycles."""
+    import numpy as np
+
+    steps = [np.diff(s.cycle.astype(np.int64)) for s in rec.inputs.values() if s.cycle.size > 2]
+    if not steps:
+        return 0.0
+    every = np.concatenate(steps)
+    decimation = int(every[every > 0].min()) if np.any(every > 0) else 1
+    expected = sum(int(s.cycle[-1] - s.cycle[0]) // decimation + 1 for s in rec.inputs.values())
+    received = sum(s.cycle.size for s in rec.inputs.values())
+    return max(0.0, 1.0 - received / expected) if expected else 0.0
 
 
 def run_demo(
