@@ -15,7 +15,6 @@ HEADER = """\
 # data per cycle: four cyclic frames at 1 kHz, DC with the first leg as reference clock.
 bus:
   name: line128
-  interface: eth0                # overridden by --interface
   cycle_us: 1000
   cycle_order: send_at_wake
   watchdog_ms: 100

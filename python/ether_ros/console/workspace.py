@@ -79,6 +79,11 @@ def invalid_reason(e: Ellipse) -> str | None:
         return f"trajectory frequency {e.freq_hz:g} Hz outside 0..{MAX_FREQ_HZ:g} Hz"
     if not 0.0 <= e.flatness <= 1.0:
         return f"flatness {e.flatness:g} outside 0..1"
+    if e.y_c <= 0:  # a fresh leg: the centre is still 0, at the hip; say what to set first
+        return (
+            f"the ellipse's centre is {e.y_c * 1e3:g} mm below the hip (y_cntr_traj1000 is "
+            f"{e.y_c * 1e3:g}): set the centre first, e.g. y_cntr_traj1000=599 (thesis Table 6.1)"
+        )
     max_tan = math.tan(math.radians(MAX_TOE_ANGLE_DEG))
     for i in range(CHECK_SAMPLES):
         x, y = e.point_at(2 * math.pi * i / CHECK_SAMPLES)
