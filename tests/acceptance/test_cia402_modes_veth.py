@@ -109,11 +109,13 @@ def _move(axis: Axis, mode: str) -> None:
     axis.set_mode(mode, timeout=3)
     here = axis.position
     if mode == "csp":
-        axis.follow([(0.0, here, 0.0), (0.4, here + 0.1, SPEED), (3.0, here + 1.4, SPEED)])
+        # Long enough (to 1.8 rad, inside every joint's limits) that a stalled test process
+        # still finds it moving.
+        axis.follow([(0.0, here, 0.0), (0.4, here + 0.1, SPEED), (5.0, here + 2.4, SPEED)])
     elif mode in ("csv", "pv"):
         axis.command(velocity=SPEED)
     elif mode == "pp":
-        axis.command(position=here + 1.0)
+        axis.command(position=here + 2.4)
     else:  # cst: a torque that accelerates the joint against its friction
         axis.command(torque=1.5)
     wait_for(f"{axis.name} moving in {mode}", lambda: axis.velocity > 0.8 * SPEED, timeout=10)
@@ -133,40 +135,47 @@ def test_a_mode_change_at_speed_is_a_quiet_stop(
     assert first in axis.spec.modes and second in axis.spec.modes
     entry = _entry(bus, axis)
     m = entry["map"]
-    _ready(axis, START)
-    faults = axis.status()["faults"]
-    bus.samples()  # what follows is the motion and the switch
-    _move(axis, first)
-    axis.set_mode(second, timeout=3)
-    # No command in the new mode: the axis comes to rest by itself.
-    wait_for(
-        f"{axis.name} at rest in {second}",
-        lambda: abs(axis.velocity) < STANDSTILL and axis.status()["idle"],
-        timeout=10,
-    )
-    time.sleep(0.1)
-    s = bus.samples()
-    st = axis.status()
-    assert st["state"] == "operation_enabled" and st["faults"] == faults, (
-        f"{first} → {second}: {st['state']}, last fault 0x{st['last_fault_code']:04X}"
-    )
-    assert not st["following_error_exceeded"], st
-    position = _field(s.images, m["position"], "<i4") * c.position_scale + c.position_offset
-    velocity = _field(s.images, m["velocity"], "<i4") * c.velocity_scale
+    # The premise is a switch while the axis moves at speed. A host that stalls the test
+    # process for seconds between "moving" and set_mode (a loaded CI machine) lets the motion
+    # end first; such a run proves nothing either way, so it is tried again from the start.
+    for attempt in range(3):
+        _ready(axis, START)
+        faults = axis.status()["faults"]
+        bus.samples()  # what follows is the motion and the switch
+        _move(axis, first)
+        axis.set_mode(second, timeout=3)
+        # No command in the new mode: the axis comes to rest by itself.
+        wait_for(
+            f"{axis.name} at rest in {second}",
+            lambda: abs(axis.velocity) < STANDSTILL and axis.status()["idle"],
+            timeout=10,
+        )
+        time.sleep(0.1)
+        s = bus.samples()
+        st = axis.status()
+        assert st["state"] == "operation_enabled" and st["faults"] == faults, (
+            f"{first} → {second}: {st['state']}, last fault 0x{st['last_fault_code']:04X}"
+        )
+        assert not st["following_error_exceeded"], st
+        position = _field(s.images, m["position"], "<i4") * c.position_scale + c.position_offset
+        velocity = _field(s.images, m["velocity"], "<i4") * c.velocity_scale
 
-    def speed(k: int) -> float:
-        # The drive's velocity actual jitters from sample to sample (a frame that misses a
-        # SYNC0 on this loaded VM repeats a target): the median of five cycles around k.
-        return float(np.median(velocity[max(k - 3, 0) : k + 2]))
+        def speed(k: int) -> float:
+            # The drive's velocity actual jitters from sample to sample (a frame that misses a
+            # SYNC0 on this loaded VM repeats a target): the median of five cycles around k.
+            return float(np.median(velocity[max(k - 3, 0) : k + 2]))
 
-    def first_cycle(byte: str, mode: str, after: int = 0) -> int:
-        values = _field(s.images, m[byte], "i1")
-        return after + int(np.flatnonzero(values[after:] == MODES[mode][0])[0])
+        def first_cycle(byte: str, mode: str, after: int = 0) -> int:
+            values = _field(s.images, m[byte], "i1")
+            return after + int(np.flatnonzero(values[after:] == MODES[mode][0])[0])
 
-    moving = first_cycle("mode_display", first)
-    # The cycle the engine commanded the new mode: the axis was moving.
-    asked = first_cycle("mode", second, moving)
-    assert speed(asked) > 0.5 * SPEED, f"moving at the switch: {speed(asked)}"
+        moving = first_cycle("mode_display", first)
+        # The cycle the engine commanded the new mode: the axis was moving.
+        asked = first_cycle("mode", second, moving)
+        if speed(asked) > 0.5 * SPEED:
+            break
+    else:
+        pytest.fail(f"three tries, never moving at the switch (last {speed(asked):.3f} rad/s)")
     # The cycle the drive showed it: the state the new mode starts from.
     k = first_cycle("mode_display", second, asked)
     p0, v0 = float(position[k]), max(speed(k), 0.0)
