@@ -20,6 +20,7 @@ Timing is never asserted: waits have generous deadlines.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 import time
@@ -92,6 +93,19 @@ def _entry(bus: Bus, axis: Axis) -> dict[str, Any]:
     return next(e for e in bus.plan["axes"] if e["name"] == axis.name)  # type: ignore[index]
 
 
+def _speed(velocity: Any, k: int) -> float:
+    """The axis's speed at cycle ``k``. The drive's velocity actual jitters from sample to
+    sample (a frame that misses a SYNC0 on this loaded VM repeats a target): the median of
+    five cycles around k."""
+    return float(np.median(velocity[max(k - 3, 0) : k + 2]))
+
+
+def _first_cycle(images: Any, m: dict[str, int], byte: str, mode: str, after: int = 0) -> int:
+    """The first cycle from ``after`` on whose ``byte`` (mode or mode display) shows ``mode``."""
+    values = _field(images, m[byte], "i1")
+    return after + int(np.flatnonzero(values[after:] == MODES[mode][0])[0])
+
+
 def _ready(axis: Axis, at: float) -> None:
     """Enabled in csp, at rest at ``at``."""
     if axis.state != "operation_enabled":
@@ -138,7 +152,7 @@ def test_a_mode_change_at_speed_is_a_quiet_stop(
     # The premise is a switch while the axis moves at speed. A host that stalls the test
     # process for seconds between "moving" and set_mode (a loaded CI machine) lets the motion
     # end first; such a run proves nothing either way, so it is tried again from the start.
-    for attempt in range(3):
+    for _attempt in range(3):
         _ready(axis, START)
         faults = axis.status()["faults"]
         bus.samples()  # what follows is the motion and the switch
@@ -160,15 +174,8 @@ def test_a_mode_change_at_speed_is_a_quiet_stop(
         position = _field(s.images, m["position"], "<i4") * c.position_scale + c.position_offset
         velocity = _field(s.images, m["velocity"], "<i4") * c.velocity_scale
 
-        def speed(k: int) -> float:
-            # The drive's velocity actual jitters from sample to sample (a frame that misses a
-            # SYNC0 on this loaded VM repeats a target): the median of five cycles around k.
-            return float(np.median(velocity[max(k - 3, 0) : k + 2]))
-
-        def first_cycle(byte: str, mode: str, after: int = 0) -> int:
-            values = _field(s.images, m[byte], "i1")
-            return after + int(np.flatnonzero(values[after:] == MODES[mode][0])[0])
-
+        speed = functools.partial(_speed, velocity)
+        first_cycle = functools.partial(_first_cycle, s.images, m)
         moving = first_cycle("mode_display", first)
         # The cycle the engine commanded the new mode: the axis was moving.
         asked = first_cycle("mode", second, moving)
