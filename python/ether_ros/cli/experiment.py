@@ -110,11 +110,11 @@ def run_trot(args: argparse.Namespace) -> int:
     from ether_ros.tools.trot_metrics import format_trot_report
 
     config = load_config(args.config, args.interface, args.link)
-    interface = resolve_interface(args, config.bus.interface, "experiment trot", args.config)
     if args.watchdog_ms is not None:
         if not 0 <= args.watchdog_ms <= 60_000:
             raise ExperimentError(f"--watchdog-ms must be 0..60000, got {args.watchdog_ms}")
         config.bus.watchdog_ms = args.watchdog_ms
+    interface = resolve_interface(args, config.bus.interface, "experiment trot", args.config)
     with tempfile.TemporaryDirectory(prefix="ether-ros-trot-") as scratch:
         # The report is read from the recording: without --record, a temporary one.
         record = Path(args.record) if args.record else Path(scratch) / "trot.mcap"
