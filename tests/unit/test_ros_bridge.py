@@ -99,12 +99,22 @@ def test_resolve_write_by_name_position_all_and_text() -> None:
         (("front_left_leg", -1, False, "Kp100_knee", float("nan"), ""), "not a finite number"),
         (("front_left_leg", -1, False, "Kp100_knee", 0.0, "1e3x"), "not an integer"),
         (("front_left_leg", -1, False, "State_Machine", 0.5, ""), "not an integer"),
+        # one slave or all of them, never both (issue 19: both wrote every slave)
+        (("front_left_leg", -1, True, "Kp100_knee", 1.0, ""), "all_slaves is true and slave"),
+        (("", 2, True, "Kp100_knee", 1.0, ""), "all_slaves is true and position 2"),
+        # names and text: control characters and overlong strings, before any lookup
+        (("front_left_leg", -1, False, "Kp100_knee\x1b[2J", 1.0, ""), "variable: character 10"),
+        (("front\nleft", -1, False, "Kp100_knee", 1.0, ""), "slave: character 5"),
+        (("front_left_leg", -1, False, "x" * 300, 1.0, ""), "variable: 300 characters"),
+        (("front_left_leg", -1, False, "Kp100_knee", 0.0, "1\x00"), "text: character 1"),
     ],
 )
 def test_resolve_write_refuses_with_the_reason(args: tuple, reason: str) -> None:  # type: ignore[type-arg]
     with pytest.raises(bridge.WriteRejected) as err:
         bridge.resolve_write(spec_of("laelaps.yaml"), *args)
     assert reason in str(err.value)
+    if "all_slaves is true" in reason:
+        assert err.value.field == "all_slaves"
 
 
 def test_flat_stats_and_lookup() -> None:
