@@ -238,16 +238,25 @@ def load_config(path: Path) -> str:
 def load_esi_file(path: Path) -> str:
     """An ESI file as ``ether-ros sim --esi`` reads it: each device type (the first four)
     configured as a bus of one slave (process layout, SII image, read back) and built into a
-    virtual slave."""
+    virtual slave. Returns ``DIGEST WARNINGS``: a digest of what was parsed and how many
+    warnings the parser gave, so a caller can tell a value the parser ignored or disabled
+    (same digest, or a warning) from one it took."""
+    import hashlib
+
+    from ether_ros.config import esi as esi_module
     from ether_ros.config import load_esi, parse_sii
     from ether_ros.config.from_esi import bus_config_for_esi
     from ether_ros.sim.network import build_network
     from ether_ros.sim.spec import network_specs
 
-    types = sorted({d.type_name for d in load_esi(path)})
+    devices = load_esi(path)
+    load_file = getattr(esi_module, "load_esi_file", None)
+    warnings = len(load_file(path).warnings) if load_file is not None else 0
+    types = sorted({d.type_name for d in devices})
     for device in types[:4]:
         cfg = bus_config_for_esi(path, device)
         for spec in network_specs(cfg):
             parse_sii(bytes(spec["sii"]))
         build_network(cfg)
-    return f"{len(types)} device type(s)"
+    digest = hashlib.sha256(repr(devices).replace(str(path), "ESI").encode()).hexdigest()[:16]
+    return f"{digest} {warnings}"
