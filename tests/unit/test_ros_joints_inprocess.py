@@ -302,3 +302,22 @@ def test_a_slow_enable_holds_up_no_other_callback(arm: Any, monkeypatch: Any) ->
         release.set()
         caller.join(10)
     assert answer and answer[0][0], answer
+
+
+def test_a_trajectory_for_a_disabled_axis_is_refused_with_the_reason(arm: Any) -> None:
+    """Issue 19: a trajectory for an axis out of Operation Enabled was answered "accepted" and
+    never ran; now it is refused naming the state and what to do."""
+    node, client, _net = arm
+    ok, message, _ = client.axis_command("disable", ["wrist_3"])
+    assert ok, message
+    try:
+        seq = command_seq(node)
+        before = len(client.joint_results)
+        client.publish_trajectory(["wrist_3", "elbow"], [(0.5, [0.1, 0.1])])
+        why = refusal(client, before)
+        assert "axis wrist_3 is switch_on_disabled, not operation_enabled" in why, why
+        assert "enable the axis first" in why
+        assert command_seq(node) == seq
+    finally:
+        ok, message, _ = client.axis_command("enable", ["wrist_3"])
+        assert ok, message
