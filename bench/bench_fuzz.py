@@ -24,9 +24,8 @@ import sys
 import time
 from pathlib import Path
 
-from report import Report
-
 from ether_ros.testing import fuzzing, mutants
+from report import Report
 
 REPO = Path(__file__).resolve().parent.parent
 CARGO_TESTS = [
