@@ -53,12 +53,12 @@ def refused(path: Path) -> ConfigError:
 
 
 def test_the_config_mutant_corpus_gives_no_traceback_no_hang_and_names_each_field() -> None:
-    corpus = mutants.config_mutants(seed=1)
+    corpus = mutants.config_mutants(seed=1, leaves_per_file=8)
     assert len(corpus) > 900, "about the size of the issue's corpus (906)"
     outcomes = fuzzing.run_mutants(corpus, "ether_ros.testing.fuzzing:load_config")
     verdict = fuzzing.verdicts(outcomes)
     assert verdict.clean, verdict.summary()
-    assert verdict.counts["nonsense"] > 400
+    assert verdict.counts["nonsense"] > 300
     assert verdict.counts.get("accepted", 0) > 0, "plausible mutants are still accepted"
 
 
