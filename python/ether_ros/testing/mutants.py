@@ -268,45 +268,40 @@ def _alias_bomb(levels: int = 9) -> bytes:
 
 # ---------------------------------------------------------------------------------------- ESI
 
-# Attributes and elements of an ESI that hold numbers, and values no such number may take.
-_ESI_NUMBER_TAGS = (
-    "Index",
-    "SubIndex",
-    "SubIdx",
-    "BitLen",
-    "BitSize",
-    "BitOffs",
-    "DefaultSize",
-    "StartAddress",
-    "ControlByte",
-    "Enable",
-    "VendorId",
-    "ProductCode",
-    "RevisionNo",
-    "Sm",
-    "Elements",
-    "LBound",
-    "ByteSize",
-    "CycleTimeSync0",
-    "ShiftTimeSync0",
-    "AssignActivate",
-    "ProfileNo",
-    "Id",
-)
-_ESI_BAD_NUMBERS = (
-    "-1",
-    "#x-1",
-    "twelve",
-    "",
-    "#x",
-    "1.5",
-    "#xFFFFFFFFFFFFFFFFFFFF",
-    "9" * 5000,
-    "0x10",
-    "#x10000",
-    "65536",
-    "4294967296",
-)
+# Elements and attributes of an ESI that hold unsigned numbers, with their width in bits
+# (ETG.2000: indices 16, subindices 8, identity 32 ...): a value beyond the width, negative,
+# not a number, or a number in no syntax the ESI has is one no such field can take. "0x10"
+# is not in the list: vendors write C hex and the parser reads it as such.
+_ESI_NUMBER_BITS = {
+    "Index": 16,
+    "SubIndex": 8,
+    "SubIdx": 8,
+    "BitLen": 16,
+    "BitSize": 16,
+    "BitOffs": 16,
+    "DefaultSize": 16,
+    "StartAddress": 16,
+    "ControlByte": 8,
+    "Enable": 8,
+    "VendorId": 32,
+    "ProductCode": 32,
+    "RevisionNo": 32,
+    "Sm": 8,
+    "Elements": 16,
+    "ByteSize": 32,
+    "CycleTimeSync0": 32,
+    "AssignActivate": 16,
+    "ProfileNo": 32,
+    "Id": 32,
+}
+_ESI_TAGS = tuple(_ESI_NUMBER_BITS)
+_ESI_NOT_A_NUMBER = ("-1", "#x-1", "twelve", "", "#x", "1.5", "9" * 5000, "#x" + "F" * 20)
+
+
+def _esi_bad_numbers(tag: str) -> list[str]:
+    """Values the number field ``tag`` can never take."""
+    width = _ESI_NUMBER_BITS[tag]
+    return [*_ESI_NOT_A_NUMBER, str(1 << width), f"#x{1 << width:X}"]
 
 
 def esi_files(include_vendor: bool = True, max_bytes: int | None = None) -> list[Path]:
@@ -335,7 +330,7 @@ def esi_mutants(seed: int = 1, per_file: int = 24, files: list[Path] | None = No
         name = file.name
         number_spans = _esi_number_spans(data)
         for start, end, tag in rng.sample(number_spans, min(per_file, len(number_spans))):
-            bad = rng.choice(_ESI_BAD_NUMBERS).encode()
+            bad = rng.choice(_esi_bad_numbers(tag)).encode()
             out.append(
                 Mutant(
                     f"{name}:{tag}@{start}={bad[:12]!r}",
@@ -349,8 +344,8 @@ def esi_mutants(seed: int = 1, per_file: int = 24, files: list[Path] | None = No
 
 
 _NUMBER_RE = re.compile(
-    rb"<(" + b"|".join(t.encode() for t in _ESI_NUMBER_TAGS) + rb")>([^<]{1,40})</\1>"
-    rb"|\b(" + b"|".join(t.encode() for t in _ESI_NUMBER_TAGS) + rb')="([^"]{0,40})"'
+    rb"<(" + b"|".join(t.encode() for t in _ESI_TAGS) + rb")>([^<]{1,40})</\1>"
+    rb"|\b(" + b"|".join(t.encode() for t in _ESI_TAGS) + rb')="([^"]{0,40})"'
 )
 
 
