@@ -161,7 +161,7 @@ class _BoundedLoader(yaml.SafeLoader):
                 self._path.pop()
 
 
-def load_yaml(path: Path, what: str = "bus configuration") -> tuple[Any, SourceMap]:
+def load_yaml(path: Path, what: str = "bus configuration file") -> tuple[Any, SourceMap]:
     """Parse ``path``; return plain Python data and the source map of its values. ``what``
     names the kind of file in errors."""
     smap = SourceMap(path)
