@@ -591,6 +591,7 @@ def _schema_error(exc: ValidationError, data: Any, smap: SourceMap) -> ConfigErr
             file=err.file,
             line=err.line,
             field=err.field,
+            value=err.value,
         )
     return err
 

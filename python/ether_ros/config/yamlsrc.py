@@ -94,7 +94,13 @@ class SourceMap:
         where = f"{self.file}:{line}" if line else str(self.file)
         field = format_path(path)
         tail = f" (got {shown(value)})" if show_value else ""
-        return ConfigError(f"{where}: {field}: {msg}{tail}", file=self.file, line=line, field=field)
+        return ConfigError(
+            f"{where}: {field}: {msg}{tail}",
+            file=self.file,
+            line=line or None,
+            field=field,
+            value=value,
+        )
 
 
 def text_problem(text: str) -> str | None:
@@ -194,7 +200,7 @@ def load_yaml(path: Path, what: str = "bus configuration file") -> tuple[Any, So
         at = mark.line + 1 if mark is not None else None
         where = f"{path}:{at}" if at is not None else str(path)
         raise ConfigError(
-            f"{where}: invalid YAML: {exc.problem or exc.context}", file=path, line=at
+            f"{where}: invalid YAML: {exc.problem or exc.context}", file=path, line=at, field=""
         ) from None
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: invalid YAML: {exc}", file=path) from None
@@ -271,6 +277,7 @@ class _Builder:
                     file=self.smap.file,
                     line=line,
                     field=field,
+                    value=key,
                 )
             sub = (*path, key if isinstance(key, str) else str(key))
             self.smap.lines[sub] = value_node.start_mark.line + 1
