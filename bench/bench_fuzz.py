@@ -150,7 +150,8 @@ def run(report: Report) -> None:
         "### Property fuzzing\n\n"
         f"proptest with `FUZZ_CASES={cases} FUZZ_SEED=7` (release build), hypothesis with "
         f"`FUZZ_EXAMPLES={examples}` (derandomized). `make test` runs the same properties with "
-        "256 cases / 150–200 examples and seed 1 in seconds."
+        "128–256 cases / 50–200 examples and seed 1 in seconds, and the config corpus of the two "
+        "robot configurations (6 keys each)."
     )
     report.table(["harness", "what", "properties", "cases each", "failed", "s"], prop_rows)
     report.value("properties", prop_rows)
