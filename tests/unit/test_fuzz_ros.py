@@ -61,6 +61,7 @@ def test_any_write_request_is_resolved_or_refused_with_a_message_error(
         writes = bridge.resolve_write(SPEC, slave, position, all_slaves, variable, value, text)
     except MessageError as exc:
         assert str(exc)
+        assert exc.field in ("slave", "position", "all_slaves", "variable", "value", "text"), exc
         return
     assert writes
     assert not (all_slaves and (slave or position >= 0)), "one slave or all, never both"
@@ -140,7 +141,8 @@ def test_any_joint_command_is_resolved_or_refused(
 ) -> None:
     try:
         commands = bridge.resolve_joint_command(AXES, names, position, velocity, effort)
-    except MessageError:
+    except MessageError as exc:
+        assert exc.field in ("name", "position", "velocity", "effort"), exc
         return
     assert [a.name for a, _k, _v in commands] == names
     assert all(-2.0 <= v <= 2.0 for _a, _k, v in commands)

@@ -199,7 +199,7 @@ def resolve_write(
     if all_slaves:
         targets = [s for s in spec.slaves if s.has_output(variable)]
         if not targets:
-            raise WriteRejected(f"no slave has an output variable '{variable}'")
+            raise WriteRejected(f"no slave has an output variable '{variable}'", field="variable")
     else:
         try:
             if slave:
@@ -207,9 +207,9 @@ def resolve_write(
             elif position >= 0:
                 targets = [spec.slave(position)]
             else:
-                raise WriteRejected("no slave given (name, position or all_slaves)")
+                raise WriteRejected("no slave given (name, position or all_slaves)", field="slave")
         except LayoutError as exc:
-            raise WriteRejected(str(exc)) from None
+            raise WriteRejected(str(exc), field="slave" if slave else "position") from None
     out = []
     for s in targets:
         try:
@@ -217,12 +217,14 @@ def resolve_write(
         except LayoutError:
             kind = "an input" if _has_input(s, variable) else "not a variable"
             raise WriteRejected(
-                f"slave '{s.name}': '{variable}' is {kind} (outputs only)"
+                f"slave '{s.name}': '{variable}' is {kind} (outputs only)", field="variable"
             ) from None
         try:
             checked = parse_text(text, var) if text else check_value(value, var)
         except InvalidValue as exc:
-            raise WriteRejected(f"slave '{s.name}': {exc}") from None
+            raise WriteRejected(
+                f"slave '{s.name}': {exc}", field="text" if text else "value"
+            ) from None
         out.append((s, var, checked))
     return out
 
@@ -383,20 +385,23 @@ def resolve_joint_command(
         if len(values) not in (0, len(names)):
             raise AxisRejected(
                 f"{label} has {len(values)} value(s) for {len(names)} joint name(s) "
-                "(give one per name, or none)"
+                "(give one per name, or none)",
+                field=label,
             )
     out = []
     seen: set[str] = set()
     for i, name in enumerate(names):
         if name in seen:
-            raise AxisRejected(f"joint {name!r} is named twice")
+            raise AxisRejected(f"joint {name!r} is named twice", field="name")
         seen.add(name)
         axis = axes.get(name)
         if axis is None:
-            raise AxisRejected(f"unknown joint {name!r} (joints: {', '.join(axes)})")
+            raise AxisRejected(f"unknown joint {name!r} (joints: {', '.join(axes)})", field="name")
         kind = setpoint_kind(axis)
         if kind is None:
-            raise AxisRejected(f"joint {name!r} is in mode {axis.mode}: it takes no setpoint")
+            raise AxisRejected(
+                f"joint {name!r} is in mode {axis.mode}: it takes no setpoint", field="name"
+            )
         values = arrays[JOINT_ARRAY[kind]]
         value = float(values[i]) if values else math.nan
         if not math.isfinite(value):
@@ -404,17 +409,19 @@ def resolve_joint_command(
             if others and not values:
                 raise AxisRejected(
                     f"joint {name!r} is in mode {axis.mode}: it takes a {JOINT_ARRAY[kind]}, "
-                    f"got {' and '.join(others)}"
+                    f"got {' and '.join(others)}",
+                    field=JOINT_ARRAY[kind],
                 )
             raise AxisRejected(
                 f"joint {name!r}: {JOINT_ARRAY[kind]} {value!r} is not a finite number"
                 if values
-                else f"joint {name!r}: no {JOINT_ARRAY[kind]} given (mode {axis.mode})"
+                else f"joint {name!r}: no {JOINT_ARRAY[kind]} given (mode {axis.mode})",
+                field=JOINT_ARRAY[kind],
             )
         try:
             axis.check_command(kind, value)
         except EtherRosError as exc:
-            raise AxisRejected(str(exc)) from None
+            raise AxisRejected(str(exc), field=JOINT_ARRAY[kind]) from None
         out.append((axis, kind, value))
     return out
 
