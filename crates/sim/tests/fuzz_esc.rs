@@ -240,3 +240,24 @@ fn a_logical_write_onto_the_fmmu_registers_takes_effect_after_the_datagram() {
     let (d, wkc) = fprd(&mut net, st, 0x0600, 32);
     assert_eq!((d, wkc), (vec![0; 32], 1));
 }
+
+#[test]
+fn writes_to_read_only_registers_are_ignored() {
+    // ET1100 datasheet, register overview: the ESC information (0x0000..0x000B), the DL status
+    // (0x0110) and the AL status and status code (0x0130..0x0135) are read-only for EtherCAT;
+    // a write to them counts (the ESC answers the datagram) but changes nothing.
+    let mut net = net_with(1);
+    assign_addresses(&mut net);
+    let st = station(0);
+    for (ado, len) in [(0x0000u16, 12usize), (0x0110, 2), (0x0130, 6)] {
+        let (before, _) = fprd(&mut net, st, ado, len);
+        fpwr(&mut net, st, ado, &vec![0xA5; len]);
+        let (after, wkc) = fprd(&mut net, st, ado, len);
+        assert_eq!(
+            (after, wkc),
+            (before, 1),
+            "register 0x{ado:04X} was written"
+        );
+    }
+    assert_eq!(al_status(&mut net, st).0 & 0x0f, 1, "still INIT");
+}
