@@ -43,7 +43,7 @@ def joint_positions(client: EtherRosClient) -> dict[str, float]:
     return dict(zip(msg.name, msg.position, strict=True))
 
 
-def wait_position(client: EtherRosClient, joint: str, target: float, timeout: float = 5.0) -> None:
+def wait_position(client: EtherRosClient, joint: str, target: float, timeout: float = 20.0) -> None:
     deadline = time.monotonic() + timeout
     while abs(joint_positions(client)[joint] - target) > 0.01:
         if time.monotonic() > deadline:
