@@ -196,6 +196,11 @@ pub struct AxisPlan {
     pub interpolation_max_ns: i64,
 }
 
+/// `AxisCommand::setpoint_kind` of a trajectory (its points are in the axis's slot).
+pub const TRAJECTORY_COMMAND: u8 = 0;
+/// `AxisCommand::setpoint_kind` of a quiet stop (`Engine::axis_stop`).
+pub const STOP_COMMAND: u8 = 4;
+
 /// Points per axis trajectory unless the plan says otherwise.
 pub const DEFAULT_TRAJECTORY_CAPACITY: usize = 1024;
 /// Largest trajectory capacity accepted.
@@ -429,7 +434,8 @@ impl AxisController {
     /// The trajectory command waiting to start (its seq), if any.
     fn pending_trajectory(&self) -> Option<u64> {
         let c = &self.command;
-        (c.setpoint_kind == 0 && c.seq != self.seq_seen && c.seq != 0).then_some(c.seq)
+        (c.setpoint_kind == TRAJECTORY_COMMAND && c.seq != self.seq_seen && c.seq != 0)
+            .then_some(c.seq)
     }
 
     /// Load the points of a pending trajectory from the axis's slot (a write in progress or
@@ -679,6 +685,35 @@ impl AxisController {
         }
     }
 
+    /// A quiet stop asked for: from the state the axis is commanded to have, decelerate to rest
+    /// at `deceleration` (csp, csv, pv: a ramp; pp: a set-point where that ramp ends; cst: zero
+    /// torque), then hold. Ends a trajectory or a setpoint stream.
+    fn quiet_stop(&mut self) {
+        let ramp = StopRamp {
+            position: self.target_position,
+            velocity: self.desired_velocity,
+        };
+        self.trajectory_running = false;
+        self.trajectory_done = false;
+        self.setpoint_value = 0.0;
+        self.interpolator.reset(self.target_position);
+        self.ramp = None;
+        match self.command.mode {
+            Mode::CyclicPosition | Mode::CyclicVelocity | Mode::ProfileVelocity => {
+                self.ramp = (ramp.velocity != 0.0).then_some(ramp);
+            }
+            Mode::ProfilePosition => {
+                let rest = ramp.rest_position(self.plan.deceleration).clamp(
+                    self.plan.limits.position_min,
+                    self.plan.limits.position_max,
+                );
+                self.interpolator.reset(rest);
+                self.pp_new_setpoint = true;
+            }
+            Mode::CyclicTorque | Mode::Homing => {}
+        }
+    }
+
     /// One cycle: read the drive from `io` (inputs last received), write controlword, mode and
     /// targets into `io`'s outputs. `halt`: panic or watchdog, the stop is forced. `start_ok`:
     /// a pending trajectory may start (its points, and those of every axis that shares it,
@@ -793,11 +828,18 @@ impl AxisController {
                 match SetpointKind::from_code(cmd.setpoint_kind) {
                     // A trajectory starts once its points (and those of every axis it was
                     // given together with) are loaded.
-                    None if start_ok && self.staged_seq == Some(cmd.seq) => {
+                    None if cmd.setpoint_kind == TRAJECTORY_COMMAND
+                        && start_ok
+                        && self.staged_seq == Some(cmd.seq) =>
+                    {
                         self.seq_seen = cmd.seq;
                         if matches!(cmd.mode, Mode::CyclicPosition | Mode::CyclicVelocity) {
                             self.start_trajectory(now, cycle_ns, &fb);
                         }
+                    }
+                    None if cmd.setpoint_kind == STOP_COMMAND => {
+                        self.seq_seen = cmd.seq;
+                        self.quiet_stop();
                     }
                     None => {}
                     Some(kind) => {
@@ -850,8 +892,13 @@ impl AxisController {
                         st.position_clamps += 1;
                         limit_active = true;
                     }
+                    // Clamped, the target moves as the clamp lets it: that is its velocity.
+                    self.desired_velocity = if clamped {
+                        (p - self.target_position) / dt
+                    } else {
+                        velocity
+                    };
                     self.target_position = p;
-                    self.desired_velocity = if clamped { 0.0 } else { velocity };
                     idle = !self.trajectory_running
                         && self.ramp.is_none()
                         && !self.pp_new_setpoint
@@ -1803,6 +1850,43 @@ mod tests {
         b.run(300);
         assert_eq!(b.state, DriveState::OperationEnabled);
         assert_eq!(b.position_raw, here, "the trajectory did not resume");
+    }
+
+    #[test]
+    fn a_quiet_stop_decelerates_from_the_commanded_motion() {
+        // csv at 1 rad/s, then a stop: the velocity target ramps to 0 at 10 rad/s² (0.1 s).
+        let mut p = plan();
+        p.deceleration = 10.0;
+        let mut b = enabled(p, 0);
+        set_mode(&mut b, Mode::CyclicVelocity);
+        command(&mut b, SetpointKind::Velocity, 1.0);
+        b.run(50);
+        b.command.seq += 1;
+        b.command.setpoint_kind = STOP_COMMAND;
+        b.send();
+        b.cycle(false);
+        let first = read_i32(&b.io, TVEL);
+        assert!((985..1000).contains(&first), "{first}");
+        b.run(120);
+        assert_eq!(read_i32(&b.io, TVEL), 0);
+        assert_ne!(b.status().flags & status_flags::IDLE, 0);
+        // csp on a trajectory at speed: the targets decelerate, no step back, then hold.
+        set_mode(&mut b, Mode::CyclicPosition);
+        b.run(5);
+        command(&mut b, SetpointKind::Position, 3.0);
+        b.run(200);
+        let n = b.targets.len();
+        b.command.seq += 1;
+        b.command.setpoint_kind = STOP_COMMAND;
+        b.send();
+        b.run(2000);
+        // It moved at the velocity limit (5 raw per cycle), then 0.5 s of ramp at 10 rad/s².
+        let steps: Vec<i32> = b.targets[n..].windows(2).map(|w| w[1] - w[0]).collect();
+        assert_eq!(steps[0], 5, "{steps:?}");
+        assert!(steps.iter().all(|&d| d >= 0), "{steps:?}");
+        assert!(steps.windows(2).all(|w| w[1] <= w[0] + 1), "decelerating: {steps:?}");
+        let travelled = b.targets[b.targets.len() - 1] - b.targets[n];
+        assert!((1230..1270).contains(&travelled), "5 rad/s to rest at 10 rad/s²: {travelled}");
     }
 
     #[test]

@@ -801,6 +801,11 @@ impl PyEngine {
         self.inner.axis_setpoints(&list).map_err(|e| to_py(py, e))
     }
 
+    /// A quiet stop on the axes named (engine indices), all in the same cycle.
+    fn axis_stop(&self, py: Python<'_>, axes: Vec<usize>) -> PyResult<()> {
+        self.inner.axis_stop(&axes).map_err(|e| to_py(py, e))
+    }
+
     /// Start homing on axis `axis` (in mode hm).
     fn axis_home(&self, py: Python<'_>, axis: usize) -> PyResult<()> {
         self.inner.axis_home(axis).map_err(|e| to_py(py, e))

@@ -138,6 +138,18 @@ class RosConfig(_Model):
     # SCHED_FIFO priority of the native thread that serves pdo_listener (0: normal scheduling);
     # capped below rt.priority so commands never delay a cycle.
     command_priority: int = Field(default=50, ge=0, le=98)
+    # The FollowJointTrajectory action server of the CiA 402 axes, relative to the namespace
+    # (MoveIt's simple controller manager: <controller name>/<action_ns>); empty: none.
+    trajectory_action: str = Field(
+        default="follow_joint_trajectory",
+        pattern=r"^([A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*)?$",
+    )
+    # A goal's goal_time_tolerance of 0 takes this (s): how long after the trajectory's end the
+    # joints may take to get within their goal tolerances.
+    goal_time_tolerance_s: float = Field(default=1.0, ge=0.0, le=600.0)
+    # Tolerances a goal leaves at 0 take these (SI; 0: not checked).
+    path_tolerance: float = Field(default=0.0, ge=0.0)
+    goal_tolerance: float = Field(default=0.0, ge=0.0)
 
 
 class PdoAssign(_Model):

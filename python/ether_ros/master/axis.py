@@ -107,27 +107,36 @@ def follow_together(
     Returns the start time (engine clock, s)."""
     if not tracks:
         raise AxisCommandError("a trajectory names no axis")
-    checked = [(axis, axis.check_trajectory(points)) for axis, points in tracks.items()]
+    checked = {axis: axis.check_trajectory(points) for axis, points in tracks.items()}
     if not math.isfinite(start_in) or start_in < 0:
         raise AxisCommandError("start_in must be >= 0 s")
-    for axis, _ in checked:
+    start_ns = int(bus.engine.now_ns() + start_in * 1e9)
+    hand_over(bus, checked, start_ns)
+    return start_ns / 1e9
+
+
+def hand_over(bus: Bus, checked: Mapping[Axis, Sequence[TrajectoryPoint]], start_ns: int) -> int:
+    """Give checked trajectories (``Axis.check_trajectory``) to the engine in one hand-over,
+    times from ``start_ns`` on its clock (a start in the past: the engine trims the points
+    already past). Returns the command's number (``status()['command_seq']`` once taken)."""
+    for axis in checked:
         axis._require_running()
-    engine = bus.engine
-    start_ns = int(engine.now_ns() + start_in * 1e9)
     try:
-        seq = engine.axis_follow_many(
-            start_ns,
-            [
-                (axis.index, [(round(p.t * 1e9), p.position, p.velocity) for p in points])
-                for axis, points in checked
-            ],
+        seq = int(
+            bus.engine.axis_follow_many(
+                start_ns,
+                [
+                    (axis.index, [(round(p.t * 1e9), p.position, p.velocity) for p in points])
+                    for axis, points in checked.items()
+                ],
+            )
         )
     except ValueError as exc:
-        names = ", ".join(a.name for a, _ in checked)
+        names = ", ".join(a.name for a in checked)
         raise AxisCommandError(f"axes {names}: {exc}") from None
-    for axis, _ in checked:
+    for axis in checked:
         bus.axis_trajectories[axis.index] = seq
-    return start_ns / 1e9
+    return seq
 
 
 class Axis:
@@ -363,7 +372,23 @@ class Axis:
             if self.mode == "csp":
                 self._check_value("position", p.position, f"trajectory point {i}: ")
             self._check_value("velocity", p.velocity, f"trajectory point {i}: ")
+            if i and self.mode == "csp":
+                # A segment that needs more than the velocity limit on average cannot be
+                # followed (the engine would only clamp it).
+                limit = self.spec.config.velocity_limit
+                speed = abs(p.position - points[i - 1].position) / (p.t - points[i - 1].t)
+                if speed > limit * (1 + 1e-9):
+                    raise AxisCommandError(f"axis {self.name}: trajectory points {i - 1}..{i} "
+                                           f"need {speed:g} on average, beyond the velocity "
+                                           f"limit ±{limit:g}")  # fmt: skip
         return points
+
+    def quiet_stop(self) -> None:
+        """Decelerate from the motion the axis is commanded to have to rest at its
+        ``deceleration`` and hold (ends a trajectory or a setpoint stream; pp: a set-point where
+        that stop ends; cst: zero torque). Several axes in the same cycle: ``bus.quiet_stop``."""
+        self._require_running()
+        self._bus.engine.axis_stop([self._index])
 
     def wait_trajectory(self, timeout: float) -> None:
         """Until the trajectory last started on this axis has run to its end (or a later

@@ -395,16 +395,30 @@ def describe_joint_commands(commands: list[tuple[Any, str, float]]) -> str:
     return f"commanded {shown}{more}"
 
 
-def follow_trajectories(
-    plans: list[tuple[Any, list[tuple[float, float, float]]]], start_in: float
-) -> None:
-    """Start checked trajectories (axis, [(t, position, velocity)]) together, ``start_in``
-    seconds from now (on the engine's clock): one hand-over, every axis starts in the same
-    cycle."""
-    from ether_ros.master.axis import follow_together
+def follow_plan(plan: Any) -> int:
+    """Start a checked ``joints.TrajectoryPlan``: one hand-over to the engine, every axis starts
+    in the same cycle, times from ``plan.start_ns``. Returns the command's number."""
+    from ether_ros.master.axis import TrajectoryPoint, hand_over
 
-    if plans:
-        follow_together(plans[0][0].bus, dict(plans), start_in)
+    if not plan.tracks:
+        return 0
+    bus = plan.tracks[0][0].bus
+    return hand_over(
+        bus, {axis: [TrajectoryPoint(*p) for p in track] for axis, track in plan.tracks},
+        plan.start_ns,
+    )  # fmt: skip
+
+
+def engine_now_ns(axes: Mapping[str, Any]) -> int:
+    """The engine clock (CLOCK_MONOTONIC ns) of the bus the axes are on."""
+    axis = next(iter(axes.values()))
+    return int(axis.bus.engine.now_ns())
+
+
+def quiet_stop(axes: list[Any]) -> None:
+    """A quiet stop (``Axis.quiet_stop``) on every axis given, in the same cycle."""
+    if axes:
+        axes[0].bus.quiet_stop([a.name for a in axes])
 
 
 def check_mode(axes: list[Any], mode: str) -> None:
