@@ -25,8 +25,6 @@ if TYPE_CHECKING:
 SETPOINT_KIND = {"csp": "position", "pp": "position", "csv": "velocity", "pv": "velocity",
                  "cst": "torque", "hm": None}  # fmt: skip
 POLL_S = 0.002
-# An axis still halted this long after an enable (which fed the watchdog) is held by a panic.
-HALT_SETTLE_S = 0.05
 
 
 class AxisError(BusError):
@@ -226,7 +224,6 @@ class Axis:
             engine.axis_reset_fault(self._index)
         engine.axis_enable(self._index, True)
         deadline = time.monotonic() + timeout
-        halted_since: float | None = None
         while True:
             st = self.status()
             if st["state"] == "operation_enabled" and st["mode_reached"]:
@@ -234,10 +231,7 @@ class Axis:
             # The automatic reset gave up: waiting longer changes nothing.
             if st["retries_exhausted"] or time.monotonic() > deadline:
                 break
-            # Halted after the enable (which fed the watchdog): the bus is in panic.
-            now = time.monotonic()
-            halted_since = (halted_since or now) if st["halted"] else None
-            if halted_since is not None and now - halted_since > HALT_SETTLE_S:
+            if engine.is_panicked:
                 raise AxisError(f"axis {self.name}: the bus is in panic (clear_panic first, "
                                 "then enable)")  # fmt: skip
             self._bus.feed_watchdog()

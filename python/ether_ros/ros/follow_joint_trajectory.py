@@ -129,9 +129,13 @@ def check_goal(
     for axis, _track in plan.tracks:
         st = bridge.axis_status(axis)
         if st["state"] != "operation_enabled" or not st["mode_reached"] or st["restart_blocked"]:
+            why = f"{st['state']}, mode {bridge.axis_mode(axis)}"
+            if st["restart_blocked"]:
+                why += ", waiting for an explicit enable"
+            if st["faults"]:
+                why += f", last fault 0x{st['last_fault_code']:04X}"
             raise GoalRefused(Result.INVALID_GOAL, f"joint {axis.name!r} is not enabled in its "
-                              f"mode ({st['state']}, mode {bridge.axis_mode(axis)}): call the "
-                              "enable service first")  # fmt: skip
+                              f"mode ({why}): call the enable service first")  # fmt: skip
     time_tolerance = duration_s(goal.goal_time_tolerance)
     if not math.isfinite(time_tolerance) or time_tolerance < 0:
         raise GoalRefused(Result.INVALID_GOAL, f"goal_time_tolerance {time_tolerance:g} s is "

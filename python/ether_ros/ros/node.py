@@ -173,6 +173,8 @@ class EtherRosNode(LifecycleNode):
         self._last_command = time.monotonic()
         # An output variable was written since the node went active (command_watchdog).
         self._variables_written = False
+        # The last command before the node stopped feeding the watchdog (None: feeding).
+        self._starved_since: float | None = None
         self._last_error = ""
         self._mirroring = False
 
@@ -403,6 +405,7 @@ class EtherRosNode(LifecycleNode):
             self._feed_watchdog,
             max_backlog=backlog,
             axis_joints=(lambda: joints.axis_joint_values(self._axes)) if self._axes else None,
+            feeder_priority=command_priority(self._cfg),
         )
         self._samples.start()
         self._restart_snapshot_timer(self._param_ms("ros.snapshot_period_ms"))
@@ -598,9 +601,15 @@ class EtherRosNode(LifecycleNode):
         commands are fresh (or always, when ``command_timeout_ms`` is 0). If this process stalls
         or the commands stop, the engine puts the safe outputs on the wire by itself."""
         timeout_ms = self._param_ms("command_timeout_ms")
-        silent = (time.monotonic() - self._last_command_time()) * 1000.0 > timeout_ms
-        if timeout_ms and silent and not self._quiet_is_safe():
-            return False
+        last = self._last_command_time()
+        if timeout_ms and (time.monotonic() - last) * 1000.0 > timeout_ms:
+            # Once starved, the watchdog stays tripped until the next command.
+            if self._starved_since is not None and last <= self._starved_since:
+                return False
+            if not self._quiet_is_safe():
+                self._starved_since = last
+                return False
+        self._starved_since = None
         bus = self._bus
         if bus is not None:
             bus.feed_watchdog()
@@ -791,6 +800,7 @@ class EtherRosNode(LifecycleNode):
         """enable / disable / reset_fault / set_mode on the joints named (empty: all): (success,
         message, joints, their CiA 402 states afterwards). Waits for the drives without the bus
         lock, so writes and other commands go on meanwhile."""
+        self._note_command()
         try:
             chosen = bridge.select_axes(self._axes_if_active(), names)
             if command == "set_mode":
