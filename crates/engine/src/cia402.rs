@@ -703,10 +703,9 @@ impl AxisController {
                 self.ramp = (ramp.velocity != 0.0).then_some(ramp);
             }
             Mode::ProfilePosition => {
-                let rest = ramp.rest_position(self.plan.deceleration).clamp(
-                    self.plan.limits.position_min,
-                    self.plan.limits.position_max,
-                );
+                let rest = ramp
+                    .rest_position(self.plan.deceleration)
+                    .clamp(self.plan.limits.position_min, self.plan.limits.position_max);
                 self.interpolator.reset(rest);
                 self.pp_new_setpoint = true;
             }
@@ -1884,9 +1883,15 @@ mod tests {
         let steps: Vec<i32> = b.targets[n..].windows(2).map(|w| w[1] - w[0]).collect();
         assert_eq!(steps[0], 5, "{steps:?}");
         assert!(steps.iter().all(|&d| d >= 0), "{steps:?}");
-        assert!(steps.windows(2).all(|w| w[1] <= w[0] + 1), "decelerating: {steps:?}");
+        assert!(
+            steps.windows(2).all(|w| w[1] <= w[0] + 1),
+            "decelerating: {steps:?}"
+        );
         let travelled = b.targets[b.targets.len() - 1] - b.targets[n];
-        assert!((1230..1270).contains(&travelled), "5 rad/s to rest at 10 rad/s²: {travelled}");
+        assert!(
+            (1230..1270).contains(&travelled),
+            "5 rad/s to rest at 10 rad/s²: {travelled}"
+        );
     }
 
     #[test]
