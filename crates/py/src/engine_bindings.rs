@@ -476,6 +476,7 @@ fn axis_status_dict<'py>(py: Python<'py>, s: &AxisStatus) -> PyResult<Bound<'py,
     d.set_item("torque_clamps", s.torque_clamps)?;
     d.set_item("faults", s.faults)?;
     d.set_item("fault_resets", s.fault_resets)?;
+    d.set_item("homing_runs", s.homing_runs)?;
     d.set_item("command_seq", s.command_seq)?;
     Ok(d)
 }

@@ -183,6 +183,31 @@ class Joint(_Model):
     effort_scale: float = 1.0
 
 
+class AxisExtra(_Model):
+    """One more object of a CiA 402 axis as a joint interface (docs/cia402.md, "Drive extras"):
+    read from the process image and, when it is an output, commanded. ``object`` is an
+    address (``0x60FD``, ``0x60FE:01``); a standard object of the profile area (0x6000-0x67FF)
+    is taken at the axis's own index (+ n x 0x800), any other (a vendor object) as given.
+    SI value = raw x ``scale``: ``position`` (and the position offset), ``velocity``,
+    ``torque`` take the axis's scales, a number is its own."""
+
+    name: Identifier
+    object: int | str
+    scale: Literal["position", "velocity", "torque"] | float = 1.0
+
+
+class HomingConfig(_Model):
+    """Homing of a CiA 402 axis (mode hm), written to the drive in PREOP: the method (0x6098),
+    the search speeds for the switch and for the zero/index (0x6099:1/:2, SI/s), the
+    acceleration (0x609A, SI/s²) and the position the home gets (0x607C, SI)."""
+
+    method: int = Field(ge=-128, le=127)
+    speed_switch: float | None = Field(default=None, gt=0)
+    speed_zero: float | None = Field(default=None, gt=0)
+    acceleration: float | None = Field(default=None, gt=0)
+    offset: float = 0.0
+
+
 class AxisConfig(_Model):
     """One axis (joint) of a CiA 402 drive: position = raw × position_scale + position_offset
     (rad or m), velocity = raw × velocity_scale, torque = raw × torque_scale."""
@@ -211,6 +236,10 @@ class AxisConfig(_Model):
     profile_velocity: float | None = None
     profile_acceleration: float | None = None
     profile_deceleration: float | None = None
+    # More of the drive's objects as joint interfaces (0x60FD inputs, 0x60FE outputs, touch
+    # probe, offsets, vendor objects) and the homing set-up.
+    extras: list[AxisExtra] = Field(default_factory=list)
+    homing: HomingConfig | None = None
     on_stop: Literal["quick_stop", "disable"] = "quick_stop"
     fault_reset: Literal["auto", "manual"] = "auto"
     fault_retries: int = Field(default=3, ge=0, le=100)
