@@ -119,7 +119,10 @@ def test_a_goal_for_every_joint_succeeds_with_feedback(
         d = f.desired.time_from_start  # type: ignore[attr-defined]
         return float(d.sec) + float(d.nanosec) * 1e-9
 
-    assert t(fb[0][1]) < 0.3 and t(fb[-1][1]) > 1.2, (t(fb[0][1]), t(fb[-1][1]))
+    # From the start into the second segment. Not up to the end: rclpy's action client drops
+    # feedback it takes together with or after the result, so the last ones may never show.
+    assert t(fb[0][1]) < 0.3 and t(fb[-1][1]) > 0.6, (t(fb[0][1]), t(fb[-1][1]))
+    assert all(t(b) >= t(a) for (_, a), (_, b) in itertools.pairwise(fb))
     last = fb[-1][1]
     assert list(last.joint_names) == JOINTS
     for d, a, e in zip(last.desired.positions, last.actual.positions, last.error.positions,

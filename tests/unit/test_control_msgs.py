@@ -51,3 +51,23 @@ def test_the_action_has_the_fields_and_codes_moveit_uses() -> None:
     assert codes.GOAL_TOLERANCE_VIOLATED == -5
     feedback = FollowJointTrajectory.Feedback()
     assert all(hasattr(feedback, f) for f in ("desired", "actual", "error", "joint_names"))
+
+
+def test_the_moveit_controllers_example_names_arm6s_joints_and_a_valid_action() -> None:
+    """config/moveit_controllers.yaml (docs/ros.md): the joints are arm6's axes and the action
+    name MoveIt calls (<controller>/<action_ns>) is one ros.trajectory_action takes."""
+    import yaml
+
+    from ether_ros.config import load_bus_config
+    from ether_ros.config.bus import RosConfig
+
+    repo = Path(__file__).resolve().parents[2]
+    moveit = yaml.safe_load((repo / "config" / "moveit_controllers.yaml").read_text())
+    manager = moveit["moveit_simple_controller_manager"]
+    (name,) = manager["controller_names"]
+    controller = manager[name]
+    assert controller["type"] == "FollowJointTrajectory"
+    arm6 = load_bus_config(repo / "config" / "arm6.yaml")
+    assert controller["joints"] == [a.name for a in arm6.axis_specs()]
+    action = f"{name}/{controller['action_ns']}"
+    assert RosConfig(trajectory_action=action).trajectory_action == action

@@ -1947,7 +1947,11 @@ mod tests {
         let mut p = plan();
         p.mode = Mode::Homing;
         let mut b = enabled(p, 0);
-        assert_eq!(read_u16(&b.io, CW) & cw::NEW_SETPOINT, 0, "no homing by itself");
+        assert_eq!(
+            read_u16(&b.io, CW) & cw::NEW_SETPOINT,
+            0,
+            "no homing by itself"
+        );
         // The drive still shows an old "homing attained": it does not end the new run.
         b.extra_sw = sw::MODE_12 | sw::TARGET_REACHED;
         b.command.homing_count += 1;

@@ -223,6 +223,8 @@ class FollowJointTrajectoryServer:
                     self._active.replaced = True
                 self._active = run
             try:
+                # The one place a goal becomes motion: a gate on who may command (a control
+                # lease) belongs here, before the hand-over, as on every other command path.
                 self._note_command()
                 run.seq = bridge.follow_plan(run.plan)
             except EtherRosError as exc:
