@@ -177,7 +177,7 @@ def test_every_mode_runs_on_the_drive_model(drives: Bus) -> None:
         j.command(position=0.0)
 
 
-def test_homing_refuses_a_method_the_drive_lacks_and_reports_an_error(drives: Bus) -> None:
+def test_homing_refuses_a_method_the_drive_lacks_or_a_disabled_axis(drives: Bus) -> None:
     j = drives.axis("elbow")
     j.enable(timeout=3)
     # 0x60E3 of the ESI: 19, 33, 34, 35, 37.
@@ -267,3 +267,84 @@ def test_extras_read_and_command_in_si_on_the_drive_model(tmp_path: Path) -> Non
         wait_for("velocity offset", lambda: abs(j.velocity - 0.1) < 0.01)
         j.set_extras({"velocity_offset": 0.0})
         wait_for("offset removed", lambda: abs(j.velocity) < 0.01)
+
+
+def test_an_object_mapped_by_the_master_reaches_the_drive(tmp_path: Path) -> None:
+    """Axis 2's target velocity is missing from the ESI's RxPDO 0x1610: the loader appends it,
+    the master writes the mapping in PREOP, and the drive model (which maps what the master
+    configured) runs the csv axis on it."""
+    from ether_ros.sim.network import build_network
+
+    entry = ("<Entry><Index>#x68FF</Index><SubIndex>0</SubIndex><BitLen>32</BitLen>"
+             "<Name>Target velocity</Name><DataType>DINT</DataType></Entry>")  # fmt: skip
+    esi = tmp_path / "servo.xml"
+    text = (REPO / "devices" / "servo_drive.xml").read_text()
+    esi.write_text(text.replace(entry, "<Entry><Index>#x0</Index><BitLen>32</BitLen></Entry>"))
+    yaml = tmp_path / "bus.yaml"
+    yaml.write_text(
+        f"bus: {{name: one, interface: eth0, cycle_us: 2000, watchdog_ms: 0,\n"
+        f"      realtime: {{policy: other, lock_memory: false}}}}\n"
+        f"esi: [{esi}]\n"
+        "slaves:\n"
+        "  - name: drive\n"
+        "    device: ServoDrive2\n"
+        "    axes:\n"
+        "      - {name: j1, position_scale: 7.66990394e-6}\n"
+        "      - {name: j2, mode: csv, velocity_scale: 7.66990394e-6}\n"
+    )
+    cfg = load_bus_config(yaml)
+    with Bus.open(cfg, link=build_network(cfg), drift_frames=100) as bus:
+        bus.start()
+        j2 = bus.axis("j2")
+        j2.enable(timeout=3)
+        j2.command(velocity=0.25)
+        wait_for("csv velocity through the new mapping", lambda: abs(j2.velocity - 0.25) < 0.01)
+        # Six entries as in the ESI (one now padding), then 0x68FF:00, 32 bits.
+        assert bus.sdo_read("drive", 0x1610, 0) == 7
+        assert bus.sdo_read("drive", 0x1610, 7) == 0x68FF0020
+
+
+def test_stop_takes_every_axis_out_of_operation_enabled_first(drives: Bus) -> None:
+    for a in drives.axes():
+        a.enable(timeout=3)
+    drives.stop()
+    # The last status the RT thread published before the cyclic exchange stopped.
+    states = [drives.engine.axis_status(i)["state"] for i in range(6)]
+    assert "operation_enabled" not in states, states
+    assert all(drives.engine.axis_status(i)["controlword"] == 0x0002 for i in range(6))
+
+
+def test_a_trajectory_for_an_axis_out_of_operation_enabled_is_refused() -> None:
+    """Issue 19: a trajectory sent to a faulted axis was answered "accepted", then dropped.
+    Refused with the drive's state (and its error) and what to do; nothing is handed over."""
+    from ether_ros.sim.network import build_network
+
+    cfg = _config()
+    for s in cfg.slaves:
+        s.sim.device = None
+        for a in s.axes:
+            a.fault_reset = "manual"
+    net = build_network(cfg)
+    with Bus.open(cfg, link=net, drift_frames=100) as b:
+        b.start()
+        wrist = b.axis("wrist_1")
+        handed = dict(b.axis_trajectories)
+        track = [(0.5, 0.1, 0.0)]
+        with pytest.raises(AxisCommandError, match=r"axis wrist_1 is \w+, not operation_enabled: "
+                           "a trajectory is refused; enable the axis first"):  # fmt: skip
+            wrist.follow(track)
+        wrist.enable()
+        net.fault("drive_fault", slave=1, error="encoder", axis=2)  # elbow_drive axis 2: wrist_1
+        wait_for("the fault", lambda: wrist.status()["state"] == "fault")
+        with pytest.raises(
+            AxisCommandError,
+            match=r"axis wrist_1 is in fault \(error 0x7305: incremental encoder 1 fault\): "
+            "a trajectory is refused; reset_fault, then enable the axis",
+        ):
+            wrist.follow(track)
+        assert b.axis_trajectories == handed, "nothing was handed to the engine"
+        wrist.reset_fault()
+        wrist.enable()
+        wrist.follow(track)
+        seq = b.axis_trajectories[wrist.index]
+        wait_for("the trajectory taken", lambda: wrist.status()["command_seq"] >= seq)
