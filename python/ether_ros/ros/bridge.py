@@ -345,8 +345,15 @@ def setpoint_kind(axis: Any) -> str | None:
     return SETPOINT_KIND.get(axis.mode)
 
 
+# The node's AxisCommand services (joint names → one command each), by service name.
+AXIS_SERVICES = ("enable", "disable", "reset_fault", "home")
+# Those that change an axis's mode while they run (the native joint table holds the joints).
+MODE_CHANGING = ("set_mode", "home")
+
+
 def run_axis_command(axis: Any, command: str, mode: str = "") -> None:
-    """``enable``, ``disable``, ``reset_fault`` or ``set_mode`` on one axis; blocks until the
+    """``enable``, ``disable``, ``reset_fault``, ``home`` (the drive's configured homing, back
+    in the axis's mode afterwards, ``Axis.home``) or ``set_mode`` on one axis; blocks until the
     drive has done it (or raises ``EtherRosError`` saying where it stuck)."""
     if command == "enable":
         axis.enable()
@@ -356,6 +363,8 @@ def run_axis_command(axis: Any, command: str, mode: str = "") -> None:
         axis.reset_fault()
     elif command == "set_mode":
         axis.set_mode(mode)
+    elif command == "home":
+        axis.home()
     else:
         raise AxisRejected(f"unknown axis command {command!r}")
 

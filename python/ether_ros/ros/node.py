@@ -264,7 +264,7 @@ class EtherRosNode(LifecycleNode):
             callback_group=None if self.command_node else self._writes_group,
             raw=True,
         )
-        for service in ("enable", "disable", "reset_fault"):
+        for service in bridge.AXIS_SERVICES:
             self.create_service(
                 AxisCommand,
                 service,
@@ -835,9 +835,9 @@ class EtherRosNode(LifecycleNode):
     def axis_command(
         self, command: str, names: list[str], mode: str = ""
     ) -> tuple[bool, str, list[str], list[str]]:
-        """enable / disable / reset_fault / set_mode on the joints named (empty: all): (success,
-        message, joints, their CiA 402 states afterwards). Waits for the drives without the bus
-        lock, so writes and other commands go on meanwhile."""
+        """enable / disable / reset_fault / home / set_mode on the joints named (empty: all):
+        (success, message, joints, their CiA 402 states afterwards). Waits for the drives without
+        the bus lock, so writes and other commands go on meanwhile."""
         self._note_command()
         try:
             chosen = bridge.select_axes(self._axes_if_active(), names)
@@ -845,7 +845,7 @@ class EtherRosNode(LifecycleNode):
                 bridge.check_mode(chosen, mode)
         except EtherRosError as exc:
             return False, str(exc), [], []
-        native = self._native_joints if command == "set_mode" else None
+        native = self._native_joints if command in bridge.MODE_CHANGING else None
         if native is not None:  # while the mode changes, Python checks every joint command
             native.hold_joints(self._axes, chosen)
         errors = []
