@@ -125,6 +125,17 @@ _ESI_NAMES: dict[str, DataType] = {
     "BITARR8": BITARR8,
     "BITARR16": BITARR16,
     "BITARR32": BITARR32,
+    # Aliases vendors write (C-style widths, e.g. SMC's ``UINT8``).
+    "UINT8": UINT8,
+    "UINT16": UINT16,
+    "UINT32": UINT32,
+    "UINT64": UINT64,
+    "INT8": INT8,
+    "INT16": INT16,
+    "INT32": INT32,
+    "INT64": INT64,
+    "FLOAT32": REAL32,
+    "FLOAT64": REAL64,
 }
 _SIZED = re.compile(
     r"^(STRING|VISIBLE_STRING|OCTET_STRING|UNICODE_STRING|ARRAY OF BYTE)\s*\(\s*(\d+)\s*\)$"
