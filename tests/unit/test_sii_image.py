@@ -110,8 +110,22 @@ def test_bad_alias_and_too_small_eeprom(tmp_path: Path) -> None:
     text = (REPO / "devices" / "laelaps_ii_leg.xml").read_text()
     small.write_text(text.replace("<ByteSize>2048</ByteSize>", "<ByteSize>256</ByteSize>"))
     (tiny,) = load_esi(small)
-    with pytest.raises(ConfigError, match=r"needs \d+ bytes but the EEPROM has 256"):
-        build_sii(tiny)
+    # The content needs more than the ESI's 256 bytes: the EEPROM grows (a power of two).
+    image = build_sii(tiny)
+    assert len(image) == 2048
+    info = parse_sii(image)
+    assert info.eeprom_bytes == 2048 and info.general is not None
+
+
+def test_strings_are_ascii_every_master_decodes(tmp_path: Path) -> None:
+    """pysoem decodes SII strings as UTF-8 and fails on a Latin-1 "µ": the SII holds ASCII."""
+    text = (REPO / "devices" / "generic_io.xml").read_text()
+    p = tmp_path / "micro.xml"
+    p.write_text(text.replace('<Name LcId="1033">GenericIO', '<Name LcId="1033">Générique 8 µs ±10 V', 1))
+    (dev,) = load_esi(p)
+    info = parse_sii(build_sii(dev))
+    assert info.general is not None and info.general.name.startswith("Generique 8 us +/-10 V")
+    assert all(s.isascii() for s in info.strings)
 
 
 def test_device_name_is_string_one() -> None:

@@ -581,8 +581,8 @@ impl SimNetwork {
         d.set_item("refuse_op", s.refuse_op)?;
         d.set_item("mailbox_stalled", s.mailbox_stalled)?;
         d.set_item("mailbox_queue", s.mailbox_queue_len())?;
-        d.set_item("outputs_bytes", s.out_map.bytes())?;
-        d.set_item("inputs_bytes", s.in_map.bytes())?;
+        d.set_item("outputs_bytes", s.output_bytes())?;
+        d.set_item("inputs_bytes", s.input_bytes())?;
         let c = &s.counters;
         d.set_item("frames", c.frames)?;
         d.set_item("process_data_frames", c.process_data_frames)?;

@@ -27,6 +27,13 @@ pub const N_SM: usize = 8;
 /// Default watchdog divider (100 µs units) and process-data watchdog time (100 ms).
 const DEFAULT_WD_DIVIDER: u16 = 0x09C2;
 const DEFAULT_WD_TIME: u16 = 0x03E8;
+/// DC speed counter difference (ESC datasheet: reset by a write to 0x0930).
+const DC_SPEED_COUNTER_DIFF: u16 = 0x0932;
+/// 0x0500 bits: 0 EEPROM control offered to the PDI, 1 force ECAT access.
+const EEPROM_OFFERED_TO_PDI: u8 = 0x01;
+const EEPROM_FORCE_ECAT: u8 = 0x02;
+/// DC time stamps and the system time advance in steps of the ESC's 100 MHz clock.
+pub const DC_GRANULARITY_NS: u64 = 10;
 /// Catch-up bound for device steps: beyond this the device skips ahead.
 pub const MAX_CATCH_UP_NS: u64 = 100_000_000;
 /// CoE emergency error codes of refused AL state transitions (ETG.1000.6).
@@ -63,7 +70,7 @@ fn reg_writable(a: usize) -> bool {
         | 0x0400..=0x0401
         | 0x0410..=0x0411
         | 0x0420..=0x0421
-        | 0x0500..=0x0501
+        | 0x0500
         | 0x0504..=0x050F
         | 0x0510..=0x0517
         | 0x0600..=0x067F
@@ -98,10 +105,18 @@ pub struct Esc {
     mbx_tx_counter: u8,
     mbx_last_sent: Vec<u8>,
     mbx_rx_pending: bool,
-    pub out_sm: usize,
-    pub in_sm: usize,
-    pub out_map: PdoMap,
-    pub in_map: PdoMap,
+    /// The process-data SyncManagers (SII SyncM types 3 and 4, not virtual), each with the
+    /// map of the PDOs it carries.
+    pub pd_sms: Vec<PdSm>,
+    /// The mailbox SyncManagers (SII SyncM types 1 and 2; 0 and 1 when the SII has none).
+    mbx_sms: Vec<usize>,
+    /// (index, subindex, bits) the device's own default mapping takes of a longer object:
+    /// the one partial mapping it accepts (e.g. 16 bits of a 32-bit counter).
+    partial_mappings: Vec<(u16, u8, u16)>,
+    /// EEPROM access handed to the PDI (0x0501 bit 0): the master's SII commands are ignored.
+    eeprom_at_pdi: bool,
+    /// Deterministic jitter of the DC time stamps (xorshift state).
+    dc_noise: u64,
     pub al_state: u8,
     pub al_error: bool,
     pub al_code: u16,
@@ -160,12 +175,8 @@ impl Esc {
         } else {
             None
         };
-        // Process-data SyncManagers: from the SII SyncM category, else the usual layout.
-        let sms = sii::sync_managers(&sii.image);
-        let find = |kind: u8| sms.iter().position(|s| s.kind == kind);
-        let (def_out, def_in) = if mailbox.is_some() { (2, 3) } else { (0, 1) };
-        let out_sm = find(3).unwrap_or(def_out).min(N_SM - 1);
-        let in_sm = find(4).unwrap_or(def_in).min(N_SM - 1);
+        let (pd_sms, mbx_sms) = process_sync_managers(&sii.image, mailbox.is_some());
+        let partial_mappings = default_partial_mappings(&od, &sii.image);
         let chip = spec.esc.profile();
         let pdram_kib = if spec.pdram_kib == 0 {
             chip.ram_kib
@@ -191,10 +202,11 @@ impl Esc {
             mbx_tx_counter: 0,
             mbx_last_sent: Vec::new(),
             mbx_rx_pending: false,
-            out_sm,
-            in_sm,
-            out_map: PdoMap::default(),
-            in_map: PdoMap::default(),
+            pd_sms,
+            mbx_sms,
+            partial_mappings,
+            eeprom_at_pdi: false,
+            dc_noise: 0x9E37_79B9_7F4A_7C15 ^ ((position as u64 + 1) << 17),
             al_state: reg::al::INIT,
             al_error: false,
             al_code: 0,
@@ -515,21 +527,26 @@ impl Esc {
             return false;
         }
         let off = a - s.start as usize;
-        if s.is_mailbox() {
+        let process_data = self.pd_sms.iter().any(|p| p.number == k && p.output);
+        let completed = if s.is_mailbox() {
             if s.full {
                 return false;
             }
             self.mem[a..a + seg.len()].copy_from_slice(seg);
-            if off + seg.len() >= s.len as usize {
+            let last = off + seg.len() >= s.len as usize;
+            if last {
                 s.full = true;
-                self.mbx_rx_pending = true;
+                // A mailbox-mode SM carrying process data (one buffer) is no mailbox.
+                self.mbx_rx_pending |= !process_data;
             }
-        } else if s.buffered_write(off, seg) {
+            last
+        } else {
+            s.buffered_write(off, seg)
+        };
+        if completed && process_data {
             let wd = s.control & WATCHDOG_TRIGGER != 0;
-            if k == self.out_sm {
-                self.outputs_since_safeop = true;
-                self.outputs_received = true;
-            }
+            self.outputs_since_safeop = true;
+            self.outputs_received = true;
             if wd {
                 self.wd_last_trigger = self.now;
                 self.watchdog_expired = false;
@@ -548,7 +565,7 @@ impl Esc {
             }
         }
         if overlaps(a, len, 0x0910, 0x0918) {
-            let t = self.system_time();
+            let t = self.system_time() / DC_GRANULARITY_NS * DC_GRANULARITY_NS;
             self.put64(reg::DC_SYSTEM_TIME, t);
         }
         if overlaps(a, len, 0x0502, 0x0504) && !self.sii.busy(self.now) {
@@ -644,7 +661,14 @@ impl Esc {
             self.system_time_compare(a, seg);
         }
         if overlaps(a, len, 0x0930, 0x0932) {
+            // ESC datasheet, 0x0930 "speed counter start": a write resets the speed counter
+            // difference (0x0932) and the filtered system time difference (0x092C).
             self.dc.reset_loop(self.now);
+            self.put32(reg::DC_SYSTEM_TIME_DIFF, 0);
+            self.put16(DC_SPEED_COUNTER_DIFF, 0);
+        }
+        if overlaps(a, len, reg::SII_CONFIG as usize, reg::SII_CONFIG as usize + 1) {
+            self.eeprom_access();
         }
         if overlaps(a, len, 0x0981, 0x0982) {
             self.dc_activation();
@@ -653,7 +677,8 @@ impl Esc {
 
     fn sii_command(&mut self, ctl: u16) {
         let cur = self.get16(reg::SII_CONTROL);
-        if self.sii.busy(self.now) {
+        if self.sii.busy(self.now) || self.eeprom_at_pdi {
+            // While the PDI has the EEPROM (0x0501 bit 0), EtherCAT's commands do nothing.
             return;
         }
         if ctl & sii::CMD_MASK == 0 {
@@ -676,6 +701,22 @@ impl Esc {
             status |= sii::BUSY | (ctl & sii::CMD_MASK);
         }
         self.put16(reg::SII_CONTROL, status);
+    }
+
+    /// The master wrote 0x0500: the slave application (PDI) takes the EEPROM as soon as it is
+    /// offered and gives it back when the offer is withdrawn; "force ECAT access" takes it
+    /// from the PDI at once (ESC datasheet, 0x0500/0x0501).
+    fn eeprom_access(&mut self) {
+        let cfg = self.mem[reg::SII_CONFIG as usize];
+        let to_pdi = cfg & EEPROM_OFFERED_TO_PDI != 0 && cfg & EEPROM_FORCE_ECAT == 0;
+        self.eeprom_at_pdi = to_pdi;
+        self.mem[reg::SII_PDI_ACCESS as usize] = to_pdi as u8;
+        // Bit 1 is a command, not a state.
+        self.mem[reg::SII_CONFIG as usize] = cfg & !EEPROM_FORCE_ECAT;
+    }
+
+    pub fn eeprom_at_pdi(&self) -> bool {
+        self.eeprom_at_pdi
     }
 
     fn sm_configured(&mut self, k: usize) {
@@ -708,15 +749,28 @@ impl Esc {
         }
         // Port 0 latches at the processing unit's entry; every other open port when the
         // frame comes back into it from its branch. Closed ports keep their old value.
-        let t0 = self.dc.local(self.now);
+        let t0 = self.stamp(self.dc.local(self.now));
         self.put32(reg::DC_RECEIVE_TIME_PORT0, t0 as u32);
         for p in 1..4u16 {
             if let Some(back) = self.port_return_ns[p as usize] {
-                let t = self.dc.local(self.now + back);
+                let t = self.stamp(self.dc.local(self.now + back));
                 self.put32(reg::DC_RECEIVE_TIME_PORT0 + 4 * p, t as u32);
             }
         }
         self.put64(reg::DC_RECEIVE_TIME_PU, t0);
+    }
+
+    /// A time stamp as the ESC takes it: on its 10 ns clock, at a phase of that clock the
+    /// frame's arrival does not control (the PHY's and the clock domain crossing's jitter),
+    /// so two stamps of one instant differ by 0 or 10 ns.
+    fn stamp(&mut self, t: u64) -> u64 {
+        let mut x = self.dc_noise;
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        self.dc_noise = x;
+        let phase = (x >> 33) % DC_GRANULARITY_NS;
+        (t + phase) / DC_GRANULARITY_NS * DC_GRANULARITY_NS
     }
 
     fn system_time_compare(&mut self, a: usize, seg: &[u8]) {
@@ -735,7 +789,7 @@ impl Esc {
         }
         let received = u64::from_le_bytes(v);
         let delay = self.get32(reg::DC_SYSTEM_TIME_DELAY) as u64;
-        let local_sys = self.system_time();
+        let local_sys = self.stamp(self.system_time());
         let diff: i64 = if n <= 4 {
             (local_sys as u32).wrapping_sub((received.wrapping_add(delay)) as u32) as i32 as i64
         } else {
@@ -1012,17 +1066,15 @@ impl Esc {
         let state = self.al_state;
         let mbx_on = state != INIT;
         let pd_on = matches!(state, SAFEOP | OP);
-        let mbx_sms: &[usize] = if self.mailbox.is_some() || self.boot_mailbox.is_some() {
-            &[0, 1]
-        } else {
-            &[]
-        };
-        for &k in mbx_sms {
-            self.sm[k].pdi_disabled = !mbx_on;
+        let has_mailbox = self.mailbox.is_some() || self.boot_mailbox.is_some();
+        if has_mailbox {
+            for &k in &self.mbx_sms {
+                self.sm[k].pdi_disabled = !mbx_on;
+            }
         }
-        for k in [self.out_sm, self.in_sm] {
-            if !mbx_sms.contains(&k) {
-                self.sm[k].pdi_disabled = !pd_on;
+        for p in &self.pd_sms {
+            if !(has_mailbox && self.mbx_sms.contains(&p.number)) {
+                self.sm[p.number].pdi_disabled = !pd_on;
             }
         }
     }
@@ -1052,21 +1104,21 @@ impl Esc {
         }
     }
 
-    /// Recompute the process-data maps from the dictionary (or the SII).
+    /// Recompute the process-data maps from the dictionary: the PDO assignment of SM n is
+    /// object 0x1C10 + n (ETG.1000.6); without it, the SII's PDOs of that SM.
     fn build_maps(&mut self) -> Result<(), u16> {
         use reg::al_code::*;
-        let out = match crate::pdo::from_od(&self.od, 0x1C12) {
-            Some(Ok(m)) => m,
-            Some(Err(_)) => return Err(INVALID_OUTPUT_MAPPING),
-            None => self.sii_map(51, self.out_sm),
-        };
-        let inp = match crate::pdo::from_od(&self.od, 0x1C13) {
-            Some(Ok(m)) => m,
-            Some(Err(_)) => return Err(INVALID_INPUT_MAPPING),
-            None => self.sii_map(50, self.in_sm),
-        };
-        self.out_map = out;
-        self.in_map = inp;
+        for i in 0..self.pd_sms.len() {
+            let (n, output) = (self.pd_sms[i].number, self.pd_sms[i].output);
+            let assign = SM_ASSIGN_BASE + n as u16;
+            let map = match crate::pdo::from_od(&self.od, assign, &self.partial_mappings) {
+                Some(Ok(m)) => m,
+                Some(Err(_)) if output => return Err(INVALID_OUTPUT_MAPPING),
+                Some(Err(_)) => return Err(INVALID_INPUT_MAPPING),
+                None => self.sii_map(if output { 51 } else { 50 }, n),
+            };
+            self.pd_sms[i].map = map;
+        }
         Ok(())
     }
 
@@ -1080,21 +1132,32 @@ impl Esc {
         crate::pdo::from_entries(&self.od, &entries)
     }
 
+    /// Does SM `p` hold what its PDOs need: disabled without data, else enabled with their
+    /// length and the direction. An OpOnly SM may still be disabled before OP.
+    fn pd_sm_ok(&self, p: &PdSm, op: bool) -> bool {
+        let s = &self.sm[p.number];
+        let bytes = p.map.bytes();
+        let control = p.control & 0x0f;
+        if bytes == 0 {
+            return !s.configured();
+        }
+        if p.op_only && !op && !s.configured() {
+            return true;
+        }
+        s.configured() && s.len as usize == bytes && s.control & 0x0f == control
+    }
+
     fn check_process_data(&mut self) -> Result<(), u16> {
         use reg::al_code::*;
         self.build_maps()?;
-        let check = |s: &SyncManager, bytes: usize, control: u8| {
-            if bytes == 0 {
-                !s.configured()
-            } else {
-                s.configured() && s.len as usize == bytes && s.control & 0x0f == control
+        for p in &self.pd_sms {
+            if !self.pd_sm_ok(p, false) {
+                return Err(if p.output {
+                    INVALID_OUTPUT_CONFIG
+                } else {
+                    INVALID_INPUT_CONFIG
+                });
             }
-        };
-        if !check(&self.sm[self.out_sm], self.out_map.bytes(), 0x04) {
-            return Err(INVALID_OUTPUT_CONFIG);
-        }
-        if !check(&self.sm[self.in_sm], self.in_map.bytes(), 0x00) {
-            return Err(INVALID_INPUT_CONFIG);
         }
         if self.spec.dc_required && !self.sync0_active() {
             return Err(INVALID_DC_SYNC_CONFIG);
@@ -1102,10 +1165,28 @@ impl Esc {
         Ok(())
     }
 
+    /// Output bytes of all process-data SMs (their maps as of the last PREOP -> SAFEOP).
+    pub fn output_bytes(&self) -> usize {
+        self.pd_sms.iter().filter(|p| p.output).map(|p| p.map.bytes()).sum()
+    }
+
+    pub fn input_bytes(&self) -> usize {
+        self.pd_sms.iter().filter(|p| !p.output).map(|p| p.map.bytes()).sum()
+    }
+
     fn check_op(&self) -> Result<(), u16> {
         use reg::al_code::*;
         if self.refuse_op {
             return Err(SYNCHRONIZATION_ERROR);
+        }
+        for p in &self.pd_sms {
+            if !self.pd_sm_ok(p, true) {
+                return Err(if p.output {
+                    INVALID_OUTPUT_CONFIG
+                } else {
+                    INVALID_INPUT_CONFIG
+                });
+            }
         }
         if self.waits_for_outputs() {
             return Err(NO_VALID_OUTPUTS);
@@ -1113,9 +1194,13 @@ impl Esc {
         Ok(())
     }
 
-    /// The slave has outputs but none arrived since SAFEOP.
+    /// The slave has outputs (in SMs enabled before OP) but none arrived since SAFEOP.
     fn waits_for_outputs(&self) -> bool {
-        self.out_map.bytes() > 0 && !self.outputs_since_safeop
+        let outputs = self
+            .pd_sms
+            .iter()
+            .any(|p| p.output && !p.op_only && p.map.bytes() > 0);
+        outputs && !self.outputs_since_safeop
     }
 
     /// Is a SAFEOP->OP request waiting for outputs? (for tests and `slave_info`)
@@ -1255,28 +1340,68 @@ impl Esc {
         self.al_state == reg::al::OP && !self.watchdog_expired && self.outputs_received
     }
 
-    /// SM buffer of outputs → dictionary (only in OP: SAFEOP keeps outputs safe).
+    /// SM buffers of outputs → dictionary (only in OP: SAFEOP keeps outputs safe). An SM on
+    /// the ESC's digital output registers (0x0F00..0x0F03) drives them too; a one-buffer SM is
+    /// emptied in SAFEOP as well.
     pub fn latch_outputs(&mut self) {
-        if self.al_state != reg::al::OP {
+        let op = self.al_state == reg::al::OP;
+        if !op && self.al_state != reg::al::SAFEOP {
             return;
         }
-        let k = self.out_sm;
-        if let Some(buf) = self.sm[k].pdi_take() {
-            crate::pdo::buffer_to_od(&self.out_map, buf, &mut self.od);
+        for p in &self.pd_sms {
+            if !p.output {
+                continue;
+            }
+            let s = &mut self.sm[p.number];
+            let start = s.start as usize;
+            if s.is_mailbox() {
+                // One buffer: the slave reads it once the master has filled it, so the master
+                // may write again; in SAFEOP it reads and drops it (outputs stay safe).
+                if s.full {
+                    if op {
+                        let end = (start + s.len as usize).min(MEM_SIZE);
+                        crate::pdo::buffer_to_od(&p.map, &self.mem[start..end], &mut self.od);
+                    }
+                    s.full = false;
+                }
+                continue;
+            }
+            if !op {
+                continue;
+            }
+            if let Some(buf) = s.pdi_take() {
+                crate::pdo::buffer_to_od(&p.map, buf, &mut self.od);
+                if (DIGITAL_OUTPUTS..DIGITAL_OUTPUTS + 4).contains(&start) {
+                    let n = buf.len().min(DIGITAL_OUTPUTS + 4 - start);
+                    self.mem[start..start + n].copy_from_slice(&buf[..n]);
+                }
+            }
         }
     }
 
-    /// Dictionary → SM buffer of inputs (SAFEOP and OP).
+    /// Dictionary → SM buffers of inputs (SAFEOP and OP).
     pub fn latch_inputs(&mut self) {
         if !matches!(self.al_state, reg::al::SAFEOP | reg::al::OP) {
             return;
         }
-        let k = self.in_sm;
-        if !self.sm[k].enabled() || self.in_map.bits == 0 {
-            return;
+        for p in &self.pd_sms {
+            let s = &mut self.sm[p.number];
+            if p.output || !s.enabled() || p.map.bits == 0 {
+                continue;
+            }
+            let (map, od) = (&p.map, &self.od);
+            if s.is_mailbox() {
+                // One buffer: the slave fills it when the master has read the last one.
+                if !s.full {
+                    let start = s.start as usize;
+                    let end = (start + s.len as usize).min(MEM_SIZE);
+                    crate::pdo::od_to_buffer(map, od, &mut self.mem[start..end]);
+                    s.full = true;
+                }
+                continue;
+            }
+            s.pdi_publish(|buf| crate::pdo::od_to_buffer(map, od, buf));
         }
-        let (map, od) = (&self.in_map, &self.od);
-        self.sm[k].pdi_publish(|buf| crate::pdo::od_to_buffer(map, od, buf));
     }
 
     /// Advance the application to host time `host`: device steps at the device period and
@@ -1371,8 +1496,11 @@ impl Esc {
     }
 
     fn check_watchdog(&mut self) {
-        let s = &self.sm[self.out_sm];
-        let armed = s.enabled() && s.control & WATCHDOG_TRIGGER != 0 && !s.is_mailbox();
+        // The process-data watchdog runs on the output SMs that trigger it (control bit 6).
+        let armed = self.pd_sms.iter().any(|p| {
+            let s = &self.sm[p.number];
+            p.output && s.enabled() && s.control & WATCHDOG_TRIGGER != 0 && !s.is_mailbox()
+        });
         let wd = self.watchdog_ns();
         if !armed || wd == 0 || self.watchdog_expired {
             return;
@@ -1413,6 +1541,112 @@ impl Esc {
     pub fn probe(&self) -> Vec<(&'static str, f64)> {
         self.device.as_ref().map(|d| d.probe()).unwrap_or_default()
     }
+}
+
+/// The ESC's digital output registers (0x0F00..0x0F03): a SyncManager may guard them, so
+/// that outputs written there count for the process-data watchdog (ET1100/ET1200 digital I/O).
+pub const DIGITAL_OUTPUTS: usize = 0x0F00;
+/// PDO assignment object of SyncManager n: 0x1C10 + n (ETG.1000.6).
+const SM_ASSIGN_BASE: u16 = 0x1C10;
+/// SII SyncM "enable" bit of a virtual SyncManager (ETG.2010): no hardware resource.
+const SII_SM_VIRTUAL: u8 = 0x04;
+/// SII SyncM "enable" bit of a SyncManager enabled only in OP.
+const SII_SM_OP_ONLY: u8 = 0x08;
+
+/// One process-data SyncManager of the slave and the map of the PDOs it carries.
+#[derive(Clone, Debug, Default)]
+pub struct PdSm {
+    pub number: usize,
+    /// Master → slave (SII type 3); else slave → master (type 4).
+    pub output: bool,
+    /// Enabled only in OP (SII enable bit 3): it may stay disabled in SAFEOP.
+    pub op_only: bool,
+    /// Mode and direction (control bits 0..3) the slave expects: buffered or one buffer.
+    pub control: u8,
+    pub map: PdoMap,
+}
+
+/// The process-data SyncManagers and the mailbox SyncManagers of an SII. Without a SyncM
+/// category the usual layout: SM2/SM3 behind a mailbox at SM0/SM1, else SM0/SM1.
+fn process_sync_managers(image: &[u8], mailbox: bool) -> (Vec<PdSm>, Vec<usize>) {
+    let sms = sii::sync_managers(image);
+    if sms.is_empty() {
+        let (o, i) = if mailbox { (2, 3) } else { (0, 1) };
+        let pd = vec![
+            PdSm {
+                number: o,
+                output: true,
+                control: 0x04,
+                ..Default::default()
+            },
+            PdSm {
+                number: i,
+                output: false,
+                control: 0x00,
+                ..Default::default()
+            },
+        ];
+        return (pd, vec![0, 1]);
+    }
+    let mut pd = Vec::new();
+    let mut mbx = Vec::new();
+    for (n, s) in sms.iter().enumerate().take(N_SM) {
+        match s.kind {
+            1 | 2 => mbx.push(n),
+            3 | 4 if s.enable & SII_SM_VIRTUAL == 0 => {
+                let output = s.kind == 3;
+                // The direction follows the type; the mode (buffered or one buffer) the SII.
+                let direction = if output { 0x04 } else { 0x00 };
+                pd.push(PdSm {
+                    number: n,
+                    output,
+                    op_only: s.enable & SII_SM_OP_ONLY != 0,
+                    control: (s.control & 0x03) | direction,
+                    map: PdoMap::default(),
+                })
+            }
+            _ => {}
+        }
+    }
+    if mbx.is_empty() {
+        mbx = vec![0, 1];
+    }
+    (pd, mbx)
+}
+
+/// The (index, subindex, bits) the device's own defaults (its mapping objects 0x1600..0x1BFF
+/// and its SII PDOs) map with another length than their object's: those mappings it accepts
+/// (e.g. 16 bits of a 32-bit counter; the copy takes the object's low bits).
+fn default_partial_mappings(od: &ObjectDictionary, image: &[u8]) -> Vec<(u16, u8, u16)> {
+    let mut out = Vec::new();
+    let mut consider = |index: u16, sub: u8, bits: u16| {
+        if index == 0 {
+            return;
+        }
+        if let Some(e) = od.entry(index, sub) {
+            if bits != e.bit_length && !out.contains(&(index, sub, bits)) {
+                out.push((index, sub, bits));
+            }
+        }
+    };
+    for o in od.objects() {
+        if !(0x1600..0x1C00).contains(&o.index) {
+            continue;
+        }
+        let n = od.get_int(o.index, 0).clamp(0, 254) as u8;
+        for s in 1..=n {
+            let raw = od.get_int(o.index, s) as u32;
+            consider((raw >> 16) as u16, (raw >> 8) as u8, (raw & 0xff) as u16);
+        }
+    }
+    for category in [50, 51] {
+        for p in sii::pdos(image, category) {
+            for &(index, sub, bits) in &p.entries {
+                consider(index, sub, bits);
+            }
+        }
+    }
+    out
 }
 
 #[cfg(test)]

@@ -57,9 +57,9 @@ MAX_DATA_TYPES = 8192
 MAX_INIT_CMDS = 1024
 MAX_SLOTS = 256
 MAX_CATEGORIES = 64
-#: Largest object, entry or array: a CoE object is at most 65535 bytes (no ESC mailbox or
-#: EEPROM holds more); an array has at most 255 elements (subindex 1..255).
-MAX_OBJECT_BITS = 8 * 65535
+#: Largest object, entry or array in bits: the CoE entry description gives a bit length in 16
+#: bits (ETG.1000.6, SDO information); an array has at most 255 elements (subindex 1..255).
+MAX_OBJECT_BITS = 0xFFFF
 MAX_SUBINDEX = 255
 #: EEPROM sizes an ESC can address (ESC datasheet, 0x0502 bit 7: two address bytes; the
 #: largest EEPROM a real ESC drives is 4 Mbit).
@@ -409,8 +409,15 @@ class EsiDevice:
 
     @property
     def dc_required(self) -> bool:
-        """True when every operation mode needs SYNC0 (no free-run mode with AssignActivate 0)."""
+        """True when every operation mode uses the distributed clock (AssignActivate bit 8,
+        "cyclic unit active", i.e. 0x0981 bit 0): no free-run mode with AssignActivate 0."""
         return bool(self.dc_opmodes) and all(m.assign_activate & 0x0100 for m in self.dc_opmodes)
+
+    @property
+    def sync0_required(self) -> bool:
+        """True when every operation mode needs SYNC0 (AssignActivate bit 9, 0x0981 bit 1); a
+        latch-only mode (EL1252 "DcLatch", 0x0100) needs the clock but no SYNC0."""
+        return bool(self.dc_opmodes) and all(m.assign_activate & 0x0200 for m in self.dc_opmodes)
 
     @property
     def assign_activate(self) -> int:
@@ -1113,18 +1120,30 @@ def _parse_device(
 
 
 def _sm_role(ctx: _Ctx, sm: etree._Element, label: str, control: int | None) -> str:
-    """The role of an ``<Sm>``: its text when it is one of the four ETG.2000 names; else (a
-    vendor's own name such as ``DynamicOutputs``) the direction and mode its ControlByte
-    gives, which is what the ESC itself goes by."""
-    if label in SM_ROLES or label == "":
+    """The role of an ``<Sm>``. The ESC goes by the ControlByte (ESC datasheet, 0x0804: mode
+    and direction), so its direction decides: a vendor's own name (``DynamicOutputs``) or a
+    label that contradicts it (SMC's EX250 calls an input SM "Outputs") takes the role the
+    ControlByte gives, with a note. Without a ControlByte the label is the role."""
+    if label == "":
         return label
     if control is None:
+        if label in SM_ROLES:
+            return label
         ctx.warn(sm, "SyncManager name is no role and there is no ControlByte: SM unused", label)
         return ""
-    mailbox = control & SM_MODE_MASK == SM_MODE_MAILBOX
     writes = control & SM_DIR_MASK == SM_DIR_ECAT_WRITES
-    role = ("MBoxOut" if writes else "MBoxIn") if mailbox else ("Outputs" if writes else "Inputs")
-    ctx.note(sm, f"SyncManager {label!r} is {role} (ControlByte {control:#04x})")
+    if label in ("MBoxOut", "MBoxIn"):
+        role = "MBoxOut" if writes else "MBoxIn"
+    elif label in ("Outputs", "Inputs"):
+        # A process-data SM may run in one-buffer (mailbox) mode: still process data.
+        role = "Outputs" if writes else "Inputs"
+    else:
+        mailbox = control & SM_MODE_MASK == SM_MODE_MAILBOX
+        role = ("MBoxOut" if writes else "MBoxIn") if mailbox else (
+            "Outputs" if writes else "Inputs"
+        )
+    if role != label:
+        ctx.note(sm, f"SyncManager {label!r} is {role} (ControlByte {control:#04x})")
     return role
 
 

@@ -11,11 +11,22 @@ version), then categories from word 0x40: ``type:u16, size_in_words:u16, data``,
 
 from __future__ import annotations
 
+import logging
 import struct
+import unicodedata
 from dataclasses import dataclass, field
 
-from ether_ros.config.esi import EsiDevice, Pdo
+from ether_ros.config.esi import (
+    MAX_EEPROM_BYTES,
+    SM_ENABLE,
+    SM_OP_ONLY,
+    SM_VIRTUAL,
+    EsiDevice,
+    Pdo,
+)
 from ether_ros.errors import ConfigError
+
+log = logging.getLogger(__name__)
 
 CAT_STRINGS = 10
 CAT_DATATYPES = 20
@@ -146,24 +157,48 @@ class SiiInfo:
 class _Strings:
     def __init__(self) -> None:
         self.items: list[str] = []
+        self._index: dict[str, int] = {}
 
     def index(self, text: str) -> int:
         """1-based string index; 0 means 'no string'."""
         if not text:
             return 0
-        if text in self.items:
-            return self.items.index(text) + 1
+        if text in self._index:
+            return self._index[text]
         if len(self.items) >= 255:
-            raise ConfigError("SII: more than 255 strings")
+            # The category indexes strings with one byte: the rest go without a name.
+            return 0
         self.items.append(text)
+        self._index[text] = len(self.items)
         return len(self.items)
 
     def encode(self) -> bytes:
         out = bytearray([len(self.items)])
         for s in self.items:
-            b = s.encode("latin-1", "replace")[:255]
+            b = sii_text(s)[:255]
             out += bytes([len(b)]) + b
         return bytes(out)
+
+
+# Characters vendors use that have no ASCII decomposition.
+_ASCII_FOR = {"µ": "u", "μ": "u", "°": "deg", "±": "+/-", "ß": "ss", "Ω": "Ohm", "€": "EUR"}
+
+
+def sii_text(text: str) -> bytes:
+    """A string as the SII stores it: printable ASCII (ETG.2010 strings are visible strings),
+    which every master decodes. Accents are dropped ("é" → "e"), a few signs spelled out
+    ("µs" → "us"), anything else is "?" and control characters are dropped."""
+    spelled = "".join(_ASCII_FOR.get(c, c) for c in text)
+    plain = unicodedata.normalize("NFKD", spelled)
+    out = []
+    for c in plain:
+        if unicodedata.combining(c):
+            continue
+        if " " <= c <= "~":
+            out.append(c)
+        elif not unicodedata.category(c).startswith("C"):
+            out.append("?")
+    return "".join(out).encode("ascii")
 
 
 def _category(ctype: int, data: bytes) -> bytes:
@@ -172,9 +207,20 @@ def _category(ctype: int, data: bytes) -> bytes:
     return struct.pack("<HH", ctype, len(data) // 2) + data
 
 
-def _pdo_category(pdos: tuple[Pdo, ...], strings: _Strings) -> bytes:
+def _pdo_category(device: EsiDevice, pdos: tuple[Pdo, ...], strings: _Strings) -> bytes:
+    """The TxPDO or RxPDO category. An entry longer than 255 bits (the category's bit length
+    is one byte) cannot be described: the PDO is left out with a warning."""
     out = bytearray()
     for p in pdos:
+        too_long = next((e for e in p.entries if e.bit_length > 0xFF), None)
+        if too_long is not None or len(p.entries) > 0xFF:
+            log.warning(
+                "%s: %s: PDO 0x%04X has an entry of more than 255 bits: not in the SII",
+                device.source,
+                device.type_name,
+                p.index,
+            )
+            continue
         flags = (
             (0x0001 if p.mandatory else 0)
             | (0x0002 if p.sm is not None else 0)
@@ -203,7 +249,8 @@ def _pdo_category(pdos: tuple[Pdo, ...], strings: _Strings) -> bytes:
 
 
 def build_sii(device: EsiDevice, alias: int = 0, serial: int = 0) -> bytes:
-    """The SII EEPROM image of ``device`` (``device.eeprom.byte_size`` bytes, 0xFF filled)."""
+    """The SII EEPROM image of ``device``: ``device.eeprom.byte_size`` bytes, 0xFF filled, or
+    more (a power of two, with a warning) when the content needs more than the ESI says."""
     if not 0 <= alias <= 0xFFFF:
         raise ConfigError(f"SII alias must be 0..65535, got {alias}")
     if not 0 <= serial <= 0xFFFFFFFF:
@@ -224,9 +271,6 @@ def build_sii(device: EsiDevice, alias: int = 0, serial: int = 0) -> bytes:
         struct.pack_into("<HHHH", head, 0x28, *mbx)  # bootstrap mailbox: same as standard
         struct.pack_into("<HHHH", head, 0x30, *mbx)
         struct.pack_into("<H", head, 0x38, device.mailbox.protocols)
-    size_kbit = device.eeprom.byte_size * 8 // 1024
-    struct.pack_into("<HH", head, 0x7C, max(size_kbit - 1, 0), 1)
-
     # Categories. Strings first: the others reference them, so build them before encoding.
     mb = device.mailbox
     coe = 0
@@ -264,11 +308,14 @@ def build_sii(device: EsiDevice, alias: int = 0, serial: int = 0) -> bytes:
             kind = "rx" if sm.role == "Outputs" else "tx"
             pdos = device.rx_pdos if kind == "rx" else device.tx_pdos
             size = (sum(p.bit_length for p in pdos if p.sm == sm.number) + 7) // 8
-        syncm += struct.pack(
-            "<HHBBBB", sm.start, size, sm.control, 0, 0x01 if sm.enable else 0, SM_TYPE[sm.role]
-        )
-    tx = _pdo_category(device.tx_pdos, strings)
-    rx = _pdo_category(device.rx_pdos, strings)
+        # Enable byte (ETG.2010): a virtual SM is flagged and not enabled (it takes no
+        # hardware SM: a master maps its memory with an FMMU only), an OpOnly SM flagged.
+        enable = SM_VIRTUAL if sm.virtual else (SM_ENABLE if sm.enable else 0)
+        enable |= SM_OP_ONLY if sm.op_only else 0
+        syncm += struct.pack("<HHBBBB", sm.start, size & 0xFFFF, sm.control, 0, enable,
+                             SM_TYPE[sm.role])  # fmt: skip
+    tx = _pdo_category(device, device.tx_pdos, strings)
+    rx = _pdo_category(device, device.rx_pdos, strings)
     dc = bytearray()
     for m in device.dc_opmodes:
         dc += struct.pack(
@@ -295,14 +342,38 @@ def build_sii(device: EsiDevice, alias: int = 0, serial: int = 0) -> bytes:
         body += _category(CAT_RXPDO, rx)
     if dc:
         body += _category(CAT_DC, bytes(dc))
+    for number, data in device.eeprom.categories:
+        if number in (CAT_STRINGS, CAT_GENERAL, CAT_FMMU, CAT_SYNCM, CAT_TXPDO, CAT_RXPDO, CAT_DC):
+            continue  # made from the ESI above
+        body += _category(number, data)
     body += struct.pack("<H", CAT_END)
-    image = bytes(head) + bytes(body)
-    if len(image) > device.eeprom.byte_size:
-        raise ConfigError(
-            f"{device.source}: SII image of {device.type_name} needs {len(image)} bytes but the"
-            f" EEPROM has {device.eeprom.byte_size} (<Eeprom><ByteSize>)"
+    needed = len(head) + len(body)
+    size = device.eeprom.byte_size
+    if needed > size:
+        # As big as the content needs (a power of two, as EEPROMs come): the ESI's ByteSize
+        # describes the vendor's EEPROM, whose SII the vendor's tool made smaller.
+        grown = max(size, 128)
+        while grown < needed:
+            grown *= 2
+        log.warning(
+            "%s: %s: the SII needs %d bytes, more than <Eeprom><ByteSize> %d: the simulated "
+            "EEPROM has %d",
+            device.source,
+            device.type_name,
+            needed,
+            size,
+            grown,
         )
-    return image.ljust(device.eeprom.byte_size, b"\xff")
+        size = grown
+    if size > MAX_EEPROM_BYTES:
+        raise ConfigError(
+            f"{device.source}: SII image of {device.type_name} needs {needed} bytes, more than an"
+            f" EEPROM holds ({MAX_EEPROM_BYTES})"
+        )
+    size_kbit = size * 8 // 1024
+    struct.pack_into("<HH", head, 0x7C, max(size_kbit - 1, 0), 1)
+    image = bytes(head) + bytes(body)
+    return image.ljust(size, b"\xff")
 
 
 # --------------------------------------------------------------------------------------------
