@@ -971,6 +971,22 @@ impl Esc {
             self.fail(UNKNOWN_REQUESTED_STATE);
             return;
         }
+        if self.device_emulation() {
+            // ESC datasheet, 0x0141 bit 0 "device emulation": a slave without application
+            // processor (digital I/O terminals: PDI 0x04) has the ESC copy AL control to AL
+            // status; nothing is checked.
+            self.op_pending_since = None;
+            if requested != self.al_state {
+                if requested == SAFEOP && self.al_state == PREOP {
+                    // The process data still flows by the SII's PDOs (digital I/O).
+                    let _ = self.build_maps();
+                }
+                self.enter_state(requested);
+            } else {
+                self.update_al_registers();
+            }
+            return;
+        }
         let cur = self.al_state;
         // Any new request replaces a SAFEOP->OP request still waiting for outputs.
         let was_pending = self.op_pending_since.take();
@@ -1009,6 +1025,12 @@ impl Esc {
                 self.fail_with_emergency(code, emergency);
             }
         }
+    }
+
+    /// ESC configuration 0x0141 bit 0 (from the EEPROM's ConfigData): the ESC itself
+    /// answers AL control, there is no slave application to check anything.
+    pub fn device_emulation(&self) -> bool {
+        self.mem[reg::ESC_CONFIG as usize] & 0x01 != 0
     }
 
     /// Set the error indication with `code`, staying in the current state.
@@ -1132,14 +1154,15 @@ impl Esc {
         crate::pdo::from_entries(&self.od, &entries)
     }
 
-    /// Does SM `p` hold what its PDOs need: disabled without data, else enabled with their
-    /// length and the direction. An OpOnly SM may still be disabled before OP.
+    /// Does SM `p` hold what its PDOs need: enabled with their length, mode and direction.
+    /// An SM without data is not checked (as SOES does: a master may leave it enabled with
+    /// the SII's length, as SOEM does); an OpOnly SM may still be disabled before OP.
     fn pd_sm_ok(&self, p: &PdSm, op: bool) -> bool {
         let s = &self.sm[p.number];
         let bytes = p.map.bytes();
         let control = p.control & 0x0f;
         if bytes == 0 {
-            return !s.configured();
+            return true;
         }
         if p.op_only && !op && !s.configured() {
             return true;
@@ -1511,7 +1534,9 @@ impl Esc {
             self.put16(reg::WATCHDOG_STATUS_PD, 0);
             let c = self.mem[reg::WATCHDOG_COUNTER_PD as usize];
             self.mem[reg::WATCHDOG_COUNTER_PD as usize] = c.saturating_add(1);
-            if self.al_state == reg::al::OP {
+            // The outputs go to their safe state (outputs_valid is false now). A slave
+            // application leaves OP; under device emulation there is none to do it.
+            if self.al_state == reg::al::OP && !self.device_emulation() {
                 self.enter_state(reg::al::SAFEOP);
                 self.fail(reg::al_code::SM_WATCHDOG);
             }

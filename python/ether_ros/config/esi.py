@@ -1071,11 +1071,15 @@ def _parse_device(
 
     sms = _parse_sync_managers(ctx, dev)
     fmmus: list[str] = []
+    by_label = {sm.label: sm.role for sm in sms if sm.role in ("Outputs", "Inputs")}
     for f in _children(dev, "Fmmu"):
         role = _text(f)
         if role not in ("Outputs", "Inputs", "MBoxState", ""):
-            ctx.note(f, f"FMMU {role!r} is no ETG.2000 role (the master assigns FMMUs by SM)")
-            role = ""
+            # A vendor's name (Pollen's "OrbitaIn"): the role of the SM of that name, or the
+            # mailbox state FMMU; masters that go by the SII's FMMU list (ethercrab) need one.
+            named = by_label.get(role) or ("MBoxState" if "state" in role.lower() else "")
+            ctx.note(f, f"FMMU {role!r} is no ETG.2000 role: taken as {named or 'unused'!r}")
+            role = named
         fmmus.append(role)
     if len(fmmus) > 16:
         raise ctx.error(dev, "more than 16 FMMUs", len(fmmus))

@@ -104,15 +104,31 @@ def _fill_empty_mappings(device: EsiDevice, rows: list[tuple[Any, ...]]) -> list
     entries; an ESI that types them otherwise, as Elmo's DT1A00 with a UINT, is read so), and
     one the dictionary declares without default contents (Elmo's 0x1600 has no ``<Info>``)
     holding what the ESI's PDO of that index maps: that is the device's content (a ``Fixed``
-    PDO is never written by a master)."""
+    PDO is never written by a master). The same for an empty PDO assignment object."""
     out = [
         (*r[:3], dt.UINT32.code, 32, *r[5:7], bytes(r[7][:4]).ljust(4, b"\0"))
         if 0x1600 <= r[0] < 0x1C00 and r[1] > 0 and r[4] != 32
         else r
         for r in rows
     ]
-    pdos = {p.index: p for p in (*device.rx_pdos, *device.tx_pdos) if not p.virtual}
     by_key = {(r[0], r[1]): k for k, r in enumerate(out)}
+    # Subindex 0 of a PDO assignment or mapping object is its count (ETG.1000.6); an ESI that
+    # gives the largest subindex there instead (SOES's "Max SubIndex" 8 with two PDOs
+    # assigned) counts only the entries before the first empty one (a PDO index or mapping
+    # of 0 means nothing).
+    for (index, sub), k in list(by_key.items()):
+        if sub != 0 or not (0x1600 <= index < 0x1C00 or SM_ASSIGN_BASE <= index < 0x1C30):
+            continue
+        count = out[k][7][0] if out[k][7] else 0
+        used = 0
+        while used < count:
+            entry = by_key.get((index, used + 1))
+            if entry is None or not any(out[entry][7]):
+                break
+            used += 1
+        if used < count:
+            out[k] = (*out[k][:7], bytes([used]))
+    pdos = {p.index: p for p in (*device.rx_pdos, *device.tx_pdos) if not p.virtual}
     for index, pdo in pdos.items():
         count = by_key.get((index, 0))
         if count is None or any(out[count][7]) or not pdo.entries:
@@ -124,6 +140,22 @@ def _fill_empty_mappings(device: EsiDevice, rows: list[tuple[Any, ...]]) -> list
         for k, e in zip(subs, pdo.entries, strict=True):
             assert k is not None
             out[k] = (*out[k][:7], e.mapping_value.to_bytes(4, "little"))
+    # Likewise an assignment object 0x1C10+n left empty (Elmo's 0x1C12 without <Info>): the
+    # device has the PDOs its ESI assigns to SM n by default.
+    for sm in device.sync_managers:
+        index = SM_ASSIGN_BASE + sm.number
+        count = by_key.get((index, 0))
+        if count is None or any(out[count][7]) or not sm.is_process_data:
+            continue
+        default = [p.index for p in (*device.default_rx(), *device.default_tx())
+                   if not p.virtual and pdo_sync_manager(device, p) == sm.number]  # fmt: skip
+        subs = [by_key.get((index, n)) for n in range(1, len(default) + 1)]
+        if not default or any(k is None for k in subs):
+            continue
+        out[count] = (*out[count][:7], bytes([len(default)]))
+        for k, pdo_index in zip(subs, default, strict=True):
+            assert k is not None
+            out[k] = (*out[k][:7], pdo_index.to_bytes(2, "little").ljust(len(out[k][7]), b"\0"))
     return out
 
 

@@ -1,0 +1,262 @@
+"""The real vendor ESI corpus (``shared/esi-vendor``, with ``SOURCES.txt``): finding it, the
+buses its devices run on, and running them under our master, pysoem and ethercrab.
+
+Used by the acceptance tests (``tests/acceptance/test_vendor_esi.py``) and by
+``scripts/esi_matrix.py``, which writes the results matrix of ``docs/devices.md``. The files are
+read where they are, never copied into the project.
+
+Every device (type and revision) of every file runs as a virtual slave, many of them on one
+bus: a bus is a line of devices of one or more files, generated as a bus configuration
+(``bus_yaml_for_devices``) that the simulator and the master both open.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ether_ros.config import types as dt
+from ether_ros.config.bus import BusConfig, SlaveConfig, default_sim_device
+from ether_ros.config.esi import EsiDevice, load_esi_file
+from ether_ros.config.process import ProcessLayout, ProcessVariable
+from ether_ros.sim.spec import ESC_REGISTER_OBJECTS, bus_order, loopback_pairs
+
+#: Where the corpus is when ``ETHER_ROS_VENDOR_ESI`` does not say: ``shared/esi-vendor`` in a
+#: folder above the project (``/work/shared/esi-vendor`` for ``/work/main``).
+VENDOR_ENV = "ETHER_ROS_VENDOR_ESI"
+VENDOR_SUBDIR = Path("shared") / "esi-vendor"
+#: Buses of the CI acceptance: the big Beckhoff files alone, the rest together.
+BUS_GROUPS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("beckhoff_el1", ("Beckhoff EL1xxx.xml",)),
+    ("beckhoff_el2", ("Beckhoff EL2xxx.xml",)),
+    (
+        "beckhoff_other",
+        (
+            "Beckhoff EK11xx.xml",
+            "Beckhoff EL15xx.xml",
+            "Beckhoff EL3xxx.xml",
+            "Beckhoff EL9xxx.xml",
+            "Beckhoff EP5xxx.xml",
+        ),
+    ),
+)
+#: The group of every file no other group names.
+OTHER_VENDORS = "vendors"
+#: Devices on a representative bus (the ethercrab probe holds 16 subdevices).
+REPRESENTATIVE = 12
+
+
+def vendor_dir(start: Path | None = None) -> Path | None:
+    """The corpus folder, or None when there is none."""
+    env = os.environ.get(VENDOR_ENV)
+    if env:
+        p = Path(env)
+        return p if p.is_dir() else None
+    here = (start or Path(__file__)).resolve()
+    for parent in here.parents:
+        candidate = parent / VENDOR_SUBDIR
+        if candidate.is_dir():
+            return candidate
+    return None
+
+
+def vendor_files(root: Path) -> list[Path]:
+    """Every ESI file of the corpus, sorted by path."""
+    return sorted(p for p in root.rglob("*.xml") if p.is_file())
+
+
+def bus_devices(files: Iterable[Path]) -> list[EsiDevice]:
+    """Every device that is on a bus (not a passive terminal) of ``files``, in file order."""
+    return [d for f in files for d in load_esi_file(f).devices if not d.passive]
+
+
+def bus_groups(root: Path) -> dict[str, list[Path]]:
+    """The corpus files by CI bus group (``BUS_GROUPS``, the rest in ``vendors``)."""
+    files = vendor_files(root)
+    groups: dict[str, list[Path]] = {}
+    named = set()
+    for name, members in BUS_GROUPS:
+        chosen = [f for f in files if f.name in members]
+        if chosen:
+            groups[name] = chosen
+            named.update(chosen)
+    rest = [f for f in files if f not in named]
+    if rest:
+        groups[OTHER_VENDORS] = rest
+    return groups
+
+
+def representative(devices: Sequence[EsiDevice], n: int = REPRESENTATIVE) -> list[EsiDevice]:
+    """Up to ``n`` devices spread over ``devices`` (newest revision of each type, types taken
+    at even steps), so a short bus still shows the file's kinds of devices."""
+    newest: dict[str, EsiDevice] = {}
+    for d in devices:
+        key = f"{d.vendor_id}:{d.product_code}:{d.type_name}"
+        if key not in newest or d.revision > newest[key].revision:
+            newest[key] = d
+    types = list(newest.values())
+    if len(types) <= n:
+        return types
+    step = len(types) / n
+    return [types[int(k * step)] for k in range(n)]
+
+
+#: Largest representative bus (the ethercrab probe holds 16 subdevices) and the devices a
+#: file gives to it.
+REPRESENTATIVE_BUS = 16
+PER_FILE = 6
+
+
+def representative_buses(root: Path) -> list[tuple[str, list[EsiDevice]]]:
+    """Buses of at most ``REPRESENTATIVE_BUS`` devices on which every file of the corpus is
+    represented (up to ``PER_FILE`` of its devices, ``representative``), a file's devices on
+    one bus; named after their first file."""
+    buses: list[tuple[str, list[EsiDevice]]] = []
+    current: list[EsiDevice] = []
+    name = ""
+    for f in vendor_files(root):
+        chosen = representative(bus_devices([f]), PER_FILE)
+        if not chosen:
+            continue
+        if current and len(current) + len(chosen) > REPRESENTATIVE_BUS:
+            buses.append((name, current))
+            current = []
+        if not current:
+            name = re.sub(r"[^a-z0-9]+", "_", f.stem.lower()).strip("_")
+        current.extend(chosen)
+    if current:
+        buses.append((name, current))
+    return buses
+
+
+# --------------------------------------------------------------------------------------------
+# Process data that really flows: an output of each loopback slave comes back in an input.
+
+
+@dataclass(frozen=True)
+class Echo:
+    """One output written to a slave and the input its loopback model copies it to."""
+
+    slave: str
+    output: ProcessVariable
+    input: ProcessVariable
+    value: int | bool
+
+
+def echo_checks(cfg: BusConfig) -> list[Echo]:
+    """For every slave running the ``loopback`` model: its first output → input pair of a
+    number type in real (not virtual) PDOs, with a value that is not the power-on zero."""
+    checks: list[Echo] = []
+    for s in bus_order(cfg):
+        if default_sim_device(s.esi) != "loopback" or s.sim.device not in (None, "loopback"):
+            continue
+        layout = s.layout
+        for out_i, out_s, in_i, in_s in loopback_pairs(s.esi):
+            out = _variable(layout.outputs, out_i, out_s)
+            inp = _variable(layout.inputs, in_i, in_s)
+            if out is None or inp is None or out.dtype.kind not in ("bool", "int", "uint"):
+                continue
+            checks.append(Echo(s.name, out, inp, _value(out)))
+            break
+    return checks
+
+
+def _variable(vs: Sequence[ProcessVariable], index: int, sub: int) -> ProcessVariable | None:
+    if index in ESC_REGISTER_OBJECTS:
+        return None
+    return next((v for v in vs if (v.index, v.subindex) == (index, sub)), None)
+
+
+def _value(v: ProcessVariable) -> int | bool:
+    if v.dtype.kind == "bool":
+        return True
+    return (0x5A5A5A5A5A5A5A5A & ((1 << (v.bit_length - 1)) - 1)) or 1
+
+
+# --------------------------------------------------------------------------------------------
+# ethercrab: the probe binary of tests/ethercrab_probe
+
+
+def ethercrab_layout(slave: SlaveConfig) -> ProcessLayout:
+    """ethercrab knows nothing of a config's ``pdo_assign``: it maps the device's default PDOs
+    as its SII and CoE objects present them — the ESI's defaults."""
+    return ProcessLayout.for_device(slave.esi)
+
+
+def ethercrab_expected_wkc(cfg: BusConfig) -> int:
+    """LRW working counter: +2 per slave with outputs, +1 per slave with inputs."""
+    wkc = 0
+    for s in cfg.slaves:
+        layout = ethercrab_layout(s)
+        wkc += (2 if layout.output_bytes else 0) + (1 if layout.input_bytes else 0)
+    return wkc
+
+
+def run_ethercrab(
+    probe: Path, interface: str, cfg: BusConfig, cycles: int = 2000, timeout_s: float = 240
+) -> dict[str, Any]:
+    """Run the ethercrab probe on ``interface`` for the bus ``cfg``; its JSON report (with
+    ``error`` set, and ``exit`` its status, when something failed)."""
+    argv = [str(probe), "--interface", interface, "--cycles", str(cycles),
+            "--cycle-us", str(cfg.bus.cycle_us),
+            "--expect-slaves", str(len(cfg.slaves)),
+            "--expect-wkc", str(ethercrab_expected_wkc(cfg))]  # fmt: skip
+    if cfg.bus.dc.enabled:
+        argv += ["--dc", "--shift-us", str(int(cfg.bus.dc.sync0_shift_us))]
+    done = subprocess.run(argv, capture_output=True, text=True, timeout=timeout_s, check=False)
+    lines = [ln for ln in done.stdout.splitlines() if ln.startswith("{")]
+    if not lines:
+        return {"error": f"no report (exit {done.returncode}): {done.stderr[-500:]}",
+                "exit": done.returncode}  # fmt: skip
+    result: dict[str, Any] = json.loads(lines[-1])
+    result["exit"] = done.returncode
+    return result
+
+
+# --------------------------------------------------------------------------------------------
+# The results matrix
+
+
+@dataclass
+class DeviceResult:
+    """One device's row of the matrix."""
+
+    file: str
+    type_name: str
+    revision: int
+    product_code: int
+    loads: bool = True
+    passive: bool = False
+    simulated: str = ""  # '' not tried, 'yes', or why not
+    ours: str = ""
+    pysoem: str = ""
+    ethercrab: str = ""
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def key(self) -> tuple[str, str, int]:
+        return (self.file, self.type_name, self.revision)
+
+
+def slave_index(message: str, names: Sequence[str]) -> int | None:
+    """The position of the slave an error message names (``slave 7 (name)``), if any."""
+    m = re.search(r"slave (\d+) \(([^)]*)\)", message)
+    if m and m.group(2) in names:
+        return names.index(m.group(2))
+    m = re.search(r"slaves\[(\d+)\]", message)
+    if m:
+        return int(m.group(1))
+    m = re.search(r"slave '([^']*)'", message)
+    if m and m.group(1) in names:
+        return names.index(m.group(1))
+    return None
+
+
+def code_name(code: int) -> str:
+    return dt.BY_CODE[code].name if code in dt.BY_CODE else f"{code:#x}"
