@@ -1718,4 +1718,189 @@ mod tests {
         assert_eq!(esc.al_code, reg::al_code::INVALID_DC_SYNC_CONFIG);
         assert_eq!(last_emergency_code(&esc), Some(0xA000));
     }
+
+    /// An SII image: the configuration area (word 0: PDI control and ESC configuration, with
+    /// its checksum), then a SyncM category (start, length, control, enable, type per SM) and
+    /// the end marker.
+    fn image(esc_config: u8, sms: &[(u16, u16, u8, u8, u8)]) -> Vec<u8> {
+        let mut head = vec![0u8; 128];
+        head[0] = 0x04;
+        head[1] = esc_config;
+        head[14] = sii::checksum(&head[..14]);
+        let mut cat = Vec::new();
+        for &(start, len, control, enable, kind) in sms {
+            cat.extend_from_slice(&start.to_le_bytes());
+            cat.extend_from_slice(&len.to_le_bytes());
+            cat.extend_from_slice(&[control, 0, enable, kind]);
+        }
+        head.extend_from_slice(&41u16.to_le_bytes());
+        head.extend_from_slice(&((cat.len() / 2) as u16).to_le_bytes());
+        head.extend_from_slice(&cat);
+        head.extend_from_slice(&[0xff, 0xff]);
+        head
+    }
+
+    fn slave(esc_config: u8, sms: &[(u16, u16, u8, u8, u8)]) -> Esc {
+        let spec = SlaveSpec {
+            sii: image(esc_config, sms),
+            ..Default::default()
+        };
+        Esc::new(spec, 0, 0)
+    }
+
+    /// The master's SM register write: start, length, control, status, activate.
+    fn configure_sm(esc: &mut Esc, k: usize, start: u16, len: u16, control: u8) {
+        let mut w = start.to_le_bytes().to_vec();
+        w.extend_from_slice(&len.to_le_bytes());
+        w.extend_from_slice(&[control, 0, 1, 0]);
+        esc.ecat_write(0x0800 + 8 * k, &w);
+    }
+
+    #[test]
+    fn an_input_only_slave_without_mailbox_takes_its_sm0_as_inputs() {
+        // EL1008: one SM, inputs at 0x1000, no mailbox. The simulator took SM0 for outputs
+        // and refused SAFEOP with 0x001D.
+        let mut esc = slave(0x00, &[(0x1000, 1, 0x00, 0x01, 4)]);
+        esc.od.add_entry(crate::od::Entry {
+            index: 0x6000,
+            subindex: 1,
+            name: "Input".into(),
+            data_type: crate::od::dtype::UINT8,
+            bit_length: 8,
+            access: crate::od::Access::ReadOnly,
+            pdo_mappable: true,
+            value: vec![0x5A],
+        });
+        // Its SII has no PDO category here: the map comes from the dictionary's 0x1C10.
+        esc.od.add_entry(crate::od::Entry {
+            index: 0x1C10,
+            subindex: 0,
+            name: "n".into(),
+            data_type: crate::od::dtype::UINT8,
+            bit_length: 8,
+            access: crate::od::Access::ReadOnly,
+            pdo_mappable: false,
+            value: vec![1],
+        });
+        esc.od.add_entry(crate::od::Entry {
+            index: 0x1C10,
+            subindex: 1,
+            name: "pdo".into(),
+            data_type: crate::od::dtype::UINT16,
+            bit_length: 16,
+            access: crate::od::Access::ReadOnly,
+            pdo_mappable: false,
+            value: 0x1A00u16.to_le_bytes().to_vec(),
+        });
+        for (sub, v) in [(0u8, 1u32), (1, 0x6000_0108)] {
+            esc.od.add_entry(crate::od::Entry {
+                index: 0x1A00,
+                subindex: sub,
+                name: "m".into(),
+                data_type: crate::od::dtype::UINT32,
+                bit_length: if sub == 0 { 8 } else { 32 },
+                access: crate::od::Access::ReadOnly,
+                pdo_mappable: false,
+                value: v.to_le_bytes()[..if sub == 0 { 1 } else { 4 }].to_vec(),
+            });
+        }
+        esc.request_state(reg::al::PREOP as u16);
+        configure_sm(&mut esc, 0, 0x1000, 1, 0x00);
+        esc.request_state(reg::al::SAFEOP as u16);
+        assert_eq!((esc.al_state, esc.al_code), (reg::al::SAFEOP, 0));
+        esc.latch_inputs();
+        let mut b = [0u8; 1];
+        assert!(esc.ecat_read(0x1000, &mut b, false));
+        assert_eq!(b, [0x5A]);
+    }
+
+    #[test]
+    fn device_emulation_copies_al_control_to_al_status() {
+        // 0x0141 bit 0 (ConfigData "0401"): no application checks the SyncManagers.
+        let mut esc = slave(0x01, &[(0x0F00, 1, 0x44, 0x09, 3)]);
+        assert!(esc.device_emulation());
+        for state in [reg::al::PREOP, reg::al::SAFEOP, reg::al::OP] {
+            esc.request_state(state as u16);
+            assert_eq!((esc.al_state, esc.al_error), (state, false));
+        }
+    }
+
+    #[test]
+    fn an_sm_on_the_digital_output_registers_drives_them_in_op() {
+        // EL2008: SM0 at 0x0F00, enabled only in OP (SII enable bit 3).
+        let mut esc = slave(0x01, &[(0x0F00, 1, 0x44, 0x09, 3)]);
+        esc.request_state(reg::al::PREOP as u16);
+        esc.request_state(reg::al::SAFEOP as u16);
+        configure_sm(&mut esc, 0, 0x0F00, 1, 0x44);
+        esc.request_state(reg::al::OP as u16);
+        assert!(esc.ecat_write(0x0F00, &[0xA5]));
+        esc.latch_outputs();
+        assert_eq!(esc.memory()[0x0F00], 0xA5);
+    }
+
+    #[test]
+    fn a_virtual_sm_takes_no_hardware_sm() {
+        // EL1252: a virtual SM at 0x09AE (SII enable bit 2) is mapped by an FMMU only.
+        let esc = slave(0x01, &[(0x1000, 1, 0x22, 0x01, 4), (0x09AE, 34, 0x00, 0x04, 4)]);
+        assert_eq!(
+            esc.pd_sms
+                .iter()
+                .map(|p| (p.number, p.output, p.control))
+                .collect::<Vec<_>>(),
+            vec![(0, false, 0x02)]
+        );
+    }
+
+    #[test]
+    fn speed_counter_start_write_resets_the_difference_registers() {
+        // ESC datasheet 0x0930: a write resets 0x092C (system time difference) and 0x0932
+        // (speed counter difference).
+        let mut esc = slave(0x00, &[]);
+        esc.ecat_write(0x0910, &5_000_000u64.to_le_bytes());
+        assert_ne!(esc.get32(reg::DC_SYSTEM_TIME_DIFF), 0);
+        esc.put16(DC_SPEED_COUNTER_DIFF, 7);
+        esc.ecat_write(0x0930, &0x1000u16.to_le_bytes());
+        assert_eq!(esc.get32(reg::DC_SYSTEM_TIME_DIFF), 0);
+        assert_eq!(esc.get16(DC_SPEED_COUNTER_DIFF), 0);
+    }
+
+    #[test]
+    fn dc_time_stamps_are_on_the_10_ns_clock_with_jitter() {
+        let mut esc = slave(0x00, &[]);
+        let mut seen = std::collections::BTreeSet::new();
+        for k in 0..200u64 {
+            esc.now = 1_000_000 + k * 1_000_003;
+            esc.ecat_write(0x0900, &[0]);
+            let t = esc.get32(reg::DC_RECEIVE_TIME_PORT0) as u64;
+            assert_eq!(t % DC_GRANULARITY_NS, 0);
+            // Within one clock step of the true local time.
+            let local = esc.dc.local(esc.now);
+            assert!(t.abs_diff(local & 0xffff_ffff) <= DC_GRANULARITY_NS, "{t} {local}");
+            seen.insert((t as i64 - (local & 0xffff_ffff) as i64).signum());
+        }
+        assert!(seen.len() > 1, "no jitter: {seen:?}");
+    }
+
+    #[test]
+    fn eeprom_offered_to_the_pdi_ignores_the_master_until_taken_back() {
+        let mut esc = slave(0x00, &[]);
+        let read = |esc: &mut Esc| {
+            esc.ecat_write(0x0504, &0x08u32.to_le_bytes());
+            esc.ecat_write(0x0502, &0x0100u16.to_le_bytes());
+            esc.memory()[0x0508..0x0510].to_vec()
+        };
+        let before = read(&mut esc);
+        // Offered to the PDI (0x0500 = 1): the application takes it (0x0501 bit 0).
+        esc.ecat_write(0x0500, &[0x01]);
+        assert!(esc.eeprom_at_pdi() && esc.memory()[0x0501] & 1 == 1);
+        esc.mem[0x0508..0x0510].fill(0xEE);
+        assert_eq!(read(&mut esc), vec![0xEE; 8]);
+        // "Force ECAT access" (0x0500 = 2) takes it back at once.
+        esc.ecat_write(0x0500, &[0x02]);
+        assert!(!esc.eeprom_at_pdi() && esc.memory()[0x0501] == 0);
+        assert_eq!(read(&mut esc), before);
+        // 0x0501 belongs to the PDI: EtherCAT cannot write it.
+        esc.ecat_write(0x0501, &[0x01]);
+        assert_eq!(esc.memory()[0x0501], 0);
+    }
 }

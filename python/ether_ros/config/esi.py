@@ -42,7 +42,7 @@ log = logging.getLogger(__name__)
 # Bounds (hostile input; every real vendor file stays far below them)
 
 #: Largest ESI file read (the biggest real vendor files are a few MB).
-MAX_ESI_BYTES = 64 * 1024 * 1024
+MAX_ESI_BYTES = 32 * 1024 * 1024
 #: Devices in one file, modules in one file.
 MAX_DEVICES = 1024
 MAX_MODULES = 1024
@@ -476,7 +476,7 @@ def parse_esi_int(text: str) -> int:
     """ESI numbers (ETG.2000 ``HexDecValue``): ``#x1A00`` or ``0x1A00`` (hex, at most 64
     bits) or a decimal number with an optional sign. Anything else — empty text, digit
     separators, other scripts' digits, 5000-digit numbers — is a ``ValueError``."""
-    t = text.strip()
+    t = text.strip(" \t\r\n")  # XML's white space only
     if m := _HEX.match(t):
         return int(m.group(1), 16)
     if _DEC.match(t):
@@ -550,9 +550,8 @@ def _line(el: etree._Element) -> int:
 
 
 def _children(el: etree._Element, name: str) -> Iterator[etree._Element]:
-    for c in el:
-        if isinstance(c.tag, str) and (c.tag == name or c.tag.endswith("}" + name)):
-            yield c
+    """The child elements called ``name`` (in any namespace or none), by lxml's own search."""
+    return el.iterchildren("{*}" + name)  # type: ignore[no-any-return]
 
 
 def _child(el: etree._Element, name: str) -> etree._Element | None:
