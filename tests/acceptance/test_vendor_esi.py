@@ -205,9 +205,7 @@ def test_pysoem_brings_a_representative_bus_of_each_file_to_op(index: int, tmp_p
             # (EL1252) misses a read when two frames fall between its SYNC0 latches, as on
             # hardware: the expected count is the highest one seen.
             slaves = soem.slaves
-            expected = sum(
-                (2 if len(s.output) else 0) + (1 if len(s.input) else 0) for s in slaves
-            )
+            expected = sum((2 if len(s.output) else 0) + (1 if len(s.input) else 0) for s in slaves)
             seen = soem.stats.wkc_seen
             assert max(seen) == expected, seen
             for s, c in zip(slaves, bus_order(cfg), strict=True):

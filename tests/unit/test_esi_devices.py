@@ -95,7 +95,9 @@ def _esi(tmp_path: Path, *devices: str, modules: str = "") -> Path:
 
 def _config(tmp_path: Path, esi: Path, slaves: str) -> Path:
     p = tmp_path / "bus.yaml"
-    p.write_text(f"bus: {{name: t, cycle_us: 1000, dc: {{enabled: false}}}}\nesi: [{esi}]\nslaves:\n{slaves}")
+    p.write_text(
+        f"bus: {{name: t, cycle_us: 1000, dc: {{enabled: false}}}}\nesi: [{esi}]\nslaves:\n{slaves}"
+    )
     return p
 
 
@@ -111,7 +113,13 @@ def test_the_master_writes_the_esi_assignment_and_runs_the_init_commands(tmp_pat
     """The drive stores 0x1601 in 0x1C12, the ESI assigns 0x1600 by default: the master reads
     the slave's assignment and writes the ESI's (TwinCAT and IgH do), so SAFEOP is accepted; the
     ESI's init commands of INIT->PREOP and PREOP->SAFEOP are sent in order."""
-    cfg = load_bus_config(_config(tmp_path, _esi(tmp_path, DRIVE), "  - {name: drive, device: Drive, sim: {device: none}}\n"))
+    cfg = load_bus_config(
+        _config(
+            tmp_path,
+            _esi(tmp_path, DRIVE),
+            "  - {name: drive, device: Drive, sim: {device: none}}\n",
+        )
+    )
     net = build_network(cfg)
     assert net.od_read(0, 0x1C12, 1) == (0x1601).to_bytes(2, "little")
     with Bus.open(cfg, link=net) as bus:
@@ -124,7 +132,13 @@ def test_the_master_writes_the_esi_assignment_and_runs_the_init_commands(tmp_pat
 
 
 def test_a_bus_without_process_data_reaches_op(tmp_path: Path) -> None:
-    cfg = load_bus_config(_config(tmp_path, _esi(tmp_path, COUPLER), "  - {name: a, device: Coupler}\n  - {name: b, device: Coupler}\n"))
+    cfg = load_bus_config(
+        _config(
+            tmp_path,
+            _esi(tmp_path, COUPLER),
+            "  - {name: a, device: Coupler}\n  - {name: b, device: Coupler}\n",
+        )
+    )
     with Bus.open(cfg, link=build_network(cfg)) as bus:
         bus.start()
         assert [s.state for s in bus.states()] == ["OP", "OP"]
@@ -144,7 +158,9 @@ def test_modules_go_into_slots_by_default_and_by_config(tmp_path: Path) -> None:
     assert [(p.index, [e.index for e in p.entries]) for p in placed.rx_pdos] == [
         (0x1600, [0x607A]), (0x1610, [0x607A + 0x800])
     ]  # fmt: skip
-    cfg = load_bus_config(_config(tmp_path, esi, "  - {name: m, device: Modular, modules: [Velocity, null]}\n"))
+    cfg = load_bus_config(
+        _config(tmp_path, esi, "  - {name: m, device: Modular, modules: [Velocity, null]}\n")
+    )
     layout = cfg.slaves[0].layout
     assert [v.index for v in layout.outputs] == [0x60FF] and layout.inputs == ()
     with Bus.open(cfg, link=build_network(cfg)) as bus:
@@ -156,7 +172,9 @@ def test_modules_go_into_slots_by_default_and_by_config(tmp_path: Path) -> None:
         ("[Position, Position, Position]", r"modules: Modular has 2 slots"),
     ):
         with pytest.raises(ConfigError, match=message):
-            load_bus_config(_config(tmp_path, esi, f"  - {{name: m, device: Modular, modules: {modules}}}\n"))
+            load_bus_config(
+                _config(tmp_path, esi, f"  - {{name: m, device: Modular, modules: {modules}}}\n")
+            )
 
 
 def test_communication_objects_from_the_esi_when_the_dictionary_lacks_them(tmp_path: Path) -> None:
@@ -174,6 +192,10 @@ def test_communication_objects_from_the_esi_when_the_dictionary_lacks_them(tmp_p
 
 
 def test_a_passive_terminal_in_a_config_is_refused_by_name(tmp_path: Path) -> None:
-    esi = _esi(tmp_path, COUPLER, '<Device Invisible="1"><Type>EndCap</Type><Name>End</Name></Device>\n')
-    with pytest.raises(ConfigError, match=r"EndCap is a passive terminal: it has no EtherCAT slave controller"):
+    esi = _esi(
+        tmp_path, COUPLER, '<Device Invisible="1"><Type>EndCap</Type><Name>End</Name></Device>\n'
+    )
+    with pytest.raises(
+        ConfigError, match=r"EndCap is a passive terminal: it has no EtherCAT slave controller"
+    ):
         load_bus_config(_config(tmp_path, esi, "  - {name: cap, device: EndCap}\n"))

@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 
 from ether_ros.config import ProcessLayout, load_esi
-from ether_ros.config.esi import load_esi_file
 from ether_ros.config import types as dt
+from ether_ros.config.esi import load_esi_file
 from ether_ros.errors import ConfigError
 
 REPO = Path(__file__).resolve().parents[2]

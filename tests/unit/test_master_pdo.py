@@ -1,4 +1,3 @@
-# ruff: noqa: E501  (ESI lines read best whole)
 """PDO selection from the ESI / the configuration override, and the CoE writes it needs."""
 
 from __future__ import annotations
@@ -134,9 +133,7 @@ def test_several_sms_of_a_direction_digital_io_virtual_and_op_only(tmp_path: Pat
     assert [(s.index, s.start, s.length, s.enable) for s in sms] == [
         (0, 0x0F00, 1, True), (1, 0x0F01, 1, False), (2, 0x0F02, 1, True), (4, 0x1000, 1, True)
     ]  # fmt: skip
-    assert [(s.index, s.enable) for s in op_only_sync_managers(dev, layout.segments)] == [
-        (1, True)
-    ]
+    assert [(s.index, s.enable) for s in op_only_sync_managers(dev, layout.segments)] == [(1, True)]
     area = layout_image([(0, 0x1001, "d", 4, 1)]).slaves[0]
     fmmus = process_fmmus(area, sms, 0, dev, layout.segments)
     assert [(f.logical_start, f.length, f.physical_start, f.direction) for f in fmmus] == [
@@ -150,7 +147,9 @@ def test_an_entry_mapped_in_both_directions_is_addressable(tmp_path: Path) -> No
     """EtherBerry maps 0x0005:01 (named Byte0) as an output and as an input: each gets a key
     naming its PDO, and a write by name takes the output."""
     text = DIGITAL.replace("#x6000</Index><SubIndex>1", "#x7000</Index><SubIndex>1", 1).replace(
-        "<BitLen>1</BitLen><Name>Out0</Name><DataType>BOOL", "<BitLen>8</BitLen><Name>Out0</Name><DataType>USINT", 1
+        "<BitLen>1</BitLen><Name>Out0</Name><DataType>BOOL",
+        "<BitLen>8</BitLen><Name>Out0</Name><DataType>USINT",
+        1,
     )
     p = tmp_path / "both.xml"
     p.write_text(text)

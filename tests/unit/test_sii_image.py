@@ -121,7 +121,9 @@ def test_strings_are_ascii_every_master_decodes(tmp_path: Path) -> None:
     """pysoem decodes SII strings as UTF-8 and fails on a Latin-1 "µ": the SII holds ASCII."""
     text = (REPO / "devices" / "generic_io.xml").read_text()
     p = tmp_path / "micro.xml"
-    p.write_text(text.replace('<Name LcId="1033">GenericIO', '<Name LcId="1033">Générique 8 µs ±10 V', 1))
+    p.write_text(
+        text.replace('<Name LcId="1033">GenericIO', '<Name LcId="1033">Générique 8 µs ±10 V', 1)
+    )
     (dev,) = load_esi(p)
     info = parse_sii(build_sii(dev))
     assert info.general is not None and info.general.name.startswith("Generique 8 us +/-10 V")

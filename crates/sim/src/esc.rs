@@ -667,7 +667,12 @@ impl Esc {
             self.put32(reg::DC_SYSTEM_TIME_DIFF, 0);
             self.put16(DC_SPEED_COUNTER_DIFF, 0);
         }
-        if overlaps(a, len, reg::SII_CONFIG as usize, reg::SII_CONFIG as usize + 1) {
+        if overlaps(
+            a,
+            len,
+            reg::SII_CONFIG as usize,
+            reg::SII_CONFIG as usize + 1,
+        ) {
             self.eeprom_access();
         }
         if overlaps(a, len, 0x0981, 0x0982) {
@@ -1190,11 +1195,19 @@ impl Esc {
 
     /// Output bytes of all process-data SMs (their maps as of the last PREOP -> SAFEOP).
     pub fn output_bytes(&self) -> usize {
-        self.pd_sms.iter().filter(|p| p.output).map(|p| p.map.bytes()).sum()
+        self.pd_sms
+            .iter()
+            .filter(|p| p.output)
+            .map(|p| p.map.bytes())
+            .sum()
     }
 
     pub fn input_bytes(&self) -> usize {
-        self.pd_sms.iter().filter(|p| !p.output).map(|p| p.map.bytes()).sum()
+        self.pd_sms
+            .iter()
+            .filter(|p| !p.output)
+            .map(|p| p.map.bytes())
+            .sum()
     }
 
     fn check_op(&self) -> Result<(), u16> {
@@ -1841,7 +1854,10 @@ mod tests {
     #[test]
     fn a_virtual_sm_takes_no_hardware_sm() {
         // EL1252: a virtual SM at 0x09AE (SII enable bit 2) is mapped by an FMMU only.
-        let esc = slave(0x01, &[(0x1000, 1, 0x22, 0x01, 4), (0x09AE, 34, 0x00, 0x04, 4)]);
+        let esc = slave(
+            0x01,
+            &[(0x1000, 1, 0x22, 0x01, 4), (0x09AE, 34, 0x00, 0x04, 4)],
+        );
         assert_eq!(
             esc.pd_sms
                 .iter()
@@ -1875,7 +1891,10 @@ mod tests {
             assert_eq!(t % DC_GRANULARITY_NS, 0);
             // Within one clock step of the true local time.
             let local = esc.dc.local(esc.now);
-            assert!(t.abs_diff(local & 0xffff_ffff) <= DC_GRANULARITY_NS, "{t} {local}");
+            assert!(
+                t.abs_diff(local & 0xffff_ffff) <= DC_GRANULARITY_NS,
+                "{t} {local}"
+            );
             seen.insert((t as i64 - (local & 0xffff_ffff) as i64).signum());
         }
         assert!(seen.len() > 1, "no jitter: {seen:?}");

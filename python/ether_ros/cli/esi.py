@@ -86,9 +86,11 @@ def _brief(d: EsiDevice) -> str:
 
 def _modes(d: EsiDevice) -> list[tuple[int, tuple[str, ...]]]:
     axes = max(1, d.profile_numbers.count(PROFILE_NUMBER))
-    return [(n, offered_modes(d, n)) for n in range(axes)] if PROFILE_NUMBER in (
-        d.profile_numbers
-    ) else []
+    return (
+        [(n, offered_modes(d, n)) for n in range(axes)]
+        if PROFILE_NUMBER in (d.profile_numbers)
+        else []
+    )
 
 
 def _print_device(d: EsiDevice) -> None:
@@ -102,11 +104,28 @@ def _print_device(d: EsiDevice) -> None:
           f" group {d.group_type or '-'}, physics {d.physics or '-'}")  # fmt: skip
     mb = d.mailbox
     if mb is not None:
-        protocols = [n for n, on in (("CoE", mb.coe), ("EoE", mb.eoe), ("FoE", mb.foe),
-                                     ("SoE", mb.soe), ("AoE", mb.aoe), ("VoE", mb.voe)) if on]
-        coe = [n for n, on in (("SdoInfo", mb.sdo_info), ("PdoAssign", mb.pdo_assign),
-                               ("PdoConfig", mb.pdo_config), ("CompleteAccess",
-                                                              mb.complete_access)) if on]
+        protocols = [
+            n
+            for n, on in (
+                ("CoE", mb.coe),
+                ("EoE", mb.eoe),
+                ("FoE", mb.foe),
+                ("SoE", mb.soe),
+                ("AoE", mb.aoe),
+                ("VoE", mb.voe),
+            )
+            if on
+        ]
+        coe = [
+            n
+            for n, on in (
+                ("SdoInfo", mb.sdo_info),
+                ("PdoAssign", mb.pdo_assign),
+                ("PdoConfig", mb.pdo_config),
+                ("CompleteAccess", mb.complete_access),
+            )
+            if on
+        ]
         print(f"  mailbox: {', '.join(protocols) or '-'}"
               + (f" ({', '.join(coe)})" if coe else ""))  # fmt: skip
     if d.profile_numbers:
@@ -117,8 +136,15 @@ def _print_device(d: EsiDevice) -> None:
         print(f"  DC mode {m.name!r}: AssignActivate {m.assign_activate:#06x}"
               + (f" ({m.description})" if m.description else ""))  # fmt: skip
     for sm in d.sync_managers:
-        flags = [f for f, on in (("virtual", sm.virtual), ("OpOnly", sm.op_only),
-                                 ("disabled", not sm.enable and not sm.virtual)) if on]
+        flags = [
+            f
+            for f, on in (
+                ("virtual", sm.virtual),
+                ("OpOnly", sm.op_only),
+                ("disabled", not sm.enable and not sm.virtual),
+            )
+            if on
+        ]
         label = f" ({sm.label})" if sm.label != sm.role else ""
         size = f", {sm.default_size} B" if sm.default_size else ""
         print(f"  SM{sm.number} {sm.role or 'unused'}{label} at {sm.start:#06x}"
@@ -143,12 +169,22 @@ def _print_device(d: EsiDevice) -> None:
 
 def _print_pdo(p: Pdo) -> None:
     kind = "RxPDO" if p.direction == "rx" else "TxPDO"
-    flags = [f for f, on in (("default", p.sm is not None), ("fixed", p.fixed),
-                             ("mandatory", p.mandatory), ("virtual", p.virtual)) if on]
+    flags = [
+        f
+        for f, on in (
+            ("default", p.sm is not None),
+            ("fixed", p.fixed),
+            ("mandatory", p.mandatory),
+            ("virtual", p.virtual),
+        )
+        if on
+    ]
     where = f" SM{p.sm}" if p.sm is not None else ""
-    print(f"  {kind} {p.index:#06x} {p.name!r}{where}, {p.bit_length} bits"
-          + (f" [{', '.join(flags)}]" if flags else "")
-          + (f" excludes {', '.join(f'{x:#06x}' for x in p.excludes)}" if p.excludes else ""))
+    print(
+        f"  {kind} {p.index:#06x} {p.name!r}{where}, {p.bit_length} bits"
+        + (f" [{', '.join(flags)}]" if flags else "")
+        + (f" excludes {', '.join(f'{x:#06x}' for x in p.excludes)}" if p.excludes else "")
+    )
     for e in p.entries:
         if e.is_padding:
             print(f"      (gap of {e.bit_length} bits)")

@@ -551,7 +551,7 @@ def _line(el: etree._Element) -> int:
 
 def _children(el: etree._Element, name: str) -> Iterator[etree._Element]:
     """The child elements called ``name`` (in any namespace or none), by lxml's own search."""
-    return el.iterchildren("{*}" + name)  # type: ignore[no-any-return]
+    return el.iterchildren("{*}" + name)
 
 
 def _child(el: etree._Element, name: str) -> etree._Element | None:
@@ -840,9 +840,7 @@ def _parse_file(p: Path) -> EsiFile:
             continue
         ctx.warnings.extend(dev_ctx.warnings)
         ctx.notes.extend(dev_ctx.notes)
-        devices.append(
-            replace(dev, warnings=tuple(dev_ctx.warnings), notes=tuple(dev_ctx.notes))
-        )
+        devices.append(replace(dev, warnings=tuple(dev_ctx.warnings), notes=tuple(dev_ctx.notes)))
     return EsiFile(str(p), tuple(devices), tuple(ctx.warnings), tuple(skipped), tuple(ctx.notes))
 
 
@@ -980,9 +978,7 @@ def esi_files(directory: Path) -> list[Path]:
     """The ESI files of a directory: ``*.xml`` sorted (regular files), without dictionary
     files (root ``<Dictionary>``, referenced by a device's ``DictionaryFile``)."""
     return [
-        f
-        for f in sorted(directory.glob("*.xml"))
-        if f.is_file() and _root_name(f) != "Dictionary"
+        f for f in sorted(directory.glob("*.xml")) if f.is_file() and _root_name(f) != "Dictionary"
     ]
 
 
@@ -1142,8 +1138,8 @@ def _sm_role(ctx: _Ctx, sm: etree._Element, label: str, control: int | None) -> 
         role = "Outputs" if writes else "Inputs"
     else:
         mailbox = control & SM_MODE_MASK == SM_MODE_MAILBOX
-        role = ("MBoxOut" if writes else "MBoxIn") if mailbox else (
-            "Outputs" if writes else "Inputs"
+        role = (
+            ("MBoxOut" if writes else "MBoxIn") if mailbox else ("Outputs" if writes else "Inputs")
         )
     if role != label:
         ctx.note(sm, f"SyncManager {label!r} is {role} (ControlByte {control:#04x})")

@@ -89,7 +89,9 @@ def process_sync_managers(
     return sms
 
 
-def op_only_sync_managers(device: EsiDevice | None, segments: Sequence[SmSegment]) -> list[SyncManager]:
+def op_only_sync_managers(
+    device: EsiDevice | None, segments: Sequence[SmSegment]
+) -> list[SyncManager]:
     """The ``OpOnly`` SyncManagers with data, enabled: written on SAFEOP → OP."""
     if device is None:
         return []
@@ -146,8 +148,10 @@ def process_fmmus(
             if desc is None:
                 raise BusError(f"slave {area.position} ({area.name}): no SyncManager {seg.sm}")
             logical = logical_base + base + seg.byte_offset
-            if runs and runs[-1][0] + runs[-1][1] == logical and (
-                runs[-1][2] + runs[-1][1] == desc.start
+            if (
+                runs
+                and runs[-1][0] + runs[-1][1] == logical
+                and (runs[-1][2] + runs[-1][1] == desc.start)
             ):
                 runs[-1][1] += seg.byte_length
             else:

@@ -170,9 +170,7 @@ def assignment_writes(
             writes.append(
                 SdoWrite(a.index, sub, struct.pack("<H", index), f"assignment 0x{a.index:04X}")
             )
-        writes.append(
-            SdoWrite(a.index, 0, bytes([len(a.pdos)]), f"assignment 0x{a.index:04X}")
-        )
+        writes.append(SdoWrite(a.index, 0, bytes([len(a.pdos)]), f"assignment 0x{a.index:04X}"))
     return writes
 
 

@@ -133,13 +133,13 @@ def _fill_empty_mappings(device: EsiDevice, rows: list[tuple[Any, ...]]) -> list
         count = by_key.get((index, 0))
         if count is None or any(out[count][7]) or not pdo.entries:
             continue
-        subs = [by_key.get((index, n)) for n in range(1, len(pdo.entries) + 1)]
-        if any(k is None for k in subs):
+        found = [by_key.get((index, n)) for n in range(1, len(pdo.entries) + 1)]
+        subs = [k for k in found if k is not None]
+        if len(subs) != len(found):
             continue
         out[count] = (*out[count][:7], bytes([len(pdo.entries)]))
-        for k, e in zip(subs, pdo.entries, strict=True):
-            assert k is not None
-            out[k] = (*out[k][:7], e.mapping_value.to_bytes(4, "little"))
+        for row, e in zip(subs, pdo.entries, strict=True):
+            out[row] = (*out[row][:7], e.mapping_value.to_bytes(4, "little"))
     # Likewise an assignment object 0x1C10+n left empty (Elmo's 0x1C12 without <Info>): the
     # device has the PDOs its ESI assigns to SM n by default.
     for sm in device.sync_managers:
@@ -149,13 +149,14 @@ def _fill_empty_mappings(device: EsiDevice, rows: list[tuple[Any, ...]]) -> list
             continue
         default = [p.index for p in (*device.default_rx(), *device.default_tx())
                    if not p.virtual and pdo_sync_manager(device, p) == sm.number]  # fmt: skip
-        subs = [by_key.get((index, n)) for n in range(1, len(default) + 1)]
-        if not default or any(k is None for k in subs):
+        found = [by_key.get((index, n)) for n in range(1, len(default) + 1)]
+        subs = [k for k in found if k is not None]
+        if not default or len(subs) != len(found):
             continue
         out[count] = (*out[count][:7], bytes([len(default)]))
-        for k, pdo_index in zip(subs, default, strict=True):
-            assert k is not None
-            out[k] = (*out[k][:7], pdo_index.to_bytes(2, "little").ljust(len(out[k][7]), b"\0"))
+        for row, pdo_index in zip(subs, default, strict=True):
+            value = pdo_index.to_bytes(2, "little").ljust(len(out[row][7]), b"\0")
+            out[row] = (*out[row][:7], value)
     return out
 
 
@@ -204,8 +205,8 @@ def communication_objects(device: EsiDevice) -> list[tuple[Any, ...]]:
         index = SM_ASSIGN_BASE + sm.number
         if not sm.is_process_data or sm.virtual or not missing(index):
             continue
-        kind = "rx" if sm.role == "Outputs" else "tx"
-        candidates = [p for p in (device.rx_pdos if kind == "rx" else device.tx_pdos)
+        direction = "rx" if sm.role == "Outputs" else "tx"
+        candidates = [p for p in (device.rx_pdos if direction == "rx" else device.tx_pdos)
                       if not p.virtual]  # fmt: skip
         assigned = [p.index for p in candidates if p.sm is not None
                     and pdo_sync_manager(device, p) == sm.number]  # fmt: skip

@@ -22,9 +22,11 @@ HOSTILE_NUMBERS = (
 )  # fmt: skip
 _NUMBER_TEXT = re.compile(rb">(#x[0-9A-Fa-f]+|0x[0-9A-Fa-f]+|-?[0-9]+)<")
 _ATTR_NUMBER = re.compile(rb'="(#x[0-9A-Fa-f]+|0x[0-9A-Fa-f]+|-?[0-9]+)"')
-_ELEMENT = re.compile(rb"<(Entry|RxPdo|TxPdo|Object|SubItem|DataType|Sm|Device|Index|BitLen|"
-                      rb"SubIndex|DataType|Type|Name|DefaultData|DefaultValue|ArrayInfo|"
-                      rb"Elements|BitSize|Fmmu|Dc|OpMode|Mailbox|CoE|InitCmd|Eeprom)\b")  # fmt: skip
+_ELEMENT = re.compile(
+    rb"<(Entry|RxPdo|TxPdo|Object|SubItem|DataType|Sm|Device|Index|BitLen|SubIndex|Type|Name|"
+    rb"DefaultData|DefaultValue|ArrayInfo|Elements|BitSize|Fmmu|Dc|OpMode|Mailbox|CoE|InitCmd|"
+    rb"Eeprom)\b"
+)
 
 
 def _replace_span(data: bytes, span: tuple[int, int], new: bytes) -> bytes:
@@ -56,19 +58,22 @@ def mutants(text: bytes, seed: int, count: int) -> Iterator[tuple[str, bytes]]:
         if kind == "number" and numbers:
             span = rng.choice(numbers)
             value = rng.choice(HOSTILE_NUMBERS)
-            yield f"number {text[span[0]:span[1]]!r} -> {value[:20]!r}", _replace_span(
-                text, span, value.encode()
+            yield (
+                f"number {text[span[0] : span[1]]!r} -> {value[:20]!r}",
+                _replace_span(text, span, value.encode()),
             )
         elif kind == "attribute" and attrs:
             span = rng.choice(attrs)
             value = rng.choice(HOSTILE_NUMBERS).replace('"', "")
-            yield f"attribute {text[span[0]:span[1]]!r} -> {value[:20]!r}", _replace_span(
-                text, span, value.encode()
+            yield (
+                f"attribute {text[span[0] : span[1]]!r} -> {value[:20]!r}",
+                _replace_span(text, span, value.encode()),
             )
         elif kind in ("delete", "repeat", "swap") and elements:
-            span = _element_span(text, rng.choice(elements))
-            if span is None:
+            found = _element_span(text, rng.choice(elements))
+            if found is None:
                 continue
+            span = found
             piece = text[span[0] : span[1]]
             if kind == "delete":
                 yield f"delete {piece[:30]!r}", _replace_span(text, span, b"")

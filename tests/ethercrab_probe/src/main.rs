@@ -262,7 +262,6 @@ async fn run(args: &Args, report: &mut Report) -> Result<(), String> {
         MainDeviceConfig {
             dc_static_sync_iterations: 1000,
             retry_behaviour: RetryBehaviour::Count(3),
-            ..MainDeviceConfig::default()
         },
     ));
     let task = tx_rx_task(&args.interface, tx, rx).map_err(|e| format!("tx/rx task: {e}"))?;
