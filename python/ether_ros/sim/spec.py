@@ -13,6 +13,7 @@ from typing import Any
 
 from ether_ros.config import types as dt
 from ether_ros.config.bus import BusConfig, SlaveConfig
+from ether_ros.config.cia402 import AXIS_STRIDE, MAX_AXES, MODES, SUPPORTED_MODES, offered_modes
 from ether_ros.config.esi import EsiDevice, Pdo, PdoEntry
 from ether_ros.config.process import pdo_sync_manager
 from ether_ros.config.sii import SM_TYPE, build_sii
@@ -160,6 +161,21 @@ def _fill_empty_mappings(device: EsiDevice, rows: list[tuple[Any, ...]]) -> list
     return out
 
 
+def _supported_modes(device: EsiDevice, rows: list[tuple[Any, ...]]) -> list[tuple[Any, ...]]:
+    """A drive fills in 0x6502 (supported drive modes) itself; an ESI that gives it 0 (a
+    placeholder: IS620N, STMBL) leaves the simulated drive with the modes its dictionary
+    offers, as the master reads them (``config.cia402.offered_modes``)."""
+    out = list(rows)
+    for k, r in enumerate(out):
+        if SUPPORTED_MODES <= r[0] < SUPPORTED_MODES + MAX_AXES * AXIS_STRIDE and r[1] == 0:
+            axis, rest = divmod(r[0] - SUPPORTED_MODES, AXIS_STRIDE)
+            if rest or any(r[7] or b""):
+                continue
+            bits = sum(1 << MODES[m][1] for m in offered_modes(device, axis))
+            out[k] = (*r[:7], bits.to_bytes(4, "little"))
+    return out
+
+
 #: The type a dictionary entry gets when only a mapping names it: unsigned of its length.
 _UNSIGNED_BY_BITS = {
     1: dt.BOOL.code,
@@ -283,6 +299,8 @@ def device_spec(
     ]
     entries = [e for e in entries if e[4] <= MAX_ENTRY_BITS]
     entries = _fill_empty_mappings(device, entries)
+    if sim_device == "cia402":
+        entries = _supported_modes(device, entries)
     entries += _process_entries(device)
     entries += communication_objects(device)
     known = {o[0] for o in objects}
