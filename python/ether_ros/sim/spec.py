@@ -40,9 +40,10 @@ def mailbox_spec(device: EsiDevice) -> dict[str, int] | None:
 def loopback_pairs(device: EsiDevice) -> list[tuple[int, int, int, int]]:
     """Output → input links of the ``loopback`` model: each output entry (of any RxPDO, in the
     ESI's order, each entry once) with the first input entry not yet taken (of any TxPDO) of
-    the same data type and bit length."""
-    outputs = _pdo_entries(device.rx_pdos)
-    free = _pdo_entries(device.tx_pdos)
+    the same data type and bit length. Virtual PDOs (ESC registers, not the dictionary) are not
+    paired."""
+    outputs = _pdo_entries(tuple(p for p in device.rx_pdos if not p.virtual))
+    free = _pdo_entries(tuple(p for p in device.tx_pdos if not p.virtual))
     pairs: list[tuple[int, int, int, int]] = []
     for out in outputs:
         for k, inp in enumerate(free):
