@@ -11,9 +11,9 @@ from dataclasses import dataclass, field
 
 import pytest
 
+from ether_ros._native.protocol import emergency_text
 from ether_ros.errors import MailboxError
-from ether_ros.master.abort_codes import emergency_text, sdo_abort_text
-from ether_ros.master.coe import SdoClient
+from ether_ros.master.coe import SdoClient, abort_description
 from ether_ros.master.mailbox import Mailbox
 
 RX_OFFSET, RX_SIZE = 0x1000, 128
@@ -342,7 +342,9 @@ def test_emergency_does_not_end_the_wait_and_is_decoded(slave: FakeSlave) -> Non
     assert len(sdo.emergencies) == 1
     em = sdo.emergencies[0]
     assert (em.error_code, em.error_register, em.data) == (0x8611, 0x81, b"\x01\x02\x03\x04\x05")
-    assert "positioning control error" in em.text
+    # 0x8611 is CiA 402's "following error"; the client's old copy of the table knew only the
+    # class 0x86xx ("positioning control error"). One table now, the exact text wins.
+    assert "0x8611 following error" in em.text
     slave.emergency(0xFF01, 0, bytes(5))
     got = sdo.poll_emergencies()
     assert [e.error_code for e in got] == [0x8611, 0xFF01]
@@ -367,9 +369,13 @@ def test_sdo_information(slave: FakeSlave) -> None:
 
 
 def test_texts() -> None:
-    assert sdo_abort_text(0x08000022).startswith("0x08000022 data cannot be transferred")
-    assert sdo_abort_text(0x12345678) == "0x12345678 unknown abort code"
-    assert emergency_text(0x2310) == "current error"
+    assert abort_description(0x08000022).startswith("0x08000022 data cannot be transferred")
+    assert abort_description(0x12345678) == "0x12345678 unknown abort code"
+    # One table of emergency codes now (CiA 301 + 402): 0x2310 is "continuous over-current"
+    # in CiA 402; the CoE client's own copy used to know only its class ("current error"),
+    # while the diagnostics' copy had the exact text.
+    assert emergency_text(0x2310) == "continuous over-current"
+    assert emergency_text(0x2399) == "current on the device output side"
     assert emergency_text(0xA000).startswith("EtherCAT state machine")
 
 

@@ -7,10 +7,9 @@ from collections.abc import Sequence
 
 import pytest
 
+from ether_ros._native.protocol import reg
 from ether_ros.errors import BusError
 from ether_ros.master.al import (
-    AL_CONTROL,
-    AL_STATUS,
     AlState,
     AlStateMachine,
     AlStatus,
@@ -53,7 +52,7 @@ class ScriptedSlave:
         out = []
         for cmd, address, payload in datagrams:
             ado = address >> 16
-            if cmd == Cmd.FPWR and ado == AL_CONTROL:
+            if cmd == Cmd.FPWR and ado == reg.AL_CONTROL:
                 assert isinstance(payload, bytes)
                 value = struct.unpack("<H", payload)[0]
                 self.writes.append(value)
@@ -65,7 +64,7 @@ class ScriptedSlave:
                 else:
                     self.state = AlState(requested)
                 out.append((payload, 1))
-            elif cmd == Cmd.FPRD and ado == AL_STATUS:
+            elif cmd == Cmd.FPRD and ado == reg.AL_STATUS:
                 status = self.state | (0x10 if self.error else 0)
                 out.append((struct.pack("<HHH", status, 0, self.code), 1))
             else:

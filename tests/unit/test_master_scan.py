@@ -18,11 +18,17 @@ DEVICES = Path(__file__).resolve().parents[2] / "devices"
 
 
 class FakeEsc:
-    def __init__(self, sii: bytes, alias: int = 0, read_bytes: int = 8, fail: bool = False) -> None:
+    def __init__(
+        self, sii: bytes, alias: int = 0, read_bytes: int = 8, fail: bool = False,
+        status: int = 0,
+    ) -> None:  # fmt: skip
         self.mem = bytearray(0x1000)
         self.sii = sii
         self.read_bytes = read_bytes
         self.fail = fail
+        # Status bits the EEPROM interface shows with every answer (e.g. a checksum error).
+        self.status = status
+        struct.pack_into("<H", self.mem, 0x0502, status)
         self.mem[0x0008] = 0x04  # DC supported
         struct.pack_into("<H", self.mem, 0x0012, alias)
         self.mem[0x0130] = 0x01
@@ -43,7 +49,7 @@ class FakeEsc:
                 n = self.read_bytes
                 chunk = self.sii[2 * word : 2 * word + n].ljust(n, b"\xff")
                 self.mem[0x0508 : 0x0508 + n] = chunk
-                status = (0x0040 if n == 8 else 0) | (0x2000 if self.fail else 0)
+                status = (0x0040 if n == 8 else 0) | (0x2000 if self.fail else 0) | self.status
                 struct.pack_into("<H", self.mem, 0x0502, status)
 
 
@@ -137,3 +143,17 @@ def test_sii_read_error_names_the_slave(leg_sii: bytes) -> None:
     line = FakeLine([FakeEsc(leg_sii), FakeEsc(leg_sii, fail=True)])
     with pytest.raises(BusError, match=r"slave 1: SII read at word 0x0000 failed"):
         scan(DatagramService(line))
+
+
+def test_sii_checksum_error_is_reported_not_taken_for_a_failed_read(
+    leg_sii: bytes, caplog: pytest.LogCaptureFixture
+) -> None:
+    # ET1100 datasheet section II, register 0x0502: bit 11 is the checksum error of the
+    # configuration area, bit 13 a missing acknowledge or invalid command (the failed read of
+    # the test above), bit 14 a write without write enable. The master used to call bit 13 the
+    # checksum error and never looked at bit 11; now bit 11 is reported and the EEPROM is read.
+    line = FakeLine([FakeEsc(leg_sii, status=0x0800 | 0x1000)])
+    with caplog.at_level("WARNING", logger="ether_ros.master.sii"):
+        (found,) = scan(DatagramService(line))
+    assert found.vendor_id == 0x00000A12
+    assert "checksum error in the SII configuration area" in caplog.text

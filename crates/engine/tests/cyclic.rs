@@ -10,7 +10,7 @@ use ether_ros_engine::{
     flags, now_ns, Engine, Error, Link, OutputField, Plan, Received, Request, SampleRecord,
     RECORD_LEN,
 };
-use ether_ros_wire::{self as wire, reg, Command};
+use ether_ros_protocol::{self as wire, reg, Command};
 
 mod common;
 use common::{counter, wait_for};

@@ -36,13 +36,13 @@ use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList};
 
 use ether_ros_engine::LinkKind;
+use ether_ros_protocol::{reg, Command};
 use ether_ros_sim::chip::EscChip;
 use ether_ros_sim::esc::Esc;
 use ether_ros_sim::faults::Rng;
 use ether_ros_sim::od::{Access, Entry, Object};
 use ether_ros_sim::runner::Runner;
 use ether_ros_sim::{MailboxSpec, Network, SlaveSpec};
-use ether_ros_wire::{reg, Command};
 
 fn bad_key(key: &str, expected: &str) -> PyErr {
     PyValueError::new_err(format!("slave spec key '{key}': expected {expected}"))
@@ -555,7 +555,10 @@ impl SimNetwork {
         d.set_item("name", &s.spec.name)?;
         d.set_item("position", pos)?;
         d.set_item("al_state", s.al_state)?;
-        d.set_item("al_state_name", reg::al::name(s.al_state))?;
+        d.set_item(
+            "al_state_name",
+            ether_ros_protocol::al::state_name(s.al_state).unwrap_or("UNKNOWN"),
+        )?;
         d.set_item("al_error", s.al_error)?;
         d.set_item("al_status_code", s.al_code)?;
         d.set_item("station_address", s.station_address())?;

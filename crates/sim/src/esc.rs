@@ -8,7 +8,8 @@
 
 use std::collections::VecDeque;
 
-use ether_ros_wire::reg;
+use ether_ros_protocol::reg;
+use ether_ros_protocol::sii::syncm;
 
 use crate::coe::CoeServer;
 use crate::dc::{encode_time_difference, DcClock};
@@ -27,11 +28,6 @@ pub const N_SM: usize = 8;
 /// Default watchdog divider (100 µs units) and process-data watchdog time (100 ms).
 const DEFAULT_WD_DIVIDER: u16 = 0x09C2;
 const DEFAULT_WD_TIME: u16 = 0x03E8;
-/// DC speed counter difference (ESC datasheet: reset by a write to 0x0930).
-const DC_SPEED_COUNTER_DIFF: u16 = 0x0932;
-/// 0x0500 bits: 0 EEPROM control offered to the PDI, 1 force ECAT access.
-const EEPROM_OFFERED_TO_PDI: u8 = 0x01;
-const EEPROM_FORCE_ECAT: u8 = 0x02;
 /// DC time stamps and the system time advance in steps of the ESC's 100 MHz clock.
 pub const DC_GRANULARITY_NS: u64 = 10;
 /// Catch-up bound for device steps: beyond this the device skips ahead.
@@ -207,7 +203,7 @@ impl Esc {
             partial_mappings,
             eeprom_at_pdi: false,
             dc_noise: 0x9E37_79B9_7F4A_7C15 ^ ((position as u64 + 1) << 17),
-            al_state: reg::al::INIT,
+            al_state: ether_ros_protocol::al::INIT,
             al_error: false,
             al_code: 0,
             now,
@@ -304,7 +300,7 @@ impl Esc {
     fn load_eeprom(&mut self) {
         let mut status = self.sii.static_status();
         if self.sii.image.len() >= 16 && !self.sii.checksum_ok() {
-            status |= sii::ERR_CHECKSUM | sii::ERR_NOT_LOADED;
+            status |= sii::CHECKSUM_ERROR | sii::NOT_LOADED;
             self.put16(reg::SII_CONTROL, status);
             return;
         }
@@ -321,7 +317,7 @@ impl Esc {
     }
 
     pub fn eeprom_loaded(&self) -> bool {
-        self.get16(reg::SII_CONTROL) & sii::ERR_NOT_LOADED == 0
+        self.get16(reg::SII_CONTROL) & sii::NOT_LOADED == 0
     }
 
     /// DL status (0x0110) from the ports' link state: per port p, a link is bit 4+p and an
@@ -665,7 +661,7 @@ impl Esc {
             // difference (0x0932) and the filtered system time difference (0x092C).
             self.dc.reset_loop(self.now);
             self.put32(reg::DC_SYSTEM_TIME_DIFF, 0);
-            self.put16(DC_SPEED_COUNTER_DIFF, 0);
+            self.put16(reg::DC_SPEED_COUNTER_DIFF, 0);
         }
         if overlaps(
             a,
@@ -688,7 +684,7 @@ impl Esc {
         }
         if ctl & sii::CMD_MASK == 0 {
             // Writing no command clears the error bits.
-            self.put16(reg::SII_CONTROL, cur & !(0x7800 | sii::CMD_MASK));
+            self.put16(reg::SII_CONTROL, cur & !(sii::ERROR_MASK | sii::CMD_MASK));
             return;
         }
         let address = self.get32(reg::SII_ADDRESS);
@@ -698,7 +694,7 @@ impl Esc {
         if ctl & sii::CMD_MASK == sii::CMD_READ {
             self.mem[0x0508..0x0510].copy_from_slice(&data);
         }
-        if ctl & sii::CMD_MASK == sii::CMD_RELOAD && status & sii::ERR_CHECKSUM == 0 {
+        if ctl & sii::CMD_MASK == sii::CMD_RELOAD && status & sii::CHECKSUM_ERROR == 0 {
             self.load_eeprom();
         }
         status &= !sii::CMD_MASK;
@@ -713,11 +709,13 @@ impl Esc {
     /// from the PDI at once (ESC datasheet, 0x0500/0x0501).
     fn eeprom_access(&mut self) {
         let cfg = self.mem[reg::SII_CONFIG as usize];
-        let to_pdi = cfg & EEPROM_OFFERED_TO_PDI != 0 && cfg & EEPROM_FORCE_ECAT == 0;
+        let to_pdi = cfg & ether_ros_protocol::sii::CONFIG_PDI != 0
+            && cfg & ether_ros_protocol::sii::CONFIG_RESET_PDI_ACCESS == 0;
         self.eeprom_at_pdi = to_pdi;
         self.mem[reg::SII_PDI_ACCESS as usize] = to_pdi as u8;
         // Bit 1 is a command, not a state.
-        self.mem[reg::SII_CONFIG as usize] = cfg & !EEPROM_FORCE_ECAT;
+        self.mem[reg::SII_CONFIG as usize] =
+            cfg & !ether_ros_protocol::sii::CONFIG_RESET_PDI_ACCESS;
     }
 
     pub fn eeprom_at_pdi(&self) -> bool {
@@ -960,8 +958,7 @@ impl Esc {
 
     /// The master wrote AL control.
     pub fn request_state(&mut self, ctl: u16) {
-        use reg::al::*;
-        use reg::al_code::*;
+        use ether_ros_protocol::al::*;
         let requested = (ctl & 0x0f) as u8;
         let ack = ctl & 0x10 != 0;
         if self.al_error {
@@ -1035,7 +1032,7 @@ impl Esc {
     /// ESC configuration 0x0141 bit 0 (from the EEPROM's ConfigData): the ESC itself
     /// answers AL control, there is no slave application to check anything.
     pub fn device_emulation(&self) -> bool {
-        self.mem[reg::ESC_CONFIG as usize] & 0x01 != 0
+        self.mem[reg::ESC_CONFIG as usize] & reg::esc_config::DEVICE_EMULATION != 0
     }
 
     /// Set the error indication with `code`, staying in the current state.
@@ -1050,16 +1047,16 @@ impl Esc {
         self.al_code = code;
         self.counters.al_errors += 1;
         self.update_al_registers();
-        if self.mailbox.is_some() && self.al_state != reg::al::INIT {
+        if self.mailbox.is_some() && self.al_state != ether_ros_protocol::al::INIT {
             // CoE emergency "state machine transition error" carrying the AL status code.
             let c = code.to_le_bytes();
             let msg = CoeServer::emergency(emergency, 0x01, [c[0], c[1], 0, 0, 0]);
-            self.queue_mailbox(reg::mbx::TYPE_COE, msg);
+            self.queue_mailbox(ether_ros_protocol::mailbox::TYPE_COE, msg);
         }
     }
 
     fn enter_state(&mut self, state: u8) {
-        use reg::al::*;
+        use ether_ros_protocol::al::*;
         let prev = self.al_state;
         self.al_state = state;
         self.apply_sm_enables();
@@ -1089,7 +1086,7 @@ impl Esc {
     /// The slave application enables the mailbox SyncManagers from PREOP on and the
     /// process-data ones in SAFEOP and OP (PDI control bit 0), as SOES-style stacks do.
     fn apply_sm_enables(&mut self) {
-        use reg::al::*;
+        use ether_ros_protocol::al::*;
         let state = self.al_state;
         let mbx_on = state != INIT;
         let pd_on = matches!(state, SAFEOP | OP);
@@ -1107,7 +1104,7 @@ impl Esc {
     }
 
     fn check_mailbox(&self, mbx: Option<MailboxSpec>, boot: bool) -> Result<(), u16> {
-        use reg::al_code::*;
+        use ether_ros_protocol::al::*;
         let Some(m) = mbx else {
             return if boot {
                 Err(BOOTSTRAP_NOT_SUPPORTED)
@@ -1134,15 +1131,22 @@ impl Esc {
     /// Recompute the process-data maps from the dictionary: the PDO assignment of SM n is
     /// object 0x1C10 + n (ETG.1000.6); without it, the SII's PDOs of that SM.
     fn build_maps(&mut self) -> Result<(), u16> {
-        use reg::al_code::*;
+        use ether_ros_protocol::al::*;
         for i in 0..self.pd_sms.len() {
             let (n, output) = (self.pd_sms[i].number, self.pd_sms[i].output);
-            let assign = SM_ASSIGN_BASE + n as u16;
+            let assign = ether_ros_protocol::coe::SM_PDO_ASSIGN + n as u16;
             let map = match crate::pdo::from_od(&self.od, assign, &self.partial_mappings) {
                 Some(Ok(m)) => m,
                 Some(Err(_)) if output => return Err(INVALID_OUTPUT_MAPPING),
                 Some(Err(_)) => return Err(INVALID_INPUT_MAPPING),
-                None => self.sii_map(if output { 51 } else { 50 }, n),
+                None => self.sii_map(
+                    if output {
+                        ether_ros_protocol::sii::category::RXPDO
+                    } else {
+                        ether_ros_protocol::sii::category::TXPDO
+                    },
+                    n,
+                ),
             };
             self.pd_sms[i].map = map;
         }
@@ -1176,7 +1180,7 @@ impl Esc {
     }
 
     fn check_process_data(&mut self) -> Result<(), u16> {
-        use reg::al_code::*;
+        use ether_ros_protocol::al::*;
         self.build_maps()?;
         for p in &self.pd_sms {
             if !self.pd_sm_ok(p, false) {
@@ -1211,7 +1215,7 @@ impl Esc {
     }
 
     fn check_op(&self) -> Result<(), u16> {
-        use reg::al_code::*;
+        use ether_ros_protocol::al::*;
         if self.refuse_op {
             return Err(SYNCHRONIZATION_ERROR);
         }
@@ -1250,19 +1254,22 @@ impl Esc {
         let Some(since) = self.op_pending_since else {
             return;
         };
-        if self.al_state != reg::al::SAFEOP || self.al_error {
+        if self.al_state != ether_ros_protocol::al::SAFEOP || self.al_error {
             self.op_pending_since = None;
             return;
         }
         if !self.waits_for_outputs() {
             self.op_pending_since = None;
-            self.enter_state(reg::al::OP);
+            self.enter_state(ether_ros_protocol::al::OP);
             return;
         }
         let timeout = u64::from(self.spec.safeop_op_timeout_ms) * 1_000_000;
         if self.now.saturating_sub(since) > timeout {
             self.op_pending_since = None;
-            self.fail_with_emergency(reg::al_code::NO_VALID_OUTPUTS, EMERGENCY_SAFEOP_TO_OP);
+            self.fail_with_emergency(
+                ether_ros_protocol::al::NO_VALID_OUTPUTS,
+                EMERGENCY_SAFEOP_TO_OP,
+            );
         }
     }
 
@@ -1270,7 +1277,8 @@ impl Esc {
 
     fn queue_mailbox(&mut self, kind: u8, payload: Vec<u8>) {
         if self.mbx_queue.len() < MAILBOX_QUEUE_LIMIT {
-            let mut msg = Vec::with_capacity(reg::mbx::HEADER_LEN + payload.len());
+            let mut msg =
+                Vec::with_capacity(ether_ros_protocol::mailbox::HEADER_LEN + payload.len());
             msg.extend_from_slice(&(payload.len() as u16).to_le_bytes());
             msg.extend_from_slice(&[0, 0, 0, kind & 0x0f]);
             msg.extend_from_slice(&payload);
@@ -1283,7 +1291,7 @@ impl Esc {
         let mut p = Vec::with_capacity(4);
         p.extend_from_slice(&1u16.to_le_bytes());
         p.extend_from_slice(&detail.to_le_bytes());
-        self.queue_mailbox(reg::mbx::TYPE_ERR, p);
+        self.queue_mailbox(ether_ros_protocol::mailbox::TYPE_ERR, p);
     }
 
     /// The slave application's mailbox work: consume a full write mailbox, fill an empty read
@@ -1298,7 +1306,7 @@ impl Esc {
             let end = (start + self.sm[0].len as usize).min(MEM_SIZE);
             let area = &self.mem[start..end];
             let len = area.len();
-            let (msg_len, kind, counter) = if len >= reg::mbx::HEADER_LEN {
+            let (msg_len, kind, counter) = if len >= ether_ros_protocol::mailbox::HEADER_LEN {
                 let l = u16::from_le_bytes([area[0], area[1]]) as usize;
                 (l, area[5] & 0x0f, (area[5] >> 4) & 0x07)
             } else {
@@ -1308,21 +1316,24 @@ impl Esc {
             self.counters.mailbox_received += 1;
             let repeated = counter != 0 && counter == self.mbx_last_rx_counter;
             self.mbx_last_rx_counter = counter;
-            if len < reg::mbx::HEADER_LEN || msg_len + reg::mbx::HEADER_LEN > len {
+            if len < ether_ros_protocol::mailbox::HEADER_LEN
+                || msg_len + ether_ros_protocol::mailbox::HEADER_LEN > len
+            {
                 self.mailbox_error(0x0008); // invalid size
-            } else if msg_len < 2 && kind == reg::mbx::TYPE_COE {
+            } else if msg_len < 2 && kind == ether_ros_protocol::mailbox::TYPE_COE {
                 self.mailbox_error(0x0006); // size too short
             } else if repeated {
                 // A retry of the message already handled: ignore it.
-            } else if kind == reg::mbx::TYPE_COE {
+            } else if kind == ether_ros_protocol::mailbox::TYPE_COE {
                 let mut out = Vec::new();
-                let max_payload = (self.sm[1].len as usize).saturating_sub(reg::mbx::HEADER_LEN);
-                let data_start = start + reg::mbx::HEADER_LEN;
+                let max_payload = (self.sm[1].len as usize)
+                    .saturating_sub(ether_ros_protocol::mailbox::HEADER_LEN);
+                let data_start = start + ether_ros_protocol::mailbox::HEADER_LEN;
                 let request = self.mem[data_start..data_start + msg_len].to_vec();
                 self.coe
                     .handle(&request, &mut self.od, self.al_state, max_payload, &mut out);
                 for p in out {
-                    self.queue_mailbox(reg::mbx::TYPE_COE, p);
+                    self.queue_mailbox(ether_ros_protocol::mailbox::TYPE_COE, p);
                 }
             } else {
                 self.mailbox_error(0x0002); // unsupported protocol
@@ -1373,15 +1384,17 @@ impl Esc {
     // ------------------------------------------------------------------ application side
 
     fn outputs_valid(&self) -> bool {
-        self.al_state == reg::al::OP && !self.watchdog_expired && self.outputs_received
+        self.al_state == ether_ros_protocol::al::OP
+            && !self.watchdog_expired
+            && self.outputs_received
     }
 
     /// SM buffers of outputs → dictionary (only in OP: SAFEOP keeps outputs safe). An SM on
     /// the ESC's digital output registers (0x0F00..0x0F03) drives them too; a one-buffer SM is
     /// emptied in SAFEOP as well.
     pub fn latch_outputs(&mut self) {
-        let op = self.al_state == reg::al::OP;
-        if !op && self.al_state != reg::al::SAFEOP {
+        let op = self.al_state == ether_ros_protocol::al::OP;
+        if !op && self.al_state != ether_ros_protocol::al::SAFEOP {
             return;
         }
         for p in &self.pd_sms {
@@ -1407,8 +1420,8 @@ impl Esc {
             }
             if let Some(buf) = s.pdi_take() {
                 crate::pdo::buffer_to_od(&p.map, buf, &mut self.od);
-                if (DIGITAL_OUTPUTS..DIGITAL_OUTPUTS + 4).contains(&start) {
-                    let n = buf.len().min(DIGITAL_OUTPUTS + 4 - start);
+                if (DIGITAL_OUTPUTS..DIGITAL_OUTPUTS_END).contains(&start) {
+                    let n = buf.len().min(DIGITAL_OUTPUTS_END - start);
                     self.mem[start..start + n].copy_from_slice(&buf[..n]);
                 }
             }
@@ -1417,7 +1430,10 @@ impl Esc {
 
     /// Dictionary → SM buffers of inputs (SAFEOP and OP).
     pub fn latch_inputs(&mut self) {
-        if !matches!(self.al_state, reg::al::SAFEOP | reg::al::OP) {
+        if !matches!(
+            self.al_state,
+            ether_ros_protocol::al::SAFEOP | ether_ros_protocol::al::OP
+        ) {
             return;
         }
         for p in &self.pd_sms {
@@ -1518,9 +1534,9 @@ impl Esc {
     /// for the state machine's own emergencies); they are dropped otherwise.
     fn send_device_emergencies(&mut self) {
         while let Some(e) = self.device.as_mut().and_then(|d| d.take_emergency()) {
-            if self.mailbox.is_some() && self.al_state != reg::al::INIT {
+            if self.mailbox.is_some() && self.al_state != ether_ros_protocol::al::INIT {
                 let msg = CoeServer::emergency(e.error_code, e.error_register, e.data);
-                self.queue_mailbox(reg::mbx::TYPE_COE, msg);
+                self.queue_mailbox(ether_ros_protocol::mailbox::TYPE_COE, msg);
             }
         }
     }
@@ -1549,9 +1565,9 @@ impl Esc {
             self.mem[reg::WATCHDOG_COUNTER_PD as usize] = c.saturating_add(1);
             // The outputs go to their safe state (outputs_valid is false now). A slave
             // application leaves OP; under device emulation there is none to do it.
-            if self.al_state == reg::al::OP && !self.device_emulation() {
-                self.enter_state(reg::al::SAFEOP);
-                self.fail(reg::al_code::SM_WATCHDOG);
+            if self.al_state == ether_ros_protocol::al::OP && !self.device_emulation() {
+                self.enter_state(ether_ros_protocol::al::SAFEOP);
+                self.fail(ether_ros_protocol::al::SM_WATCHDOG);
             }
         }
     }
@@ -1583,13 +1599,8 @@ impl Esc {
 
 /// The ESC's digital output registers (0x0F00..0x0F03): a SyncManager may guard them, so
 /// that outputs written there count for the process-data watchdog (ET1100/ET1200 digital I/O).
-pub const DIGITAL_OUTPUTS: usize = 0x0F00;
-/// PDO assignment object of SyncManager n: 0x1C10 + n (ETG.1000.6).
-const SM_ASSIGN_BASE: u16 = 0x1C10;
-/// SII SyncM "enable" bit of a virtual SyncManager (ETG.2010): no hardware resource.
-const SII_SM_VIRTUAL: u8 = 0x04;
-/// SII SyncM "enable" bit of a SyncManager enabled only in OP.
-const SII_SM_OP_ONLY: u8 = 0x08;
+const DIGITAL_OUTPUTS: usize = reg::DIGITAL_OUTPUTS as usize;
+const DIGITAL_OUTPUTS_END: usize = DIGITAL_OUTPUTS + reg::DIGITAL_OUTPUTS_LEN as usize;
 
 /// One process-data SyncManager of the slave and the map of the PDOs it carries.
 #[derive(Clone, Debug, Default)]
@@ -1630,15 +1641,15 @@ fn process_sync_managers(image: &[u8], mailbox: bool) -> (Vec<PdSm>, Vec<usize>)
     let mut mbx = Vec::new();
     for (n, s) in sms.iter().enumerate().take(N_SM) {
         match s.kind {
-            1 | 2 => mbx.push(n),
-            3 | 4 if s.enable & SII_SM_VIRTUAL == 0 => {
-                let output = s.kind == 3;
+            syncm::TYPE_MBOX_OUT | syncm::TYPE_MBOX_IN => mbx.push(n),
+            syncm::TYPE_OUTPUTS | syncm::TYPE_INPUTS if s.enable & syncm::VIRTUAL == 0 => {
+                let output = s.kind == syncm::TYPE_OUTPUTS;
                 // The direction follows the type; the mode (buffered or one buffer) the SII.
                 let direction = if output { 0x04 } else { 0x00 };
                 pd.push(PdSm {
                     number: n,
                     output,
-                    op_only: s.enable & SII_SM_OP_ONLY != 0,
+                    op_only: s.enable & syncm::OP_ONLY != 0,
                     control: (s.control & 0x03) | direction,
                     map: PdoMap::default(),
                 })
@@ -1650,6 +1661,13 @@ fn process_sync_managers(image: &[u8], mailbox: bool) -> (Vec<PdSm>, Vec<usize>)
         mbx = vec![0, 1];
     }
     (pd, mbx)
+}
+
+/// A PDO mapping object: 0x1600..=0x17FF (RxPDOs) or 0x1A00..=0x1BFF (TxPDOs).
+fn is_mapping_object(index: u16) -> bool {
+    use ether_ros_protocol::coe::{RXPDO_MAPPING, TXPDO_MAPPING};
+    (RXPDO_MAPPING..RXPDO_MAPPING + 0x200).contains(&index)
+        || (TXPDO_MAPPING..TXPDO_MAPPING + 0x200).contains(&index)
 }
 
 /// The (index, subindex, bits) the device's own defaults (its mapping objects 0x1600..0x1BFF
@@ -1668,7 +1686,7 @@ fn default_partial_mappings(od: &ObjectDictionary, image: &[u8]) -> Vec<(u16, u8
         }
     };
     for o in od.objects() {
-        if !(0x1600..0x1C00).contains(&o.index) {
+        if !is_mapping_object(o.index) {
             continue;
         }
         let n = od.get_int(o.index, 0).clamp(0, 254) as u8;
@@ -1677,7 +1695,10 @@ fn default_partial_mappings(od: &ObjectDictionary, image: &[u8]) -> Vec<(u16, u8
             consider((raw >> 16) as u16, (raw >> 8) as u8, (raw & 0xff) as u16);
         }
     }
-    for category in [50, 51] {
+    for category in [
+        ether_ros_protocol::sii::category::TXPDO,
+        ether_ros_protocol::sii::category::RXPDO,
+    ] {
         for p in sii::pdos(image, category) {
             for &(index, sub, bits) in &p.entries {
                 consider(index, sub, bits);
@@ -1715,20 +1736,20 @@ mod tests {
     #[test]
     fn refused_safeop_to_op_sends_emergency_a001() {
         let mut esc = slave_with_mailbox();
-        esc.al_state = reg::al::SAFEOP;
+        esc.al_state = ether_ros_protocol::al::SAFEOP;
         esc.refuse_op = true;
-        esc.request_state(reg::al::OP as u16);
-        assert_eq!(esc.al_code, reg::al_code::SYNCHRONIZATION_ERROR);
+        esc.request_state(ether_ros_protocol::al::OP as u16);
+        assert_eq!(esc.al_code, ether_ros_protocol::al::SYNCHRONIZATION_ERROR);
         assert_eq!(last_emergency_code(&esc), Some(0xA001));
     }
 
     #[test]
     fn refused_preop_to_safeop_sends_emergency_a000() {
         let mut esc = slave_with_mailbox();
-        esc.al_state = reg::al::PREOP;
+        esc.al_state = ether_ros_protocol::al::PREOP;
         // The slave needs SYNC0, which is not running: SAFEOP is refused.
-        esc.request_state(reg::al::SAFEOP as u16);
-        assert_eq!(esc.al_code, reg::al_code::INVALID_DC_SYNC_CONFIG);
+        esc.request_state(ether_ros_protocol::al::SAFEOP as u16);
+        assert_eq!(esc.al_code, ether_ros_protocol::al::INVALID_DC_SYNC_CONFIG);
         assert_eq!(last_emergency_code(&esc), Some(0xA000));
     }
 
@@ -1817,10 +1838,13 @@ mod tests {
                 value: v.to_le_bytes()[..if sub == 0 { 1 } else { 4 }].to_vec(),
             });
         }
-        esc.request_state(reg::al::PREOP as u16);
+        esc.request_state(ether_ros_protocol::al::PREOP as u16);
         configure_sm(&mut esc, 0, 0x1000, 1, 0x00);
-        esc.request_state(reg::al::SAFEOP as u16);
-        assert_eq!((esc.al_state, esc.al_code), (reg::al::SAFEOP, 0));
+        esc.request_state(ether_ros_protocol::al::SAFEOP as u16);
+        assert_eq!(
+            (esc.al_state, esc.al_code),
+            (ether_ros_protocol::al::SAFEOP, 0)
+        );
         esc.latch_inputs();
         let mut b = [0u8; 1];
         assert!(esc.ecat_read(0x1000, &mut b, false));
@@ -1832,7 +1856,11 @@ mod tests {
         // 0x0141 bit 0 (ConfigData "0401"): no application checks the SyncManagers.
         let mut esc = slave(0x01, &[(0x0F00, 1, 0x44, 0x09, 3)]);
         assert!(esc.device_emulation());
-        for state in [reg::al::PREOP, reg::al::SAFEOP, reg::al::OP] {
+        for state in [
+            ether_ros_protocol::al::PREOP,
+            ether_ros_protocol::al::SAFEOP,
+            ether_ros_protocol::al::OP,
+        ] {
             esc.request_state(state as u16);
             assert_eq!((esc.al_state, esc.al_error), (state, false));
         }
@@ -1842,10 +1870,10 @@ mod tests {
     fn an_sm_on_the_digital_output_registers_drives_them_in_op() {
         // EL2008: SM0 at 0x0F00, enabled only in OP (SII enable bit 3).
         let mut esc = slave(0x01, &[(0x0F00, 1, 0x44, 0x09, 3)]);
-        esc.request_state(reg::al::PREOP as u16);
-        esc.request_state(reg::al::SAFEOP as u16);
+        esc.request_state(ether_ros_protocol::al::PREOP as u16);
+        esc.request_state(ether_ros_protocol::al::SAFEOP as u16);
         configure_sm(&mut esc, 0, 0x0F00, 1, 0x44);
-        esc.request_state(reg::al::OP as u16);
+        esc.request_state(ether_ros_protocol::al::OP as u16);
         assert!(esc.ecat_write(0x0F00, &[0xA5]));
         esc.latch_outputs();
         assert_eq!(esc.memory()[0x0F00], 0xA5);
@@ -1874,10 +1902,10 @@ mod tests {
         let mut esc = slave(0x00, &[]);
         esc.ecat_write(0x0910, &5_000_000u64.to_le_bytes());
         assert_ne!(esc.get32(reg::DC_SYSTEM_TIME_DIFF), 0);
-        esc.put16(DC_SPEED_COUNTER_DIFF, 7);
+        esc.put16(reg::DC_SPEED_COUNTER_DIFF, 7);
         esc.ecat_write(0x0930, &0x1000u16.to_le_bytes());
         assert_eq!(esc.get32(reg::DC_SYSTEM_TIME_DIFF), 0);
-        assert_eq!(esc.get16(DC_SPEED_COUNTER_DIFF), 0);
+        assert_eq!(esc.get16(reg::DC_SPEED_COUNTER_DIFF), 0);
     }
 
     #[test]

@@ -4,7 +4,7 @@
 //! with the working-counter rules of ETG.1000.4 / the ESC datasheet. A line is the tree where
 //! each slave hangs on port 1 of the previous one.
 
-use ether_ros_wire::{self as wire, Command};
+use ether_ros_protocol::{self as wire, Command};
 
 use crate::esc::Esc;
 use crate::faults::{Faults, Rng};

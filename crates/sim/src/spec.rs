@@ -1,6 +1,8 @@
 //! Description of one virtual slave, built by the Python front from the bus config and the ESI
 //! (see `docs/simulator.md` for the dict keys that map onto these fields).
 
+use ether_ros_protocol::sii::syncm;
+
 use crate::chip::EscChip;
 use crate::od::{Entry, Object};
 
@@ -128,13 +130,13 @@ impl SlaveSpec {
         let tx = crate::sii::pdos(&self.sii, SII_CATEGORY_TXPDO);
         for (n, sm) in sms.iter().enumerate() {
             // Unused, or virtual (SII enable bit 2: an FMMU maps ESC memory, no SM is used).
-            if sm.kind == 0 || sm.enable & 0x04 != 0 {
+            if sm.kind == syncm::TYPE_UNUSED || sm.enable & syncm::VIRTUAL != 0 {
                 continue;
             }
             // A process-data SyncManager without a default length is as long as its PDOs.
             let pdos = match sm.kind {
-                3 => &rx,
-                4 => &tx,
+                syncm::TYPE_OUTPUTS => &rx,
+                syncm::TYPE_INPUTS => &tx,
                 _ => &Vec::new(),
             };
             let pdo_bits: u32 = pdos

@@ -7,8 +7,8 @@ mod common;
 use std::time::Instant;
 
 use common::*;
+use ether_ros_protocol::{self as wire, Command, FrameBuilder};
 use ether_ros_sim::Network;
-use ether_ros_wire::{self as wire, Command, FrameBuilder};
 
 #[test]
 #[ignore]

@@ -33,6 +33,8 @@ from typing import Any
 
 from lxml import etree
 
+from ether_ros._native.protocol import sii_syncm
+from ether_ros._native.protocol import sm as reg_sm
 from ether_ros.config import types as dt
 from ether_ros.errors import ConfigError
 
@@ -89,19 +91,8 @@ class EsiWarning:
         return f"{self.file}:{self.line}: <{self.element}>: {self.message}"
 
 
-#: SyncManager roles, and the SII SyncM type byte of each (ETG.2010).
+#: SyncManager roles (the SII SyncM types 1..4, ``ether_ros.config.sii.SM_TYPE``).
 SM_ROLES = ("MBoxOut", "MBoxIn", "Outputs", "Inputs")
-#: SII SyncM "enable" byte (ETG.2010): bit 0 enable, bit 2 virtual (no hardware resource),
-#: bit 3 enabled only in OP.
-SM_ENABLE = 0x01
-SM_VIRTUAL = 0x04
-SM_OP_ONLY = 0x08
-#: SyncManager control byte (ESC datasheet, 0x0804): bits 0..1 mode (0 buffered, 2 mailbox),
-#: bits 2..3 direction (0 ECAT reads, 1 ECAT writes).
-SM_MODE_MASK = 0x03
-SM_MODE_MAILBOX = 0x02
-SM_DIR_MASK = 0x0C
-SM_DIR_ECAT_WRITES = 0x04
 
 
 @dataclass(frozen=True)
@@ -131,11 +122,12 @@ class SyncManagerDesc:
     @property
     def sii_enable(self) -> int:
         """The SII SyncM enable byte (ETG.2010)."""
-        return (
-            (SM_ENABLE if self.enable else 0)
-            | (SM_VIRTUAL if self.virtual else 0)
-            | (SM_OP_ONLY if self.op_only else 0)
-        )
+        # A virtual SM takes no hardware SM: flagged virtual and not enabled, so that a master
+        # that writes every SM of the SII (SOEM, ethercrab) leaves it disabled and maps it by
+        # FMMU only.
+        enabled = sii_syncm.ENABLE if self.enable else 0
+        base = sii_syncm.VIRTUAL if self.virtual else enabled
+        return base | (sii_syncm.OP_ONLY if self.op_only else 0)
 
 
 @dataclass(frozen=True)
@@ -1130,14 +1122,14 @@ def _sm_role(ctx: _Ctx, sm: etree._Element, label: str, control: int | None) -> 
             return label
         ctx.warn(sm, "SyncManager name is no role and there is no ControlByte: SM unused", label)
         return ""
-    writes = control & SM_DIR_MASK == SM_DIR_ECAT_WRITES
+    writes = control & reg_sm.DIR_MASK == reg_sm.DIR_WRITE
     if label in ("MBoxOut", "MBoxIn"):
         role = "MBoxOut" if writes else "MBoxIn"
     elif label in ("Outputs", "Inputs"):
         # A process-data SM may run in one-buffer (mailbox) mode: still process data.
         role = "Outputs" if writes else "Inputs"
     else:
-        mailbox = control & SM_MODE_MASK == SM_MODE_MAILBOX
+        mailbox = control & reg_sm.MODE_MASK == reg_sm.MODE_MAILBOX
         role = (
             ("MBoxOut" if writes else "MBoxIn") if mailbox else ("Outputs" if writes else "Inputs")
         )
@@ -1172,11 +1164,11 @@ def _parse_sync_managers(ctx: _Ctx, dev: etree._Element) -> list[SyncManagerDesc
                 start=start,
                 default_size=_attr_int(ctx, sm, "DefaultSize", 0, hi=U16) or 0,
                 control=control or 0,
-                enable=bool(enable_byte & SM_ENABLE),
+                enable=bool(enable_byte & sii_syncm.ENABLE),
                 min_size=_attr_int(ctx, sm, "MinSize", None, hi=U16),
                 max_size=_attr_int(ctx, sm, "MaxSize", None, hi=U16),
                 virtual=_attr_bool(sm, "Virtual"),
-                op_only=_attr_bool(sm, "OpOnly") or bool(enable_byte & SM_OP_ONLY),
+                op_only=_attr_bool(sm, "OpOnly") or bool(enable_byte & sii_syncm.OP_ONLY),
                 label=label,
             )
         )

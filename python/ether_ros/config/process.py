@@ -18,10 +18,10 @@ Example::
 
 from __future__ import annotations
 
-import re
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, replace
 
+from ether_ros._native.protocol import format_address, format_pdo_address, parse_pdo_address
 from ether_ros.config import types as dt
 from ether_ros.config.esi import EsiDevice, Pdo
 from ether_ros.errors import ConfigError, EtherRosError
@@ -50,10 +50,11 @@ class ProcessVariable:
 
     @property
     def key(self) -> str:
-        """``0xIIII:SS``, or ``0xPPPP/0xIIII:SS`` when the entry is mapped more than once: the
-        name that is always unique."""
-        plain = f"{self.index:#06x}:{self.subindex:02x}"
-        return f"{self.pdo:#06x}/{plain}" if self.qualified else plain
+        """``0x7000:01``, or ``0x1600/0x7000:01`` when the entry is mapped more than once: the
+        name that is always unique (the canonical object address, with its PDO when needed)."""
+        if self.qualified:
+            return format_pdo_address(self.pdo, self.index, self.subindex)
+        return format_address(self.index, self.subindex)
 
     @property
     def dtype(self) -> dt.DataType:
@@ -104,9 +105,6 @@ class SmSegment:
     pdos: tuple[int, ...]
 
 
-_KEY = re.compile(r"^(?:0x([0-9a-fA-F]{1,4})/)?0x([0-9a-fA-F]{1,4}):(?:0x)?([0-9a-fA-F]{1,2})$")
-
-
 class ProcessLayout:
     """The output and input variables of one slave for a given PDO assignment."""
 
@@ -126,10 +124,12 @@ class ProcessLayout:
         qualify = {k for k, n in plain.items() if n > 1}
         self.outputs: tuple[ProcessVariable, ...] = tuple(_qualified(v, qualify) for v in outputs)
         self.inputs: tuple[ProcessVariable, ...] = tuple(_qualified(v, qualify) for v in inputs)
-        self._by_key: dict[str, ProcessVariable] = {}
+        self._by_key: dict[tuple[int | None, int, int], ProcessVariable] = {}
+        self._by_address: dict[tuple[int, int], list[ProcessVariable]] = {}
         self._by_name: dict[str, list[ProcessVariable]] = {}
         for v in (*self.outputs, *self.inputs):
-            self._by_key.setdefault(v.key, v)
+            self._by_key.setdefault((v.pdo if v.qualified else None, v.index, v.subindex), v)
+            self._by_address.setdefault((v.index, v.subindex), []).append(v)
             self._by_name.setdefault(v.name, []).append(v)
 
     @property
@@ -162,12 +162,16 @@ class ProcessLayout:
         )
 
     def has(self, name: str) -> bool:
-        return name in self._by_name or self._lookup_key(name) is not None
+        try:
+            return name in self._by_name or self._lookup_key(name) is not None
+        except ProcessValueError:
+            return False
 
     def variable(self, name: str, direction: str | None = None) -> ProcessVariable:
-        """A variable by entry name (``hip_angle``) or by key (``0xIIII:SS``, or
-        ``0xPPPP/0xIIII:SS`` for an entry mapped more than once); ``direction`` ('output' or
-        'input') narrows a name used in both directions.
+        """A variable by entry name (``hip_angle``) or by object address (``0x7000:01``,
+        ``7000:1``: hexadecimal, the grammar of ``ether_ros._native.protocol.parse_address``;
+        ``0x1600/0x7000:01`` for an entry mapped more than once); ``direction`` ('output' or
+        'input') narrows a name or address used in both directions.
 
         Raises :class:`ProcessValueError` for unknown or ambiguous names."""
         found = self._by_name.get(name)
@@ -179,20 +183,28 @@ class ProcessLayout:
                 keys = ", ".join(v.key for v in found)
                 raise ProcessValueError(f"variable name {name!r} is ambiguous; use one of {keys}")
             return found[0]
-        by_key = self._lookup_key(name)
+        by_key = self._lookup_key(name, direction)
         if by_key is not None:
             return by_key
         raise ProcessValueError(f"no process variable {name!r}")
 
-    def _lookup_key(self, name: str) -> ProcessVariable | None:
-        m = _KEY.match(name.strip())
-        if not m:
+    def _lookup_key(self, name: str, direction: str | None = None) -> ProcessVariable | None:
+        try:
+            address = parse_pdo_address(name)
+        except ValueError as exc:
+            raise ProcessValueError(str(exc)) from None
+        if address is None:
             return None
-        pdo, index, sub = m.group(1), int(m.group(2), 16), int(m.group(3), 16)
-        key = f"{index:#06x}:{sub:02x}"
+        pdo, index, subindex = address
         if pdo is not None:
-            key = f"{int(pdo, 16):#06x}/{key}"
-        return self._by_key.get(key)
+            return self._by_key.get((pdo, index, subindex))
+        found = self._by_address.get((index, subindex), [])
+        if direction is not None and len(found) > 1:
+            found = [v for v in found if v.direction == direction] or found
+        if len(found) > 1:
+            keys = ", ".join(v.key for v in found)
+            raise ProcessValueError(f"{name!r} is mapped more than once; use one of {keys}")
+        return found[0] if found else None
 
     # -- codec on area buffers ---------------------------------------------------------------
 

@@ -13,54 +13,25 @@ import struct
 from collections import deque
 from dataclasses import dataclass
 
+from ether_ros._native.protocol import (
+    coe,
+    emergency_text,
+    format_address,
+    object_code_name,
+    sdo_abort,
+    sdo_abort_text,
+)
 from ether_ros.errors import MailboxError
-from ether_ros.master.abort_codes import emergency_text, sdo_abort_text
 from ether_ros.master.mailbox import Mailbox, MailboxType
 
-# CoE services (upper 4 bits of the 2-byte CoE header).
-SERVICE_EMERGENCY = 1
-SERVICE_SDO_REQUEST = 2
-SERVICE_SDO_RESPONSE = 3
-SERVICE_SDO_INFORMATION = 8
-
-# Command specifiers (upper 3 bits of the SDO command byte).
-CCS_DOWNLOAD_SEGMENT = 0
-CCS_DOWNLOAD_INITIATE = 1
-CCS_UPLOAD_INITIATE = 2
-CCS_UPLOAD_SEGMENT = 3
-CS_ABORT = 4
-SCS_UPLOAD_SEGMENT = 0
-SCS_DOWNLOAD_SEGMENT = 1
-SCS_UPLOAD_INITIATE = 2
-SCS_DOWNLOAD_INITIATE = 3
-
-COMPLETE_ACCESS = 0x10
-TOGGLE = 0x10
-
-# SDO header: CoE header (2), command (1), index (2), subindex (1), 4 data bytes.
-SDO_HEADER_LEN = 10
 # A segment: CoE header (2), command (1), then at least 7 data bytes.
 SEGMENT_HEADER_LEN = 3
 MIN_SEGMENT_DATA = 7
 
-# Abort codes the client itself sends when the slave breaks the protocol.
-ABORT_TOGGLE = 0x05030000
-ABORT_INVALID_COMMAND = 0x05040001
 
-# SDO Information opcodes (lower 7 bits; bit 7 = more fragments follow).
-INFO_OD_LIST_REQ = 1
-INFO_OD_LIST_RESP = 2
-INFO_OBJECT_DESC_REQ = 3
-INFO_OBJECT_DESC_RESP = 4
-INFO_ENTRY_DESC_REQ = 5
-INFO_ENTRY_DESC_RESP = 6
-INFO_ERROR = 7
-INFO_INCOMPLETE = 0x80
-INFO_HEADER_LEN = 6
-
-OD_LIST_ALL = 1
-
-OBJECT_CODE_NAMES = {7: "VAR", 8: "ARRAY", 9: "RECORD"}
+def abort_description(code: int) -> str:
+    """``0x06020000 object does not exist in the object dictionary``: the code and its meaning."""
+    return f"0x{code:08X} {sdo_abort_text(code)}"
 
 
 @dataclass(frozen=True)
@@ -91,7 +62,7 @@ class ObjectDescription:
 
     @property
     def object_code_name(self) -> str:
-        return OBJECT_CODE_NAMES.get(self.object_code, f"code {self.object_code}")
+        return object_code_name(self.object_code) or f"code {self.object_code}"
 
 
 @dataclass(frozen=True)
@@ -139,7 +110,9 @@ def _coe_header(service: int) -> bytes:
 
 
 def _sdo(command: int, index: int, subindex: int, data: bytes = b"\x00\x00\x00\x00") -> bytes:
-    return _coe_header(SERVICE_SDO_REQUEST) + struct.pack("<BHB", command, index, subindex) + data
+    return (
+        _coe_header(coe.SERVICE_SDO_REQUEST) + struct.pack("<BHB", command, index, subindex) + data
+    )
 
 
 def _service(payload: bytes) -> int:
@@ -175,7 +148,7 @@ class SdoClient:
 
     def _what(self, action: str, index: int, subindex: int, complete_access: bool) -> str:
         ca = " (complete access)" if complete_access else ""
-        return f"slave '{self.slave_name}': SDO {action} 0x{index:04X}:{subindex:02X}{ca}"
+        return f"slave '{self.slave_name}': SDO {action} {format_address(index, subindex)}{ca}"
 
     def _fail(self, what: str, reason: str) -> MailboxError:
         return MailboxError(f"{what} {reason}")
@@ -192,10 +165,10 @@ class SdoClient:
             reply = self.mailbox.receive(MailboxType.COE, self.timeout_s)
         except MailboxError as e:
             raise MailboxError(f"{what} failed: {_after_slave(e)}") from None
-        if len(reply) >= SDO_HEADER_LEN and reply[2] >> 5 == CS_ABORT:
+        if len(reply) >= coe.SDO_HEADER_LEN and reply[2] >> 5 == coe.CS_ABORT:
             code = struct.unpack_from("<I", reply, 6)[0]
-            raise self._fail(what, f"aborted: {sdo_abort_text(code)}")
-        if _service(reply) != SERVICE_SDO_RESPONSE or len(reply) < SDO_HEADER_LEN:
+            raise self._fail(what, f"aborted: {abort_description(code)}")
+        if _service(reply) != coe.SERVICE_SDO_RESPONSE or len(reply) < coe.SDO_HEADER_LEN:
             raise self._fail(what, f"failed: unexpected CoE reply {reply[:10].hex(' ')}")
         return reply
 
@@ -203,17 +176,19 @@ class SdoClient:
         """Tell the slave the transfer is over; best effort, the caller raises anyway."""
         with contextlib.suppress(MailboxError):
             self.mailbox.send(
-                MailboxType.COE, _sdo(CS_ABORT << 5, index, subindex, struct.pack("<I", code)), 0.1
+                MailboxType.COE,
+                _sdo(coe.CS_ABORT << 5, index, subindex, struct.pack("<I", code)),
+                0.1,
             )
 
     def _check_echo(self, reply: bytes, scs: int, index: int, subindex: int, what: str) -> None:
         got_index, got_sub = struct.unpack_from("<HB", reply, 3)
         if reply[2] >> 5 != scs or (got_index, got_sub) != (index, subindex):
-            self._abort(index, subindex, ABORT_INVALID_COMMAND)
+            self._abort(index, subindex, sdo_abort.ABORT_INVALID_COMMAND)
             raise self._fail(
                 what,
                 f"failed: slave answered command 0x{reply[2]:02X} for "
-                f"0x{got_index:04X}:{got_sub:02X}",
+                f"{format_address(got_index, got_sub)}",
             )
 
     # ---- upload -----------------------------------------------------------------------------
@@ -222,25 +197,25 @@ class SdoClient:
         """Read an entry (or, with complete access, the whole object from ``subindex`` 0 or 1)."""
         what = self._what("upload", index, subindex, complete_access)
         self.mailbox.flush()
-        command = CCS_UPLOAD_INITIATE << 5 | (COMPLETE_ACCESS if complete_access else 0)
+        command = coe.CCS_UPLOAD_INITIATE << 5 | (coe.COMPLETE_ACCESS if complete_access else 0)
         reply = self._exchange(_sdo(command, index, subindex), what)
-        self._check_echo(reply, SCS_UPLOAD_INITIATE, index, subindex, what)
+        self._check_echo(reply, coe.SCS_UPLOAD_INITIATE, index, subindex, what)
         flags = reply[2]
         if flags & 0x02:  # expedited: the data is in the 4 data bytes
             size = 4 - ((flags >> 2) & 0x03) if flags & 0x01 else 4
             return reply[6 : 6 + size]
         size = struct.unpack_from("<I", reply, 6)[0]
-        data = bytearray(reply[SDO_HEADER_LEN : SDO_HEADER_LEN + size])
+        data = bytearray(reply[coe.SDO_HEADER_LEN : coe.SDO_HEADER_LEN + size])
         toggle = 0
         while len(data) < size:
             segment = self._exchange(_segment_request(toggle), what)
-            if segment[2] >> 5 != SCS_UPLOAD_SEGMENT:
-                self._abort(index, subindex, ABORT_INVALID_COMMAND)
+            if segment[2] >> 5 != coe.SCS_UPLOAD_SEGMENT:
+                self._abort(index, subindex, sdo_abort.ABORT_INVALID_COMMAND)
                 raise self._fail(
                     what, f"failed: expected an upload segment, got 0x{segment[2]:02X}"
                 )
-            if segment[2] & TOGGLE != toggle:
-                self._abort(index, subindex, ABORT_TOGGLE)
+            if segment[2] & coe.TOGGLE != toggle:
+                self._abort(index, subindex, sdo_abort.ABORT_TOGGLE_BIT)
                 raise self._fail(what, "failed: slave did not alternate the toggle bit")
             body = segment[SEGMENT_HEADER_LEN:]
             if len(body) <= MIN_SEGMENT_DATA:
@@ -249,7 +224,7 @@ class SdoClient:
             last = bool(segment[2] & 0x01)
             if last or not body:
                 break
-            toggle ^= TOGGLE
+            toggle ^= coe.TOGGLE
         if len(data) != size:
             raise self._fail(what, f"failed: slave announced {size} bytes but sent {len(data)}")
         return bytes(data)
@@ -262,18 +237,18 @@ class SdoClient:
         """Write an entry (or, with complete access, the object from ``subindex`` 0 or 1)."""
         what = self._what("download", index, subindex, complete_access)
         self.mailbox.flush()
-        ca = COMPLETE_ACCESS if complete_access else 0
+        ca = coe.COMPLETE_ACCESS if complete_access else 0
         if 0 < len(data) <= 4:
-            command = CCS_DOWNLOAD_INITIATE << 5 | ca | (4 - len(data)) << 2 | 0x03
+            command = coe.CCS_DOWNLOAD_INITIATE << 5 | ca | (4 - len(data)) << 2 | 0x03
             reply = self._exchange(_sdo(command, index, subindex, data.ljust(4, b"\x00")), what)
-            self._check_echo(reply, SCS_DOWNLOAD_INITIATE, index, subindex, what)
+            self._check_echo(reply, coe.SCS_DOWNLOAD_INITIATE, index, subindex, what)
             return
-        room = self.mailbox.max_send_payload - SDO_HEADER_LEN
+        room = self.mailbox.max_send_payload - coe.SDO_HEADER_LEN
         first = data[:room]
-        command = CCS_DOWNLOAD_INITIATE << 5 | ca | 0x01
+        command = coe.CCS_DOWNLOAD_INITIATE << 5 | ca | 0x01
         request = _sdo(command, index, subindex, struct.pack("<I", len(data))) + first
         reply = self._exchange(request, what)
-        self._check_echo(reply, SCS_DOWNLOAD_INITIATE, index, subindex, what)
+        self._check_echo(reply, coe.SCS_DOWNLOAD_INITIATE, index, subindex, what)
         sent = len(first)
         toggle = 0
         segment_room = self.mailbox.max_send_payload - SEGMENT_HEADER_LEN
@@ -282,23 +257,23 @@ class SdoClient:
             sent += len(chunk)
             last = 0x01 if sent == len(data) else 0
             unused = MIN_SEGMENT_DATA - len(chunk) if len(chunk) < MIN_SEGMENT_DATA else 0
-            command = CCS_DOWNLOAD_SEGMENT << 5 | toggle | unused << 1 | last
-            segment = _coe_header(SERVICE_SDO_REQUEST) + bytes([command])
+            command = coe.CCS_DOWNLOAD_SEGMENT << 5 | toggle | unused << 1 | last
+            segment = _coe_header(coe.SERVICE_SDO_REQUEST) + bytes([command])
             segment += chunk.ljust(MIN_SEGMENT_DATA, b"\x00")
             reply = self._exchange(segment, what)
-            if reply[2] >> 5 != SCS_DOWNLOAD_SEGMENT:
-                self._abort(index, subindex, ABORT_INVALID_COMMAND)
+            if reply[2] >> 5 != coe.SCS_DOWNLOAD_SEGMENT:
+                self._abort(index, subindex, sdo_abort.ABORT_INVALID_COMMAND)
                 raise self._fail(what, f"failed: expected a segment answer, got 0x{reply[2]:02X}")
-            if reply[2] & TOGGLE != toggle:
-                self._abort(index, subindex, ABORT_TOGGLE)
+            if reply[2] & coe.TOGGLE != toggle:
+                self._abort(index, subindex, sdo_abort.ABORT_TOGGLE_BIT)
                 raise self._fail(what, "failed: slave did not alternate the toggle bit")
-            toggle ^= TOGGLE
+            toggle ^= coe.TOGGLE
 
     # ---- SDO Information --------------------------------------------------------------------
 
     def _info(self, opcode: int, body: bytes, expect: int, what: str) -> bytes:
         """One SDO Information exchange; the fragments of the answer put together."""
-        request = _coe_header(SERVICE_SDO_INFORMATION) + bytes([opcode, 0, 0, 0]) + body
+        request = _coe_header(coe.SERVICE_SDO_INFORMATION) + bytes([opcode, 0, 0, 0]) + body
         self.mailbox.flush()
         try:
             self.mailbox.send(MailboxType.COE, request, self.timeout_s)
@@ -310,28 +285,30 @@ class SdoClient:
                 reply = self.mailbox.receive(MailboxType.COE, self.timeout_s)
             except MailboxError as e:
                 raise MailboxError(f"{what} failed: {_after_slave(e)}") from None
-            if _service(reply) != SERVICE_SDO_INFORMATION or len(reply) < INFO_HEADER_LEN:
+            if _service(reply) != coe.SERVICE_SDO_INFORMATION or len(reply) < coe.INFO_HEADER_LEN:
                 # An SDO abort in answer to an information request: the service is missing.
-                if len(reply) >= SDO_HEADER_LEN and reply[2] >> 5 == CS_ABORT:
+                if len(reply) >= coe.SDO_HEADER_LEN and reply[2] >> 5 == coe.CS_ABORT:
                     code = struct.unpack_from("<I", reply, 6)[0]
-                    raise self._fail(what, f"failed: {sdo_abort_text(code)}")
+                    raise self._fail(what, f"failed: {abort_description(code)}")
                 raise self._fail(what, f"failed: unexpected CoE reply {reply[:10].hex(' ')}")
             got = reply[2] & 0x7F
-            if got == INFO_ERROR:
+            if got == coe.INFO_ERROR:
                 code = struct.unpack_from("<I", reply.ljust(10, b"\x00"), 6)[0]
-                raise self._fail(what, f"failed: {sdo_abort_text(code)}")
+                raise self._fail(what, f"failed: {abort_description(code)}")
             if got != expect:
                 raise self._fail(what, f"failed: unexpected SDO information opcode {got}")
-            data += reply[INFO_HEADER_LEN:]
+            data += reply[coe.INFO_HEADER_LEN :]
             fragments_left = struct.unpack_from("<H", reply, 4)[0]
-            if not reply[2] & INFO_INCOMPLETE or fragments_left == 0:
+            if not reply[2] & coe.INFO_INCOMPLETE or fragments_left == 0:
                 return bytes(data)
 
-    def object_list(self, list_type: int = OD_LIST_ALL) -> list[int]:
+    def object_list(self, list_type: int = coe.OD_LIST_ALL) -> list[int]:
         """Indices of the objects in the dictionary (list type 1: all; 2/3: RxPDO/TxPDO
         mappable; 4: backup; 5: settings). List type 0 returns the five list lengths."""
         what = f"slave '{self.slave_name}': SDO information object list"
-        body = self._info(INFO_OD_LIST_REQ, struct.pack("<H", list_type), INFO_OD_LIST_RESP, what)
+        body = self._info(
+            coe.INFO_OD_LIST_REQ, struct.pack("<H", list_type), coe.INFO_OD_LIST_RESP, what
+        )
         if len(body) < 2 or len(body) % 2:
             raise self._fail(what, f"failed: malformed list of {len(body)} bytes")
         return [v for (v,) in struct.iter_unpack("<H", body[2:])]
@@ -339,7 +316,7 @@ class SdoClient:
     def object_description(self, index: int) -> ObjectDescription:
         what = f"slave '{self.slave_name}': SDO information object description 0x{index:04X}"
         body = self._info(
-            INFO_OBJECT_DESC_REQ, struct.pack("<H", index), INFO_OBJECT_DESC_RESP, what
+            coe.INFO_OBJECT_DESC_REQ, struct.pack("<H", index), coe.INFO_OBJECT_DESC_RESP, what
         )
         if len(body) < 6:
             raise self._fail(what, f"failed: description of {len(body)} bytes is too short")
@@ -349,12 +326,12 @@ class SdoClient:
     def entry_description(self, index: int, subindex: int) -> EntryDescription:
         what = (
             f"slave '{self.slave_name}': SDO information entry description "
-            f"0x{index:04X}:{subindex:02X}"
+            f"{format_address(index, subindex)}"
         )
         body = self._info(
-            INFO_ENTRY_DESC_REQ,
+            coe.INFO_ENTRY_DESC_REQ,
             struct.pack("<HBB", index, subindex, 0),
-            INFO_ENTRY_DESC_RESP,
+            coe.INFO_ENTRY_DESC_RESP,
             what,
         )
         if len(body) < 10:
@@ -369,7 +346,11 @@ class SdoClient:
 
 
 def _segment_request(toggle: int) -> bytes:
-    return _coe_header(SERVICE_SDO_REQUEST) + bytes([CCS_UPLOAD_SEGMENT << 5 | toggle]) + bytes(7)
+    return (
+        _coe_header(coe.SERVICE_SDO_REQUEST)
+        + bytes([coe.CCS_UPLOAD_SEGMENT << 5 | toggle])
+        + bytes(7)
+    )
 
 
 def _text(raw: bytes) -> str:

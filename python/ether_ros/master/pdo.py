@@ -24,15 +24,15 @@ import struct
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+from ether_ros._native.protocol import coe, format_address
 from ether_ros.config.esi import EsiDevice, Pdo, PdoEntry
 from ether_ros.config.process import pdo_sync_manager
 from ether_ros.errors import BusError
 
-#: PDO assignment object of SyncManager n: 0x1C10 + n (ETG.1000.6, sync manager PDO
-#: assignment objects 0x1C10..0x1C2F).
-SM_ASSIGN_BASE = 0x1C10
-RX_ASSIGN = SM_ASSIGN_BASE + 2
-TX_ASSIGN = SM_ASSIGN_BASE + 3
+#: PDO assignment object of SyncManager n: 0x1C10 + n (0x1C12 for SM2, 0x1C13 for SM3).
+SM_ASSIGN_BASE = coe.SM_PDO_ASSIGN
+RX_ASSIGN = coe.RXPDO_ASSIGN
+TX_ASSIGN = coe.TXPDO_ASSIGN
 
 
 @dataclass(frozen=True)
@@ -183,7 +183,7 @@ def mapping_writes(pdo: Pdo) -> list[SdoWrite]:
                 pdo.index,
                 sub,
                 struct.pack("<I", entry.mapping_value),
-                f"mapping 0x{pdo.index:04X}:{sub}",
+                f"mapping {format_address(pdo.index, sub)}",
             )
         )
     writes.append(SdoWrite(pdo.index, 0, bytes([len(pdo.entries)]), f"mapping 0x{pdo.index:04X}"))

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from ether_ros._native.protocol import coe
 from ether_ros.config import types as dt
 from ether_ros.config.bus import BusConfig, SlaveConfig
 from ether_ros.config.cia402 import AXIS_STRIDE, MAX_AXES, MODES, SUPPORTED_MODES, offered_modes
@@ -65,6 +66,14 @@ def _pdo_entries(pdos: tuple[Pdo, ...]) -> list[PdoEntry]:
     return out
 
 
+def is_mapping_object(index: int) -> bool:
+    """A PDO mapping object: 0x1600..0x17FF (RxPDOs) or 0x1A00..0x1BFF (TxPDOs)."""
+    return (
+        coe.RXPDO_MAPPING <= index < coe.RXPDO_MAPPING + 0x200
+        or coe.TXPDO_MAPPING <= index < coe.TXPDO_MAPPING + 0x200
+    )
+
+
 #: Objects 0x1D00..0x1DFF in a Virtual PDO name ESC registers (0x1D09:0x90 is 0x0990): they
 #: live in the ESC's memory, not in the dictionary.
 ESC_REGISTER_OBJECTS = range(0x1D00, 0x1E00)
@@ -90,7 +99,7 @@ def _process_entries(device: EsiDevice) -> list[tuple[Any, ...]]:
     for e in _pdo_entries(tuple(pdos)):
         add(e.index, e.subindex, e.name, e.data_type, e.bit_length)
     for obj in device.objects:
-        if not 0x1600 <= obj.index < 0x1C00:
+        if not is_mapping_object(obj.index):
             continue
         for entry in obj.entries:
             if entry.subindex == 0 or len(entry.default) != 4:
@@ -109,7 +118,7 @@ def _fill_empty_mappings(device: EsiDevice, rows: list[tuple[Any, ...]]) -> list
     PDO is never written by a master). The same for an empty PDO assignment object."""
     out = [
         (*r[:3], dt.UINT32.code, 32, *r[5:7], bytes(r[7][:4]).ljust(4, b"\0"))
-        if 0x1600 <= r[0] < 0x1C00 and r[1] > 0 and r[4] != 32
+        if is_mapping_object(r[0]) and r[1] > 0 and r[4] != 32
         else r
         for r in rows
     ]
@@ -119,7 +128,8 @@ def _fill_empty_mappings(device: EsiDevice, rows: list[tuple[Any, ...]]) -> list
     # assigned) counts only the entries before the first empty one (a PDO index or mapping
     # of 0 means nothing).
     for (index, sub), k in list(by_key.items()):
-        if sub != 0 or not (0x1600 <= index < 0x1C00 or SM_ASSIGN_BASE <= index < 0x1C30):
+        assignment = SM_ASSIGN_BASE <= index < SM_ASSIGN_BASE + 0x20
+        if sub != 0 or not (is_mapping_object(index) or assignment):
             continue
         count = out[k][7][0] if out[k][7] else 0
         used = 0
@@ -142,12 +152,23 @@ def _fill_empty_mappings(device: EsiDevice, rows: list[tuple[Any, ...]]) -> list
         out[count] = (*out[count][:7], bytes([len(pdo.entries)]))
         for row, e in zip(subs, pdo.entries, strict=True):
             out[row] = (*out[row][:7], e.mapping_value.to_bytes(4, "little"))
-    # Likewise an assignment object 0x1C10+n left empty (Elmo's 0x1C12 without <Info>): the
+    # Likewise an assignment object 0x1C10+n left empty (Elmo's 0x1C12 without <Info>), or
+    # naming a PDO that neither the dictionary nor the ESI describes (EL3632's 0x1A73): the
     # device has the PDOs its ESI assigns to SM n by default.
+    known = {p.index for p in (*device.rx_pdos, *device.tx_pdos)} | {
+        r[0] for r in out if is_mapping_object(r[0])
+    }
     for sm in device.sync_managers:
         index = SM_ASSIGN_BASE + sm.number
         count = by_key.get((index, 0))
-        if count is None or any(out[count][7]) or not sm.is_process_data:
+        if count is None or not sm.is_process_data:
+            continue
+        n = out[count][7][0] if out[count][7] else 0
+        assigned = [by_key.get((index, k)) for k in range(1, n + 1)]
+        unknown = any(
+            k is None or int.from_bytes(out[k][7][:2], "little") not in known for k in assigned
+        )
+        if n and not unknown:
             continue
         default = [p.index for p in (*device.default_rx(), *device.default_tx())
                    if not p.virtual and pdo_sync_manager(device, p) == sm.number]  # fmt: skip
@@ -192,8 +213,8 @@ MAX_ENTRY_BITS = 0xFFFF
 #: Subindices a configurable mapping object offers (the ESI lists only the default entries).
 CONFIGURABLE_MAPPING_ENTRIES = 32
 #: PDO assignment of SyncManager n: 0x1C10 + n; SM communication types: 0x1C00.
-SM_ASSIGN_BASE = 0x1C10
-SM_TYPES = 0x1C00
+SM_ASSIGN_BASE = coe.SM_PDO_ASSIGN
+SM_TYPES = coe.SM_COMM_TYPE
 
 
 def communication_objects(device: EsiDevice) -> list[tuple[Any, ...]]:
@@ -283,7 +304,7 @@ def device_spec(
     """The ``add_slave`` spec of one slave running ``device``."""
     objects = [(o.index, o.name, o.object_code) for o in device.objects]
     # The identity object carries this slave's serial number (the ESI can't know it).
-    identity = {(0x1018, 4): serial}
+    identity = {(coe.IDENTITY, 4): serial}
     entries = [
         (
             e.index,
@@ -311,7 +332,7 @@ def device_spec(
             continue
         if SM_ASSIGN_BASE <= r[0] < SM_ASSIGN_BASE + 32:
             names[r[0]] = (f"SM{r[0] - SM_ASSIGN_BASE} PDO assignment", 8)
-        elif 0x1600 <= r[0] < 0x1C00:
+        elif is_mapping_object(r[0]):
             names[r[0]] = (f"PDO mapping {r[0]:#06x}", 9)
         else:
             names[r[0]] = (f"Process data {r[0]:#06x}", 7)

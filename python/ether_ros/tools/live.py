@@ -330,12 +330,11 @@ class BusLiveSource:
 
 def axis_row(joint: str, mode: str, status: dict[str, Any]) -> AxisRow:
     """A row from an ``Axis.status()`` (a standalone bus)."""
-    from ether_ros.ros.error_codes import describe
+    from ether_ros._native.protocol import emergency_text
 
     code = int(status["error_code"]) or int(status["last_fault_code"])
-    return AxisRow(
-        joint, str(status["state"]), mode, float(status["position"]), describe(code) if code else ""
-    )
+    text = f"0x{code:04X} {emergency_text(code)}" if code else ""
+    return AxisRow(joint, str(status["state"]), mode, float(status["position"]), text)
 
 
 def snapshot_from_diagnostics(
