@@ -33,6 +33,7 @@ from typing import Any
 
 from lxml import etree
 
+from ether_ros._native.protocol import dc as reg_dc
 from ether_ros._native.protocol import sii_syncm
 from ether_ros._native.protocol import sm as reg_sm
 from ether_ros.config import types as dt
@@ -403,13 +404,15 @@ class EsiDevice:
     def dc_required(self) -> bool:
         """True when every operation mode uses the distributed clock (AssignActivate bit 8,
         "cyclic unit active", i.e. 0x0981 bit 0): no free-run mode with AssignActivate 0."""
-        return bool(self.dc_opmodes) and all(m.assign_activate & 0x0100 for m in self.dc_opmodes)
+        cyclic = reg_dc.ACTIVATE_CYCLIC << 8  # AssignActivate's high byte goes to 0x0981
+        return bool(self.dc_opmodes) and all(m.assign_activate & cyclic for m in self.dc_opmodes)
 
     @property
     def sync0_required(self) -> bool:
         """True when every operation mode needs SYNC0 (AssignActivate bit 9, 0x0981 bit 1); a
         latch-only mode (EL1252 "DcLatch", 0x0100) needs the clock but no SYNC0."""
-        return bool(self.dc_opmodes) and all(m.assign_activate & 0x0200 for m in self.dc_opmodes)
+        sync0 = reg_dc.ACTIVATE_SYNC0 << 8
+        return bool(self.dc_opmodes) and all(m.assign_activate & sync0 for m in self.dc_opmodes)
 
     @property
     def assign_activate(self) -> int:
