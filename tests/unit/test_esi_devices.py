@@ -199,3 +199,31 @@ def test_a_passive_terminal_in_a_config_is_refused_by_name(tmp_path: Path) -> No
         ConfigError, match=r"EndCap is a passive terminal: it has no EtherCAT slave controller"
     ):
         load_bus_config(_config(tmp_path, esi, "  - {name: cap, device: EndCap}\n"))
+
+
+def test_esi_command_lists_devices_pdos_modes_and_what_was_skipped(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from ether_ros.cli.main import main
+
+    broken = DRIVE.replace(
+        "<BitLen>32</BitLen><Name>Position actual", "<BitLen>16</BitLen><Name>Position actual", 1
+    )
+    esi = _esi(
+        tmp_path, broken, '<Device Invisible="1"><Type>EndCap</Type><Name>End</Name></Device>\n'
+    )
+    assert main(["esi", str(esi)]) == 0
+    out = capsys.readouterr().out
+    assert f"{esi}: 2 device(s), 1 passive, 1 warning(s)" in out
+    assert "RxPDO 0x1600 'Out' SM2, 48 bits [default, fixed]" in out
+    assert "axis 1 modes: pp, csp" in out
+    assert "init command PS 0x2000:00 = 42 (setting)" in out
+    assert "passive terminal: no EtherCAT slave controller" in out
+    # The TxPDO whose entry does not match its type is skipped, one line naming file and line.
+    (warning,) = [line for line in out.splitlines() if line.strip().startswith("warning:")]
+    assert f"{esi}:" in warning and "<Entry>: BitLen 16 does not match data type DINT" in warning
+    assert main(["esi", str(esi), "--json"]) == 0
+    assert '"type": "Drive"' in capsys.readouterr().out
+    assert main(["esi", "/dev/zero"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == "ether-ros esi: error: /dev/zero: not a regular file (an ESI must be an XML file)"

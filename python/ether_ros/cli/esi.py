@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 from pathlib import Path
 from typing import Any
@@ -34,6 +35,8 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # The warnings are part of the listing: not logged a second time on stderr.
+    logging.getLogger("ether_ros.config.esi").setLevel(logging.ERROR)
     esi = load_esi_file(args.file)
     devices = [d for d in esi.devices if args.device is None or d.type_name == args.device]
     if args.device is not None and not devices:
@@ -162,7 +165,7 @@ def _print_device(d: EsiDevice) -> None:
     if d.objects:
         print(f"  dictionary: {len(d.objects)} objects")
     for w in d.warnings:
-        print(f"  skipped: {w}")
+        print(f"  warning: {w}")
     for n in d.notes:
         print(f"  note: {n}")
 
