@@ -31,7 +31,6 @@ sys.path.insert(0, str(REPO / "python"))
 from ether_ros.config.bus import load_bus_config  # noqa: E402
 from ether_ros.config.esi import EsiDevice, load_esi_file  # noqa: E402
 from ether_ros.config.from_esi import bus_yaml_for_devices  # noqa: E402
-from ether_ros.config.process import ProcessLayout  # noqa: E402
 from ether_ros.errors import EtherRosError  # noqa: E402
 from ether_ros.master import Bus  # noqa: E402
 from ether_ros.sim.proof import OP, SimProcess, SoemBus  # noqa: E402
@@ -40,6 +39,7 @@ from ether_ros.testing.netns import VethPair  # noqa: E402
 from ether_ros.testing.wait import wait_for  # noqa: E402
 from ether_ros.tools.vendor_corpus import (  # noqa: E402
     DeviceResult,
+    own_assignment_sizes,
     run_ethercrab,
     slave_index,
     vendor_dir,
@@ -97,12 +97,12 @@ def run_ethercrab_bus(devices: list[EsiDevice], yml: Path, probe: Path) -> list[
     if result.get("exit") == 0 and result.get("op") and not result.get("wkc_errors"):
         sizes = []
         for out, inp, s in zip(result["outputs"], result["inputs"], bus_order(cfg), strict=True):
-            layout = ProcessLayout.for_device(s.esi)
-            ok = (len(out) // 2, len(inp) // 2) == (layout.output_bytes, layout.input_bytes)
+            own = own_assignment_sizes(s)
+            ok = (len(out) // 2, len(inp) // 2) == (own.output_bytes, own.input_bytes)
             sizes.append("" if ok else "process data size differs")
         return sizes
-    why = str(result.get("error") or f"wkc errors {result.get('wkc_errors')}")
-    return [why] * len(devices)
+    # The bus as a whole failed: ``isolate`` finds the devices to blame.
+    raise RuntimeError(str(result.get("error") or f"wkc errors {result.get('wkc_errors')}"))
 
 
 def isolate(devices: list[EsiDevice], run: Runner, tmp: Path) -> list[str]:

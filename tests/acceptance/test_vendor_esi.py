@@ -34,7 +34,7 @@ from ether_ros.tools.vendor_corpus import (
     bus_devices,
     bus_groups,
     echo_checks,
-    ethercrab_layout,
+    own_assignment_sizes,
     representative_buses,
     run_ethercrab,
     vendor_dir,
@@ -210,7 +210,7 @@ def test_pysoem_brings_a_representative_bus_of_each_file_to_op(index: int, tmp_p
             seen = soem.stats.wkc_seen
             assert max(seen) == expected, seen
             for s, c in zip(slaves, bus_order(cfg), strict=True):
-                layout = ethercrab_layout(c)
+                layout = own_assignment_sizes(c)
                 assert (len(s.output), len(s.input)) == (
                     layout.output_bytes,
                     layout.input_bytes,
@@ -257,7 +257,7 @@ def test_ethercrab_brings_a_representative_bus_of_each_file_to_op(
     for seen, s in zip(result["slaves"], bus_order(cfg), strict=True):
         assert (seen["vendor_id"], seen["product_code"]) == (s.esi.vendor_id, s.esi.product_code)
     for out, inp, s in zip(result["outputs"], result["inputs"], bus_order(cfg), strict=True):
-        layout = ethercrab_layout(s)
+        layout = own_assignment_sizes(s)
         assert (len(out) // 2, len(inp) // 2) == (layout.output_bytes, layout.input_bytes), s.name
 
 

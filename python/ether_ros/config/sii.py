@@ -25,6 +25,8 @@ log = logging.getLogger(__name__)
 # Category types and header word addresses are the protocol crate's (ETG.2010); in bytes:
 HEADER_BYTES = 2 * sii_word.FIRST_CATEGORY
 CHECKSUMMED = sii_word.CHECKSUM_COVERS  # bytes of words 0..6 the CRC-8 in word 7 covers
+#: The EEPROM bytes SOEM reads (its EC_MAXEEPBUF): categories past them it does not find.
+SOEM_EEPROM_WINDOW = 4096
 
 SM_TYPE = {
     "": sii_syncm.TYPE_UNUSED,
@@ -156,6 +158,12 @@ class _Strings:
         self._index[text] = len(self.items)
         return len(self.items)
 
+    def copy(self) -> _Strings:
+        other = _Strings()
+        other.items = list(self.items)
+        other._index = dict(self._index)
+        return other
+
     def encode(self) -> bytes:
         out = bytearray([len(self.items)])
         for s in self.items:
@@ -191,7 +199,9 @@ def _category(ctype: int, data: bytes) -> bytes:
     return struct.pack("<HH", ctype, len(data) // 2) + data
 
 
-def _pdo_category(device: EsiDevice, pdos: tuple[Pdo, ...], strings: _Strings) -> bytes:
+def _pdo_category(
+    device: EsiDevice, pdos: tuple[Pdo, ...], strings: _Strings, named: bool = True
+) -> bytes:
     """The TxPDO or RxPDO category. An entry longer than 255 bits (the category's bit length
     is one byte) cannot be described: the PDO is left out with a warning."""
     out = bytearray()
@@ -224,7 +234,7 @@ def _pdo_category(device: EsiDevice, pdos: tuple[Pdo, ...], strings: _Strings) -
                 "<HBBBBH",
                 e.index,
                 e.subindex,
-                strings.index(e.name),
+                strings.index(e.name) if named else 0,
                 e.data_type & 0xFF,
                 e.bit_length,
                 0,
@@ -306,41 +316,17 @@ def build_sii(device: EsiDevice, alias: int = 0, serial: int = 0) -> bytes:
         enable = sm.sii_enable
         syncm += struct.pack("<HHBBBB", sm.start, size & 0xFFFF, sm.control, 0, enable,
                              SM_TYPE[sm.role])  # fmt: skip
-    tx = _pdo_category(device, device.tx_pdos, strings)
-    rx = _pdo_category(device, device.rx_pdos, strings)
-    dc = bytearray()
-    for m in device.dc_opmodes:
-        dc += struct.pack(
-            "<IiiHHHBB4x",
-            m.cycle_time_sync0,
-            m.shift_time_sync0,
-            m.shift_time_sync1,
-            m.cycle_time_sync1_factor & 0xFFFF,
-            m.assign_activate,
-            m.cycle_time_sync0_factor & 0xFFFF,
-            strings.index(m.name),
-            strings.index(m.description),
-        )
-    body = bytearray()
-    body += _category(sii_category.STRINGS, strings.encode())
-    body += _category(sii_category.GENERAL, bytes(general))
-    if fmmu:
-        body += _category(sii_category.FMMU, fmmu)
-    if syncm:
-        body += _category(sii_category.SYNCM, bytes(syncm))
-    if tx:
-        body += _category(sii_category.TXPDO, tx)
-    if rx:
-        body += _category(sii_category.RXPDO, rx)
-    if dc:
-        body += _category(sii_category.DC, bytes(dc))
-    ours = {sii_category.STRINGS, sii_category.GENERAL, sii_category.FMMU, sii_category.SYNCM,
-            sii_category.TXPDO, sii_category.RXPDO, sii_category.DC}  # fmt: skip
-    for number, data in device.eeprom.categories:
-        if number in ours:
-            continue  # made from the ESI above
-        body += _category(number, data)
-    body += struct.pack("<H", sii_category.END)
+    # The PDO categories, strings and DC category: as much as the ESI's EEPROM holds. A CoE
+    # device's vendor tool leaves out what masters read over CoE (ETG.2010: the PDO categories
+    # describe the PDOs of a device without CoE): first the PDOs not assigned by default, then
+    # the entry names, then the PDO categories; a device without CoE keeps its default PDOs.
+    coe_pdos = mb is not None and mb.coe and (mb.pdo_assign or mb.sdo_info)
+    levels = ("all", "default", "unnamed") + (("none",) if coe_pdos else ())
+    for level in levels:
+        trial = strings.copy()
+        body = _body(device, level, trial, bytes(general), fmmu, bytes(syncm))
+        if len(head) + len(body) <= device.eeprom.byte_size:
+            break
     needed = len(head) + len(body)
     size = device.eeprom.byte_size
     if needed > size:
@@ -368,6 +354,63 @@ def build_sii(device: EsiDevice, alias: int = 0, serial: int = 0) -> bytes:
     struct.pack_into("<HH", head, 2 * sii_word.SIZE, max(size_kbit - 1, 0), 1)
     image = bytes(head) + bytes(body)
     return image.ljust(size, b"\xff")
+
+
+def _body(
+    device: EsiDevice, level: str, strings: _Strings, general: bytes, fmmu: bytes, syncm: bytes
+) -> bytes:
+    """The categories after the header, the PDO categories as ``level`` says: ``all`` PDOs,
+    the ``default`` assigned ones, those ``unnamed`` (no entry names) or ``none``."""
+    tx_pdos, rx_pdos = device.tx_pdos, device.rx_pdos
+    if level != "all":
+        tx_pdos = tuple(p for p in tx_pdos if p.sm is not None)
+        rx_pdos = tuple(p for p in rx_pdos if p.sm is not None)
+    if level == "none":
+        tx_pdos = rx_pdos = ()
+    named = level == "all" or level == "default"
+    tx = _pdo_category(device, tx_pdos, strings, named)
+    rx = _pdo_category(device, rx_pdos, strings, named)
+    dc = bytearray()
+    for m in device.dc_opmodes:
+        dc += struct.pack(
+            "<IiiHHHBB4x",
+            m.cycle_time_sync0,
+            m.shift_time_sync0,
+            m.shift_time_sync1,
+            m.cycle_time_sync1_factor & 0xFFFF,
+            m.assign_activate,
+            m.cycle_time_sync0_factor & 0xFFFF,
+            strings.index(m.name),
+            strings.index(m.description),
+        )
+    essential = bytearray(_category(sii_category.GENERAL, general))
+    if fmmu:
+        essential += _category(sii_category.FMMU, fmmu)
+    if syncm:
+        essential += _category(sii_category.SYNCM, syncm)
+    pdos = bytearray()
+    if tx:
+        pdos += _category(sii_category.TXPDO, tx)
+    if rx:
+        pdos += _category(sii_category.RXPDO, rx)
+    text = _category(sii_category.STRINGS, strings.encode())
+    if HEADER_BYTES + len(text) + len(essential) <= SOEM_EEPROM_WINDOW:
+        body = bytearray(text + essential + pdos)  # the usual order (ETG.2010's examples)
+    else:
+        # SOEM reads the first 4 KiB of an EEPROM only (EC_MAXEEPBUF): General, FMMU and
+        # SyncM go first so that it finds them; the strings after (names late in a long list
+        # are lost to SOEM, not the device).
+        body = bytearray(essential + text + pdos)
+    if dc:
+        body += _category(sii_category.DC, bytes(dc))
+    ours = {sii_category.STRINGS, sii_category.GENERAL, sii_category.FMMU, sii_category.SYNCM,
+            sii_category.TXPDO, sii_category.RXPDO, sii_category.DC}  # fmt: skip
+    for number, data in device.eeprom.categories:
+        if number in ours:
+            continue  # made from the ESI above
+        body += _category(number, data)
+    body += struct.pack("<H", sii_category.END)
+    return bytes(body)
 
 
 # --------------------------------------------------------------------------------------------

@@ -25,7 +25,7 @@ from ether_ros.config import types as dt
 from ether_ros.config.bus import BusConfig, SlaveConfig, default_sim_device
 from ether_ros.config.esi import EsiDevice, load_esi_file
 from ether_ros.config.process import ProcessLayout, ProcessVariable
-from ether_ros.sim.spec import ESC_REGISTER_OBJECTS, bus_order, loopback_pairs
+from ether_ros.sim.spec import ESC_REGISTER_OBJECTS, bus_order, loopback_pairs, slave_spec
 
 #: Where the corpus is when ``ETHER_ROS_VENDOR_ESI`` does not say: ``shared/esi-vendor`` in a
 #: folder above the project (``/work/shared/esi-vendor`` for ``/work/main``).
@@ -183,18 +183,52 @@ def _value(v: ProcessVariable) -> int | bool:
 # ethercrab: the probe binary of tests/ethercrab_probe
 
 
-def ethercrab_layout(slave: SlaveConfig) -> ProcessLayout:
-    """ethercrab knows nothing of a config's ``pdo_assign``: it maps the device's default PDOs
-    as its SII and CoE objects present them — the ESI's defaults."""
-    return ProcessLayout.for_device(slave.esi)
+@dataclass(frozen=True)
+class Sizes:
+    """Process data bytes of one slave, each direction."""
+
+    output_bytes: int
+    input_bytes: int
+
+
+def own_assignment_sizes(slave: SlaveConfig) -> Sizes:
+    """The process data of a master that writes no PDO assignment (ethercrab, SOEM): with CoE
+    it reads the device's own assignment (0x1C10 + SM, then each PDO's mapping) for each
+    process data SyncManager, without CoE it takes the SII's PDOs (the ESI's defaults). A
+    device whose dictionary assigns other PDOs than the ESI's ``Sm`` defaults (EL2212: the MTO
+    PDOs too) then has other sizes than under our master, which writes the ESI's assignment,
+    as TwinCAT and IgH do."""
+    d = slave.esi
+    if d.mailbox is None or not d.mailbox.coe:
+        layout = ProcessLayout.for_device(d)
+        return Sizes(layout.output_bytes, layout.input_bytes)
+    values: dict[tuple[int, int], bytes] = {
+        (e[0], e[1]): bytes(e[7] or b"") for e in slave_spec(slave, 0)["entries"]
+    }
+
+    def count(index: int) -> int:
+        return (values.get((index, 0)) or b"\0")[0]
+
+    sizes = {"Outputs": 0, "Inputs": 0}
+    for sm in d.sync_managers:
+        if not sm.is_process_data:
+            continue
+        assign = 0x1C10 + sm.number
+        bits = 0
+        for k in range(1, count(assign) + 1):
+            pdo = int.from_bytes(values.get((assign, k), b"\0\0")[:2], "little")
+            for j in range(1, count(pdo) + 1):
+                bits += (values.get((pdo, j)) or b"\0")[0]  # mapping entry: bit length in byte 0
+        sizes[sm.role] += (bits + 7) // 8
+    return Sizes(sizes["Outputs"], sizes["Inputs"])
 
 
 def ethercrab_expected_wkc(cfg: BusConfig) -> int:
     """LRW working counter: +2 per slave with outputs, +1 per slave with inputs."""
     wkc = 0
     for s in cfg.slaves:
-        layout = ethercrab_layout(s)
-        wkc += (2 if layout.output_bytes else 0) + (1 if layout.input_bytes else 0)
+        sizes = own_assignment_sizes(s)
+        wkc += (2 if sizes.output_bytes else 0) + (1 if sizes.input_bytes else 0)
     return wkc
 
 

@@ -20,7 +20,7 @@ use ethercrab::{DcSync, MainDevice, MainDeviceConfig, PduStorage, RetryBehaviour
 const MAX_SUBDEVICES: usize = 16;
 const MAX_PDU_DATA: usize = PduStorage::element_size(1100);
 const MAX_FRAMES: usize = 16;
-const PDI_LEN: usize = 1024;
+const PDI_LEN: usize = 4096;
 
 static PDU_STORAGE: PduStorage<MAX_FRAMES, MAX_PDU_DATA> = PduStorage::new();
 
