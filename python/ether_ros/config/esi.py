@@ -480,17 +480,26 @@ def parse_esi_int(text: str) -> int:
 
 
 class EsiError(ConfigError):
-    """One-line ESI error: ``FILE:LINE: <Element>: message``; also carries its parts."""
+    """One-line ESI error: ``FILE:LINE: <Element>: message``. As every :class:`ConfigError`
+    it carries ``file``, ``line``, ``field`` (``<Element>``) and ``value``; also the bare
+    ``element`` and ``message``, so a disabled element can be reported as an :class:`EsiWarning`.
+    """
 
-    def __init__(self, file: str, line: int, element: str, message: str) -> None:
-        super().__init__(f"{file}:{line}: <{element}>: {message}")
-        self.file = file
-        self.line = line
+    def __init__(
+        self, file: str, line: int, element: str, message: str, value: object = None
+    ) -> None:
+        super().__init__(
+            f"{file}:{line}: <{element}>: {message}",
+            file=file,
+            line=line or None,
+            field=f"<{element}>",
+            value=value,
+        )
         self.element = element
         self.message = message
 
     def warning(self, suffix: str = "") -> EsiWarning:
-        return EsiWarning(self.file, self.line, self.element, self.message + suffix)
+        return EsiWarning(str(self.file), self.line or 0, self.element, self.message + suffix)
 
 
 # --------------------------------------------------------------------------------------------
@@ -508,7 +517,7 @@ class _Ctx:
 
     def error(self, el: etree._Element, msg: str, value: object = None) -> EsiError:
         tail = "" if value is None else f": {_show(value)}"
-        return EsiError(str(self.path), _line(el), _local(el), f"{msg}{tail}")
+        return EsiError(str(self.path), _line(el), _local(el), f"{msg}{tail}", value)
 
     def warn(self, el: etree._Element, msg: str, value: object = None) -> None:
         tail = "" if value is None else f": {_show(value)}"
