@@ -1248,7 +1248,9 @@ impl Esc {
         if p.op_only && !op && !s.configured() {
             return true;
         }
-        s.configured() && s.len as usize == bytes && s.control & (smr::MODE_MASK | smr::DIR_MASK) == control
+        s.configured()
+            && s.len as usize == bytes
+            && s.control & (smr::MODE_MASK | smr::DIR_MASK) == control
     }
 
     fn check_process_data(&mut self) -> Result<(), u16> {
