@@ -321,3 +321,35 @@ def test_profile_numbers_and_state_machine_timeouts(tmp_path: Path) -> None:
     assert dev.profile_numbers == (402, 402)
     assert (dev.timeouts.preop_ms, dev.timeouts.safeop_op_ms) == (2000, 9000)
     assert dev.timeouts.back_to_safeop_ms == 200
+
+
+def test_oversampling_vendor_categories_and_array_elements_are_honoured(tmp_path: Path) -> None:
+    """Issue 17: ``OSFac`` and ``<Eeprom><Category>`` were ignored without a word, and array
+    elements took the array's size (IS620N's 0x1C12:01 became 32 bits)."""
+    from ether_ros.config.sii import build_sii, parse_sii
+
+    text = MINIMAL.replace('<TxPdo Sm="0">', '<TxPdo Sm="0" OSFac="4">', 1).replace(
+        "</TxPdo>",
+        "</TxPdo><Eeprom><ByteSize>2048</ByteSize><ConfigData>080C</ConfigData>"
+        "<Category><CatNo>2000</CatNo><Data>A1B2C3D4</Data></Category></Eeprom>",
+        1,
+    )
+    p = tmp_path / "osfac.xml"
+    p.write_text(text)
+    esi = load_esi_file(p)
+    (dev,) = esi.devices
+    # Oversampling is run at factor 1, and the listing says so (one line naming the PDO).
+    assert dev.pdo(0x1A00) is not None and dev.pdo(0x1A00).os_factor == 4  # type: ignore[union-attr]
+    assert [n.message for n in esi.notes if "OSFac" in n.message] == [
+        "oversampling (OSFac) of 0x1a00: exchanged at factor 1 (one sample per cycle)"
+    ]
+    # A vendor category goes into the SII as the vendor's tool writes it.
+    assert dev.eeprom.categories == ((2000, bytes.fromhex("A1B2C3D4")),)
+    image = build_sii(dev)
+    assert 2000 in parse_sii(image).categories
+    at = image.index(bytes.fromhex("D007") + (2).to_bytes(2, "little") + bytes.fromhex("A1B2C3D4"))
+    assert at >= 0x80 and at % 2 == 0
+    # An array of UINT has UINT elements, whatever the array's total BitSize.
+    assign = dev.od_object(0x1C12)
+    assert assign is not None
+    assert [(e.subindex, e.bit_length) for e in assign.entries] == [(0, 8), (1, 16), (2, 16)]
