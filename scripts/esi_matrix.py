@@ -39,6 +39,7 @@ from ether_ros.testing.netns import VethPair  # noqa: E402
 from ether_ros.testing.wait import wait_for  # noqa: E402
 from ether_ros.tools.vendor_corpus import (  # noqa: E402
     DeviceResult,
+    no_vendor_dir_reason,
     own_assignment_sizes,
     run_ethercrab,
     slave_index,
@@ -244,7 +245,7 @@ def main() -> int:
     args = p.parse_args()
     root = vendor_dir(REPO)
     if root is None:
-        print("no vendor ESI corpus (shared/esi-vendor or ETHER_ROS_VENDOR_ESI)", file=sys.stderr)
+        print(no_vendor_dir_reason(REPO), file=sys.stderr)
         return 2
     rows = matrix(root, args.only, not args.skip_ethercrab)
     text = render(rows, "scripts/esi_matrix.py --write docs/devices.md")

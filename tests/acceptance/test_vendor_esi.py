@@ -34,6 +34,7 @@ from ether_ros.tools.vendor_corpus import (
     bus_devices,
     bus_groups,
     echo_checks,
+    no_vendor_dir_reason,
     own_assignment_sizes,
     representative_buses,
     run_ethercrab,
@@ -44,8 +45,7 @@ from ether_ros.tools.vendor_corpus import (
 VENDOR = vendor_dir()
 needs_corpus = pytest.mark.skipif(
     VENDOR is None,
-    reason="no vendor ESI corpus here (shared/esi-vendor above the project, or "
-    "ETHER_ROS_VENDOR_ESI): the real-device tests need it",
+    reason=f"{no_vendor_dir_reason()}: the real-device tests need it",
 )
 GROUPS = [name for name, _files in BUS_GROUPS] + [OTHER_VENDORS]
 REPO = Path(__file__).resolve().parents[2]

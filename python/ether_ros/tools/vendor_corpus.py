@@ -66,6 +66,18 @@ def vendor_dir(start: Path | None = None) -> Path | None:
     return None
 
 
+def no_vendor_dir_reason(start: Path | None = None) -> str:
+    """Why ``vendor_dir`` found nothing, naming where it looked (a test's skip reason)."""
+    env = os.environ.get(VENDOR_ENV)
+    if env:
+        return f"no vendor ESI corpus: {VENDOR_ENV}={env} is not a directory"
+    here = (start or Path(__file__)).resolve()
+    return (
+        f"no vendor ESI corpus: no {VENDOR_SUBDIR} in {here.parent} or any folder above it"
+        f" (or set {VENDOR_ENV})"
+    )
+
+
 def vendor_files(root: Path) -> list[Path]:
     """Every ESI file of the corpus, sorted by path."""
     return sorted(p for p in root.rglob("*.xml") if p.is_file())
