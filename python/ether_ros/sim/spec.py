@@ -168,10 +168,18 @@ def _fill_empty_mappings(device: EsiDevice, rows: list[tuple[Any, ...]]) -> list
         unknown = any(
             k is None or int.from_bytes(out[k][7][:2], "little") not in known for k in assigned
         )
-        if n and not unknown:
-            continue
         default = [p.index for p in (*device.default_rx(), *device.default_tx())
                    if not p.virtual and pdo_sync_manager(device, p) == sm.number]  # fmt: skip
+        # A modular device (ETG.5001) assigns the PDOs of the modules in its slots itself: its
+        # ESI's assignment object lists the head's PDOs only (and may have no room for more).
+        values = {int.from_bytes(out[k][7][:2], "little") for k in assigned if k is not None}
+        plugged = bool(device.slots) and not set(default) <= values
+        if n and not unknown and not plugged:
+            continue
+        if plugged:
+            out = _with_subindices(out, index, min(len(default), 254))
+            by_key = {(r[0], r[1]): k for k, r in enumerate(out)}
+            count = by_key[(index, 0)]
         found = [by_key.get((index, n)) for n in range(1, len(default) + 1)]
         subs = [k for k in found if k is not None]
         if not default or len(subs) != len(found):
@@ -181,6 +189,18 @@ def _fill_empty_mappings(device: EsiDevice, rows: list[tuple[Any, ...]]) -> list
             value = pdo_index.to_bytes(2, "little").ljust(len(out[row][7]), b"\0")
             out[row] = (*out[row][:7], value)
     return out
+
+
+def _with_subindices(rows: list[tuple[Any, ...]], index: int, n: int) -> list[tuple[Any, ...]]:
+    """``rows`` with object ``index`` holding subindices 1..n (new ones as its subindex 1, or
+    UNSIGNED16 entries of a PDO assignment, zero), placed after the object's last row."""
+    have = {r[1] for r in rows if r[0] == index}
+    first = next((r for r in rows if r[0] == index and r[1] == 1), None)
+    code, bits, access = (first[3], first[4], first[5]) if first else (dt.UINT16.code, 16, "ro")
+    extra = [(index, sub, f"SubIndex {sub:03d}", code, bits, access, False, bytes(bits // 8))
+             for sub in range(1, n + 1) if sub not in have]  # fmt: skip
+    last = max(k for k, r in enumerate(rows) if r[0] == index)
+    return [*rows[: last + 1], *extra, *rows[last + 1 :]]
 
 
 def _supported_modes(device: EsiDevice, rows: list[tuple[Any, ...]]) -> list[tuple[Any, ...]]:
