@@ -38,6 +38,7 @@ from ether_ros.sim.spec import bus_order, device_spec  # noqa: E402
 from ether_ros.testing.netns import VethPair  # noqa: E402
 from ether_ros.testing.wait import wait_for  # noqa: E402
 from ether_ros.tools.vendor_corpus import (  # noqa: E402
+    SIM_READY_S,
     DeviceResult,
     no_vendor_dir_reason,
     own_assignment_sizes,
@@ -57,7 +58,10 @@ Runner = Callable[[list[EsiDevice], Path], list[str]]
 
 
 def run_ours(devices: list[EsiDevice], yml: Path) -> list[str]:
-    with VethPair.create(netns=True) as veth, SimProcess(yml, veth.slave, veth.netns):
+    with (
+        VethPair.create(netns=True) as veth,
+        SimProcess(yml, veth.slave, veth.netns, ready_timeout=SIM_READY_S),
+    ):
         cfg = load_bus_config(yml, interface=veth.master)
         with Bus.open(cfg) as bus:
             bus.start()
@@ -73,7 +77,10 @@ def run_ours(devices: list[EsiDevice], yml: Path) -> list[str]:
 
 def run_pysoem(devices: list[EsiDevice], yml: Path) -> list[str]:
     cfg = load_bus_config(yml)
-    with VethPair.create(netns=True) as veth, SimProcess(yml, veth.slave, veth.netns):
+    with (
+        VethPair.create(netns=True) as veth,
+        SimProcess(yml, veth.slave, veth.netns, ready_timeout=SIM_READY_S),
+    ):
         soem = SoemBus(cfg, veth.master)
         try:
             soem.scan()
@@ -93,7 +100,10 @@ def run_pysoem(devices: list[EsiDevice], yml: Path) -> list[str]:
 
 def run_ethercrab_bus(devices: list[EsiDevice], yml: Path, probe: Path) -> list[str]:
     cfg = load_bus_config(yml)
-    with VethPair.create(netns=True) as veth, SimProcess(yml, veth.slave, veth.netns):
+    with (
+        VethPair.create(netns=True) as veth,
+        SimProcess(yml, veth.slave, veth.netns, ready_timeout=SIM_READY_S),
+    ):
         result = run_ethercrab(probe, veth.master, cfg, cycles=500)
     if result.get("exit") == 0 and result.get("op") and not result.get("wkc_errors"):
         sizes = []

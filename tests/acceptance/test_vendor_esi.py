@@ -31,6 +31,7 @@ from ether_ros.testing.wait import wait_for
 from ether_ros.tools.vendor_corpus import (
     BUS_GROUPS,
     OTHER_VENDORS,
+    SIM_READY_S,
     bus_devices,
     bus_groups,
     echo_checks,
@@ -140,7 +141,10 @@ def test_every_device_reaches_op_under_our_master(group: str, tmp_path: Path) ->
     files = bus_groups(_corpus())[group]
     devices = bus_devices(files)
     yml = bus_yaml_for_devices(devices, tmp_path / f"{group}.yaml")
-    with VethPair.create(netns=True) as veth, SimProcess(yml, veth.slave, veth.netns):
+    with (
+        VethPair.create(netns=True) as veth,
+        SimProcess(yml, veth.slave, veth.netns, ready_timeout=SIM_READY_S),
+    ):
         cfg = load_bus_config(yml, interface=veth.master)
         with Bus.open(cfg) as bus:
             bus.start()
@@ -186,7 +190,10 @@ def test_pysoem_brings_a_representative_bus_of_each_file_to_op(index: int, tmp_p
     name, devices = buses[index]
     yml = bus_yaml_for_devices(devices, tmp_path / f"{name}.yaml")  # type: ignore[arg-type]
     cfg = load_bus_config(yml)
-    with VethPair.create(netns=True) as veth, SimProcess(yml, veth.slave, veth.netns):
+    with (
+        VethPair.create(netns=True) as veth,
+        SimProcess(yml, veth.slave, veth.netns, ready_timeout=SIM_READY_S),
+    ):
         soem = SoemBus(cfg, veth.master)
         try:
             assert soem.scan() == len(devices)
@@ -248,7 +255,10 @@ def test_ethercrab_brings_a_representative_bus_of_each_file_to_op(
     name, devices = buses[index]
     yml = bus_yaml_for_devices(devices, tmp_path / f"{name}.yaml")  # type: ignore[arg-type]
     cfg = load_bus_config(yml)
-    with VethPair.create(netns=True) as veth, SimProcess(yml, veth.slave, veth.netns):
+    with (
+        VethPair.create(netns=True) as veth,
+        SimProcess(yml, veth.slave, veth.netns, ready_timeout=SIM_READY_S),
+    ):
         result = run_ethercrab(probe, veth.master, cfg, cycles=1000)
     summary = {k: result.get(k) for k in ("exit", "error", "op", "cycles", "wkc_errors",
                                           "tx_rx_errors", "wkc_first")}  # fmt: skip
@@ -303,7 +313,10 @@ def test_mixed_real_bus_under_our_master_moves_its_drive(tmp_path: Path) -> None
     placeholder): OP with every frame's working counter, an output of the EL2008 reaches the
     ESC's digital output register, and the drive follows a move through the Axis API."""
     yml = _mixed_config(tmp_path)
-    with VethPair.create(netns=True) as veth, SimProcess(yml, veth.slave, veth.netns) as sim:
+    with (
+        VethPair.create(netns=True) as veth,
+        SimProcess(yml, veth.slave, veth.netns, ready_timeout=SIM_READY_S) as sim,
+    ):
         cfg = load_bus_config(yml, interface=veth.master)
         with Bus.open(cfg) as bus:
             bus.start()
@@ -342,7 +355,10 @@ def test_mixed_real_bus_under_our_master_moves_its_drive(tmp_path: Path) -> None
 def test_mixed_real_bus_under_pysoem(tmp_path: Path) -> None:
     yml = _mixed_config(tmp_path)
     cfg = load_bus_config(yml)
-    with VethPair.create(netns=True) as veth, SimProcess(yml, veth.slave, veth.netns):
+    with (
+        VethPair.create(netns=True) as veth,
+        SimProcess(yml, veth.slave, veth.netns, ready_timeout=SIM_READY_S),
+    ):
         soem = SoemBus(cfg, veth.master)
         try:
             assert soem.scan() == 5
@@ -363,7 +379,10 @@ def test_mixed_real_bus_under_pysoem(tmp_path: Path) -> None:
 def test_mixed_real_bus_under_ethercrab(tmp_path: Path, probe: Path) -> None:
     yml = _mixed_config(tmp_path)
     cfg = load_bus_config(yml)
-    with VethPair.create(netns=True) as veth, SimProcess(yml, veth.slave, veth.netns):
+    with (
+        VethPair.create(netns=True) as veth,
+        SimProcess(yml, veth.slave, veth.netns, ready_timeout=SIM_READY_S),
+    ):
         result = run_ethercrab(probe, veth.master, cfg, cycles=1000)
     summary = {k: result.get(k) for k in ("exit", "error", "op", "cycles", "wkc_errors")}
     assert result["exit"] == 0 and result["op"] and result["wkc_errors"] == 0, summary

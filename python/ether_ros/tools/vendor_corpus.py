@@ -48,6 +48,9 @@ BUS_GROUPS: tuple[tuple[str, tuple[str, ...]], ...] = (
 )
 #: The group of every file no other group names.
 OTHER_VENDORS = "vendors"
+#: How long a simulator of corpus devices may take to start: it parses multi-megabyte vendor
+#: files, which on a loaded shared machine can exceed SimProcess's default 30 s.
+SIM_READY_S = 180.0
 #: Devices on a representative bus (the ethercrab probe holds 16 subdevices).
 REPRESENTATIVE = 12
 
