@@ -238,12 +238,30 @@ def own_assignment_sizes(slave: SlaveConfig) -> Sizes:
     return Sizes(sizes["Outputs"], sizes["Inputs"])
 
 
+#: Process data bytes in one of the ethercrab probe's LRW datagrams: its PDU storage holds
+#: ``PduStorage::element_size(1100)`` per frame (``tests/ethercrab_probe/src/main.rs``).
+ETHERCRAB_LRW_BYTES = 1100
+
+
 def ethercrab_expected_wkc(cfg: BusConfig) -> int:
-    """LRW working counter: +2 per slave with outputs, +1 per slave with inputs."""
+    """The working counter ethercrab reports for the bus: its process image holds every
+    slave's inputs, then every slave's outputs (ethercrab ``configure_fmmus``: "IIIIOOOO"), sent
+    in LRWs of ``ETHERCRAB_LRW_BYTES`` whose counters it adds up. In each LRW a slave counts +1
+    when some of its inputs are in it and +2 when some of its outputs are (ESC datasheet,
+    "Working counter"), so a slave whose data spans two LRWs counts in both."""
+    sizes = [own_assignment_sizes(s) for s in bus_order(cfg)]  # ethercrab: position order
+    ranges: list[tuple[int, int, int]] = []  # (start, end, count)
+    at = 0
+    for size in sizes:
+        ranges.append((at, at + size.input_bytes, 1))
+        at += size.input_bytes
+    for size in sizes:
+        ranges.append((at, at + size.output_bytes, 2))
+        at += size.output_bytes
     wkc = 0
-    for s in cfg.slaves:
-        sizes = own_assignment_sizes(s)
-        wkc += (2 if sizes.output_bytes else 0) + (1 if sizes.input_bytes else 0)
+    for chunk in range(0, at, ETHERCRAB_LRW_BYTES):
+        end = chunk + ETHERCRAB_LRW_BYTES
+        wkc += sum(n for lo, hi, n in ranges if lo < hi and lo < end and hi > chunk)
     return wkc
 
 
