@@ -23,7 +23,7 @@ from ether_ros.config.esi import (
 )
 from ether_ros.errors import ConfigError
 from ether_ros.sim.spec import device_spec
-from ether_ros.testing.esi_mutants import mutants
+from ether_ros.testing.mutants import esi_mutants
 
 REPO = Path(__file__).resolve().parents[2]
 SOURCES = sorted((REPO / "tests" / "data" / "esi").glob("*.xml")) + sorted(
@@ -42,8 +42,9 @@ def _one_line(text: str, path: Path) -> None:
 
 @pytest.mark.parametrize("source", SOURCES, ids=[s.name for s in SOURCES])
 def test_mutants_load_or_fail_with_one_line(source: Path, tmp_path: Path) -> None:
-    text = source.read_bytes()
-    for k, (what, data) in enumerate(mutants(text, SEED + SOURCES.index(source), PER_FILE)):
+    corpus = esi_mutants(seed=SEED + SOURCES.index(source), per_file=PER_FILE, files=[source])
+    for k, mutant in enumerate(corpus):
+        what, data = mutant.name, mutant.data
         p = tmp_path / f"mutant{k}.xml"
         p.write_bytes(data)
         try:
