@@ -584,8 +584,25 @@ impl SimNetwork {
         d.set_item("refuse_op", s.refuse_op)?;
         d.set_item("mailbox_stalled", s.mailbox_stalled)?;
         d.set_item("mailbox_queue", s.mailbox_queue_len())?;
-        d.set_item("outputs_bytes", s.out_map.bytes())?;
-        d.set_item("inputs_bytes", s.in_map.bytes())?;
+        d.set_item("outputs_bytes", s.output_bytes())?;
+        d.set_item("inputs_bytes", s.input_bytes())?;
+        // The SyncManagers as the master configured them, and what the PDOs of each
+        // process-data SM need: (number, start, length, control, activate, needed bytes).
+        let sms: Vec<(usize, u16, u16, u8, u8, Option<usize>)> =
+            s.sm.iter()
+                .enumerate()
+                .map(|(k, sm)| {
+                    let need = s
+                        .pd_sms
+                        .iter()
+                        .find(|p| p.number == k)
+                        .map(|p| p.map.bytes());
+                    (k, sm.start, sm.len, sm.control, sm.activate, need)
+                })
+                .filter(|t| t.2 > 0 || t.5.is_some())
+                .collect();
+        d.set_item("sync_managers", sms)?;
+        d.set_item("eeprom_at_pdi", s.eeprom_at_pdi())?;
         let c = &s.counters;
         d.set_item("frames", c.frames)?;
         d.set_item("process_data_frames", c.process_data_frames)?;

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import signal
 import sys
-import threading
 from pathlib import Path
 from typing import Any
 
@@ -193,8 +193,8 @@ def _axis(text: str) -> int:
 
 def run_sim(args: argparse.Namespace) -> int:
     from ether_ros.config import load_bus_config
-    from ether_ros.sim.control import ControlServer, socket_path
-    from ether_ros.sim.network import build_network, handle_request, slave_names
+    from ether_ros.sim.control import InterfaceLock
+    from ether_ros.sim.network import build_network
 
     if (args.config is None) == (args.esi is None):
         raise ConfigError("give a bus configuration or --esi FILE (one of them)")
@@ -211,13 +211,30 @@ def run_sim(args: argparse.Namespace) -> int:
     iface = resolve_interface(args, cfg.bus.interface, "sim", args.config)
     if not 0 <= args.seed < 2**64:
         raise ConfigError(f"--seed must be 0..2^64-1, got {args.seed}")
-    net = build_network(cfg, seed=args.seed)
-    stop = threading.Event()
+    lock = InterfaceLock(iface)
+    try:
+        net = build_network(cfg, seed=args.seed)
+        rc = _run(net, cfg, iface, args)
+    finally:
+        lock.release()
+    # The frame loop has stopped and the control socket is gone: end now. Tearing down an
+    # interpreter with the config stack loaded takes a second on a loaded machine, and a
+    # restart must not wait for it (nothing is left to clean up: the kernel holds nothing).
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(rc)
 
-    def on_signal(signum: int, frame: Any) -> None:
-        stop.set()
 
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+def _run(net: Any, cfg: Any, iface: str, args: argparse.Namespace) -> int:
+    """Serve until SIGINT/SIGTERM: the signals are taken synchronously (``sigtimedwait``), so
+    the frame loop stops as soon as one arrives; the control socket goes after it."""
+    from ether_ros.sim.control import ControlServer, socket_path
+    from ether_ros.sim.network import handle_request, slave_names
+
+    signals = {signal.SIGINT, signal.SIGTERM}
+    # Blocked before any thread starts, so that every thread inherits the mask and the
+    # signal waits for the main thread's sigtimedwait below.
+    old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, signals)
     server = None
     try:
         if not args.no_control:
@@ -229,16 +246,15 @@ def run_sim(args: argparse.Namespace) -> int:
         if server is not None:
             server.start()
         print(f"ether-ros sim: {len(cfg.slaves)} slaves on {iface} ready", flush=True)
-        while not stop.wait(0.5):
+        while signal.sigtimedwait(signals, 0.2) is None:
             if not _running(net):
                 print("ether-ros sim: the frame loop stopped", file=sys.stderr)
                 return 1
     finally:
+        net.stop()
         if server is not None:
             server.close()
-        net.stop()
-        for s, h in old.items():
-            signal.signal(s, h)
+        signal.pthread_sigmask(signal.SIG_SETMASK, old_mask)
     return 0
 
 
