@@ -61,7 +61,11 @@ fn cyclic_frame_cost_for_four_legs() {
         assert!(net.process_frame(&mut buf[..n]));
     }
     let per_frame = t.elapsed().as_secs_f64() / frames as f64;
-    let steps: u64 = net.slaves.iter().map(|s| s.counters.device_steps).sum();
+    let steps: u64 = net
+        .cells()
+        .iter()
+        .map(|c| ether_ros_sim::network::lock(c).counters.device_steps)
+        .sum();
     println!(
         "per frame {:.2} µs (incl. {:.1} device steps), 20 kHz share {:.1} %",
         per_frame * 1e6,
