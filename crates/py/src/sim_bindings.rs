@@ -739,7 +739,8 @@ impl SimNetwork {
             wd.set_item("max_late_ns", w.max_late_ns.load(Ordering::Relaxed))?;
             wd.set_item("late_1ms", w.late_1ms.load(Ordering::Relaxed))?;
             wd.set_item("busy_ns", w.busy_ns.load(Ordering::Relaxed))?;
-            wd.set_item("throttled", w.throttled.load(Ordering::Relaxed))?;
+            wd.set_item("demoted", w.demoted.load(Ordering::Relaxed))?;
+            wd.set_item("realtime", w.realtime.load(Ordering::Relaxed) != 0)?;
             workers.append(wd)?;
         }
         fw.set_item("workers", workers)?;

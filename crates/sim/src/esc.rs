@@ -1295,33 +1295,39 @@ impl Esc {
     /// SYNC0 events in order, bounded catch-up, and the process-data watchdog.
     pub fn advance(&mut self, host: u64) {
         self.now = host;
-        self.run_events(host, true);
+        self.run_events(host, true, u64::MAX);
         self.check_watchdog();
         // Time passes for a pending SAFEOP->OP request too (its timeout), before the frame's
         // datagrams read the AL status.
         self.resolve_pending_op();
     }
 
-    /// The firmware's own clock (a worker thread, `crate::firmware`): everything `advance`
-    /// does, then the mailbox, so emergencies the device raised reach the read mailbox
-    /// without waiting for a frame.
-    pub fn advance_firmware(&mut self, host: u64) {
-        self.advance(host);
+    /// The firmware's own clock (a worker thread, `crate::firmware`): what `advance` does,
+    /// then the mailbox, so emergencies the device raised reach the read mailbox without
+    /// waiting for a frame. At most `chunk_ns` of simulated time is run (from the first event
+    /// due) so that a firmware far behind lets the frame path in between; returns whether it
+    /// has caught up with `host`. The deadlines (watchdog, pending SAFEOP->OP) are those of
+    /// `host`: a firmware running behind sees the watchdog as it is now.
+    pub fn advance_firmware(&mut self, host: u64, chunk_ns: u64) -> bool {
+        self.now = host;
+        let caught_up = self.run_events(host, true, chunk_ns);
+        self.check_watchdog();
+        self.resolve_pending_op();
         self.service_mailbox();
+        caught_up
     }
 
     /// A frame reaches this slave while its firmware runs on a worker thread: only what the
-    /// ESC itself must have done by now. SYNC0 events already due are latched here if the
-    /// worker has not got to them yet, so the frame reads the inputs of the last SYNC0, exactly
-    /// as in simulated time; device steps are left to the worker.
+    /// frame must see done by now. SYNC0 events already due are latched here if the worker
+    /// has not got to them yet, so the frame reads the inputs of the last SYNC0, exactly as in
+    /// simulated time; device steps are left to the worker, and so are the deadlines (the
+    /// watchdog, a pending SAFEOP->OP timeout), which it meets at their own instant.
     pub fn frame_catch_up(&mut self, host: u64) {
         self.now = host;
         if self.sync0_due(host) {
             self.counters.sync0_frame_latches += 1;
-            self.run_events(host, false);
+            self.run_events(host, false, u64::MAX);
         }
-        self.check_watchdog();
-        self.resolve_pending_op();
     }
 
     /// Is a SYNC0 event at or before host time `host` still to be latched?
@@ -1384,8 +1390,9 @@ impl Esc {
     }
 
     /// Device steps and SYNC0 events up to host time `host`, in time order (without `steps`,
-    /// SYNC0 events only: the frame path's catch-up, the device steps stay due).
-    fn run_events(&mut self, host: u64, steps: bool) {
+    /// SYNC0 events only: the frame path's catch-up, the device steps stay due), at most
+    /// `chunk_ns` of local time from the first one due; true when nothing due is left.
+    fn run_events(&mut self, host: u64, steps: bool, chunk_ns: u64) -> bool {
         let local_now = self.dc.local(host);
         let period = self.device.as_ref().map(|d| d.period_ns().max(1_000));
         if self.app_next_step == 0 {
@@ -1412,6 +1419,12 @@ impl Esc {
         }
         // The firmware latches around its own steps in free run (worker threads).
         let step_latches = self.firmware_latches && self.sync0_next.is_none();
+        let first = match period {
+            Some(_) if steps => self.app_next_step,
+            _ => u64::MAX,
+        }
+        .min(sync_local.unwrap_or(u64::MAX));
+        let until = local_now.min(first.saturating_add(chunk_ns));
         // Never loop forever on absurd settings: past this many events, skip to now.
         let mut budget = 4 * MAX_CATCH_UP_NS / 1_000;
         loop {
@@ -1421,7 +1434,7 @@ impl Esc {
             };
             let next_sync = sync_local.unwrap_or(u64::MAX);
             let t = next_dev.min(next_sync);
-            if t > local_now {
+            if t > until {
                 break;
             }
             if budget == 0 {
@@ -1457,6 +1470,7 @@ impl Esc {
             }
         }
         self.sync0_next = sync_local.map(|n| n.wrapping_add(offset));
+        until == local_now
     }
 
     /// Queue the CoE emergencies the firmware raised (a slave with a mailbox, past INIT, as

@@ -29,23 +29,33 @@ use crate::network::{lock, monotonic_ns, SlaveCell};
 pub const STEP_GRAIN_NS: u64 = 250_000;
 /// Longest sleep: a worker looks at its stop flag and at new slaves at least this often.
 const MAX_SLEEP_NS: u64 = 10_000_000;
+/// Most simulated time one advance of a slave runs while holding its lock: a firmware far
+/// behind (a machine too busy for its buses) catches up in pieces, and the frame thread,
+/// which may be waiting for the same slave, gets in between.
+pub const CHUNK_NS: u64 = 500_000;
 /// A slave with nothing scheduled is looked at again after this long.
 const IDLE_RECHECK_NS: u64 = 10_000_000;
 /// Real-time priority of the workers when permitted: below the frame thread (70) and a
 /// master's RT thread (80), above ordinary work, so device loops keep their pace on a busy
 /// machine as they did when the frame thread ran them.
 const WORKER_PRIORITY: i32 = 60;
-/// Share of one CPU a worker may use (its own CPU time, over `DUTY_WINDOW_NS`): a bus whose
-/// firmware needs more than the machine has falls behind real time (and skips, counted in
-/// `device_steps_skipped`) instead of starving every other process at real-time priority.
-pub const DUTY_LIMIT: f64 = 0.5;
-const DUTY_WINDOW_NS: f64 = 100e6;
+/// A worker that used more than this share of a CPU over a window steps down to an ordinary
+/// thread at nice `DEMOTED_NICE` (firmware heavier than the machine can run in real time —
+/// a thousand slaves on two cores — then falls behind and skips, counted in
+/// `device_steps_skipped`, instead of starving every other process at real-time priority);
+/// below `PROMOTE_SHARE` it is real-time again.
+pub const DEMOTE_SHARE: f64 = 0.6;
+const PROMOTE_SHARE: f64 = 0.3;
+const DEMOTED_NICE: i32 = 10;
+const DUTY_WINDOW_NS: u64 = 50_000_000;
 
 /// Counters of one worker, readable while it runs.
 #[derive(Default)]
 pub struct WorkerStats {
-    /// Times the worker paused at its duty limit.
-    pub throttled: AtomicU64,
+    /// Times the worker stepped down from real-time priority (`DEMOTE_SHARE`).
+    pub demoted: AtomicU64,
+    /// 1 while it runs at real-time priority.
+    pub realtime: AtomicU64,
     pub slaves: AtomicU64,
     pub wakeups: AtomicU64,
     /// Slaves advanced (one lock, one `advance_firmware`).
@@ -180,13 +190,22 @@ pub fn available_cpus() -> usize {
     std::thread::available_parallelism().map_or(1, |n| n.get())
 }
 
-fn try_realtime() {
-    // SAFETY: best-effort scheduling; without permission the worker stays an ordinary thread.
+/// Run the calling thread at `WORKER_PRIORITY` (true), or as an ordinary thread at
+/// `DEMOTED_NICE` (false). Best effort: without permission it stays as it is.
+fn set_realtime(on: bool) -> bool {
+    // SAFETY: scheduling calls on the calling thread with valid arguments.
     unsafe {
-        let param = libc::sched_param {
-            sched_priority: WORKER_PRIORITY,
-        };
-        libc::sched_setscheduler(0, libc::SCHED_FIFO, &param);
+        if on {
+            let param = libc::sched_param {
+                sched_priority: WORKER_PRIORITY,
+            };
+            libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) == 0
+        } else {
+            let param = libc::sched_param { sched_priority: 0 };
+            libc::sched_setscheduler(0, libc::SCHED_OTHER, &param);
+            libc::setpriority(libc::PRIO_PROCESS, libc::gettid() as libc::id_t, DEMOTED_NICE);
+            false
+        }
     }
 }
 
@@ -201,36 +220,40 @@ fn thread_cpu_ns() -> u64 {
     ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
 }
 
-/// The duty limit as a token bucket of CPU time: it fills at `DUTY_LIMIT` ns per ns of wall
-/// time up to a window's worth, and the worker's own CPU time drains it.
+/// The worker's CPU share per window, and its priority from it.
 struct Duty {
-    tokens: f64,
-    wall: u64,
-    cpu: u64,
+    window_start: u64,
+    cpu_start: u64,
+    realtime: bool,
 }
 
 impl Duty {
     fn new(now: u64) -> Duty {
         Duty {
-            tokens: DUTY_LIMIT * DUTY_WINDOW_NS,
-            wall: now,
-            cpu: thread_cpu_ns(),
+            window_start: now,
+            cpu_start: thread_cpu_ns(),
+            realtime: set_realtime(true),
         }
     }
 
-    /// After a round of work at `now`: how long to pause (0: none).
-    fn pause_ns(&mut self, now: u64) -> u64 {
-        let cpu = thread_cpu_ns();
-        let used = cpu.saturating_sub(self.cpu) as f64;
-        let elapsed = now.saturating_sub(self.wall) as f64;
-        self.cpu = cpu;
-        self.wall = now;
-        self.tokens = (self.tokens + elapsed * DUTY_LIMIT).min(DUTY_LIMIT * DUTY_WINDOW_NS) - used;
-        if self.tokens >= 0.0 {
-            0
-        } else {
-            (-self.tokens / DUTY_LIMIT) as u64
+    /// At the end of each window: step down or up. Returns true when it stepped down.
+    fn check(&mut self, now: u64) -> bool {
+        let wall = now.saturating_sub(self.window_start);
+        if wall < DUTY_WINDOW_NS {
+            return false;
         }
+        let cpu = thread_cpu_ns();
+        let share = cpu.saturating_sub(self.cpu_start) as f64 / wall as f64;
+        self.window_start = now;
+        self.cpu_start = cpu;
+        if self.realtime && share > DEMOTE_SHARE {
+            self.realtime = set_realtime(false);
+            return true;
+        }
+        if !self.realtime && share < PROMOTE_SHARE {
+            self.realtime = set_realtime(true);
+        }
+        false
     }
 }
 
@@ -314,8 +337,8 @@ fn worker(
     stop: Arc<AtomicBool>,
     stats: Arc<WorkerStats>,
 ) {
-    try_realtime();
     let mut duty = Duty::new(monotonic_ns());
+    stats.realtime.store(duty.realtime as u64, Ordering::Relaxed);
     let mut generation = u64::MAX;
     let mut mine: Vec<SlaveCell> = Vec::new();
     let mut schedule = Schedule::new(0, 0);
@@ -343,31 +366,38 @@ fn worker(
             if late > 1_000_000 {
                 stats.late_1ms.fetch_add(1, Ordering::Relaxed);
             }
-            let next = {
+            let (caught_up, next) = {
                 let mut esc = lock(&mine[i]);
-                esc.advance_firmware(now);
-                esc.next_firmware_event(now)
+                let caught_up = esc.advance_firmware(now, CHUNK_NS);
+                (caught_up, esc.next_firmware_event(now))
             };
             stats.advances.fetch_add(1, Ordering::Relaxed);
+            // A long catch-up must not run a whole window at real-time priority unchecked.
+            if duty.check(monotonic_ns()) {
+                stats.demoted.fetch_add(1, Ordering::Relaxed);
+            }
+            if !caught_up {
+                // Still behind: the next piece at once (after the others due now).
+                schedule.push(now, false, i);
+                continue;
+            }
             let (t, exact) = next.unwrap_or((now + IDLE_RECHECK_NS, true));
             schedule.push(t.clamp(now + 1, now + IDLE_RECHECK_NS), exact, i);
         }
         let done = monotonic_ns();
-        let mut pause = 0;
         if worked {
             last_steps = now;
             stats.wakeups.fetch_add(1, Ordering::Relaxed);
             stats.busy_ns.fetch_add(done - now, Ordering::Relaxed);
-            pause = duty.pause_ns(done);
-            if pause > 0 {
-                stats.throttled.fetch_add(1, Ordering::Relaxed);
-            }
         }
+        if duty.check(done) {
+            stats.demoted.fetch_add(1, Ordering::Relaxed);
+        }
+        stats.realtime.store(duty.realtime as u64, Ordering::Relaxed);
         let wake = schedule
             .wake(last_steps + STEP_GRAIN_NS)
             .unwrap_or(u64::MAX)
-            .min(done + MAX_SLEEP_NS)
-            .max(done + pause);
+            .min(done + MAX_SLEEP_NS);
         if wake > done {
             sleep_until(wake);
         }

@@ -61,6 +61,9 @@ struct Route {
     ado: u16,
     /// Walk position an auto-increment datagram addresses (the slave that sees ADP = 0).
     position: Option<usize>,
+    /// Configured-address datagrams: the walk positions whose address matched, from the map
+    /// (a range of `Network::fixed_hits`); None: ask each slave (the map may be out of date).
+    fixed: Option<(usize, usize)>,
 }
 
 /// A slave controller behind its own lock: the frame path and the firmware worker that runs
@@ -148,17 +151,21 @@ impl AddressMaps {
     }
 }
 
-/// Registers whose writes change who a datagram reaches: station address and alias, DL
-/// control (alias enable), the SII control (a reload loads the alias), the FMMUs.
-fn changes_addressing(ado: usize, len: usize) -> bool {
+/// Does writing `data` at register `ado` change who a datagram reaches? Station address and
+/// alias, DL control (alias enable), the FMMUs, and an SII reload command (it loads the
+/// alias from the EEPROM; the SII's read commands do not).
+fn changes_addressing(ado: usize, data: &[u8]) -> bool {
     let hits = |start: u16, n: usize| {
         let start = start as usize;
-        ado < start + n && ado + len > start
+        ado < start + n && ado + data.len() > start
     };
+    let command = reg::SII_CONTROL as usize + 1;
+    let reload = (ado..ado + data.len()).contains(&command)
+        && u16::from(data[command - ado]) << 8 & crate::sii::CMD_RELOAD != 0;
     hits(reg::STATION_ADDRESS, 4)
         || hits(reg::DL_CONTROL, 4)
-        || hits(reg::SII_CONTROL, 2)
         || hits(reg::FMMU0, crate::esc::N_FMMU * 16)
+        || reload
 }
 
 /// Bits on the wire per byte at 100 Mbit/s, as time: 80 ns.
@@ -169,6 +176,9 @@ const FRAME_OVERHEAD_BYTES: u64 = 24;
 
 pub struct Network {
     slaves: Vec<SlaveCell>,
+    /// Each slave's place in the tree (ports, delay, upstream), as the topology walk needs it;
+    /// `link_down` from `faults.cut_links`.
+    nodes: Vec<Node>,
     pub clock: Clock,
     pub faults: Faults,
     pub rng: Rng,
@@ -181,6 +191,7 @@ pub struct Network {
     /// Walk positions the current frame reaches (scratch, no allocation per frame).
     touched: Vec<usize>,
     routes: Vec<Route>,
+    fixed_hits: Vec<usize>,
     /// Frames that walked the tree so far, and the value when each slave's own count was last
     /// brought up to date (`counters.frames`; None: unreachable since then).
     frames_walked: u64,
@@ -213,6 +224,7 @@ impl Network {
     pub fn new() -> Self {
         Network {
             slaves: Vec::new(),
+            nodes: Vec::new(),
             clock: Clock::Monotonic,
             faults: Faults::default(),
             rng: Rng::new(1),
@@ -223,6 +235,7 @@ impl Network {
             maps: AddressMaps::default(),
             touched: Vec::new(),
             routes: Vec::with_capacity(MAX_DATAGRAMS),
+            fixed_hits: Vec::new(),
             frames_walked: 0,
             frames_since: Vec::new(),
             generation: Arc::new(AtomicU64::new(0)),
@@ -321,7 +334,9 @@ impl Network {
     fn settle_frame_counts(&mut self) {
         for (k, since) in self.frames_since.iter_mut().enumerate() {
             if let Some(s) = since.take() {
-                lock(&self.slaves[k]).counters.frames += self.frames_walked - s;
+                if self.frames_walked > s {
+                    lock(&self.slaves[k]).counters.frames += self.frames_walked - s;
+                }
             }
         }
     }
@@ -345,14 +360,14 @@ impl Network {
         esc.set_firmware_latches(self.firmware == FirmwareMode::Threads);
         let spec_upstream = esc.spec.upstream;
         let name = esc.spec.name.clone();
-        let mut nodes = self.nodes();
-        nodes.push(Node {
+        self.nodes.push(Node {
             ports: esc.spec.esc.profile().ports,
             delay_ns: esc.spec.delay_ns,
             upstream: spec_upstream,
             link_down: false,
         });
-        if let Some(next) = topology::listed_out_of_order(&nodes) {
+        if let Some(next) = topology::listed_out_of_order(&self.nodes) {
+            self.nodes.pop();
             let (parent, port) = spec_upstream.expect("not the first slave");
             return Err(format!(
                 "slave '{name}' on port {port} of '{}': the frame reaches it before '{}' (ports \
@@ -410,28 +425,11 @@ impl Network {
         Ok(Some((parent, port)))
     }
 
-    /// The slaves as the topology walk sees them.
-    fn nodes(&self) -> Vec<Node> {
-        self.slaves
-            .iter()
-            .enumerate()
-            .map(|(k, cell)| {
-                let s = lock(cell);
-                Node {
-                    ports: s.spec.esc.profile().ports,
-                    delay_ns: s.spec.delay_ns,
-                    upstream: s.spec.upstream,
-                    link_down: self.faults.cut_links.contains(&k),
-                }
-            })
-            .collect()
-    }
-
     /// Index of the slave on `port` of slave `parent` (None: nothing attached there).
     pub fn slave_on_port(&self, parent: usize, port: u8) -> Option<usize> {
-        self.slaves
+        self.nodes
             .iter()
-            .position(|s| lock(s).spec.upstream == Some((parent, port)))
+            .position(|n| n.upstream == Some((parent, port)))
     }
 
     /// Cut (or mend) the link into slave `k`'s port 0.
@@ -459,6 +457,13 @@ impl Network {
                 d.reset(&mut esc.od);
             }
             esc.set_firmware_latches(self.firmware == FirmwareMode::Threads);
+            if let (Some(&ports), Some(&back)) =
+                (self.walk.open_ports.get(pos), self.walk.port_return.get(pos))
+            {
+                esc.open_ports = ports;
+                esc.port_return_ns = back;
+                esc.update_dl_status();
+            }
             *old = esc;
         }
         if let Some(since) = self.frames_since.get_mut(pos) {
@@ -496,8 +501,17 @@ impl Network {
     /// links.
     pub fn update_topology(&mut self) {
         self.settle_frame_counts();
-        self.walk = Walk::compute(&self.nodes());
+        for (k, n) in self.nodes.iter_mut().enumerate() {
+            n.link_down = self.faults.cut_links.contains(&k);
+        }
+        let old = std::mem::replace(&mut self.walk, Walk::compute(&self.nodes));
         for (k, cell) in self.slaves.iter().enumerate() {
+            // Only slaves whose ports changed (adding a slave to a line changes one).
+            let same = old.open_ports.get(k) == Some(&self.walk.open_ports[k])
+                && old.port_return.get(k) == Some(&self.walk.port_return[k]);
+            if same {
+                continue;
+            }
             let mut s = lock(cell);
             s.open_ports = self.walk.open_ports[k];
             s.port_return_ns = self.walk.port_return[k];
@@ -507,6 +521,7 @@ impl Network {
             self.frames_since[k] = Some(self.frames_walked);
         }
         self.touched = Vec::with_capacity(self.slaves.len() * crate::esc::N_FMMU + MAX_DATAGRAMS);
+        self.fixed_hits = Vec::with_capacity(self.slaves.len() * MAX_DATAGRAMS.min(8));
         self.maps.stale = true;
     }
 
@@ -589,7 +604,14 @@ impl Network {
             }
             esc.before_frame();
             for (s, r) in slots[..n].iter().zip(&self.routes) {
-                process_datagram(&mut esc, frame, s, r, p, &mut self.scratch);
+                let addressed = match (r.cmd.map(Command::addressing), r.fixed) {
+                    (Some(Addressing::Fixed), Some((a, b))) => {
+                        self.fixed_hits[a..b].binary_search(&p).is_ok()
+                    }
+                    (Some(Addressing::Fixed), None) => esc.matches_fixed(r.adp),
+                    _ => r.position == Some(p),
+                };
+                process_datagram(&mut esc, frame, s, r, addressed, &mut self.scratch);
             }
             esc.after_frame();
         }
@@ -635,7 +657,11 @@ impl Network {
         let reached = self.walk.order.len();
         self.routes.clear();
         self.touched.clear();
+        self.fixed_hits.clear();
         let mut all = !threads;
+        // Set once a datagram of this frame rewrites addressing registers: the maps no longer
+        // tell who the following datagrams reach.
+        let mut readdressed = !threads;
         for s in slots {
             let h = s.header;
             let cmd = Command::from_u8(frame[h]);
@@ -647,6 +673,7 @@ impl Network {
                 adp,
                 ado,
                 position: None,
+                fixed: None,
             };
             let Some(c) = cmd else {
                 self.routes.push(route);
@@ -654,15 +681,21 @@ impl Network {
             };
             if c.writes()
                 && c.addressing() != Addressing::Logical
-                && changes_addressing(ado as usize, s.len)
+                && changes_addressing(ado as usize, &frame[s.data..s.data + s.len])
             {
                 // Who the later datagrams reach may change within this frame.
                 self.maps.stale = true;
                 all = true;
+                readdressed = true;
             }
             if c.addressing() == Addressing::AutoIncrement {
                 let p = adp.wrapping_neg() as usize;
                 route.position = (p < reached).then_some(p);
+            }
+            if c.addressing() == Addressing::Fixed && !readdressed {
+                let from = self.fixed_hits.len();
+                self.maps.fixed_positions(adp, &mut self.fixed_hits);
+                route.fixed = Some((from, self.fixed_hits.len()));
             }
             match c {
                 Command::Nop => {}
@@ -670,7 +703,10 @@ impl Network {
                 Command::Armw | Command::Frmw => all = true,
                 _ => match c.addressing() {
                     Addressing::AutoIncrement => self.touched.extend(route.position),
-                    Addressing::Fixed => self.maps.fixed_positions(adp, &mut self.touched),
+                    Addressing::Fixed => match route.fixed {
+                        Some((a, b)) => self.touched.extend_from_slice(&self.fixed_hits[a..b]),
+                        None => all = true,
+                    },
                     Addressing::Broadcast => all = true,
                     Addressing::Logical => {
                         let d0 = address as u64 * 8;
@@ -726,13 +762,14 @@ fn parse_datagrams(frame: &[u8], end: usize, slots: &mut [Slot; MAX_DATAGRAMS]) 
     Some(n)
 }
 
-/// One datagram at the slave at walk position `p`.
+/// One datagram at one slave; `addressed`: the slave is the one a position or configured
+/// address names (broadcasts address every slave, logical datagrams go by the FMMUs).
 fn process_datagram(
     esc: &mut Esc,
     frame: &mut [u8],
     s: &Slot,
     r: &Route,
-    p: usize,
+    addressed: bool,
     scratch: &mut Vec<u8>,
 ) {
     let Some(cmd) = r.cmd else {
@@ -748,12 +785,11 @@ fn process_datagram(
         Aprd | Apwr | Aprw | Armw | Brd | Bwr | Brw => {
             // Auto-increment: the slave that sees ADP = 0 (the network writes the ADP every
             // slave incremented once the frame has passed them all).
-            let addressed = matches!(cmd, Brd | Bwr | Brw) || r.position == Some(p);
+            let addressed = addressed || matches!(cmd, Brd | Bwr | Brw);
             let data = &mut frame[s.data..s.data + s.len];
             physical(esc, cmd, addressed, ado, data, scratch)
         }
         Fprd | Fpwr | Fprw | Frmw => {
-            let addressed = esc.matches_fixed(r.adp);
             let data = &mut frame[s.data..s.data + s.len];
             physical(esc, cmd, addressed, ado, data, scratch)
         }

@@ -1,4 +1,4 @@
-//! A mutex with priority inheritance (a glibc `pthread_mutex_t` with `PTHREAD_PRIO_INHERIT`).
+//! A mutex with priority inheritance: a PI futex (futex(2), FUTEX_LOCK_PI/FUTEX_UNLOCK_PI).
 //!
 //! The frame thread runs SCHED_FIFO; the firmware workers run as ordinary threads. When the
 //! frame thread needs a slave a worker holds, the kernel lends the worker the frame thread's
@@ -10,55 +10,80 @@
 use std::cell::UnsafeCell;
 use std::marker::PhantomData;
 use std::ops::{Deref, DerefMut};
+use std::sync::atomic::{AtomicU32, Ordering};
 
-extern "C" {
-    // glibc; not bound by the libc crate for Linux.
-    fn pthread_mutexattr_setprotocol(
-        attr: *mut libc::pthread_mutexattr_t,
-        protocol: libc::c_int,
-    ) -> libc::c_int;
+// The futex operations of futex(2) for PI locks (linux/futex.h).
+const FUTEX_LOCK_PI: libc::c_int = 6;
+const FUTEX_UNLOCK_PI: libc::c_int = 7;
+const FUTEX_PRIVATE_FLAG: libc::c_int = 128;
+
+/// This thread's kernel thread id: the value a PI futex holds while this thread owns it.
+fn tid() -> u32 {
+    thread_local! {
+        // SAFETY: gettid has no preconditions.
+        static TID: u32 = unsafe { libc::gettid() } as u32;
+    }
+    TID.with(|t| *t)
 }
 
-/// `PTHREAD_PRIO_INHERIT` (glibc, pthread.h).
-const PTHREAD_PRIO_INHERIT: libc::c_int = 1;
+fn futex(word: &AtomicU32, op: libc::c_int) -> libc::c_long {
+    // SAFETY: a futex operation on a word we own for the mutex's lifetime; the PI operations
+    // take no timeout (null) and ignore the other arguments.
+    unsafe {
+        libc::syscall(
+            libc::SYS_futex,
+            word.as_ptr(),
+            op | FUTEX_PRIVATE_FLAG,
+            0,
+            std::ptr::null::<libc::timespec>(),
+            std::ptr::null::<u32>(),
+            0,
+        )
+    }
+}
 
+/// The lock word (0: free, else the owner's thread id, plus the kernel's waiters bit) lives
+/// next to the value, so locking touches the value's own cache lines only.
 pub struct PiMutex<T> {
-    // Boxed: a pthread mutex must not move once initialised.
-    raw: Box<UnsafeCell<libc::pthread_mutex_t>>,
+    word: AtomicU32,
     data: UnsafeCell<T>,
 }
 
-// SAFETY: access to `data` is serialised by the mutex, as for std::sync::Mutex.
+// SAFETY: access to `data` is serialised by the lock, as for std::sync::Mutex.
 unsafe impl<T: Send> Send for PiMutex<T> {}
 // SAFETY: as above: `&PiMutex<T>` only hands out `T` under the lock.
 unsafe impl<T: Send> Sync for PiMutex<T> {}
 
 impl<T> PiMutex<T> {
     pub fn new(value: T) -> PiMutex<T> {
-        let raw = Box::new(UnsafeCell::new(libc::PTHREAD_MUTEX_INITIALIZER));
-        // SAFETY: attribute and mutex are initialised in place and the attribute destroyed
-        // after use; the calls only fail on invalid arguments (then the mutex stays a plain
-        // default mutex, still correct, just without inheritance).
-        unsafe {
-            let mut attr: libc::pthread_mutexattr_t = std::mem::zeroed();
-            if libc::pthread_mutexattr_init(&mut attr) == 0 {
-                pthread_mutexattr_setprotocol(&mut attr, PTHREAD_PRIO_INHERIT);
-                libc::pthread_mutex_init(raw.get(), &attr);
-                libc::pthread_mutexattr_destroy(&mut attr);
-            }
-        }
         PiMutex {
-            raw,
+            word: AtomicU32::new(0),
             data: UnsafeCell::new(value),
         }
     }
 
-    /// Wait for the lock. A thread that panicked while holding it has released it when its
+    /// Wait for the lock (the kernel queues waiters by priority and lends the owner the
+    /// highest waiter's). A thread that panicked while holding it has released it when its
     /// guard was dropped; the value is whatever it left (there is no poisoning).
     pub fn lock(&self) -> PiGuard<'_, T> {
-        // SAFETY: the mutex was initialised in `new` and lives as long as `self`.
-        let r = unsafe { libc::pthread_mutex_lock(self.raw.get()) };
-        assert_eq!(r, 0, "pthread_mutex_lock failed ({r})");
+        let me = tid();
+        if self
+            .word
+            .compare_exchange(0, me, Ordering::Acquire, Ordering::Relaxed)
+            .is_err()
+        {
+            loop {
+                if futex(&self.word, FUTEX_LOCK_PI) == 0 {
+                    break;
+                }
+                let err = std::io::Error::last_os_error();
+                assert_eq!(
+                    err.raw_os_error(),
+                    Some(libc::EINTR),
+                    "FUTEX_LOCK_PI failed: {err}"
+                );
+            }
+        }
         PiGuard {
             mutex: self,
             _thread: PhantomData,
@@ -66,16 +91,9 @@ impl<T> PiMutex<T> {
     }
 }
 
-impl<T> Drop for PiMutex<T> {
-    fn drop(&mut self) {
-        // SAFETY: nobody holds the lock (we own the mutex exclusively).
-        unsafe { libc::pthread_mutex_destroy(self.raw.get()) };
-    }
-}
-
 pub struct PiGuard<'a, T> {
     mutex: &'a PiMutex<T>,
-    // Not Send: a pthread mutex is unlocked by the thread that locked it.
+    // Not Send: a PI futex is released by the thread that holds it.
     _thread: PhantomData<*const ()>,
 }
 
@@ -97,8 +115,14 @@ impl<T> DerefMut for PiGuard<'_, T> {
 
 impl<T> Drop for PiGuard<'_, T> {
     fn drop(&mut self) {
-        // SAFETY: this thread locked the mutex in `lock`.
-        unsafe { libc::pthread_mutex_unlock(self.mutex.raw.get()) };
+        let word = &self.mutex.word;
+        // Waiters (the kernel set its bit): the kernel hands the lock over.
+        if word
+            .compare_exchange(tid(), 0, Ordering::Release, Ordering::Relaxed)
+            .is_err()
+        {
+            futex(word, FUTEX_UNLOCK_PI);
+        }
     }
 }
 

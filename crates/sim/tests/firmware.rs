@@ -31,7 +31,7 @@ fn loopback_in_op() -> Network {
 /// The worker's turn: advance the slave to the network's present.
 fn worker_runs(net: &mut Network) {
     let now = net.now();
-    net.slave(0).advance_firmware(now);
+    assert!(net.slave(0).advance_firmware(now, u64::MAX));
 }
 
 #[test]

@@ -130,3 +130,55 @@ fn cia402_step_cost_next_to_the_leg() {
         drive_ns / leg_ns
     );
 }
+
+/// Cost of the frame path alone (firmware on workers, here not running) on a line of 1024
+/// slaves in OP: the DC frame (FRMW to every slave), a logical frame for 38 slaves and a
+/// broadcast read (run on demand:
+/// `cargo test -p ether-ros-sim --release --test perf frame_path -- --ignored --nocapture`).
+#[test]
+#[ignore]
+fn frame_path_cost_for_1024_slaves() {
+    use ether_ros_sim::network::FirmwareMode;
+    const N: usize = 1024;
+    let mut net = Network::with_manual_clock(1_000_000_000);
+    for _ in 0..N {
+        // A firmware model, so the process data is the firmware's business, not the frame's.
+        let mut s = io_spec();
+        s.device = "loopback".into();
+        s.loopback_links = vec![(0x7000, 1, 0x6000, 1)];
+        net.add_slave(s).unwrap();
+    }
+    net.set_firmware_mode(FirmwareMode::Threads);
+    assign_addresses(&mut net);
+    for p in 0..N {
+        let st = station(p);
+        to_preop(&mut net, st);
+        to_safeop(&mut net, st, 0x1_0000 + 6 * p as u32);
+    }
+    let time = |net: &mut Network, what: &str, build: &dyn Fn(&mut FrameBuilder)| {
+        let mut buf = [0u8; wire::MAX_FRAME_LEN];
+        let mut b = FrameBuilder::new(&mut buf, wire::MASTER_MAC).unwrap();
+        build(&mut b);
+        let n = b.finish();
+        let template = buf;
+        let frames = 2_000u32;
+        let t = Instant::now();
+        for _ in 0..frames {
+            net.advance_clock(1_000_000);
+            buf[..n].copy_from_slice(&template[..n]);
+            assert!(net.process_frame(&mut buf[..n]));
+        }
+        let us = t.elapsed().as_secs_f64() / frames as f64 * 1e6;
+        println!("{what}: {us:.1} µs per frame ({:.0} ns per slave)", us * 1e3 / N as f64);
+    };
+    time(&mut net, "FRMW 0x0910 (DC sync, every slave)", &|b| {
+        b.push(Command::Frmw, 1, wire::fixed_address(station(0), 0x0910), None, 8)
+            .unwrap();
+    });
+    time(&mut net, "LRW of 38 slaves", &|b| {
+        b.push(Command::Lrw, 1, 0x1_0000, None, 38 * 6).unwrap();
+    });
+    time(&mut net, "BRD AL status (every slave)", &|b| {
+        b.push(Command::Brd, 1, 0x0130 << 16, None, 2).unwrap();
+    });
+}

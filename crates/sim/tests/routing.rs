@@ -33,7 +33,13 @@ fn random_datagram(rng: &mut Rng) -> (Command, u32, Vec<u8>) {
     let logical = 0x1_0000 + rng.below(64) as u32;
     let n = 1 + rng.below(12);
     let bytes = |rng: &mut Rng, n: usize| (0..n).map(|_| rng.next_u64() as u8).collect::<Vec<_>>();
-    match rng.below(14) {
+    match rng.below(16) {
+        14 => (
+            // An SII reload (loads the alias from the EEPROM) or a read command.
+            Command::Fpwr,
+            wire::fixed_address(station, 0x0502),
+            vec![0, if rng.below(2) == 0 { 0x04 } else { 0x01 }],
+        ),
         0 => (
             Command::Apwr,
             wire::auto_increment_address(pos, 0x0010),

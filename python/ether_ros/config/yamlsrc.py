@@ -1,7 +1,9 @@
 """YAML loading that remembers where every value came from, so errors can name the line.
 
 PyYAML's safe loader (YAML 1.1) is used: ``0x0A12`` is an int, ``yes``/``no`` are bools.
-Duplicate keys, which PyYAML would silently accept, are errors here.
+Duplicate keys, which PyYAML would silently accept, are errors here. The loader is libyaml's
+(``CSafeLoader``, the same rules in C: a thousand-slave bus loads in a fraction of the time)
+when PyYAML was built with it.
 """
 
 from __future__ import annotations
@@ -14,6 +16,8 @@ import yaml
 from ether_ros.errors import ConfigError
 
 KeyPath = tuple[str | int, ...]
+
+_Loader: type[yaml.SafeLoader] = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
 def format_path(path: KeyPath) -> str:
@@ -62,7 +66,7 @@ def load_yaml(path: Path) -> tuple[Any, SourceMap]:
         raise ConfigError(f"{path}: bus configuration file not found") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{path}: cannot read: {exc}") from None
-    loader = yaml.SafeLoader(text)
+    loader = _Loader(text)
     try:
         node = loader.get_single_node()
         if node is None:

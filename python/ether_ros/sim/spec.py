@@ -71,6 +71,44 @@ def _process_entries(device: EsiDevice) -> list[tuple[Any, ...]]:
     return rows
 
 
+def _dictionary(device: EsiDevice) -> tuple[list[tuple[Any, ...]], list[tuple[Any, ...]]]:
+    """The CoE objects and entries (with their ESI defaults) a slave running ``device``
+    starts with: the same for every slave of that device, so built once per device
+    (``_DICTIONARIES``; a thousand-slave bus has three devices)."""
+    cached = _DICTIONARIES.get(id(device))
+    if cached is not None and cached[0] is device:
+        return cached[1], cached[2]
+    objects = [(o.index, o.name, o.object_code) for o in device.objects]
+    entries = [
+        (
+            e.index,
+            e.subindex,
+            e.name,
+            e.data_type,
+            e.bit_length,
+            e.access,
+            e.pdo_mappable,
+            bytes(e.default),
+        )
+        for o in device.objects
+        for e in o.entries
+    ]
+    entries += _process_entries(device)
+    known = {o[0] for o in objects}
+    objects += sorted(
+        {(r[0], f"Process data {r[0]:#06x}", 7) for r in entries if r[0] not in known}
+    )
+    _DICTIONARIES[id(device)] = (device, objects, entries)
+    return objects, entries
+
+
+# id(device) -> (device, objects, entries); the device is kept so its id stays its own.
+_DICTIONARIES: dict[int, tuple[EsiDevice, list[tuple[Any, ...]], list[tuple[Any, ...]]]] = {}
+
+# The identity object's serial number (0x1018:4): the ESI can't know it, each slave has its own.
+_SERIAL_ENTRY = (0x1018, 4)
+
+
 def device_spec(
     device: EsiDevice,
     *,
@@ -85,28 +123,11 @@ def device_spec(
     lrw: bool = True,
 ) -> dict[str, Any]:
     """The ``add_slave`` spec of one slave running ``device``."""
-    objects = [(o.index, o.name, o.object_code) for o in device.objects]
-    # The identity object carries this slave's serial number (the ESI can't know it).
-    identity = {(0x1018, 4): serial}
+    objects, entries = _dictionary(device)
     entries = [
-        (
-            e.index,
-            e.subindex,
-            e.name,
-            e.data_type,
-            e.bit_length,
-            e.access,
-            e.pdo_mappable,
-            _default(e.default, identity.get((e.index, e.subindex)), e.bit_length),
-        )
-        for o in device.objects
-        for e in o.entries
+        (*e[:7], _default(e[7], serial, e[4])) if (e[0], e[1]) == _SERIAL_ENTRY else e
+        for e in entries
     ]
-    entries += _process_entries(device)
-    known = {o[0] for o in objects}
-    objects += sorted(
-        {(r[0], f"Process data {r[0]:#06x}", 7) for r in entries if r[0] not in known}
-    )
     return {
         "name": name,
         "vendor_id": device.vendor_id,
