@@ -17,8 +17,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-# Order in which a slave passes the frame from port to port.
-PORT_ORDER = (0, 3, 1, 2)
+from ether_ros._native import protocol
+
+# Order in which a slave passes the frame from port to port: the protocol crate's.
+PORT_ORDER: tuple[int, ...] = protocol.PORT_ORDER
 MASTER = "the master"
 
 
@@ -33,17 +35,13 @@ class Link:
 
 def forwarding_ports(mask: int) -> list[int]:
     """The ports after port 0 in ``mask`` (bit p = port p), in the order the frame uses them."""
-    return [p for p in PORT_ORDER[1:] if mask & (1 << p)]
+    return protocol.forwarding_ports(mask)
 
 
 def open_ports(dl_status: int) -> int:
-    """Ports with their loop open and communication established, from DL status 0x0110 (per
-    port p: bit 8+2p loop closed, bit 9+2p communication on): bit p of the result = port p."""
-    mask = 0
-    for p in range(4):
-        if dl_status & (1 << (9 + 2 * p)) and not dl_status & (1 << (8 + 2 * p)):
-            mask |= 1 << p
-    return mask
+    """Ports with their loop open and communication established, from DL status 0x0110:
+    bit p of the result = port p."""
+    return protocol.open_ports(dl_status)
 
 
 def line(count: int) -> list[Link]:

@@ -13,11 +13,11 @@ from typing import Any
 
 import pytest
 
+from ether_ros._native.protocol import reg
 from ether_ros.config import load_bus_config
 from ether_ros.master.datagrams import Cmd, Datagram, DatagramService, fixed_address, u16, u64
 from ether_ros.master.dc import (
     MASK64,
-    SYSTEM_TIME,
     DcSlave,
     DistributedClocks,
     assign_activate_bytes,
@@ -127,7 +127,7 @@ def _bring_up(bus: ManualBus) -> DistributedClocks:
     frames = 3000 // 16
     for _ in range(frames):
         bus.advance(100_000)
-        bus.dg.batch([Datagram(Cmd.FRMW, fixed_address(0x1001, SYSTEM_TIME), 8)] * 16)
+        bus.dg.batch([Datagram(Cmd.FRMW, fixed_address(0x1001, reg.DC_SYSTEM_TIME), 8)] * 16)
     return dc
 
 
@@ -135,7 +135,7 @@ def _cycles(bus: ManualBus, seconds: float, write_reference: bool) -> Callable[[
     """Run 400 µs cycles as the engine does; the frame leaves 10..40 µs after the planned
     instant whose master time the FPWR carries. Returns a reader of all slaves' 0x092C."""
     rng = random.Random(7)
-    address = fixed_address(bus.slaves[0].station, SYSTEM_TIME)
+    address = fixed_address(bus.slaves[0].station, reg.DC_SYSTEM_TIME)
     planned = bus.now + 100_000_000
     for _ in range(int(seconds * 1e9) // CYCLE_NS):
         lag = rng.randint(10_000, 40_000)
@@ -196,8 +196,8 @@ def test_time_difference_sign_matches_the_slave() -> None:
     with Engine.open_sim(net) as engine:
         dg = DatagramService(engine)
         dg.apwr(0, 0x0010, u16(0x1001))
-        now = struct.unpack("<Q", dg.fprd(0x1001, SYSTEM_TIME, 8)[0])[0]
-        assert dg.fpwr(0x1001, SYSTEM_TIME, u64(now + 5_000)) == 1
+        now = struct.unpack("<Q", dg.fprd(0x1001, reg.DC_SYSTEM_TIME, 8)[0])[0]
+        assert dg.fpwr(0x1001, reg.DC_SYSTEM_TIME, u64(now + 5_000)) == 1
         raw = struct.unpack("<I", dg.fprd(0x1001, 0x092C, 4)[0])[0]
         assert raw & 0x8000_0000, "bit 31: local smaller than received"
         assert decode_time_diff(raw) == -5_000
@@ -212,7 +212,7 @@ def test_offsets_from_the_master_clock_put_every_slave_on_it(manual_bus: ManualB
     # master's time at the latch + its delay: a frame passes slave i `delay` after the
     # reference, so all slaves agree on the system time at each instant.
     for s in manual_bus.slaves:
-        data, _ = manual_bus.dg.fprd(s.station, SYSTEM_TIME, 8)
+        data, _ = manual_bus.dg.fprd(s.station, reg.DC_SYSTEM_TIME, 8)
         system_time = struct.unpack("<Q", data)[0]
         assert system_time - manual_bus.master_time() == s.delay_ns, s.name
 
@@ -231,7 +231,7 @@ def test_ref_follows_master_locks_reference_and_followers(manual_bus: ManualBus)
     assert all(abs(d) < 5_000 for d in diffs[1:]), diffs
     # And the reference's system time is the master's, minus the mean send lag (25 µs) and
     # one hop.
-    reference_time = manual_bus.dg.frmw(0x1001, SYSTEM_TIME, 8)[0]
+    reference_time = manual_bus.dg.frmw(0x1001, reg.DC_SYSTEM_TIME, 8)[0]
     lag = manual_bus.master_time() - struct.unpack("<Q", reference_time)[0]
     assert 10_000 < lag < 40_000, lag
 

@@ -6,6 +6,7 @@ import struct
 
 import pytest
 
+from ether_ros._native.protocol import fmmu
 from ether_ros.master.datagrams import (
     DATAGRAM_OVERHEAD,
     FRAME_PAYLOAD,
@@ -23,7 +24,7 @@ from ether_ros.master.plan import (
     build_plan,
     layout_image,
 )
-from ether_ros.master.sm_fmmu import FMMU_READ, FMMU_WRITE, Fmmu, SyncManager, mailbox_sms
+from ether_ros.master.sm_fmmu import Fmmu, SyncManager, mailbox_sms
 
 LEGS = [(p, 0x1001 + p, f"leg{p}", 38, 22) for p in range(4)]
 
@@ -195,14 +196,14 @@ def test_sync_manager_and_fmmu_bytes() -> None:
     assert sm.register == 0x0810
     assert sm.encode() == bytes([0x00, 0x11, 38, 0, 0x64, 0, 1, 0])
     assert SyncManager.decode(2, sm.encode()) == sm
-    f = Fmmu(1, 152, 22, 0x1400, FMMU_READ)
+    f = Fmmu(1, 152, 22, 0x1400, fmmu.READ)
     raw = f.encode()
     assert f.register == 0x0610 and len(raw) == 16
     assert struct.unpack_from("<IHBBHBBB", raw) == (152, 22, 0, 7, 0x1400, 0, 1, 1)
     assert Fmmu.decode(1, raw) == f
     mbx = mailbox_sms(0x1000, 128, 0x1080, 128)
     assert [(m.index, m.control) for m in mbx] == [(0, 0x26), (1, 0x22)]
-    assert FMMU_WRITE == 2
+    assert fmmu.WRITE == 2
 
 
 class Recorder:

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from ether_ros.config import build_sii, load_esi
-from ether_ros.errors import BusError
+from ether_ros.errors import BusError, IdentityMismatch, SiiReadError
 from ether_ros.master.datagrams import Cmd, DatagramService
 from ether_ros.master.scan import Expected, match_configuration, scan
 
@@ -18,11 +18,17 @@ DEVICES = Path(__file__).resolve().parents[2] / "devices"
 
 
 class FakeEsc:
-    def __init__(self, sii: bytes, alias: int = 0, read_bytes: int = 8, fail: bool = False) -> None:
+    def __init__(
+        self, sii: bytes, alias: int = 0, read_bytes: int = 8, fail: bool = False,
+        status: int = 0,
+    ) -> None:  # fmt: skip
         self.mem = bytearray(0x1000)
         self.sii = sii
         self.read_bytes = read_bytes
         self.fail = fail
+        # Status bits the EEPROM interface shows with every answer (e.g. a checksum error).
+        self.status = status
+        struct.pack_into("<H", self.mem, 0x0502, status)
         self.mem[0x0008] = 0x04  # DC supported
         struct.pack_into("<H", self.mem, 0x0012, alias)
         self.mem[0x0130] = 0x01
@@ -43,7 +49,7 @@ class FakeEsc:
                 n = self.read_bytes
                 chunk = self.sii[2 * word : 2 * word + n].ljust(n, b"\xff")
                 self.mem[0x0508 : 0x0508 + n] = chunk
-                status = (0x0040 if n == 8 else 0) | (0x2000 if self.fail else 0)
+                status = (0x0040 if n == 8 else 0) | (0x2000 if self.fail else 0) | self.status
                 struct.pack_into("<H", self.mem, 0x0502, status)
 
 
@@ -101,8 +107,10 @@ def test_identity_mismatch_names_slave_expected_and_found(leg_sii: bytes) -> Non
         Expected("hind_left_leg", 0xA12, 0x00A986FD, position=1),
         Expected("front_left_leg", 0xA12, 0x0BADBEEF, position=2),
     ]
-    with pytest.raises(BusError) as err:
+    with pytest.raises(IdentityMismatch) as err:
         match_configuration(found, expected)
+    assert err.value.expected == (0xA12, 0x0BADBEEF, None)
+    assert err.value.found[:2] == (0xA12, 0x00A986FD)
     assert str(err.value).startswith(
         "slave 2 (front_left_leg): expected vendor 0x00000A12 product 0x0BADBEEF, found vendor "
         "0x00000A12 product 0x00A986FD"
@@ -135,5 +143,21 @@ def test_sii_with_4_byte_reads_gives_the_same_image(leg_sii: bytes) -> None:
 
 def test_sii_read_error_names_the_slave(leg_sii: bytes) -> None:
     line = FakeLine([FakeEsc(leg_sii), FakeEsc(leg_sii, fail=True)])
-    with pytest.raises(BusError, match=r"slave 1: SII read at word 0x0000 failed"):
+    with pytest.raises(SiiReadError, match=r"slave 1: SII read at word 0x0000 failed") as err:
         scan(DatagramService(line))
+    # Bit 13 of 0x0502: no acknowledge or invalid command (not the checksum, that is bit 11).
+    assert err.value.word == 0 and err.value.status & 0x2000
+
+
+def test_sii_checksum_error_is_reported_not_taken_for_a_failed_read(
+    leg_sii: bytes, caplog: pytest.LogCaptureFixture
+) -> None:
+    # ET1100 datasheet section II, register 0x0502: bit 11 is the checksum error of the
+    # configuration area, bit 13 a missing acknowledge or invalid command (the failed read of
+    # the test above), bit 14 a write without write enable. The master used to call bit 13 the
+    # checksum error and never looked at bit 11; now bit 11 is reported and the EEPROM is read.
+    line = FakeLine([FakeEsc(leg_sii, status=0x0800 | 0x1000)])
+    with caplog.at_level("WARNING", logger="ether_ros.master.sii"):
+        (found,) = scan(DatagramService(line))
+    assert found.vendor_id == 0x00000A12
+    assert "checksum error in the SII configuration area" in caplog.text

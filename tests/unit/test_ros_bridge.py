@@ -29,7 +29,7 @@ def test_area_decoder_matches_the_layout_codec(config: str) -> None:
             (layout.inputs, layout.input_bytes, "input"),
             (layout.outputs, layout.output_bytes, "output"),
         ):
-            decoder = bridge.AreaDecoder(variables)
+            decoder = bridge.area_decoder(variables)
             for _ in range(20):
                 area = bytes(rng.randrange(256) for _ in range(size))
                 expected = [float(v) for v in layout.unpack(area, direction).values()]

@@ -39,11 +39,16 @@ def joint_positions(client: EtherRosClient) -> dict[str, float]:
     return dict(zip(msg.name, msg.position, strict=True))
 
 
-def wait_position(client: EtherRosClient, joint: str, target: float, timeout: float = 5.0) -> None:
+def wait_position(client: EtherRosClient, joint: str, target: float, timeout: float = 20.0) -> None:
     deadline = time.monotonic() + timeout
     while abs(joint_positions(client)[joint] - target) > 0.01:
         if time.monotonic() > deadline:
-            raise AssertionError(f"{joint} at {joint_positions(client)[joint]}, not {target}")
+            diag = client.wait_for(lambda latest: latest.diagnostics)
+            axis = [dict((v.key, v.value) for v in s.values) for s in diag.status
+                    if s.name.endswith(f"axis {joint}")]  # fmt: skip
+            raise AssertionError(
+                f"{joint} at {joint_positions(client)[joint]}, not {target}: {axis}"
+            )
         time.sleep(0.05)
 
 
@@ -208,20 +213,20 @@ def test_the_console_operates_the_axes(arm: Any) -> None:
 
     node, client, _net = arm
     lines: list[str] = []
-    console = Console(client, out=lines.append)
-    seq = command_seq(node)
-    console.line("move elbow 9")  # refused by the console: nothing is sent
-    assert "outside the limits [-2.5, 2.5]" in lines[-1]
-    assert command_seq(node) == seq
-    console.line("move elbow -0.25")
-    assert lines[-1] == "sent elbow position=-0.25"
-    wait_position(client, "elbow", -0.25)
-    console.line("set_mode elbow warp")
-    assert "unknown mode 'warp'" in lines[-1]
-    console.line("disable elbow")
-    assert lines[-1].startswith("disable done (elbow: switch_on_disabled)")
-    console.line("enable all")
-    assert lines[-1].startswith("enable done (shoulder_pan: operation_enabled")
+    with Console(client, out=lines.append) as console:
+        seq = command_seq(node)
+        console.line("move elbow 9")  # refused by the console: nothing is sent
+        assert "outside the limits [-2.5, 2.5]" in lines[-1]
+        assert command_seq(node) == seq
+        console.line("move elbow -0.25")
+        assert lines[-1] == "sent elbow position=-0.25"
+        wait_position(client, "elbow", -0.25)
+        console.line("set_mode elbow warp")
+        assert "unknown mode 'warp'" in lines[-1]
+        console.line("disable elbow")
+        assert lines[-1].startswith("disable done (elbow: switch_on_disabled)")
+        console.line("enable all")
+        assert lines[-1].startswith("enable done (shoulder_pan: operation_enabled")
 
 
 def test_a_slow_enable_holds_up_no_other_callback(arm: Any, monkeypatch: Any) -> None:

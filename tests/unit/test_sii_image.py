@@ -7,8 +7,9 @@ from pathlib import Path
 
 import pytest
 
+from ether_ros._native.protocol import sii_checksum as crc8
 from ether_ros.config import build_sii, load_esi, parse_sii
-from ether_ros.config.sii import SiiFormatError, crc8
+from ether_ros.config.sii import SiiFormatError
 from ether_ros.errors import ConfigError
 
 REPO = Path(__file__).resolve().parents[2]

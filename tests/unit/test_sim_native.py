@@ -12,21 +12,13 @@ from typing import Any
 import pytest
 
 from ether_ros._native import SimNetwork
+from ether_ros._native.protocol import sii_checksum
 from ether_ros.testing.netns import VethPair
 
 MASTER_MAC = bytes([0x02, 0, 0, 0, 0, 1])
 APRD, APWR, FPRD, FPWR, BRD, BWR, LRW = 1, 2, 4, 5, 7, 8, 12
 MBX_RX, MBX_TX, OUT_SM, IN_SM = 0x1000, 0x1080, 0x1100, 0x1180
 VENDOR, PRODUCT = 0x00000A12, 0x00A986FD
-
-
-def crc8(data: bytes) -> int:
-    crc = 0xFF
-    for b in data:
-        crc ^= b
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x07) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
-    return crc
 
 
 def sii_image(alias: int = 0) -> bytes:
@@ -39,7 +31,7 @@ def sii_image(alias: int = 0) -> bytes:
     w[0x18], w[0x19], w[0x1A], w[0x1B], w[0x1C] = MBX_RX, 128, MBX_TX, 128, 0x0004
     w[0x3E], w[0x3F] = 0x0001, 0x0001
     b = bytearray(struct.pack("<64H", *w))
-    b[14] = crc8(bytes(b[:14]))
+    b[14] = sii_checksum(bytes(b[:14]))
     sms = [(MBX_RX, 128, 0x26, 1, 1), (MBX_TX, 128, 0x22, 1, 2)]
     sms += [(OUT_SM, 2, 0x64, 1, 3), (IN_SM, 4, 0x20, 1, 4)]
     cat = b"".join(struct.pack("<HHBBBB", s, n, c, 0, e, t) for s, n, c, e, t in sms)
@@ -242,9 +234,11 @@ def test_delayed_answers_keep_their_order_over_veth(veth: VethPair) -> None:
     net = SimNetwork()
     net.add_slave(spec())
     net.run_on_interface(veth.slave)
-    sock = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, socket.htons(0x88A4))
+    # Protocol 0 until bound: opened with the EtherType, the socket would queue EtherCAT frames
+    # of every interface (other tests' buses on a busy host) until bind() narrows it.
+    sock = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, 0)
     try:
-        sock.bind((veth.master, 0))
+        sock.bind((veth.master, 0x88A4))
         sock.settimeout(2.0)
         net.fault("delay", us=3000)
         sent = time.monotonic()

@@ -11,12 +11,16 @@
 //! thread: decoded here, resolved against the axes ([`joints`]) and written into the engine's
 //! axis command slots (`Engine::axis_setpoint`).
 //!
+//! The operator console's panic key is read here too ([`panic_keys`]): a native thread reads the
+//! terminal and sends the node's `panic` request through rcl without waiting for Python.
+//!
 //! Only requests that are certainly valid take the fast path; anything else (text values,
 //! unknown names, values out of range, malformed data) is handed to the node's Python code,
 //! which owns every error message, so both paths accept exactly the same writes.
 
 pub mod cdr;
 pub mod joints;
+pub mod panic_keys;
 pub mod rcl;
 pub mod receiver;
 pub mod table;
@@ -26,5 +30,6 @@ pub use cdr::{
     WriteRequest,
 };
 pub use joints::{JointEntry, JointTable, Setpoint};
+pub use panic_keys::{PanicKeyHandles, PanicKeys, Sent, PANIC_KEYS};
 pub use receiver::{CommandReceiver, ReceiverCounters, ReceiverHandles};
 pub use table::{CommandTable, Kind, Resolution, SlaveEntry, VariableEntry};

@@ -11,6 +11,9 @@
 use std::fmt::Write as _;
 
 use ether_ros_engine::OutputField;
+use ether_ros_protocol::address;
+use ether_ros_protocol::dtype::Kind as ValueKind;
+use ether_ros_protocol::value;
 
 use crate::cdr::WriteRequest;
 
@@ -36,8 +39,14 @@ impl Kind {
         })
     }
 
-    fn integral(self) -> bool {
-        matches!(self, Kind::Bool | Kind::Int | Kind::Uint)
+    /// The protocol crate's value kind of this encoding.
+    fn value_kind(self) -> ValueKind {
+        match self {
+            Kind::Bool => ValueKind::Bool,
+            Kind::Int => ValueKind::Int,
+            Kind::Uint => ValueKind::Uint,
+            Kind::Real32 | Kind::Real64 => ValueKind::Real,
+        }
     }
 }
 
@@ -188,7 +197,8 @@ impl CommandTable {
         None
     }
 
-    /// Check `value` for `v` (as Python's `check_value`) and add its field; false if invalid.
+    /// Check `value` for `v` (the protocol crate's check, as Python's `check_value`) and add its
+    /// field; false if invalid.
     fn add(
         &self,
         s: &SlaveEntry,
@@ -198,13 +208,10 @@ impl CommandTable {
         answer: &mut String,
         count: &mut usize,
     ) -> bool {
-        if v.kind.integral() && value.fract() != 0.0 {
+        if value::check(v.kind.value_kind(), value, v.minimum, v.maximum).is_err() {
             return false;
         }
-        if value < v.minimum || value > v.maximum {
-            return false;
-        }
-        let Some(raw) = encode(v, value) else {
+        let Ok(raw) = value::encode(v.kind.value_kind(), v.bit_length, value) else {
             return false;
         };
         fields.push(OutputField {
@@ -223,47 +230,25 @@ impl CommandTable {
     }
 }
 
-/// The raw bits of `value` for `v`, or None when they do not fit (never for values in range).
-fn encode(v: &VariableEntry, value: f64) -> Option<u64> {
-    let mask = if v.bit_length >= 64 {
-        u64::MAX
-    } else {
-        (1u64 << v.bit_length) - 1
-    };
-    let raw = match v.kind {
-        Kind::Bool => u64::from(value != 0.0),
-        Kind::Uint => {
-            if !(0.0..18_446_744_073_709_551_616.0).contains(&value) {
-                return None;
-            }
-            value as u64
-        }
-        Kind::Int => {
-            if !(-9_223_372_036_854_775_808.0..9_223_372_036_854_775_808.0).contains(&value) {
-                return None;
-            }
-            (value as i64) as u64 & mask
-        }
-        Kind::Real32 => u64::from((value as f32).to_bits()),
-        Kind::Real64 => value.to_bits(),
-    };
-    (raw & !mask == 0).then_some(raw)
-}
-
 /// A variable of `s` by name or address, matched as `ether_ros.ros.layout._find` does: an
-/// address ("0x7010:01", "7010:1") by index and subindex; a name exactly, else
-/// case-insensitively when that is unambiguous. Names that are not plain ASCII are left to
-/// Python (`Unsure`), whose case folding is Unicode's.
+/// address ("0x7010:01", "7010:1": the protocol crate's grammar) by index and subindex; a name
+/// exactly, else case-insensitively when that is unambiguous. Names that are not plain ASCII
+/// are left to Python (`Unsure`), whose case folding is Unicode's; so is an address out of
+/// range, which Python refuses with the reason.
 fn find<'t>(s: &'t SlaveEntry, reference: &str) -> Lookup<'t> {
-    if let Some((index, subindex)) = parse_address(reference) {
-        return match s
-            .outputs
-            .iter()
-            .find(|v| (v.index, v.subindex) == (index, subindex))
-        {
-            Some(v) => Lookup::Found(v),
-            None => Lookup::Missing,
-        };
+    match address::parse(reference) {
+        Ok((index, subindex)) => {
+            return match s
+                .outputs
+                .iter()
+                .find(|v| (v.index, v.subindex) == (index, subindex))
+            {
+                Some(v) => Lookup::Found(v),
+                None => Lookup::Missing,
+            }
+        }
+        Err(address::AddressError::NotAnAddress) => {}
+        Err(_) => return Lookup::Unsure,
     }
     if let Some(v) = s.outputs.iter().find(|v| v.name == reference) {
         return Lookup::Found(v);
@@ -279,26 +264,6 @@ fn find<'t>(s: &'t SlaveEntry, reference: &str) -> Lookup<'t> {
         (Some(v), None) => Lookup::Found(v),
         _ => Lookup::Missing,
     }
-}
-
-/// `(?:0x)?[0-9a-fA-F]{1,4}:(?:0x)?[0-9a-fA-F]{1,2}` after trimming whitespace (the address
-/// syntax of `ether_ros.ros.layout.parse_address`).
-fn parse_address(reference: &str) -> Option<(u16, u8)> {
-    let (index, subindex) = reference.trim().split_once(':')?;
-    let index = hex_part(index, 4)?;
-    let subindex = hex_part(subindex, 2)?;
-    Some((index as u16, subindex as u8))
-}
-
-fn hex_part(part: &str, max_digits: usize) -> Option<u32> {
-    let digits = part.strip_prefix("0x").unwrap_or(part);
-    if digits.is_empty()
-        || digits.len() > max_digits
-        || !digits.bytes().all(|b| b.is_ascii_hexdigit())
-    {
-        return None;
-    }
-    u32::from_str_radix(digits, 16).ok()
 }
 
 /// Python's `format(value, "g")` for a finite value (the only kind a write accepts): 6
@@ -429,11 +394,18 @@ mod tests {
     #[test]
     fn addresses_match_like_python() {
         let t = table();
-        for address in ["0x7000:03", "7000:3", " 7000:03 ", "0x7000:0x3"] {
+        // The one grammar (ether_ros_protocol::address): both parts hex, "0x" in either case.
+        for address in [
+            "0x7000:03",
+            "7000:3",
+            " 7000:03 ",
+            "0x7000:0x3",
+            "0X7000:03",
+        ] {
             let (fields, _) = run(&t, &req("left", address, 1.5)).unwrap();
             assert_eq!(fields[0].raw, u64::from(1.5f32.to_bits()), "{address}");
         }
-        for not_ours in ["0X7000:03", "17000:3", "7000:", "7000:103"] {
+        for not_ours in ["17000:3", "7000:", "7000:103"] {
             assert!(run(&t, &req("left", not_ours, 1.0)).is_none(), "{not_ours}");
         }
     }

@@ -13,7 +13,7 @@
 
 use std::io;
 
-use ether_ros_wire::ETHERTYPE;
+use ether_ros_protocol::ETHERTYPE;
 
 use crate::xdp::XdpMode;
 

@@ -1,7 +1,7 @@
 //! Building acyclic frames and recognising replies: shared by the direct `transact` path and
 //! the RT thread (which matches mailbox and cyclic replies the same way).
 
-use ether_ros_wire::{self as wire, Command, FrameBuilder, MASTER_MAC, MAX_FRAME_LEN};
+use ether_ros_protocol::{self as wire, Command, FrameBuilder, MASTER_MAC, MAX_FRAME_LEN};
 
 /// One datagram of a `transact` call: data to write, or a length to read.
 #[derive(Clone, Debug, PartialEq, Eq)]

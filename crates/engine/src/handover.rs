@@ -10,7 +10,7 @@
 use std::cell::UnsafeCell;
 use std::sync::atomic::{fence, AtomicI64, AtomicU32, AtomicU64, AtomicU8, AtomicUsize, Ordering};
 
-use ether_ros_wire::MAX_FRAME_LEN;
+use ether_ros_protocol::MAX_FRAME_LEN;
 
 /// A byte buffer guarded by a sequence counter: one writer at a time (callers ensure it),
 /// any number of readers that detect and reject torn copies. Bytes are atomics so that the

@@ -39,31 +39,113 @@ pub use plan::Plan;
 use stats::Summary;
 pub use xdp::{XdpLink, XdpMode};
 
-use ether_ros_wire::MAX_FRAME_LEN;
+use ether_ros_protocol::MAX_FRAME_LEN;
 
-/// What went wrong, by kind (the Python binding maps kinds to exception types).
+/// What went wrong, by kind, with its data (the Python binding maps each kind to an exception
+/// class of `ether_ros.errors` and hands the data over as attributes).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Error {
-    /// Bad argument: plan, datagrams, output write.
+    /// Bad argument: plan, datagrams, output write (what is wrong, in words; no protocol code).
     Invalid(String),
-    /// The link failed or is closed.
-    Link(String),
-    /// No reply within the retries.
-    Timeout(String),
-    /// Wrong state for the call (already cyclic, closed, ...).
-    State(String),
+    /// The link failed: opening, sending or receiving.
+    Link {
+        /// The link (`packet on eth0`, or the interface when it could not be opened).
+        link: String,
+        /// What was being done.
+        action: LinkAction,
+        /// The OS error code, when the OS gave one.
+        errno: Option<i32>,
+        /// The OS's words for it.
+        detail: String,
+    },
+    /// No reply to an acyclic frame within its retries.
+    Timeout {
+        /// The link.
+        link: String,
+        /// The frame's datagram commands.
+        commands: Vec<&'static str>,
+        /// Frames sent.
+        attempts: u32,
+        /// Wait per attempt, µs.
+        timeout_us: i64,
+    },
+    /// Wrong state for the call.
+    State(StateError),
     /// The real-time setup was refused (policy, affinity, memory lock).
-    Realtime(String),
+    Realtime(rt::SetupError),
+}
+
+/// What a link was doing when it failed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LinkAction {
+    /// Opening the interface.
+    Open,
+    /// Sending a frame.
+    Send,
+    /// Receiving a frame.
+    Receive,
+}
+
+/// A call the engine's state does not allow.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum StateError {
+    /// The engine on this link is closed.
+    Closed(String),
+    /// `start_cyclic` while the cyclic thread runs.
+    AlreadyCyclic,
+    /// Process data before `start_cyclic`.
+    NoProcessImage,
+    /// The RT thread ended during its setup.
+    RtThreadEnded,
+}
+
+impl Error {
+    /// The link error of `e` while doing `action` on `link`.
+    pub fn link(link: &str, action: LinkAction, e: &std::io::Error) -> Error {
+        Error::Link {
+            link: link.to_string(),
+            action,
+            errno: e.raw_os_error(),
+            detail: e.to_string(),
+        }
+    }
 }
 
 impl std::fmt::Display for Error {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            Error::Invalid(m)
-            | Error::Link(m)
-            | Error::Timeout(m)
-            | Error::State(m)
-            | Error::Realtime(m) => f.write_str(m),
+            Error::Invalid(m) => f.write_str(m),
+            Error::Link {
+                link,
+                action,
+                detail,
+                ..
+            } => match action {
+                LinkAction::Open => f.write_str(detail),
+                LinkAction::Send => write!(f, "cannot send on {link}: {detail}"),
+                LinkAction::Receive => write!(f, "cannot receive on {link}: {detail}"),
+            },
+            Error::Timeout {
+                link,
+                commands,
+                attempts,
+                timeout_us,
+            } => write!(
+                f,
+                "no reply to the frame [{}] on {link} after {attempts} attempt(s) of {timeout_us} µs",
+                commands.join(", ")
+            ),
+            Error::State(StateError::Closed(link)) => write!(f, "the engine on {link} is closed"),
+            Error::State(StateError::AlreadyCyclic) => {
+                f.write_str("the cyclic thread is already running")
+            }
+            Error::State(StateError::NoProcessImage) => {
+                f.write_str("no process image yet: call start_cyclic first")
+            }
+            Error::State(StateError::RtThreadEnded) => {
+                f.write_str("the RT thread ended during setup")
+            }
+            Error::Realtime(e) => f.write_str(&e.message),
         }
     }
 }
@@ -107,10 +189,19 @@ pub struct Engine {
     output_writer: Mutex<Vec<u8>>,
     /// Serialises writers of the axis command slots; holds each axis's command as last written,
     /// with the cyclic run (`Exchange::run`) they belong to, so a new run starts afresh.
-    axis_writer: Mutex<(u64, Vec<AxisCommand>)>,
+    axis_writer: Mutex<AxisWriter>,
     /// Serialises consumers of the sample ring.
     drain: Mutex<()>,
     description: String,
+}
+
+/// The axis commands as last written, with the cyclic run (`Exchange::run`) they belong to
+/// (a new run starts afresh) and the number of the last setpoint or trajectory.
+#[derive(Default)]
+struct AxisWriter {
+    run: u64,
+    commands: Vec<AxisCommand>,
+    seq: u64,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -141,7 +232,7 @@ impl Engine {
             }
             LinkKind::Xdp => XdpLink::open(ifname, options).map(|l| Box::new(l) as Box<dyn Link>),
         }
-        .map_err(|e| Error::Link(e.to_string()))?;
+        .map_err(|e| Error::link(ifname, LinkAction::Open, &e))?;
         Ok(Engine::with_link(link))
     }
 
@@ -154,7 +245,7 @@ impl Engine {
             exchange: Mutex::new(None),
             acyclic: Mutex::new(()),
             output_writer: Mutex::new(Vec::new()),
-            axis_writer: Mutex::new((0, Vec::new())),
+            axis_writer: Mutex::new(AxisWriter::default()),
             drain: Mutex::new(()),
             description,
         }
@@ -220,18 +311,16 @@ impl Engine {
                 LinkState::Closed => return Err(self.closed()),
             }
         }
-        let names: Vec<&str> = requests.iter().map(|r| r.cmd.name()).collect();
-        Err(Error::Timeout(format!(
-            "no reply to the frame [{}] on {} after {} attempt(s) of {} µs",
-            names.join(", "),
-            self.description,
-            retries + 1,
-            timeout_ns / 1000
-        )))
+        Err(Error::Timeout {
+            link: self.description.clone(),
+            commands: requests.iter().map(|r| r.cmd.name()).collect(),
+            attempts: retries + 1,
+            timeout_us: timeout_ns / 1000,
+        })
     }
 
     fn closed(&self) -> Error {
-        Error::State(format!("the engine on {} is closed", self.description))
+        Error::State(StateError::Closed(self.description.clone()))
     }
 
     fn direct_attempt(
@@ -241,7 +330,7 @@ impl Engine {
         timeout_ns: i64,
     ) -> Result<Option<Vec<u8>>> {
         link.send(request)
-            .map_err(|e| Error::Link(format!("cannot send on {}: {e}", self.description)))?;
+            .map_err(|e| Error::link(&self.description, LinkAction::Send, &e))?;
         let deadline = now_ns() + timeout_ns;
         let mut buf = vec![0u8; MAX_FRAME_LEN];
         loop {
@@ -258,12 +347,7 @@ impl Engine {
                         .fetch_add(1, Ordering::Relaxed);
                 }
                 Ok(None) => return Ok(None),
-                Err(e) => {
-                    return Err(Error::Link(format!(
-                        "cannot receive on {}: {e}",
-                        self.description
-                    )))
-                }
+                Err(e) => return Err(Error::link(&self.description, LinkAction::Receive, &e)),
             }
         }
     }
@@ -318,7 +402,7 @@ impl Engine {
                 let running = matches!(other, LinkState::Cyclic(_));
                 *state = other;
                 return Err(if running {
-                    Error::State("the cyclic thread is already running".into())
+                    Error::State(StateError::AlreadyCyclic)
                 } else {
                     self.closed()
                 });
@@ -337,7 +421,7 @@ impl Engine {
         shared.last_command_ns.store(now_ns(), Ordering::Release);
         ex.note_command_all(now_ns());
         let mut cyclic = Cyclic::new(link, shared.clone(), ex.clone(), layout);
-        let (ready_tx, ready_rx) = mpsc::sync_channel::<std::result::Result<(), String>>(1);
+        let (ready_tx, ready_rx) = mpsc::sync_channel::<std::result::Result<(), rt::SetupError>>(1);
         let spawned = std::thread::Builder::new()
             .name("ether_ros-rt".into())
             .stack_size(rt::RT_STACK)
@@ -357,7 +441,12 @@ impl Engine {
             });
         let handle = match spawned {
             Ok(h) => h,
-            Err(e) => return Err(Error::Realtime(format!("cannot start the RT thread: {e}"))),
+            Err(e) => {
+                return Err(Error::Realtime(rt::SetupError {
+                    message: format!("cannot start the RT thread: {e}"),
+                    errno: e.raw_os_error(),
+                }))
+            }
         };
         match ready_rx.recv() {
             Ok(Ok(())) => {
@@ -373,7 +462,7 @@ impl Engine {
             Err(_) => {
                 *state = LinkState::Cyclic(handle);
                 self.join_into(&mut state);
-                Err(Error::Realtime("the RT thread ended during setup".into()))
+                Err(Error::State(StateError::RtThreadEnded))
             }
         }
     }
@@ -403,7 +492,7 @@ impl Engine {
     fn exchange(&self) -> Result<Arc<Exchange>> {
         lock(&self.exchange)
             .clone()
-            .ok_or_else(|| Error::State("no process image yet: call start_cyclic first".into()))
+            .ok_or(Error::State(StateError::NoProcessImage))
     }
 
     /// Write output bytes at image `offset`; the range must lie inside the plan's outputs.
@@ -488,110 +577,178 @@ impl Engine {
             .collect())
     }
 
-    /// Change axis `axis`'s command slot with `change` (under the axis writer mutex, so the
-    /// Python API and a native command thread never undo each other's requests). Feeds the
-    /// watchdog: an axis command is a command.
-    fn update_axis(&self, axis: usize, change: impl FnOnce(&mut AxisCommand)) -> Result<()> {
+    /// Change the commands of the axes in `axes` with `change` (under the axis writer mutex,
+    /// so the Python API and a native command thread never undo each other's requests) and
+    /// hand all commands to the RT thread in one write: the axes named take their new
+    /// commands in the same cycle. Feeds the watchdog first (an axis command is a command;
+    /// an enable that ends a watchdog stop then arrives after the stop's end, see
+    /// `AxisController::restart_blocked`).
+    fn update_axes(
+        &self,
+        axes: &[usize],
+        mut change: impl FnMut(usize, &mut AxisCommand, u64),
+    ) -> Result<u64> {
         let ex = self.exchange()?;
         let mut slots = lock(&self.axis_writer);
-        if slots.0 != ex.run {
+        if slots.run != ex.run {
             // A new cyclic run: start again from the plan's initial commands.
-            slots.0 = ex.run;
-            slots.1 = ex
+            slots.run = ex.run;
+            slots.commands = ex
                 .plan
                 .axes
                 .iter()
                 .map(|a| AxisCommand::initial(a.mode))
                 .collect();
         }
-        let Some(cmd) = slots.1.get_mut(axis) else {
+        let n = ex.plan.axes.len();
+        if let Some(&bad) = axes.iter().find(|&&a| a >= n) {
             return Err(Error::Invalid(format!(
-                "axis index {axis} is out of range (the plan has {} axes)",
-                ex.plan.axes.len()
+                "axis index {bad} is out of range (the plan has {n} axes)"
             )));
-        };
-        change(cmd);
-        let mut bytes = [0u8; cia402::COMMAND_LEN];
-        cmd.encode(&mut bytes);
-        ex.axes.commands[axis].write(0, &bytes);
-        drop(slots);
+        }
+        slots.seq += 1;
+        let seq = slots.seq;
+        for (k, &axis) in axes.iter().enumerate() {
+            change(k, &mut slots.commands[axis], seq);
+        }
+        let mut bytes = vec![0u8; n * cia402::COMMAND_LEN];
+        for (c, b) in slots
+            .commands
+            .iter()
+            .zip(bytes.chunks_exact_mut(cia402::COMMAND_LEN))
+        {
+            c.encode(b);
+        }
         self.feed_watchdog();
-        Ok(())
+        ex.axes.commands.write(0, &bytes);
+        Ok(seq)
     }
 
-    /// Ask for Operation Enabled (`true`) or the axis's `on_stop` command (`false`).
+    fn update_axis(&self, axis: usize, change: impl FnOnce(&mut AxisCommand)) -> Result<()> {
+        let mut change = Some(change);
+        self.update_axes(&[axis], |_, c, _| {
+            if let Some(f) = change.take() {
+                f(c)
+            }
+        })
+        .map(|_| ())
+    }
+
+    /// Ask for Operation Enabled (`true`: an explicit enable, also the deliberate action a
+    /// blocked restart waits for) or the axis's `on_stop` command (`false`).
     pub fn axis_enable(&self, axis: usize, enable: bool) -> Result<()> {
-        self.update_axis(axis, |c| c.enable = enable)
+        self.update_axis(axis, |c| {
+            c.enable = enable;
+            if enable {
+                c.enable_count = c.enable_count.wrapping_add(1);
+            }
+        })
     }
 
     /// Ask for a fault reset (a rising edge of controlword bit 7 while the drive is in Fault);
-    /// also gives the automatic reset its retries back.
+    /// also gives the automatic reset its retries back. It does not enable the axis.
     pub fn axis_reset_fault(&self, axis: usize) -> Result<()> {
         self.update_axis(axis, |c| c.reset_count = c.reset_count.wrapping_add(1))
     }
 
-    /// Command a mode of operation (0x6060); targets wait until 0x6061 shows it.
+    /// Command a mode of operation (0x6060); targets wait until 0x6061 shows it, and the new
+    /// mode starts from the actual state (docs/cia402.md, "Mode changes").
     pub fn axis_set_mode(&self, axis: usize, mode: Mode) -> Result<()> {
         self.update_axis(axis, |c| c.mode = mode)
     }
 
-    /// A setpoint in SI units, stamped with its arrival time; it replaces any trajectory.
-    pub fn axis_setpoint(&self, axis: usize, kind: SetpointKind, value: f64) -> Result<()> {
-        if !value.is_finite() {
-            return Err(Error::Invalid(format!(
-                "axis {axis}: setpoint {value} is not a finite number"
-            )));
-        }
-        let t = now_ns();
-        self.update_axis(axis, |c| {
-            c.seq += 1;
-            c.setpoint_kind = kind as u8;
-            c.value = value;
-            c.t_ns = t;
-        })
+    /// Start homing (mode hm; controlword bit 4 until the drive reports attained or error).
+    pub fn axis_home(&self, axis: usize) -> Result<()> {
+        self.update_axis(axis, |c| c.homing_count = c.homing_count.wrapping_add(1))
     }
 
-    /// Execute `points` (times from `start_ns`, CLOCK_MONOTONIC; strictly increasing, finite
-    /// values, at most the plan's trajectory_capacity) on the engine's clock.
-    pub fn axis_follow(&self, axis: usize, start_ns: i64, points: &[Point]) -> Result<()> {
-        let ex = self.exchange()?;
-        let cap = ex.axes.trajectory_capacity;
-        if points.is_empty() || points.len() > cap {
-            return Err(Error::Invalid(format!(
-                "a trajectory takes 1..={cap} points, got {}",
-                points.len()
-            )));
-        }
-        for (i, p) in points.iter().enumerate() {
-            let ordered = i == 0 || p.t_ns > points[i - 1].t_ns;
-            if p.t_ns < 0 || !ordered || !p.position.is_finite() || !p.velocity.is_finite() {
+    /// A setpoint in SI units, stamped with its arrival time; it replaces any trajectory.
+    pub fn axis_setpoint(&self, axis: usize, kind: SetpointKind, value: f64) -> Result<()> {
+        self.axis_setpoints(&[(axis, kind, value)])
+    }
+
+    /// Setpoints for several axes, taken over by all of them in the same cycle.
+    pub fn axis_setpoints(&self, setpoints: &[(usize, SetpointKind, f64)]) -> Result<()> {
+        for &(axis, _, value) in setpoints {
+            if !value.is_finite() {
                 return Err(Error::Invalid(format!(
-                    "trajectory point #{i} ({p:?}): times must be >= 0 and strictly increasing, \
-                     positions and velocities finite"
+                    "axis {axis}: setpoint {value} is not a finite number"
                 )));
             }
         }
-        let Some(slot) = ex.axes.trajectories.get(axis) else {
-            return self.update_axis(axis, |_| {});
-        };
-        let writer = lock(&self.axis_writer);
-        let seq = writer.1.get(axis).map_or(0, |c| c.seq) + 1;
-        let mut bytes = vec![0u8; cia402::TRAJECTORY_HEADER + points.len() * cia402::POINT_LEN];
-        bytes[..8].copy_from_slice(&seq.to_le_bytes());
-        for (p, b) in points
+        let axes: Vec<usize> = setpoints.iter().map(|s| s.0).collect();
+        if let Some(twice) = axes
             .iter()
-            .zip(bytes[cia402::TRAJECTORY_HEADER..].chunks_exact_mut(cia402::POINT_LEN))
+            .enumerate()
+            .find(|(i, a)| axes[..*i].contains(a))
         {
-            p.encode(b);
+            return Err(Error::Invalid(format!("axis {} is given twice", twice.1)));
         }
-        slot.write(0, &bytes);
-        drop(writer);
-        let n = points.len() as u32;
-        self.update_axis(axis, |c| {
+        let t = now_ns();
+        self.update_axes(&axes, |k, c, seq| {
+            c.seq = seq;
+            c.setpoint_kind = setpoints[k].1 as u8;
+            c.value = setpoints[k].2;
+            c.t_ns = t;
+        })
+        .map(|_| ())
+    }
+
+    /// Execute `points` (times from `start_ns`, CLOCK_MONOTONIC; strictly increasing, finite
+    /// values, at most the plan's trajectory_capacity) on the engine's clock. Returns the
+    /// command's number (`AxisStatus::command_seq` once taken over).
+    pub fn axis_follow(&self, axis: usize, start_ns: i64, points: &[Point]) -> Result<u64> {
+        self.axis_follow_many(start_ns, &[(axis, points)])
+    }
+
+    /// One trajectory for several axes, handed over at once: every axis starts it in the same
+    /// cycle (once all of them have their points), from the state it is commanded to have
+    /// then, on the common `start_ns` (docs/cia402.md, "Trajectories"). Returns the command's
+    /// number, the same for all of them.
+    pub fn axis_follow_many(&self, start_ns: i64, tracks: &[(usize, &[Point])]) -> Result<u64> {
+        let ex = self.exchange()?;
+        let cap = ex.axes.trajectory_capacity;
+        if tracks.is_empty() {
+            return Err(Error::Invalid("a trajectory names no axis".into()));
+        }
+        for (k, &(axis, points)) in tracks.iter().enumerate() {
+            if tracks[..k].iter().any(|t| t.0 == axis) {
+                return Err(Error::Invalid(format!("axis {axis} is given twice")));
+            }
+            if points.is_empty() || points.len() > cap {
+                return Err(Error::Invalid(format!(
+                    "axis {axis}: a trajectory takes 1..={cap} points, got {}",
+                    points.len()
+                )));
+            }
+            for (i, p) in points.iter().enumerate() {
+                let ordered = i == 0 || p.t_ns > points[i - 1].t_ns;
+                if p.t_ns < 0 || !ordered || !p.position.is_finite() || !p.velocity.is_finite() {
+                    return Err(Error::Invalid(format!(
+                        "axis {axis}: trajectory point #{i} ({p:?}): times must be >= 0 and \
+                         strictly increasing, positions and velocities finite"
+                    )));
+                }
+            }
+        }
+        let axes: Vec<usize> = tracks.iter().map(|t| t.0).collect();
+        // The points first, tagged with the seq the commands will carry; then the commands of
+        // all axes in one write.
+        self.update_axes(&axes, |k, c, seq| {
+            let (axis, points) = tracks[k];
+            let mut bytes = vec![0u8; cia402::TRAJECTORY_HEADER + points.len() * cia402::POINT_LEN];
+            bytes[..8].copy_from_slice(&seq.to_le_bytes());
+            for (p, b) in points
+                .iter()
+                .zip(bytes[cia402::TRAJECTORY_HEADER..].chunks_exact_mut(cia402::POINT_LEN))
+            {
+                p.encode(b);
+            }
+            ex.axes.trajectories[axis].write(0, &bytes);
             c.seq = seq;
             c.setpoint_kind = 0;
             c.t_ns = start_ns;
-            c.trajectory_len = n;
+            c.trajectory_len = points.len() as u32;
         })
     }
 

@@ -9,7 +9,7 @@ use std::ffi::CString;
 use std::io;
 
 use crate::clock::{now_ns, realtime_ns, timespec};
-use ether_ros_wire::{ETHERTYPE, MAX_FRAME_LEN};
+use ether_ros_protocol::{ETHERTYPE, MAX_FRAME_LEN};
 
 /// A frame that arrived: its length in the caller's buffer and when it arrived
 /// (CLOCK_MONOTONIC ns; the kernel's receive timestamp when the link has one).

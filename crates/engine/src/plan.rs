@@ -4,7 +4,7 @@
 //! `layout` lays every frame out once.
 
 use crate::cia402::{AxisPlan, MAX_TRAJECTORY_CAPACITY};
-use ether_ros_wire::{
+use ether_ros_protocol::{
     self as wire, reg, Command, DatagramSlot, FrameBuilder, MASTER_MAC, MAX_FRAME_LEN,
 };
 

@@ -17,7 +17,7 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use crate::bpf::{self, bind_queue, Attached, Fd};
 use crate::clock::now_ns;
 use crate::link::{set_busy_poll, wait_readable, Link, LinkOptions, Received};
-use ether_ros_wire::MAX_FRAME_LEN;
+use ether_ros_protocol::MAX_FRAME_LEN;
 
 /// UMEM chunk size: one page, so a chunk never straddles pages.
 const CHUNK: usize = 4096;

@@ -10,7 +10,7 @@ use ether_ros_engine::{
     flags, now_ns, Engine, Error, Link, OutputField, Plan, Received, Request, SampleRecord,
     RECORD_LEN,
 };
-use ether_ros_wire::{self as wire, reg, Command};
+use ether_ros_protocol::{self as wire, reg, Command};
 
 mod common;
 use common::{counter, wait_for};
@@ -191,7 +191,7 @@ fn transact_retries_then_reports_timeout() {
         )
         .unwrap_err();
     assert!(
-        matches!(err, Error::Timeout(ref m) if m.contains("3 attempt(s)") && m.contains("BRD")),
+        matches!(err, Error::Timeout { attempts: 3, timeout_us: 1, ref commands, .. } if commands == &["BRD"]),
         "{err:?}"
     );
     assert_eq!(bus.lock().unwrap().frames, 3);

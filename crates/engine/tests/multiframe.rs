@@ -11,7 +11,7 @@ use ether_ros_engine::plan::{DcMode, DcPlan, FramePlan, Logical, Order};
 use ether_ros_engine::{
     flags, Engine, FrameSnapshot, Link, Plan, Received, SampleRecord, RECORD_LEN,
 };
-use ether_ros_wire::{self as wire, Command};
+use ether_ros_protocol::{self as wire, Command};
 
 mod common;
 use common::{logical, wait_for};

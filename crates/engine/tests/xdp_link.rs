@@ -8,7 +8,7 @@ use std::process::Command as Process;
 use std::sync::Mutex;
 
 use ether_ros_engine::{now_ns, Link, LinkOptions, RawSocketLink, XdpLink, XdpMode};
-use ether_ros_wire::MAX_FRAME_LEN;
+use ether_ros_protocol::MAX_FRAME_LEN;
 
 mod common;
 use common::Veth;

@@ -6,8 +6,8 @@
 use std::sync::{Arc, Mutex, Weak};
 
 use ether_ros_engine::cia402::{
-    status_flags, AxisMap, AxisPlan, DriveState, FaultReset, Limits, OnStop,
-    DEFAULT_TRAJECTORY_CAPACITY,
+    status_flags, AxisMap, AxisPlan, DriveState, FaultReset, Limits, ModeChangeVelocity, OnStop,
+    Restart, DEFAULT_TRAJECTORY_CAPACITY,
 };
 use ether_ros_engine::plan::{
     CyclicDatagram, DcMode, DcPlan, FramePlan, Logical, Order, Policy, RtPlan,
@@ -17,8 +17,8 @@ use ether_ros_engine::{
     flags, AxisStatus, Engine, Error, InProcessLink, LinkKind, LinkOptions, Mode, OutputField,
     Plan, Point, Request, Responder, SetpointKind, RECORD_LEN,
 };
+use ether_ros_protocol::{Command, MAX_FRAME_LEN};
 use ether_ros_sim::network::Network;
-use ether_ros_wire::{Command, MAX_FRAME_LEN};
 use pyo3::exceptions::{PyException, PyValueError};
 use pyo3::prelude::*;
 use pyo3::sync::PyOnceLock;
@@ -29,16 +29,19 @@ use crate::sim_bindings::SimNetwork;
 static ENGINE_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
 static ENGINE_TIMEOUT: PyOnceLock<Py<PyType>> = PyOnceLock::new();
 
+/// A class of `ether_ros.errors` (`Exception` if that module cannot be imported).
+fn errors_class<'py>(py: Python<'py>, name: &str) -> Bound<'py, PyType> {
+    py.import("ether_ros.errors")
+        .and_then(|m| m.getattr(name))
+        .and_then(|c| c.cast_into::<PyType>().map_err(PyErr::from))
+        .unwrap_or_else(|_| py.get_type::<PyException>())
+}
+
 /// `EngineError` subclasses `ether_ros.errors.LinkError` (so the CLI reports it as a one-line
-/// user error); `Exception` if that module cannot be imported.
+/// user error).
 fn engine_error(py: Python<'_>) -> &Bound<'_, PyType> {
     ENGINE_ERROR
         .get_or_init(py, || {
-            let base = py
-                .import("ether_ros.errors")
-                .and_then(|m| m.getattr("LinkError"))
-                .and_then(|c| c.cast_into::<PyType>().map_err(PyErr::from))
-                .unwrap_or_else(|_| py.get_type::<PyException>());
             PyErr::new_type(
                 py,
                 c"ether_ros._native.EngineError",
@@ -46,7 +49,7 @@ fn engine_error(py: Python<'_>) -> &Bound<'_, PyType> {
                     c"The engine cannot do what was asked: link failure, wrong state, or the \
                         real-time setup was refused.",
                 ),
-                Some(&base),
+                Some(&errors_class(py, "LinkError")),
                 None,
             )
             .expect("creating EngineError")
@@ -54,29 +57,79 @@ fn engine_error(py: Python<'_>) -> &Bound<'_, PyType> {
         .bind(py)
 }
 
+/// `EngineTimeout` is an `EngineError` and an `ether_ros.errors.FrameTimeout`: no reply to a
+/// frame within its retries, with the frame's commands, the attempts and the wait as data.
 fn engine_timeout(py: Python<'_>) -> &Bound<'_, PyType> {
     ENGINE_TIMEOUT
         .get_or_init(py, || {
-            PyErr::new_type(
-                py,
-                c"ether_ros._native.EngineTimeout",
-                Some(c"No reply to an acyclic frame within its retries."),
-                Some(engine_error(py)),
-                None,
-            )
-            .expect("creating EngineTimeout")
+            let attrs = PyDict::new(py);
+            let made = attrs
+                .set_item("__module__", "ether_ros._native")
+                .and_then(|_| {
+                    attrs.set_item(
+                        "__doc__",
+                        "No reply to an acyclic frame within its retries.",
+                    )
+                })
+                .and_then(|_| py.import("builtins"))
+                .and_then(|b| b.getattr("type"))
+                .and_then(|t| {
+                    let bases = PyTuple::new(
+                        py,
+                        [engine_error(py).clone(), errors_class(py, "FrameTimeout")],
+                    )?;
+                    t.call1(("EngineTimeout", bases, attrs))
+                })
+                .and_then(|c| c.cast_into::<PyType>().map_err(PyErr::from));
+            made.expect("creating EngineTimeout").unbind()
         })
         .bind(py)
 }
 
+/// The engine's error as the Python exception of its kind, its data as attributes.
 fn to_py(py: Python<'_>, e: Error) -> PyErr {
-    match e {
-        Error::Invalid(m) => PyValueError::new_err(m),
-        Error::Timeout(m) => PyErr::from_type(engine_timeout(py).clone(), m),
-        Error::Link(m) | Error::State(m) | Error::Realtime(m) => {
-            PyErr::from_type(engine_error(py).clone(), m)
+    let text = e.to_string();
+    let (err, attrs): (PyErr, Vec<(&str, Py<PyAny>)>) = match e {
+        Error::Invalid(m) => (PyValueError::new_err(m), vec![]),
+        Error::Timeout {
+            link,
+            commands,
+            attempts,
+            timeout_us,
+        } => {
+            let attrs = (|| -> PyResult<Vec<(&str, Py<PyAny>)>> {
+                Ok(vec![
+                    ("link", link.into_pyobject(py)?.into_any().unbind()),
+                    ("commands", PyTuple::new(py, commands)?.into_any().unbind()),
+                    ("attempts", attempts.into_pyobject(py)?.into_any().unbind()),
+                    (
+                        "timeout_us",
+                        timeout_us.into_pyobject(py)?.into_any().unbind(),
+                    ),
+                ])
+            })()
+            .unwrap_or_default();
+            (PyErr::from_type(engine_timeout(py).clone(), text), attrs)
         }
+        Error::Link { errno, .. }
+        | Error::Realtime(ether_ros_engine::rt::SetupError { errno, .. }) => {
+            let errno = errno
+                .into_pyobject(py)
+                .map(|v| v.into_any().unbind())
+                .unwrap_or_else(|_| py.None());
+            (
+                PyErr::from_type(engine_error(py).clone(), text),
+                vec![("errno", errno)],
+            )
+        }
+        Error::State(_) => (PyErr::from_type(engine_error(py).clone(), text), vec![]),
+    };
+    let value = err.value(py);
+    for (name, v) in attrs {
+        // Setting an attribute on a fresh exception cannot fail short of memory exhaustion.
+        let _ = value.setattr(name, v);
     }
+    err
 }
 
 // ----- plan dict ---------------------------------------------------------------------------
@@ -292,14 +345,15 @@ fn choice<T: Copy>(
         })
 }
 
-const MODES: [(&str, Mode); 6] = [
-    ("pp", Mode::ProfilePosition),
-    ("pv", Mode::ProfileVelocity),
-    ("hm", Mode::Homing),
-    ("csp", Mode::CyclicPosition),
-    ("csv", Mode::CyclicVelocity),
-    ("cst", Mode::CyclicTorque),
-];
+/// The modes by short name (the protocol crate's names and codes).
+fn modes() -> [(&'static str, Mode); 6] {
+    Mode::ALL.map(|m| (m.name(), m))
+}
+
+/// "pp, pv, hm, csp, csv, cst".
+fn mode_names() -> String {
+    Mode::ALL.map(|m| m.name()).join(", ")
+}
 
 /// `plan['axes']`: CiA 402 axes (docs/engine.md, "The axis stage").
 fn parse_axes(d: &Bound<'_, PyDict>) -> PyResult<Vec<AxisPlan>> {
@@ -340,7 +394,7 @@ fn parse_axes(d: &Bound<'_, PyDict>) -> PyResult<Vec<AxisPlan>> {
         axes.push(AxisPlan {
             name: req(&a, &path, "name", "a str")?,
             map,
-            mode: choice(&a, &path, "mode", &MODES)?,
+            mode: choice(&a, &path, "mode", &modes())?,
             position_scale: opt(&a, &path, "position_scale", num, 1.0)?,
             position_offset: opt(&a, &path, "position_offset", num, 0.0)?,
             velocity_scale: opt(&a, &path, "velocity_scale", num, 1.0)?,
@@ -350,6 +404,28 @@ fn parse_axes(d: &Bound<'_, PyDict>) -> PyResult<Vec<AxisPlan>> {
                 position_max: opt(&a, &path, "position_max", num, f64::INFINITY)?,
                 velocity_max: opt(&a, &path, "velocity_max", num, f64::INFINITY)?,
                 torque_max: opt(&a, &path, "torque_max", num, f64::INFINITY)?,
+            },
+            deceleration: opt(&a, &path, "deceleration", num, f64::INFINITY)?,
+            mode_change_velocity: match a.get_item("mode_change_velocity")? {
+                None => ModeChangeVelocity::Actual,
+                Some(_) => choice(
+                    &a,
+                    &path,
+                    "mode_change_velocity",
+                    &[
+                        ("actual", ModeChangeVelocity::Actual),
+                        ("zero", ModeChangeVelocity::Zero),
+                    ],
+                )?,
+            },
+            restart: match a.get_item("restart")? {
+                None => Restart::Manual,
+                Some(_) => choice(
+                    &a,
+                    &path,
+                    "restart",
+                    &[("manual", Restart::Manual), ("auto", Restart::Auto)],
+                )?,
             },
             following_error_window: opt(&a, &path, "following_error_window", num, 0.0)?,
             on_stop: choice(
@@ -387,16 +463,27 @@ fn parse_axes(d: &Bound<'_, PyDict>) -> PyResult<Vec<AxisPlan>> {
     Ok(axes)
 }
 
+/// A trajectory point as Python gives it: (t_ns, position, velocity).
+type PointTuple = (i64, f64, f64);
+
+fn setpoint_kind(kind: &str) -> PyResult<SetpointKind> {
+    match kind {
+        "position" => Ok(SetpointKind::Position),
+        "velocity" => Ok(SetpointKind::Velocity),
+        "torque" => Ok(SetpointKind::Torque),
+        _ => Err(PyValueError::new_err(format!(
+            "setpoint kind '{kind}': expected position, velocity or torque"
+        ))),
+    }
+}
+
 fn axis_status_dict<'py>(py: Python<'py>, s: &AxisStatus) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     let state = DriveState::NAMES
         .get(s.state as usize)
         .copied()
         .unwrap_or("not_ready_to_switch_on");
-    let mode = MODES
-        .iter()
-        .find(|(_, m)| *m as i8 == s.mode_display)
-        .map(|(n, _)| *n);
+    let mode = Mode::from_code(s.mode_display).map(Mode::name);
     d.set_item("cycle", s.cycle)?;
     d.set_item("state", state)?;
     d.set_item("statusword", s.statusword)?;
@@ -412,6 +499,13 @@ fn axis_status_dict<'py>(py: Python<'py>, s: &AxisStatus) -> PyResult<Bound<'py,
         ("following_error_exceeded", status_flags::FOLLOWING_ERROR),
         ("retries_exhausted", status_flags::RETRIES_EXHAUSTED),
         ("halted", status_flags::HALTED),
+        ("outside_limits", status_flags::OUTSIDE_LIMITS),
+        ("restart_blocked", status_flags::RESTART_BLOCKED),
+        ("limit_active", status_flags::LIMIT_ACTIVE),
+        ("idle", status_flags::IDLE),
+        ("homing_attained", status_flags::HOMING_ATTAINED),
+        ("homing_error", status_flags::HOMING_ERROR),
+        ("homing_active", status_flags::HOMING_ACTIVE),
     ] {
         d.set_item(name, s.flags & bit != 0)?;
     }
@@ -427,6 +521,9 @@ fn axis_status_dict<'py>(py: Python<'py>, s: &AxisStatus) -> PyResult<Bound<'py,
     d.set_item("torque", s.torque)?;
     d.set_item("following_error", s.following_error)?;
     d.set_item("target_position", s.target_position)?;
+    d.set_item("desired_velocity", s.desired_velocity)?;
+    d.set_item("target_velocity", s.target_velocity)?;
+    d.set_item("target_torque", s.target_torque)?;
     d.set_item("position_clamps", s.position_clamps)?;
     d.set_item("velocity_clamps", s.velocity_clamps)?;
     d.set_item("torque_clamps", s.torque_clamps)?;
@@ -735,27 +832,58 @@ impl PyEngine {
     /// Command a mode of operation by name: pp, pv, hm, csp, csv, cst.
     fn axis_set_mode(&self, py: Python<'_>, axis: usize, mode: &str) -> PyResult<()> {
         let m = Mode::from_name(mode).ok_or_else(|| {
-            PyValueError::new_err(format!(
-                "mode '{mode}': expected one of pp, pv, hm, csp, csv, cst"
-            ))
+            PyValueError::new_err(format!("mode '{mode}': expected one of {}", mode_names()))
         })?;
         self.inner.axis_set_mode(axis, m).map_err(|e| to_py(py, e))
     }
 
     /// A setpoint in SI units: kind 'position', 'velocity' or 'torque'.
     fn axis_setpoint(&self, py: Python<'_>, axis: usize, kind: &str, value: f64) -> PyResult<()> {
-        let k = match kind {
-            "position" => SetpointKind::Position,
-            "velocity" => SetpointKind::Velocity,
-            "torque" => SetpointKind::Torque,
-            _ => {
-                return Err(PyValueError::new_err(format!(
-                    "setpoint kind '{kind}': expected position, velocity or torque"
-                )))
-            }
-        };
+        let k = setpoint_kind(kind)?;
         self.inner
             .axis_setpoint(axis, k, value)
+            .map_err(|e| to_py(py, e))
+    }
+
+    /// Setpoints `[(axis, kind, value), ...]` taken over by all axes in the same cycle.
+    fn axis_setpoints(&self, py: Python<'_>, setpoints: Vec<(usize, String, f64)>) -> PyResult<()> {
+        let mut list = Vec::with_capacity(setpoints.len());
+        for (axis, kind, value) in setpoints {
+            list.push((axis, setpoint_kind(&kind)?, value));
+        }
+        self.inner.axis_setpoints(&list).map_err(|e| to_py(py, e))
+    }
+
+    /// Start homing on axis `axis` (in mode hm).
+    fn axis_home(&self, py: Python<'_>, axis: usize) -> PyResult<()> {
+        self.inner.axis_home(axis).map_err(|e| to_py(py, e))
+    }
+
+    /// One trajectory for several axes `[(axis, [(t_ns, position, velocity), ...]), ...]`,
+    /// all started in the same cycle, times from `start_ns` (engine clock).
+    fn axis_follow_many(
+        &self,
+        py: Python<'_>,
+        start_ns: i64,
+        tracks: Vec<(usize, Vec<PointTuple>)>,
+    ) -> PyResult<u64> {
+        let tracks: Vec<(usize, Vec<Point>)> = tracks
+            .into_iter()
+            .map(|(axis, pts)| {
+                let pts = pts
+                    .into_iter()
+                    .map(|(t_ns, position, velocity)| Point {
+                        t_ns,
+                        position,
+                        velocity,
+                    })
+                    .collect();
+                (axis, pts)
+            })
+            .collect();
+        let refs: Vec<(usize, &[Point])> = tracks.iter().map(|(a, p)| (*a, p.as_slice())).collect();
+        self.inner
+            .axis_follow_many(start_ns, &refs)
             .map_err(|e| to_py(py, e))
     }
 
@@ -766,7 +894,7 @@ impl PyEngine {
         axis: usize,
         start_ns: i64,
         points: Vec<(i64, f64, f64)>,
-    ) -> PyResult<()> {
+    ) -> PyResult<u64> {
         let points: Vec<Point> = points
             .into_iter()
             .map(|(t_ns, position, velocity)| Point {

@@ -5,6 +5,7 @@ use pyo3::prelude::*;
 
 mod command_bindings;
 mod engine_bindings;
+mod protocol_bindings;
 mod sim_bindings;
 
 #[pymodule]
@@ -13,5 +14,6 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     sim_bindings::register(m)?;
     engine_bindings::register(m)?;
     command_bindings::register(m)?;
+    protocol_bindings::register(m)?;
     Ok(())
 }

@@ -37,6 +37,7 @@ use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList};
 
 use ether_ros_engine::LinkKind;
+use ether_ros_protocol::{reg, Command};
 use ether_ros_sim::chip::EscChip;
 use ether_ros_sim::esc::Esc;
 use ether_ros_sim::faults::Rng;
@@ -45,7 +46,6 @@ use ether_ros_sim::od::{Access, Entry, Object};
 use ether_ros_sim::pi_mutex::PiGuard;
 use ether_ros_sim::runner::{Runner, RunnerOptions, Timing};
 use ether_ros_sim::{MailboxSpec, Network, SlaveSpec};
-use ether_ros_wire::{reg, Command};
 
 /// Most firmware worker threads `run_on_interface` starts.
 const MAX_FIRMWARE_THREADS: usize = 64;
@@ -588,7 +588,10 @@ impl SimNetwork {
         d.set_item("name", &s.spec.name)?;
         d.set_item("position", pos)?;
         d.set_item("al_state", s.al_state)?;
-        d.set_item("al_state_name", reg::al::name(s.al_state))?;
+        d.set_item(
+            "al_state_name",
+            ether_ros_protocol::al::state_name(s.al_state).unwrap_or("UNKNOWN"),
+        )?;
         d.set_item("al_error", s.al_error)?;
         d.set_item("al_status_code", s.al_code)?;
         d.set_item("station_address", s.station_address())?;

@@ -203,7 +203,11 @@ fn set_realtime(on: bool) -> bool {
         } else {
             let param = libc::sched_param { sched_priority: 0 };
             libc::sched_setscheduler(0, libc::SCHED_OTHER, &param);
-            libc::setpriority(libc::PRIO_PROCESS, libc::gettid() as libc::id_t, DEMOTED_NICE);
+            libc::setpriority(
+                libc::PRIO_PROCESS,
+                libc::gettid() as libc::id_t,
+                DEMOTED_NICE,
+            );
             false
         }
     }
@@ -338,7 +342,9 @@ fn worker(
     stats: Arc<WorkerStats>,
 ) {
     let mut duty = Duty::new(monotonic_ns());
-    stats.realtime.store(duty.realtime as u64, Ordering::Relaxed);
+    stats
+        .realtime
+        .store(duty.realtime as u64, Ordering::Relaxed);
     let mut generation = u64::MAX;
     let mut mine: Vec<SlaveCell> = Vec::new();
     let mut schedule = Schedule::new(0, 0);
@@ -393,7 +399,9 @@ fn worker(
         if duty.check(done) {
             stats.demoted.fetch_add(1, Ordering::Relaxed);
         }
-        stats.realtime.store(duty.realtime as u64, Ordering::Relaxed);
+        stats
+            .realtime
+            .store(duty.realtime as u64, Ordering::Relaxed);
         let wake = schedule
             .wake(last_steps + STEP_GRAIN_NS)
             .unwrap_or(u64::MAX)

@@ -7,7 +7,7 @@
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 
-use ether_ros_wire::{self as wire, reg, Addressing, Command};
+use ether_ros_protocol::{self as wire, reg, Addressing, Command};
 
 use crate::esc::Esc;
 use crate::faults::{Faults, Rng};
@@ -161,10 +161,10 @@ fn changes_addressing(ado: usize, data: &[u8]) -> bool {
     };
     let command = reg::SII_CONTROL as usize + 1;
     let reload = (ado..ado + data.len()).contains(&command)
-        && u16::from(data[command - ado]) << 8 & crate::sii::CMD_RELOAD != 0;
+        && (u16::from(data[command - ado]) << 8) & crate::sii::CMD_MASK == crate::sii::CMD_RELOAD;
     hits(reg::STATION_ADDRESS, 4)
         || hits(reg::DL_CONTROL, 4)
-        || hits(reg::FMMU0, crate::esc::N_FMMU * 16)
+        || hits(reg::FMMU0, crate::esc::N_FMMU * reg::FMMU_LEN as usize)
         || reload
 }
 
@@ -457,9 +457,10 @@ impl Network {
                 d.reset(&mut esc.od);
             }
             esc.set_firmware_latches(self.firmware == FirmwareMode::Threads);
-            if let (Some(&ports), Some(&back)) =
-                (self.walk.open_ports.get(pos), self.walk.port_return.get(pos))
-            {
+            if let (Some(&ports), Some(&back)) = (
+                self.walk.open_ports.get(pos),
+                self.walk.port_return.get(pos),
+            ) {
                 esc.open_ports = ports;
                 esc.port_return_ns = back;
                 esc.update_dl_status();

@@ -17,7 +17,7 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 
 use ether_ros_engine::{Link, LinkKind, LinkOptions, XdpLink};
-use ether_ros_wire as wire;
+use ether_ros_protocol as wire;
 
 use crate::firmware::{available_cpus, Roster, WorkerStats, Workers};
 use crate::network::{monotonic_ns, FirmwareMode, Network};

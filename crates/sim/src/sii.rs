@@ -1,44 +1,19 @@
 //! The SII EEPROM behind a virtual ESC and its register interface (0x0500..=0x050F).
 //!
-//! Register facts (ESC datasheet section II, 0x0502 control/status):
-//! - bit 0 write enable (must be set in the same write as a write command),
-//! - bit 6 read size: 1 = 8 bytes per read (as on the ET1100; SOEM and IgH handle both),
-//! - bit 7 address algorithm: 1 = two address bytes (EEPROM larger than 16 Kbit),
-//! - bits 8..=10 command: 1 read, 2 write, 4 reload (anything else is a command error),
-//! - bit 11 checksum error (of words 0..=6, CRC-8 in word 7), bit 12 device information not
-//!   loaded, bit 13 missing acknowledge (address outside the EEPROM), bit 14 command error
-//!   (invalid command or write without write enable), bit 15 busy.
+//! The register's bits and the CRC-8 of the configuration area are `ether_ros_protocol::sii`'s
+//! (ET1100 datasheet section II, 0x0502). Like the chip, the virtual EEPROM sets bit 13
+//! (`COMMAND_ERROR`) for a read or write past its end and for an invalid command, bit 14
+//! (`WRITE_ERROR`) for a write without write enable, and bits 11 and 12 (`CHECKSUM_ERROR`,
+//! `NOT_LOADED`) when a reload finds the configuration area's checksum wrong.
 //!
 //! A command executes at once; the busy bit stays set for `busy_ns` afterwards so masters that
 //! poll it are exercised (0 by default).
 
-pub const READ_8_BYTES: u16 = 1 << 6;
-pub const TWO_ADDRESS_BYTES: u16 = 1 << 7;
-pub const CMD_READ: u16 = 0x0100;
-pub const CMD_WRITE: u16 = 0x0200;
-pub const CMD_RELOAD: u16 = 0x0400;
-pub const CMD_MASK: u16 = 0x0700;
-pub const ERR_CHECKSUM: u16 = 1 << 11;
-pub const ERR_NOT_LOADED: u16 = 1 << 12;
-pub const ERR_ACK: u16 = 1 << 13;
-pub const ERR_COMMAND: u16 = 1 << 14;
-pub const BUSY: u16 = 1 << 15;
-
-/// CRC-8 of the SII configuration area (polynomial 0x07, initial value 0xFF).
-pub fn checksum(bytes: &[u8]) -> u8 {
-    let mut crc: u8 = 0xff;
-    for &b in bytes {
-        crc ^= b;
-        for _ in 0..8 {
-            crc = if crc & 0x80 != 0 {
-                (crc << 1) ^ 0x07
-            } else {
-                crc << 1
-            };
-        }
-    }
-    crc
-}
+use ether_ros_protocol::sii::{category, word as sii_word};
+pub use ether_ros_protocol::sii::{
+    checksum, BUSY, CHECKSUM_ERROR, CMD_MASK, CMD_READ, CMD_RELOAD, CMD_WRITE, COMMAND_ERROR,
+    ERROR_MASK, NOT_LOADED, READ_8_BYTES, TWO_ADDRESS_BYTES, WRITE_ENABLE, WRITE_ERROR,
+};
 
 /// Word `w` of an SII image (0 when outside).
 pub fn word(image: &[u8], w: usize) -> u16 {
@@ -51,10 +26,10 @@ pub fn word(image: &[u8], w: usize) -> u16 {
 /// The categories of an SII image: (type, data) pairs from word 0x40 on, until the end marker.
 pub fn categories(image: &[u8]) -> Vec<(u16, &[u8])> {
     let mut out = Vec::new();
-    let mut pos = 0x40 * 2;
+    let mut pos = 2 * sii_word::FIRST_CATEGORY as usize;
     while pos + 4 <= image.len() {
         let kind = u16::from_le_bytes([image[pos], image[pos + 1]]);
-        if kind == 0xffff {
+        if kind == category::END {
             break;
         }
         let words = u16::from_le_bytes([image[pos + 2], image[pos + 3]]) as usize;
@@ -80,7 +55,7 @@ pub struct SiiSyncManager {
 pub fn sync_managers(image: &[u8]) -> Vec<SiiSyncManager> {
     let mut v = Vec::new();
     for (kind, data) in categories(image) {
-        if kind == 41 {
+        if kind == category::SYNCM {
             for c in data.chunks_exact(8) {
                 v.push(SiiSyncManager {
                     start: u16::from_le_bytes([c[0], c[1]]),
@@ -158,7 +133,8 @@ impl Sii {
 
     /// The checksum of words 0..=6 matches word 7.
     pub fn checksum_ok(&self) -> bool {
-        self.image.len() >= 16 && checksum(&self.image[..14]) == self.image[14]
+        let covered = sii_word::CHECKSUM_COVERS as usize;
+        self.image.len() >= 16 && checksum(&self.image[..covered]) == self.image[covered]
     }
 
     /// Static bits of the status register for this EEPROM.
@@ -184,7 +160,7 @@ impl Sii {
             0 => return status,
             CMD_READ => {
                 if byte >= self.image.len() {
-                    status |= ERR_ACK;
+                    status |= COMMAND_ERROR;
                 } else {
                     for (i, d) in data.iter_mut().enumerate() {
                         *d = self.image.get(byte + i).copied().unwrap_or(0xff);
@@ -192,10 +168,10 @@ impl Sii {
                 }
             }
             CMD_WRITE => {
-                if control & 1 == 0 {
-                    status |= ERR_COMMAND;
+                if control & WRITE_ENABLE == 0 {
+                    status |= WRITE_ERROR;
                 } else if byte + 1 >= self.image.len() {
-                    status |= ERR_ACK;
+                    status |= COMMAND_ERROR;
                 } else {
                     self.image[byte] = data[0];
                     self.image[byte + 1] = data[1];
@@ -203,10 +179,12 @@ impl Sii {
             }
             CMD_RELOAD => {
                 if !self.checksum_ok() {
-                    status |= ERR_CHECKSUM | ERR_NOT_LOADED;
+                    status |= CHECKSUM_ERROR | NOT_LOADED;
                 }
             }
-            _ => status |= ERR_COMMAND,
+            // The datasheet's bit 13 ("missing acknowledge or invalid command"); this model
+            // used to set bit 14, which is the write-enable error.
+            _ => status |= COMMAND_ERROR,
         }
         self.busy_until = now.saturating_add(self.busy_ns);
         status | (control & CMD_MASK)
@@ -218,31 +196,29 @@ mod tests {
     use super::*;
 
     #[test]
-    fn checksum_matches_the_etg_example() {
-        // ETG.2010 example configuration area: PDI control 0x0C80 ... checksum over 14 bytes.
-        let words = [0x0c80u16, 0x6e00, 0x0000, 0x0000, 0x0000, 0x0000, 0x0000];
-        let bytes: Vec<u8> = words.iter().flat_map(|w| w.to_le_bytes()).collect();
-        // Computed independently: CRC-8/0x07/init 0xFF is stable; check self-consistency and
-        // that a one-bit change alters it.
-        let c = checksum(&bytes);
-        let mut b2 = bytes.clone();
-        b2[0] ^= 1;
-        assert_ne!(c, checksum(&b2));
-    }
-
-    #[test]
     fn reads_pad_and_out_of_range_errors() {
         let mut s = Sii::new(vec![1, 2, 3, 4, 5, 6]);
         let mut d = [0u8; 8];
         let st = s.execute(CMD_READ, 1, &mut d, 0);
-        assert_eq!(st & ERR_ACK, 0);
+        assert_eq!(st & COMMAND_ERROR, 0);
         assert_eq!(d, [3, 4, 5, 6, 0xff, 0xff, 0xff, 0xff]);
         let st = s.execute(CMD_READ, 3, &mut d, 0);
-        assert_ne!(st & ERR_ACK, 0);
+        assert_ne!(
+            st & COMMAND_ERROR,
+            0,
+            "past the end: no acknowledge (bit 13)"
+        );
         d[0] = 9;
         d[1] = 8;
-        assert_ne!(s.execute(CMD_WRITE, 0, &mut d, 0) & ERR_COMMAND, 0);
-        assert_eq!(s.execute(CMD_WRITE | 1, 0, &mut d, 0) & 0x7800, 0);
+        assert_ne!(s.execute(CMD_WRITE, 0, &mut d, 0) & WRITE_ERROR, 0);
+        assert_eq!(
+            s.execute(CMD_WRITE | WRITE_ENABLE, 0, &mut d, 0) & ERROR_MASK,
+            0
+        );
         assert_eq!(&s.image[..2], &[9, 8]);
+        // An invalid command (3 is neither read 1, write 2 nor reload 4) is bit 13, not the
+        // write-enable error of bit 14 (ET1100 datasheet section II, 0x0502).
+        let st = s.execute(0x0300, 0, &mut d, 0);
+        assert_eq!(st & ERROR_MASK, COMMAND_ERROR);
     }
 }

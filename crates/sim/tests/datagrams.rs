@@ -3,8 +3,8 @@
 mod common;
 
 use common::*;
+use ether_ros_protocol::{self as wire, Command, FrameBuilder};
 use ether_ros_sim::{Network, SlaveSpec};
-use ether_ros_wire::{self as wire, Command, FrameBuilder};
 
 #[test]
 fn auto_increment_reads_the_addressed_slave_and_every_slave_increments_adp() {

@@ -14,8 +14,8 @@
 mod common;
 
 use common::{assign_addresses, fprd, io_spec, station, xfer};
+use ether_ros_protocol::{self as wire, Command, FrameBuilder};
 use ether_ros_sim::Network;
-use ether_ros_wire::{self as wire, Command, FrameBuilder};
 
 const CYCLE_NS: u64 = 400_000;
 /// DC system time = host time + this (the master's `time_offset_ns`: about 20 years).

@@ -5,9 +5,9 @@
 mod common;
 
 use common::*;
+use ether_ros_protocol::Command;
 use ether_ros_sim::network::FirmwareMode;
 use ether_ros_sim::Network;
-use ether_ros_wire::Command;
 
 /// One slave running the loopback model (output 0x7000:1 → input 0x6000:1), in OP, its
 /// firmware left to a worker.

@@ -7,8 +7,8 @@ mod common;
 use std::time::Instant;
 
 use common::*;
+use ether_ros_protocol::{self as wire, Command, FrameBuilder};
 use ether_ros_sim::Network;
-use ether_ros_wire::{self as wire, Command, FrameBuilder};
 
 #[test]
 #[ignore]
@@ -169,11 +169,20 @@ fn frame_path_cost_for_1024_slaves() {
             assert!(net.process_frame(&mut buf[..n]));
         }
         let us = t.elapsed().as_secs_f64() / frames as f64 * 1e6;
-        println!("{what}: {us:.1} µs per frame ({:.0} ns per slave)", us * 1e3 / N as f64);
+        println!(
+            "{what}: {us:.1} µs per frame ({:.0} ns per slave)",
+            us * 1e3 / N as f64
+        );
     };
     time(&mut net, "FRMW 0x0910 (DC sync, every slave)", &|b| {
-        b.push(Command::Frmw, 1, wire::fixed_address(station(0), 0x0910), None, 8)
-            .unwrap();
+        b.push(
+            Command::Frmw,
+            1,
+            wire::fixed_address(station(0), 0x0910),
+            None,
+            8,
+        )
+        .unwrap();
     });
     time(&mut net, "LRW of 38 slaves", &|b| {
         b.push(Command::Lrw, 1, 0x1_0000, None, 38 * 6).unwrap();

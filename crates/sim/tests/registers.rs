@@ -4,9 +4,9 @@
 mod common;
 
 use common::*;
+use ether_ros_protocol::Command;
 use ether_ros_sim::chip::EscChip;
 use ether_ros_sim::Network;
-use ether_ros_wire::Command;
 
 fn net_of(chip: EscChip, n: usize, dc: bool) -> Network {
     let mut net = Network::with_manual_clock(1_000_000_000);
@@ -130,11 +130,11 @@ fn dl_status_per_port_on_a_line() {
 #[test]
 fn source_mac_bit_is_set_not_toggled() {
     let mut net = net_of(EscChip::Et1100, 1, true);
-    let mut buf = [0u8; ether_ros_wire::MAX_FRAME_LEN];
+    let mut buf = [0u8; ether_ros_protocol::MAX_FRAME_LEN];
     for mac0 in [0x00u8, 0x02, 0x01, 0x03] {
-        let mut mac = ether_ros_wire::MASTER_MAC;
+        let mut mac = ether_ros_protocol::MASTER_MAC;
         mac[0] = mac0;
-        let mut b = ether_ros_wire::FrameBuilder::new(&mut buf, mac).unwrap();
+        let mut b = ether_ros_protocol::FrameBuilder::new(&mut buf, mac).unwrap();
         b.push(Command::Brd, 1, 0, Some(&[0, 0]), 0).unwrap();
         let n = b.finish();
         assert!(net.process_frame(&mut buf[..n]));

@@ -7,10 +7,10 @@
 mod common;
 
 use common::*;
+use ether_ros_protocol::{self as wire, Command, FrameBuilder};
 use ether_ros_sim::faults::Rng;
 use ether_ros_sim::network::FirmwareMode;
 use ether_ros_sim::Network;
-use ether_ros_wire::{self as wire, Command, FrameBuilder};
 
 const SLAVES: usize = 12;
 

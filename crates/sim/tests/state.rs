@@ -3,8 +3,8 @@
 mod common;
 
 use common::*;
+use ether_ros_protocol::{self as wire, Command, FrameBuilder};
 use ether_ros_sim::faults::Rng;
-use ether_ros_wire::{self as wire, Command, FrameBuilder};
 
 #[test]
 fn invalid_transitions_set_the_error_flag_until_acknowledged() {

@@ -13,9 +13,9 @@
 mod common;
 
 use common::*;
+use ether_ros_protocol::{self as wire, Command};
 use ether_ros_sim::chip::EscChip;
 use ether_ros_sim::Network;
-use ether_ros_wire::{self as wire, Command};
 
 /// Where a slave's port 0 is connected: (parent index, parent's port).
 type Upstream = Option<(usize, u8)>;

@@ -14,6 +14,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from ether_ros._native.protocol import format_address
 from ether_ros.master.link import add_link_argument
 
 Handler = Callable[[Any, argparse.Namespace], Any]
@@ -141,7 +142,7 @@ def cmd_pdos(ins: Any, args: argparse.Namespace) -> Any:
                 print(f'  {kind} 0x{pdo["index"]:04X} "{pdo["name"]}"')
                 for e in pdo["entries"]:
                     print(
-                        f"    0x{e['index']:04X}:{e['subindex']:02X}, {e['bit_length']} bit, "
+                        f"    {format_address(e['index'], e['subindex'])}, {e['bit_length']} bit, "
                         f'{e["type"] or "-"} "{e["name"]}"'
                     )
     return None
@@ -162,7 +163,7 @@ def cmd_sdos(ins: Any, args: argparse.Namespace) -> Any:
             print(f'SDO 0x{obj["index"]:04X} {obj["object_code"]} "{obj["name"]}"')
             for e in obj["entries"]:
                 print(
-                    f"  0x{obj['index']:04X}:{e['subindex']:02X}, {e['access']}, {e['type']}, "
+                    f"  {format_address(obj['index'], e['subindex'])}, {e['access']}, {e['type']}, "
                     f'{e["bit_length"]} bit, "{e["name"]}"'
                 )
     return None
@@ -196,7 +197,7 @@ def cmd_download(ins: Any, args: argparse.Namespace) -> Any:
     if args.json:
         return entry
     name = f" {ref.name}" if ref.name else ""
-    print(f"0x{ref.index:04X}:{ref.subindex:02X}{name} <- {args.value} ({data.hex(' ')})")
+    print(f"{format_address(ref.index, ref.subindex)}{name} <- {args.value} ({data.hex(' ')})")
     return None
 
 

@@ -24,6 +24,7 @@ from pydantic import (
     model_validator,
 )
 
+from ether_ros._native.protocol import format_address
 from ether_ros.config import cia402
 from ether_ros.config import types as dt
 from ether_ros.config.esi import EsiDevice, esi_files, load_esi
@@ -185,6 +186,19 @@ class AxisConfig(_Model):
     velocity_limit: float = math.inf
     torque_limit: float = math.inf
     following_error_window: float = 0.0
+    # SI/s²: the quiet stop a mode change or an enable starts with, and the braking before the
+    # position limits in csv/pv/cst (inf: at once, cut at the limit itself).
+    deceleration: float = math.inf
+    # The velocity a mode change's quiet stop starts from: the actual one, or zero.
+    mode_change_velocity: Literal["actual", "zero"] = "actual"
+    # manual: after a panic, watchdog stop or fault the axis waits for an explicit enable;
+    # auto: it goes back to Operation Enabled by itself (never outside its position limits).
+    restart: Literal["manual", "auto"] = "manual"
+    # pp/pv: the drive's profile (0x6081 velocity, 0x6083 acceleration, 0x6084 deceleration) in
+    # SI, written in PREOP when given (else the drive keeps its own).
+    profile_velocity: float | None = None
+    profile_acceleration: float | None = None
+    profile_deceleration: float | None = None
     on_stop: Literal["quick_stop", "disable"] = "quick_stop"
     fault_reset: Literal["auto", "manual"] = "auto"
     fault_retries: int = Field(default=3, ge=0, le=100)
@@ -439,7 +453,13 @@ def _schema_error(exc: ValidationError, data: Any, smap: SourceMap) -> ConfigErr
     show = first["type"] != "missing"
     err = smap.error(tuple(path), msg, first.get("input"), show_value=show)
     if len(errors) > 1:
-        return ConfigError(f"{err} [and {len(errors) - 1} more error(s)]")
+        return ConfigError(
+            f"{err} [and {len(errors) - 1} more error(s)]",
+            file=err.file,
+            line=err.line,
+            field=err.field,
+            value=err.value,
+        )
     return err
 
 
@@ -701,11 +721,12 @@ def _resolve_slave(
                       f"{joints[axis.name]})", axis.name)  # fmt: skip
         joints[axis.name] = s.name
     s._axis_specs = cia402.resolve_axes(dev, layout, s.name, s.axes, at, err)
-    # An axis whose 0x6060 is not in the PDOs gets its mode once, in PREOP.
+    # What the drives get once, in PREOP (an entry of the configuration's own wins): the mode
+    # of an axis whose 0x6060 is not in the PDOs, the software position limits (0x607D).
     given = {(i.index, i.subindex) for i in s.sdo_init}
-    for index, code in cia402.mode_sdo_inits(s._axis_specs):
-        if (index, 0) not in given:
-            s.sdo_init.append(SdoInit(index=index, subindex=0, value=code, type="int8"))
+    for index, subindex, raw, type_name in cia402.axis_sdo_inits(s._axis_specs, dev):
+        if (index, subindex) not in given:
+            s.sdo_init.append(SdoInit(index=index, subindex=subindex, value=raw, type=type_name))
 
     safe = bytearray(layout.output_bytes)
     for var_name, value in s.safe_outputs.items():
@@ -737,12 +758,13 @@ def _resolve_slave(
             t = dt.BY_CODE.get(entry.data_type) or dt.OCTET_STRING
             bits = entry.bit_length
         else:
+            address = format_address(init.index, init.subindex)
             raise err((*path, "index"),
-                      f"object {init.index:#06x}:{init.subindex:02x} is not in the {dev.type_name}"
-                      " dictionary; give its type", f"{init.index:#06x}")  # fmt: skip
+                      f"object {address} is not in the {dev.type_name} dictionary; give its type",
+                      f"{init.index:#06x}")  # fmt: skip
         if entry is not None and entry.access == "ro":
-            raise err((*path, "index"),
-                      f"object {init.index:#06x}:{init.subindex:02x} ({entry.name}) is read-only",
+            address = format_address(init.index, init.subindex)
+            raise err((*path, "index"), f"object {address} ({entry.name}) is read-only",
                       f"{init.index:#06x}")  # fmt: skip
         if dev.objects and entry is None and dev.od_object(init.index) is None:
             raise err((*path, "index"), f"no object {init.index:#06x} in the {dev.type_name}"

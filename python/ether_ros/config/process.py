@@ -18,10 +18,10 @@ Example::
 
 from __future__ import annotations
 
-import re
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
+from ether_ros._native.protocol import format_address, parse_address
 from ether_ros.config import types as dt
 from ether_ros.config.esi import EsiDevice, Pdo
 from ether_ros.errors import ConfigError, EtherRosError
@@ -46,8 +46,8 @@ class ProcessVariable:
 
     @property
     def key(self) -> str:
-        """``0xIIII:SS``: the name that is always unique."""
-        return f"{self.index:#06x}:{self.subindex:02x}"
+        """``0x7000:01``: the name that is always unique (the canonical object address)."""
+        return format_address(self.index, self.subindex)
 
     @property
     def dtype(self) -> dt.DataType:
@@ -86,9 +86,6 @@ class ProcessVariable:
         return dt.from_raw(t, raw, self.bit_length)
 
 
-_KEY = re.compile(r"^0x([0-9a-fA-F]{1,4}):(?:0x)?([0-9a-fA-F]{1,2})$")
-
-
 class ProcessLayout:
     """The output and input variables of one slave for a given PDO assignment."""
 
@@ -101,10 +98,10 @@ class ProcessLayout:
         self.input_bits = input_bits
         self.rx_pdos = tuple(rx_pdos)
         self.tx_pdos = tuple(tx_pdos)
-        self._by_key: dict[str, ProcessVariable] = {}
+        self._by_key: dict[tuple[int, int], ProcessVariable] = {}
         self._by_name: dict[str, list[ProcessVariable]] = {}
         for v in (*self.outputs, *self.inputs):
-            self._by_key[v.key] = v
+            self._by_key[(v.index, v.subindex)] = v
             self._by_name.setdefault(v.name, []).append(v)
 
     @property
@@ -134,10 +131,14 @@ class ProcessLayout:
         return cls(outs, ins, obits, ibits, rx, tx)
 
     def has(self, name: str) -> bool:
-        return name in self._by_name or self._lookup_key(name) is not None
+        try:
+            return name in self._by_name or self._lookup_key(name) is not None
+        except ProcessValueError:
+            return False
 
     def variable(self, name: str) -> ProcessVariable:
-        """A variable by entry name (``hip_angle``) or by ``0xIIII:SS``.
+        """A variable by entry name (``hip_angle``) or by object address (``0x7000:01``,
+        ``7000:1``: hexadecimal, the grammar of ``ether_ros._native.protocol.parse_address``).
 
         Raises :class:`ProcessValueError` for unknown or ambiguous names."""
         found = self._by_name.get(name)
@@ -152,10 +153,11 @@ class ProcessLayout:
         raise ProcessValueError(f"no process variable {name!r}")
 
     def _lookup_key(self, name: str) -> ProcessVariable | None:
-        m = _KEY.match(name.strip())
-        if not m:
-            return None
-        return self._by_key.get(f"{int(m.group(1), 16):#06x}:{int(m.group(2), 16):02x}")
+        try:
+            address = parse_address(name)
+        except ValueError as exc:
+            raise ProcessValueError(str(exc)) from None
+        return None if address is None else self._by_key.get(address)
 
     # -- codec on area buffers ---------------------------------------------------------------
 

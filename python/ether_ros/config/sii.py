@@ -14,33 +14,18 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass, field
 
+from ether_ros._native.protocol import sii_category, sii_checksum, sii_word
 from ether_ros.config.esi import EsiDevice, Pdo
 from ether_ros.errors import ConfigError
 
-CAT_STRINGS = 10
-CAT_DATATYPES = 20
-CAT_GENERAL = 30
-CAT_FMMU = 40
-CAT_SYNCM = 41
-CAT_TXPDO = 50
-CAT_RXPDO = 51
-CAT_DC = 60
-CAT_END = 0xFFFF
+# Category types and header word addresses are the protocol crate's (ETG.2010); in bytes:
+HEADER_BYTES = 2 * sii_word.FIRST_CATEGORY
+CHECKSUMMED = sii_word.CHECKSUM_COVERS  # bytes of words 0..6 the CRC-8 in word 7 covers
 
 SM_TYPE = {"": 0, "MBoxOut": 1, "MBoxIn": 2, "Outputs": 3, "Inputs": 4}
 SM_ROLE = {v: k for k, v in SM_TYPE.items()}
 FMMU_TYPE = {"": 0, "Outputs": 1, "Inputs": 2, "MBoxState": 3}
 FMMU_ROLE = {v: k for k, v in FMMU_TYPE.items()}
-
-
-def crc8(data: bytes) -> int:
-    """CRC-8 of the SII configuration area: polynomial x^8+x^2+x+1 (0x07), initial 0xFF."""
-    crc = 0xFF
-    for byte in data:
-        crc ^= byte
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x07) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
-    return crc
 
 
 # --------------------------------------------------------------------------------------------
@@ -209,23 +194,31 @@ def build_sii(device: EsiDevice, alias: int = 0, serial: int = 0) -> bytes:
     if not 0 <= serial <= 0xFFFFFFFF:
         raise ConfigError(f"SII serial must be 0..0xFFFFFFFF, got {serial}")
     strings = _Strings()
-    head = bytearray(128)
-    config = device.eeprom.config_data[:14].ljust(14, b"\0")
-    head[0:14] = config
-    struct.pack_into("<H", head, 8, alias)
-    head[14] = crc8(bytes(head[0:14]))
-    head[15] = 0
+    head = bytearray(HEADER_BYTES)
+    config = device.eeprom.config_data[:CHECKSUMMED].ljust(CHECKSUMMED, b"\0")
+    head[0:CHECKSUMMED] = config
+    struct.pack_into("<H", head, 2 * sii_word.CONFIGURED_ALIAS, alias)
+    head[CHECKSUMMED] = sii_checksum(bytes(head[0:CHECKSUMMED]))
+    head[CHECKSUMMED + 1] = 0
     struct.pack_into(
-        "<IIII", head, 0x10, device.vendor_id, device.product_code, device.revision, serial
+        "<IIII",
+        head,
+        2 * sii_word.VENDOR_ID,
+        device.vendor_id,
+        device.product_code,
+        device.revision,
+        serial,
     )
     mbx_out, mbx_in = device.sm("MBoxOut"), device.sm("MBoxIn")
     if device.mailbox is not None and mbx_out is not None and mbx_in is not None:
         mbx = (mbx_out.start, mbx_out.default_size, mbx_in.start, mbx_in.default_size)
-        struct.pack_into("<HHHH", head, 0x28, *mbx)  # bootstrap mailbox: same as standard
-        struct.pack_into("<HHHH", head, 0x30, *mbx)
-        struct.pack_into("<H", head, 0x38, device.mailbox.protocols)
+        struct.pack_into(
+            "<HHHH", head, 2 * sii_word.BOOT_RX_MBX_OFFSET, *mbx
+        )  # bootstrap mailbox: same as standard
+        struct.pack_into("<HHHH", head, 2 * sii_word.STD_RX_MBX_OFFSET, *mbx)
+        struct.pack_into("<H", head, 2 * sii_word.MBX_PROTOCOL, device.mailbox.protocols)
     size_kbit = device.eeprom.byte_size * 8 // 1024
-    struct.pack_into("<HH", head, 0x7C, max(size_kbit - 1, 0), 1)
+    struct.pack_into("<HH", head, 2 * sii_word.SIZE, max(size_kbit - 1, 0), 1)
 
     # Categories. Strings first: the others reference them, so build them before encoding.
     mb = device.mailbox
@@ -283,19 +276,19 @@ def build_sii(device: EsiDevice, alias: int = 0, serial: int = 0) -> bytes:
             strings.index(m.description),
         )
     body = bytearray()
-    body += _category(CAT_STRINGS, strings.encode())
-    body += _category(CAT_GENERAL, bytes(general))
+    body += _category(sii_category.STRINGS, strings.encode())
+    body += _category(sii_category.GENERAL, bytes(general))
     if fmmu:
-        body += _category(CAT_FMMU, fmmu)
+        body += _category(sii_category.FMMU, fmmu)
     if syncm:
-        body += _category(CAT_SYNCM, bytes(syncm))
+        body += _category(sii_category.SYNCM, bytes(syncm))
     if tx:
-        body += _category(CAT_TXPDO, tx)
+        body += _category(sii_category.TXPDO, tx)
     if rx:
-        body += _category(CAT_RXPDO, rx)
+        body += _category(sii_category.RXPDO, rx)
     if dc:
-        body += _category(CAT_DC, bytes(dc))
-    body += struct.pack("<H", CAT_END)
+        body += _category(sii_category.DC, bytes(dc))
+    body += struct.pack("<H", sii_category.END)
     image = bytes(head) + bytes(body)
     if len(image) > device.eeprom.byte_size:
         raise ConfigError(
@@ -319,15 +312,17 @@ def parse_sii(data: bytes) -> SiiInfo:
     A category list that runs past the data ends the decoding (a master may read only the
     first part of the EEPROM); malformed categories raise :class:`SiiFormatError`.
     """
-    if len(data) < 128:
-        raise SiiFormatError(f"SII image too short: {len(data)} bytes, the header alone is 128")
+    if len(data) < HEADER_BYTES:
+        raise SiiFormatError(
+            f"SII image too short: {len(data)} bytes, the header alone is {HEADER_BYTES}"
+        )
     w = struct.unpack_from("<8H", data, 0)
-    vendor, product, revision, serial = struct.unpack_from("<IIII", data, 0x10)
-    boot = struct.unpack_from("<HHHH", data, 0x28)
-    std = struct.unpack_from("<HHHH", data, 0x30)
-    (protocols,) = struct.unpack_from("<H", data, 0x38)
-    size_word, version = struct.unpack_from("<HH", data, 0x7C)
-    checksum = w[7] & 0xFF
+    vendor, product, revision, serial = struct.unpack_from("<IIII", data, 2 * sii_word.VENDOR_ID)
+    boot = struct.unpack_from("<HHHH", data, 2 * sii_word.BOOT_RX_MBX_OFFSET)
+    std = struct.unpack_from("<HHHH", data, 2 * sii_word.STD_RX_MBX_OFFSET)
+    (protocols,) = struct.unpack_from("<H", data, 2 * sii_word.MBX_PROTOCOL)
+    size_word, version = struct.unpack_from("<HH", data, 2 * sii_word.SIZE)
+    checksum = w[sii_word.CHECKSUM] & 0xFF
     strings: list[str] = []
     general_raw: bytes | None = None
     fmmus: tuple[str, ...] = ()
@@ -338,10 +333,10 @@ def parse_sii(data: bytes) -> SiiInfo:
     cats: list[int] = []
     pdo_raw: list[tuple[int, bytes]] = []
     dc_raw = b""
-    pos = 128
+    pos = HEADER_BYTES
     while pos + 2 <= len(data):
         (ctype,) = struct.unpack_from("<H", data, pos)
-        if ctype == CAT_END:
+        if ctype == sii_category.END:
             break
         if pos + 4 > len(data):
             break
@@ -351,15 +346,15 @@ def parse_sii(data: bytes) -> SiiInfo:
             break
         body = data[start:end]
         cats.append(ctype)
-        if ctype == CAT_STRINGS:
+        if ctype == sii_category.STRINGS:
             strings = _parse_strings(body, pos)
-        elif ctype == CAT_GENERAL:
+        elif ctype == sii_category.GENERAL:
             if len(body) < 18:
                 raise SiiFormatError(f"SII GENERAL category at byte {pos} is {len(body)} bytes")
             general_raw = body
-        elif ctype == CAT_FMMU:
+        elif ctype == sii_category.FMMU:
             fmmus = tuple(FMMU_ROLE.get(b, "") for b in body if b != 0xFF)
-        elif ctype == CAT_SYNCM:
+        elif ctype == sii_category.SYNCM:
             for off in range(0, len(body) - 7, 8):
                 start_addr, length, ctrl, _status, enable, smtype = struct.unpack_from(
                     "<HHBBBB", body, off
@@ -367,9 +362,9 @@ def parse_sii(data: bytes) -> SiiInfo:
                 sms.append(
                     SiiSyncManager(start_addr, length, ctrl, enable, SM_ROLE.get(smtype, ""))
                 )
-        elif ctype in (CAT_TXPDO, CAT_RXPDO):
+        elif ctype in (sii_category.TXPDO, sii_category.RXPDO):
             pdo_raw.append((ctype, body))
-        elif ctype == CAT_DC:
+        elif ctype == sii_category.DC:
             dc_raw = body
         pos = end
 
@@ -377,7 +372,7 @@ def parse_sii(data: bytes) -> SiiInfo:
         return strings[i - 1] if 1 <= i <= len(strings) else ""
 
     for ctype, body in pdo_raw:
-        (tx if ctype == CAT_TXPDO else rx).extend(_parse_pdos(body, s))
+        (tx if ctype == sii_category.TXPDO else rx).extend(_parse_pdos(body, s))
     for off in range(0, len(dc_raw) - 23, 24):
         c0, sh0, sh1, f1, aa, f0, ni, di = struct.unpack_from("<IiiHHHBB", dc_raw, off)
         dcs.append(SiiDc(c0, sh0, sh1, f1, aa, f0, s(ni), s(di)))
@@ -397,11 +392,11 @@ def parse_sii(data: bytes) -> SiiInfo:
             physical_ports=struct.unpack_from("<H", g, 16)[0],
         )
     return SiiInfo(
-        pdi_control=w[0],
-        pdi_config=w[1],
-        alias=w[4],
+        pdi_control=w[sii_word.PDI_CONTROL],
+        pdi_config=w[sii_word.PDI_CONFIG],
+        alias=w[sii_word.CONFIGURED_ALIAS],
         checksum=checksum,
-        checksum_ok=crc8(data[0:14]) == checksum,
+        checksum_ok=sii_checksum(data[0:CHECKSUMMED]) == checksum,
         vendor_id=vendor,
         product_code=product,
         revision=revision,

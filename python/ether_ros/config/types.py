@@ -1,14 +1,19 @@
-"""CoE data types (ETG.1000.6 codes) and the names ESI files use for them.
+"""CoE data types (ETG.1000.6 codes) and the names ESI files use for them, as Python sees them.
 
-One table serves the ESI parser (type names → codes), the SII builder (codes in PDO entries),
-the process-variable codec (bit length, signedness, range) and the simulator spec.
+The table itself (codes, bit sizes, how values encode, ESI spellings) and the range check of
+integer values are the protocol crate's (``ether_ros._native.protocol``); this module gives
+them Python types. One table serves the ESI parser (type names → codes), the SII builder (codes
+in PDO entries), the process-variable codec (bit length, signedness, range) and the simulator
+spec.
 """
 
 from __future__ import annotations
 
-import re
 import struct
 from dataclasses import dataclass
+
+from ether_ros._native import protocol
+from ether_ros._native.protocol import dtype
 
 
 @dataclass(frozen=True)
@@ -26,135 +31,54 @@ class DataType:
 
     def range(self) -> tuple[int, int] | None:
         """Inclusive value range of an integer type, None for the others."""
-        if self.kind == "int":
-            return -(1 << (self.bit_length - 1)), (1 << (self.bit_length - 1)) - 1
-        if self.kind == "uint":
-            return 0, (1 << self.bit_length) - 1
-        if self.kind == "bool":
-            return 0, 1
+        if self.kind in ("int", "uint", "bool"):
+            return int_range(self, self.bit_length)
         return None
 
 
-BOOL = DataType(0x0001, "bool", 1, "bool")
-INT8 = DataType(0x0002, "int8", 8, "int")
-INT16 = DataType(0x0003, "int16", 16, "int")
-INT32 = DataType(0x0004, "int32", 32, "int")
-UINT8 = DataType(0x0005, "uint8", 8, "uint")
-UINT16 = DataType(0x0006, "uint16", 16, "uint")
-UINT32 = DataType(0x0007, "uint32", 32, "uint")
-REAL32 = DataType(0x0008, "real32", 32, "real")
-STRING = DataType(0x0009, "string", 0, "string")
-OCTET_STRING = DataType(0x000A, "octet_string", 0, "bytes")
-INT24 = DataType(0x0010, "int24", 24, "int")
-REAL64 = DataType(0x0011, "real64", 64, "real")
-INT64 = DataType(0x0015, "int64", 64, "int")
-UINT24 = DataType(0x0016, "uint24", 24, "uint")
-UINT64 = DataType(0x001B, "uint64", 64, "uint")
-UNICODE_STRING = DataType(0x000B, "unicode_string", 0, "bytes")
-# BITARR8/16/32 (ETG.1000.6 0x2D..0x2F): bit arrays, handled as unsigned integers.
-BITARR8 = DataType(0x002D, "bitarr8", 8, "uint")
-BITARR16 = DataType(0x002E, "bitarr16", 16, "uint")
-BITARR32 = DataType(0x002F, "bitarr32", 32, "uint")
-# BIT1..BIT8 (ETG.1000.6 0x30..0x37): unsigned bit fields.
-BITS = {n: DataType(0x002F + n, f"bit{n}", n, "uint") for n in range(1, 9)}
-
-ALL_TYPES: tuple[DataType, ...] = (
-    BOOL,
-    INT8,
-    INT16,
-    INT32,
-    UINT8,
-    UINT16,
-    UINT32,
-    REAL32,
-    STRING,
-    OCTET_STRING,
-    UNICODE_STRING,
-    BITARR8,
-    BITARR16,
-    BITARR32,
-    INT24,
-    REAL64,
-    INT64,
-    UINT24,
-    UINT64,
-    *BITS.values(),
-)
+ALL_TYPES: tuple[DataType, ...] = tuple(DataType(*t) for t in protocol.data_types())
 BY_CODE: dict[int, DataType] = {t.code: t for t in ALL_TYPES}
 BY_NAME: dict[str, DataType] = {t.name: t for t in ALL_TYPES}
 
-# Names used in ESI files (IEC 61131-3 and ETG.1000.6 spellings) → type.
-_ESI_NAMES: dict[str, DataType] = {
-    "BOOL": BOOL,
-    "BOOLEAN": BOOL,
-    "BIT": BITS[1],
-    "SINT": INT8,
-    "INTEGER8": INT8,
-    "INT": INT16,
-    "INTEGER16": INT16,
-    "DINT": INT32,
-    "INTEGER32": INT32,
-    "INT24": INT24,
-    "INTEGER24": INT24,
-    "LINT": INT64,
-    "INTEGER64": INT64,
-    "USINT": UINT8,
-    "BYTE": UINT8,
-    "UNSIGNED8": UINT8,
-    "UINT": UINT16,
-    "WORD": UINT16,
-    "UNSIGNED16": UINT16,
-    "UINT24": UINT24,
-    "UNSIGNED24": UINT24,
-    "UDINT": UINT32,
-    "DWORD": UINT32,
-    "UNSIGNED32": UINT32,
-    "ULINT": UINT64,
-    "LWORD": UINT64,
-    "UNSIGNED64": UINT64,
-    "REAL": REAL32,
-    "REAL32": REAL32,
-    "FLOAT": REAL32,
-    "LREAL": REAL64,
-    "REAL64": REAL64,
-    "DOUBLE": REAL64,
-    "STRING": STRING,
-    "VISIBLE_STRING": STRING,
-    "OCTET_STRING": OCTET_STRING,
-    "UNICODE_STRING": UNICODE_STRING,
-    "BITARR8": BITARR8,
-    "BITARR16": BITARR16,
-    "BITARR32": BITARR32,
-}
-_SIZED = re.compile(
-    r"^(STRING|VISIBLE_STRING|OCTET_STRING|UNICODE_STRING|ARRAY OF BYTE)\s*\(\s*(\d+)\s*\)$"
-)
-# "ARRAY [0..511] OF BYTE", the spelling several vendors use for byte arrays.
-_BYTE_ARRAY = re.compile(r"^ARRAY\s*\[\s*\d+\s*\.\.\s*\d+\s*\]\s*OF\s*(BYTE|USINT|UINT8)$")
-_BITN = re.compile(r"^BIT([1-8])$")
+BOOL = BY_CODE[dtype.BOOL]
+INT8 = BY_CODE[dtype.INT8]
+INT16 = BY_CODE[dtype.INT16]
+INT32 = BY_CODE[dtype.INT32]
+UINT8 = BY_CODE[dtype.UINT8]
+UINT16 = BY_CODE[dtype.UINT16]
+UINT32 = BY_CODE[dtype.UINT32]
+REAL32 = BY_CODE[dtype.REAL32]
+STRING = BY_CODE[dtype.VISIBLE_STRING]
+OCTET_STRING = BY_CODE[dtype.OCTET_STRING]
+UNICODE_STRING = BY_CODE[dtype.UNICODE_STRING]
+INT24 = BY_CODE[dtype.INT24]
+REAL64 = BY_CODE[dtype.REAL64]
+INT64 = BY_CODE[dtype.INT64]
+UINT24 = BY_CODE[dtype.UINT24]
+UINT64 = BY_CODE[dtype.UINT64]
+BITARR8 = BY_CODE[dtype.BITARR8]
+BITARR16 = BY_CODE[dtype.BITARR16]
+BITARR32 = BY_CODE[dtype.BITARR32]
+# BIT1..BIT8: unsigned bit fields.
+BITS = {n: BY_CODE[dtype.BIT1 + n - 1] for n in range(1, 9)}
 
 
 def esi_type(name: str) -> DataType | None:
     """The basic type an ESI type name denotes (``USINT``, ``BIT3``, ``STRING(20)``), or None
     when it is not a basic type (e.g. a record type such as ``DT7000``)."""
-    key = name.strip().upper()
-    if key in _ESI_NAMES:
-        return _ESI_NAMES[key]
-    if m := _BITN.match(key):
-        return BITS[int(m.group(1))]
-    if m := _SIZED.match(key):
-        kind = m.group(1)
-        if kind in ("STRING", "VISIBLE_STRING"):
-            return STRING
-        return UNICODE_STRING if kind == "UNICODE_STRING" else OCTET_STRING
-    if _BYTE_ARRAY.match(key):
-        return OCTET_STRING
-    return None
+    code = protocol.esi_type(name)
+    return None if code is None else BY_CODE[code]
 
 
 def config_type(name: str) -> DataType | None:
     """The type a bus config's ``type:`` names: canonical names (``uint16``) or ESI names."""
-    return BY_NAME.get(name.strip().lower()) or esi_type(name)
+    code = protocol.config_type(name)
+    return None if code is None else BY_CODE[code]
+
+
+def esi_name(dtype_: DataType) -> str:
+    """The ESI name a type is usually written with (``UINT`` for uint16)."""
+    return protocol.esi_type_name(dtype_.code) or dtype_.name.upper()
 
 
 def encode_value(dtype: DataType, value: object, bit_length: int) -> bytes:
@@ -202,34 +126,34 @@ def to_raw(dtype: DataType, value: object, bit_length: int) -> int:
             value = int(value)
         else:
             raise ValueError(f"{dtype.name} needs an integer, got {value!r}")
-    lo, hi = int_range(dtype, bit_length)
-    if not lo <= value <= hi:
-        raise ValueError(f"{value} is out of range for {dtype.name} [{lo}, {hi}]")
-    return value & ((1 << bit_length) - 1)
+    try:
+        return protocol.encode_int(dtype.kind, bit_length, value)
+    except protocol.ValueCheckError as exc:
+        if exc.reason != "out_of_range":
+            raise ValueError(f"{dtype.name} cannot have {bit_length} bits") from None
+        lo, hi = int_range(dtype, bit_length)
+        raise ValueError(f"{value} is out of range for {dtype.name} [{lo}, {hi}]") from None
 
 
 def from_raw(dtype: DataType, raw: int, bit_length: int) -> int | bool:
     """The value of an unsigned bit pattern read from the wire."""
     if dtype.kind == "bool":
         return bool(raw & 1)
-    if dtype.kind == "int" and raw & (1 << (bit_length - 1)):
-        return raw - (1 << bit_length)
-    return raw
+    return protocol.decode_int(dtype.kind, bit_length, raw)
 
 
 def int_range(dtype: DataType, bit_length: int) -> tuple[int, int]:
-    if dtype.kind == "int":
-        return -(1 << (bit_length - 1)), (1 << (bit_length - 1)) - 1
-    if dtype.kind == "bool":
-        return 0, 1
-    return 0, (1 << bit_length) - 1
+    """Inclusive range of an integer (or bool) type at ``bit_length`` bits."""
+    kind = dtype.kind if dtype.kind in ("int", "bool") else "uint"
+    lo, hi = protocol.value_range(kind, bit_length)
+    return int(lo), int(hi)
 
 
 def decode_value(dtype: DataType, data: bytes, bit_length: int) -> object:
     """Inverse of :func:`encode_value`."""
     if dtype.kind in ("bool", "int", "uint"):
         raw = int.from_bytes(data, "little") & ((1 << bit_length) - 1)
-        return from_raw(dtype, raw, bit_length)
+        return from_raw(dtype, raw, bit_length)  # sign extension: the protocol crate's
     if dtype.kind == "real":
         return float(struct.unpack("<f" if bit_length == 32 else "<d", data)[0])
     if dtype.kind == "string":

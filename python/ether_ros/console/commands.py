@@ -31,6 +31,7 @@ import shlex
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
+from ether_ros._native.protocol import format_address
 from ether_ros.config.cia402 import MODES
 from ether_ros.console.workspace import (
     TRAJECTORY_FIELDS,
@@ -479,7 +480,10 @@ def _parse_sdo(args: list[str], ctx: ConsoleContext) -> SdoRead | SdoWrite:
     if (op == "read" and len(args) != 4) or (op == "write" and len(args) != 5):
         raise CommandError(usage)
     slave = _slave(ctx, args[1])
-    address = parse_address(args[2])
+    try:
+        address = parse_address(args[2])
+    except LayoutError as exc:
+        raise CommandError(str(exc)) from None
     if address is None:
         raise CommandError(f"'{args[2]}' is not an object address INDEX:SUB (e.g. 0x8000:01)")
     type_name = args[3].upper()
@@ -490,7 +494,7 @@ def _parse_sdo(args: list[str], ctx: ConsoleContext) -> SdoRead | SdoWrite:
     if op == "read":
         return SdoRead(slave.name, address[0], address[1], type_name)
     lo, hi = type_range(type_name)
-    probe = VariableSpec(f"0x{address[0]:04x}:{address[1]:02x}", type_name, *address, 0, lo, hi)
+    probe = VariableSpec(format_address(*address), type_name, *address, 0, lo, hi)
     try:
         parse_text(args[4], probe)
     except InvalidValue as exc:

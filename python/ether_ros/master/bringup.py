@@ -13,6 +13,7 @@ import logging
 from collections.abc import Sequence
 from typing import Any
 
+from ether_ros._native.protocol import format_address
 from ether_ros.config import types as dt
 from ether_ros.errors import BusError, EtherRosError
 from ether_ros.master.configure import (
@@ -58,7 +59,7 @@ def make_sdo_client(slave: Slave) -> Any:
 def sdo_download(slave: Slave, index: int, subindex: int, data: bytes, why: str) -> None:
     if slave.sdo is None:
         raise BusError(
-            f"{slave}: has no CoE mailbox, cannot write 0x{index:04X}:{subindex} ({why})"
+            f"{slave}: has no CoE mailbox, cannot write {format_address(index, subindex)} ({why})"
         )
     try:
         slave.sdo.download(index, subindex, data)
@@ -76,7 +77,9 @@ def encode_sdo_value(slave: Slave, index: int, subindex: int, value: object,
     if type_name:
         dtype = dt.config_type(type_name)
         if dtype is None:
-            raise BusError(f"{slave}: unknown data type {type_name!r} for 0x{index:04X}:{subindex}")
+            raise BusError(
+                f"{slave}: unknown data type {type_name!r} for {format_address(index, subindex)}"
+            )
         bits = dtype.bit_length
     elif slave.device is not None:
         entry = slave.device.od_entry(index, subindex)
@@ -85,7 +88,7 @@ def encode_sdo_value(slave: Slave, index: int, subindex: int, value: object,
             bits = entry.bit_length
     if dtype is None:
         raise BusError(
-            f"{slave}: the type of 0x{index:04X}:{subindex} is unknown (not in the ESI "
+            f"{slave}: the type of {format_address(index, subindex)} is unknown (not in the ESI "
             "dictionary); give its type"
         )
     if not bits:
@@ -93,7 +96,7 @@ def encode_sdo_value(slave: Slave, index: int, subindex: int, value: object,
     try:
         return dt.encode_value(dtype, value, bits)
     except ValueError as exc:
-        raise BusError(f"{slave}: value for 0x{index:04X}:{subindex}: {exc}") from None
+        raise BusError(f"{slave}: value for {format_address(index, subindex)}: {exc}") from None
 
 
 def configure_preop(dg: DatagramService, slave: Slave) -> None:
@@ -105,7 +108,7 @@ def configure_preop(dg: DatagramService, slave: Slave) -> None:
         data = getattr(item, "data", b"") or encode_sdo_value(
             slave, index, sub, item.value, getattr(item, "type", None)
         )
-        sdo_download(slave, index, sub, data, f"sdo_init 0x{index:04X}:{sub}")
+        sdo_download(slave, index, sub, data, f"sdo_init {format_address(index, sub)}")
     if slave.selection.source == "config":
         write_pdo_assignment(slave)
     area = slave.area

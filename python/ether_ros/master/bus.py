@@ -24,6 +24,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
+from ether_ros._native.protocol import reg
 from ether_ros.config import types as dt
 from ether_ros.config.bus import DEFAULT_GROUP
 from ether_ros.config.cia402 import AxisSpec
@@ -130,6 +131,10 @@ class Bus:
         self.supervisor: Supervisor | None = None
         # Image byte → axis name of the output bytes the engine's axis stage owns (lazily).
         self._axis_owned: dict[int, str] | None = None
+        # Per engine axis index, for this cyclic run: the mode last commanded and the number of
+        # the last trajectory started (shared by every Axis object of the axis).
+        self.axis_modes: dict[int, str] = {}
+        self.axis_trajectories: dict[int, int] = {}
 
     # ---------------------------------------------------------------------------- opening
     @classmethod
@@ -315,6 +320,8 @@ class Bus:
             raise BusError("the bus is closed")
         if self._running:
             return
+        self.axis_modes.clear()
+        self.axis_trajectories.clear()
         with self._acyclic:
             self._reset_and_verify()
             refs = [s.ref for s in self.slaves]
@@ -417,6 +424,31 @@ class Bus:
     def axes(self) -> list[axis_mod.Axis]:
         """Every CiA 402 axis of the bus (docs/cia402.md), in bus order."""
         return [axis_mod.Axis(self, i, spec) for i, spec in enumerate(self._axis_specs())]
+
+    def follow(
+        self,
+        tracks: Mapping[str, Iterable[axis_mod.TrajectoryPoint | tuple[float, ...]]],
+        start_in: float = 0.0,
+    ) -> float:
+        """One trajectory for several axes (by joint name), handed to the engine at once: all
+        of them start it in the same cycle (docs/cia402.md, "Trajectories"). Every axis's
+        points are checked first (all or nothing). Returns the start time (engine clock, s)."""
+        by_name = {a.name: a for a in self.axes()}
+        unknown = [n for n in tracks if n not in by_name]
+        if unknown:
+            names = ", ".join(by_name) or "none"
+            raise axis_mod.AxisCommandError(f"no axis {unknown[0]!r} on this bus (axes: {names})")
+        return axis_mod.follow_together(
+            self, {by_name[n]: points for n, points in tracks.items()}, start_in
+        )
+
+    def wait_trajectories(self, names: Iterable[str] | None = None, timeout: float = 10.0) -> None:
+        """Until the trajectory last started on each axis named (every axis by default) has run
+        to its end; feeds the command watchdog while it waits."""
+        chosen = [self.axis(n) for n in names] if names is not None else self.axes()
+        deadline = time.monotonic() + timeout
+        for a in chosen:
+            a.wait_trajectory(max(deadline - time.monotonic(), 0.0))
 
     def axis(self, name: str) -> axis_mod.Axis:
         """A CiA 402 axis by joint name."""
@@ -769,19 +801,21 @@ class Bus:
         """A slave that lost its station address (power cycle) gets it again by position —
         only if the slave now at that position has no other address: on a tree, a cable pulled
         on one branch moves the slaves of later branches up to lower positions."""
-        from ether_ros.master.scan import STATION_ADDRESS, count_slaves, station_address
+        from ether_ros.master.scan import count_slaves, station_address
 
         count = count_slaves(self.dg)
         if count <= s.position:
             raise BusError(f"{s}: not on the bus ({count} slaves answer)")
-        data, wkc = self.dg.aprd(s.position, STATION_ADDRESS, 2)
+        data, wkc = self.dg.aprd(s.position, reg.STATION_ADDRESS, 2)
         current = int.from_bytes(data, "little") if wkc == 1 else 0
         if current not in (0, s.station):
             raise BusError(
                 f"{s}: position {s.position} now holds station 0x{current:04X}: the slave is"
                 " not where it was (a branch before it is cut off?)"
             )
-        wkc = self.dg.apwr(s.position, 0x0010, station_address(s.position).to_bytes(2, "little"))
+        wkc = self.dg.apwr(
+            s.position, reg.STATION_ADDRESS, station_address(s.position).to_bytes(2, "little")
+        )
         if wkc != 1:
             raise BusError(f"{s}: re-assigning its station address failed")
 

@@ -9,14 +9,14 @@ for them, its inputs the next FMMU.
 
 from __future__ import annotations
 
+from ether_ros._native.protocol import fmmu as fmmu_bits
+from ether_ros._native.protocol import sm as sm_bits
 from ether_ros.config.esi import EsiDevice
 from ether_ros.config.sii import SiiInfo
 from ether_ros.errors import BusError
 from ether_ros.master.datagrams import Cmd, Datagram, DatagramService, fixed_address
 from ether_ros.master.plan import SlaveArea
 from ether_ros.master.sm_fmmu import (
-    FMMU_READ,
-    FMMU_WRITE,
     INPUTS_CONTROL,
     MAILBOX_IN_CONTROL,
     MAILBOX_OUT_CONTROL,
@@ -77,12 +77,14 @@ def process_sync_managers(
 def process_fmmus(area: SlaveArea, sms: list[SyncManager], logical_base: int) -> list[Fmmu]:
     """FMMUs mapping the slave's output and input SyncManagers into the logical image."""
     fmmus: list[Fmmu] = []
-    by_dir = {(sm.control & 0x0C): sm for sm in sms if sm.enable}
+    by_dir = {(sm.control & sm_bits.DIR_MASK): sm for sm in sms if sm.enable}
     # Outputs first, then inputs: the FMMU numbers follow this order.
     directions = (
-        ("output", area.output_bytes, area.output_offset, by_dir.get(0x04), FMMU_WRITE),
-        ("input", area.input_bytes, area.input_offset, by_dir.get(0x00), FMMU_READ),
-    )
+        ("output", area.output_bytes, area.output_offset, by_dir.get(sm_bits.DIR_WRITE),
+         fmmu_bits.WRITE),
+        ("input", area.input_bytes, area.input_offset, by_dir.get(sm_bits.DIR_READ),
+         fmmu_bits.READ),
+    )  # fmt: skip
     for what, nbytes, offset, sm, access in directions:
         if not nbytes:
             continue

@@ -14,43 +14,51 @@ from dataclasses import dataclass
 from enum import IntEnum
 from typing import Protocol
 
-from ether_ros.errors import BusError, EtherRosError, LinkError
+from ether_ros._native import protocol
+from ether_ros._native.protocol import cmd, frame
+from ether_ros.errors import (
+    BusError,
+    EtherRosError,
+    FrameTimeout,
+    LinkError,
+    WorkingCounterError,
+)
 
-# Frame budget: 1500 bytes of Ethernet payload minus the 2-byte EtherCAT header; every datagram
-# adds a 10-byte header and a 2-byte working counter to its data.
-FRAME_PAYLOAD = 1498
-DATAGRAM_OVERHEAD = 12
-MAX_DATAGRAM_DATA = FRAME_PAYLOAD - DATAGRAM_OVERHEAD
+# Frame budget: the Ethernet payload minus the EtherCAT header; every datagram adds its header
+# and a working counter to its data (the layout is the protocol crate's).
+FRAME_PAYLOAD = frame.MAX_PAYLOAD - frame.ECAT_HEADER_LEN
+DATAGRAM_OVERHEAD = frame.DATAGRAM_HEADER_LEN + frame.WKC_LEN
+MAX_DATAGRAM_DATA = frame.MAX_DATAGRAM_DATA
 
 
 class Cmd(IntEnum):
-    """EtherCAT datagram command codes (ETG.1000.4)."""
+    """EtherCAT datagram command codes (ETG.1000.4), as the protocol crate has them."""
 
-    NOP = 0
-    APRD = 1
-    APWR = 2
-    APRW = 3
-    FPRD = 4
-    FPWR = 5
-    FPRW = 6
-    BRD = 7
-    BWR = 8
-    BRW = 9
-    LRD = 10
-    LWR = 11
-    LRW = 12
-    ARMW = 13
-    FRMW = 14
+    NOP = cmd.NOP
+    APRD = cmd.APRD
+    APWR = cmd.APWR
+    APRW = cmd.APRW
+    FPRD = cmd.FPRD
+    FPWR = cmd.FPWR
+    FPRW = cmd.FPRW
+    BRD = cmd.BRD
+    BWR = cmd.BWR
+    BRW = cmd.BRW
+    LRD = cmd.LRD
+    LWR = cmd.LWR
+    LRW = cmd.LRW
+    ARMW = cmd.ARMW
+    FRMW = cmd.FRMW
 
 
 def auto_address(position: int, offset: int) -> int:
     """Auto-increment address: ADP is minus the position (each slave increments it)."""
-    return ((-position) & 0xFFFF) | ((offset & 0xFFFF) << 16)
+    return protocol.auto_increment_address(position & 0xFFFF, offset & 0xFFFF)
 
 
 def fixed_address(station: int, offset: int) -> int:
     """Configured-station address: ADP is the station address, ADO the register."""
-    return (station & 0xFFFF) | ((offset & 0xFFFF) << 16)
+    return protocol.fixed_address(station & 0xFFFF, offset & 0xFFFF)
 
 
 class Transport(Protocol):
@@ -138,8 +146,12 @@ class DatagramService:
         except EtherRosError:
             raise
         except TimeoutError as exc:
-            names = ", ".join(d.cmd.name for d in frame)
-            raise LinkError(f"no answer to a frame ({names}) after {self.retries} retries") from exc
+            names = tuple(d.cmd.name for d in frame)
+            err = FrameTimeout(
+                f"no answer to a frame ({', '.join(names)}) after {self.retries} retries"
+            )
+            err.commands, err.attempts, err.timeout_us = names, self.retries + 1, self.timeout_us
+            raise err from exc
         except OSError as exc:
             raise LinkError(f"sending a frame failed: {exc}") from exc
         return [Reply(bytes(data), int(wkc)) for data, wkc in raw]
@@ -189,10 +201,10 @@ class DatagramService:
         """FPWR that must reach exactly one slave; ``what``/``who`` name it in the error."""
         wkc = self.fpwr(station, ado, data)
         if wkc != 1:
-            raise BusError(f"{who}: writing {what} (0x{ado:04X}) got no answer (wkc {wkc})")
+            raise WorkingCounterError(f"writing {what} (0x{ado:04X})", 1, wkc, slave=who)
 
     def read_checked(self, station: int, ado: int, length: int, what: str, who: str) -> bytes:
         data, wkc = self.fprd(station, ado, length)
         if wkc != 1:
-            raise BusError(f"{who}: reading {what} (0x{ado:04X}) got no answer (wkc {wkc})")
+            raise WorkingCounterError(f"reading {what} (0x{ado:04X})", 1, wkc, slave=who)
         return data

@@ -33,6 +33,8 @@ import struct
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
+from ether_ros._native import protocol
+from ether_ros._native.protocol import dc_time_difference, reg
 from ether_ros.errors import BusError
 from ether_ros.master.datagrams import (
     Cmd,
@@ -43,23 +45,9 @@ from ether_ros.master.datagrams import (
     u32,
     u64,
 )
-from ether_ros.topology import PORT_ORDER, Link, forwarding_ports, used_ports
+from ether_ros.topology import Link, forwarding_ports, used_ports
 
 log = logging.getLogger(__name__)
-
-RECEIVE_TIME_PORT0 = 0x0900
-SYSTEM_TIME = 0x0910
-RECEIVE_TIME_PU = 0x0918
-SYSTEM_TIME_OFFSET = 0x0920
-SYSTEM_TIME_DELAY = 0x0928
-SYSTEM_TIME_DIFF = 0x092C
-SPEED_COUNTER_START = 0x0930
-FILTER_DEPTH = 0x0934
-CYCLIC_UNIT_CONTROL = 0x0980
-ACTIVATION = 0x0981
-START_TIME = 0x0990
-SYNC0_CYCLE = 0x09A0
-SYNC1_CYCLE = 0x09A4
 
 MASK32 = 0xFFFFFFFF
 MASK64 = 0xFFFFFFFFFFFFFFFF
@@ -115,7 +103,7 @@ def tree_delays(tree: Sequence[Link], times: Mapping[int, Sequence[int]]) -> dic
         before = [
             q
             for q in forwarding_ports(used_ports(tree, parent))
-            if PORT_ORDER.index(q) < PORT_ORDER.index(port)
+            if protocol.PORT_ORDER.index(q) < protocol.PORT_ORDER.index(port)
         ]
         prev = before[-1] if before else 0
         own = forwarding_ports(used_ports(tree, c))
@@ -170,8 +158,7 @@ def decode_time_diff(raw: int) -> int:
     """0x092C as ``local − received`` in ns: bits 0..30 are the magnitude of the (filtered)
     difference, bit 31 is set when the slave's local copy of the system time is *smaller* than
     the received time (the slave is behind), which makes the value negative."""
-    magnitude = raw & 0x7FFFFFFF
-    return -magnitude if raw & 0x80000000 else magnitude
+    return dc_time_difference(raw)
 
 
 @dataclass
@@ -221,15 +208,21 @@ class DistributedClocks:
         # The latch happens while the frame passes the reference: take the middle of the
         # broadcast's round trip as the master's time at that moment.
         before = self.master_time()
-        wkc = self.dg.bwr(RECEIVE_TIME_PORT0, u32(0))
+        wkc = self.dg.bwr(reg.DC_RECEIVE_TIME_PORT0, u32(0))
         send_time = (before + self.master_time()) // 2
         if wkc < len(slaves):
             raise BusError(f"DC: only {wkc} slaves latched receive times, expected {len(slaves)}")
         ports = self.dg.batch(
-            [Datagram(Cmd.FPRD, fixed_address(s.station, RECEIVE_TIME_PORT0), 16) for s in slaves]
+            [
+                Datagram(Cmd.FPRD, fixed_address(s.station, reg.DC_RECEIVE_TIME_PORT0), 16)
+                for s in slaves
+            ]
         )
         locals_ = self.dg.batch(
-            [Datagram(Cmd.FPRD, fixed_address(s.station, RECEIVE_TIME_PU), 8) for s in slaves]
+            [
+                Datagram(Cmd.FPRD, fixed_address(s.station, reg.DC_RECEIVE_TIME_PU), 8)
+                for s in slaves
+            ]
         )
         for s, r1, r2 in zip(slaves, ports, locals_, strict=True):
             if r1.wkc != 1 or r2.wkc != 1:
@@ -244,8 +237,12 @@ class DistributedClocks:
         writes: list[Datagram] = []
         for s, d, o in zip(slaves, delays, offsets, strict=True):
             s.delay_ns, s.offset = d, o
-            writes.append(Datagram(Cmd.FPWR, fixed_address(s.station, SYSTEM_TIME_OFFSET), u64(o)))
-            writes.append(Datagram(Cmd.FPWR, fixed_address(s.station, SYSTEM_TIME_DELAY), u32(d)))
+            writes.append(
+                Datagram(Cmd.FPWR, fixed_address(s.station, reg.DC_SYSTEM_TIME_OFFSET), u64(o))
+            )
+            writes.append(
+                Datagram(Cmd.FPWR, fixed_address(s.station, reg.DC_SYSTEM_TIME_DELAY), u32(d))
+            )
         for s, r in zip([s for s in slaves for _ in (0, 1)], self.dg.batch(writes), strict=True):
             if r.wkc != 1:
                 raise BusError(f"slave {s.position} ({s.name}): writing DC offset/delay failed")
@@ -259,7 +256,7 @@ class DistributedClocks:
         such write makes the reference's control loop chase that error. In
         ``ref_follows_master`` the engine writes it from the real-time thread every cycle,
         stamped with the planned send instant."""
-        address = fixed_address(reference.station, SYSTEM_TIME)
+        address = fixed_address(reference.station, reg.DC_SYSTEM_TIME)
         remaining = self.drift_frames
         while remaining > 0:
             n = min(self.drift_per_frame, remaining)
@@ -268,7 +265,10 @@ class DistributedClocks:
 
     def read_time_diffs(self, slaves: Sequence[DcSlave]) -> list[int]:
         replies = self.dg.batch(
-            [Datagram(Cmd.FPRD, fixed_address(s.station, SYSTEM_TIME_DIFF), 4) for s in slaves]
+            [
+                Datagram(Cmd.FPRD, fixed_address(s.station, reg.DC_SYSTEM_TIME_DIFF), 4)
+                for s in slaves
+            ]
         )
         return [decode_time_diff(struct.unpack_from("<I", r.data)[0]) for r in replies]
 
@@ -279,12 +279,12 @@ class DistributedClocks:
         depth = reference_filter_depth(cycle_ns)
         who = f"slave {reference.position} ({reference.name})"
         self.dg.write_checked(
-            reference.station, FILTER_DEPTH, bytes([depth]), "DC filter depth", who
+            reference.station, reg.DC_FILTER_DEPTH, bytes([depth]), "DC filter depth", who
         )
         # Written last: a write to the speed counter start restarts the loop.
         self.dg.write_checked(
             reference.station,
-            SPEED_COUNTER_START,
+            reg.DC_SPEED_COUNTER_START,
             u16(REFERENCE_SPEED_COUNTER_START),
             "DC speed counter start",
             who,
@@ -306,7 +306,7 @@ class DistributedClocks:
         users = [s for s in slaves if s.assign_activate]
         if not users:
             return 0
-        data, wkc = self.dg.fprd(clock.station, SYSTEM_TIME, 8)
+        data, wkc = self.dg.fprd(clock.station, reg.DC_SYSTEM_TIME, 8)
         if wkc != 1:
             raise BusError(f"slave {clock.position} ({clock.name}): no DC system time")
         now = struct.unpack("<Q", data)[0]
@@ -314,19 +314,23 @@ class DistributedClocks:
         for s in users:
             unit, activation = assign_activate_bytes(s.assign_activate)
             who = f"slave {s.position} ({s.name})"
-            self.dg.write_checked(s.station, ACTIVATION, b"\0", "DC activation", who)
+            self.dg.write_checked(s.station, reg.DC_ACTIVATION, b"\0", "DC activation", who)
             period = s.sync0_cycle_ns or cycle_ns
-            self.dg.write_checked(s.station, SYNC0_CYCLE, u32(period), "SYNC0 cycle", who)
-            self.dg.write_checked(s.station, SYNC1_CYCLE, u32(0), "SYNC1 cycle", who)
-            self.dg.write_checked(s.station, START_TIME, u64(start), "SYNC0 start time", who)
+            self.dg.write_checked(s.station, reg.DC_SYNC0_CYCLE, u32(period), "SYNC0 cycle", who)
+            self.dg.write_checked(s.station, reg.DC_SYNC1_CYCLE, u32(0), "SYNC1 cycle", who)
+            self.dg.write_checked(s.station, reg.DC_START_TIME, u64(start), "SYNC0 start time", who)
             self.dg.write_checked(
-                s.station, CYCLIC_UNIT_CONTROL, u16(unit | (activation << 8)), "AssignActivate", who
+                s.station,
+                reg.DC_CYCLIC_UNIT_CONTROL,
+                u16(unit | (activation << 8)),
+                "AssignActivate",
+                who,
             )
         return start
 
     def deactivate(self, slaves: Sequence[DcSlave]) -> None:
         self.dg.batch(
-            [Datagram(Cmd.FPWR, fixed_address(s.station, ACTIVATION), b"\0") for s in slaves]
+            [Datagram(Cmd.FPWR, fixed_address(s.station, reg.DC_ACTIVATION), b"\0") for s in slaves]
         )
 
     def resync_slave(self, source: DcSlave | None, slave: DcSlave) -> None:
@@ -339,12 +343,12 @@ class DistributedClocks:
         reference alone was reset) the master's time is the source, as at start-up. The
         propagation delay is the one measured at start-up (the cabling did not change)."""
         send_time = self.master_time()
-        self.dg.bwr(RECEIVE_TIME_PORT0, u32(0))
-        requests = [Datagram(Cmd.FPRD, fixed_address(slave.station, RECEIVE_TIME_PU), 8)]
+        self.dg.bwr(reg.DC_RECEIVE_TIME_PORT0, u32(0))
+        requests = [Datagram(Cmd.FPRD, fixed_address(slave.station, reg.DC_RECEIVE_TIME_PU), 8)]
         if source is not None:
             requests += [
-                Datagram(Cmd.FPRD, fixed_address(source.station, RECEIVE_TIME_PU), 8),
-                Datagram(Cmd.FPRD, fixed_address(source.station, SYSTEM_TIME_OFFSET), 8),
+                Datagram(Cmd.FPRD, fixed_address(source.station, reg.DC_RECEIVE_TIME_PU), 8),
+                Datagram(Cmd.FPRD, fixed_address(source.station, reg.DC_SYSTEM_TIME_OFFSET), 8),
             ]
         replies = self.dg.batch(requests)
         if any(r.wkc != 1 for r in replies):
@@ -358,10 +362,14 @@ class DistributedClocks:
         slave.offset = (source_time + slave.delay_ns - local) & MASK64
         who = f"slave {slave.position} ({slave.name})"
         offset, delay = u64(slave.offset), u32(slave.delay_ns)
-        self.dg.write_checked(slave.station, SYSTEM_TIME_OFFSET, offset, "DC offset", who)
-        self.dg.write_checked(slave.station, SYSTEM_TIME_DELAY, delay, "DC delay", who)
+        self.dg.write_checked(slave.station, reg.DC_SYSTEM_TIME_OFFSET, offset, "DC offset", who)
+        self.dg.write_checked(slave.station, reg.DC_SYSTEM_TIME_DELAY, delay, "DC delay", who)
         if self._reference_loop is not None and self._reference_loop[0] == slave.station:
             # The reference lost its loop settings with the reset.
             _, speed, depth = self._reference_loop
-            self.dg.write_checked(slave.station, FILTER_DEPTH, bytes([depth]), "DC filter", who)
-            self.dg.write_checked(slave.station, SPEED_COUNTER_START, u16(speed), "DC speed", who)
+            self.dg.write_checked(
+                slave.station, reg.DC_FILTER_DEPTH, bytes([depth]), "DC filter", who
+            )
+            self.dg.write_checked(
+                slave.station, reg.DC_SPEED_COUNTER_START, u16(speed), "DC speed", who
+            )

@@ -16,32 +16,36 @@ from collections.abc import Callable
 from enum import IntEnum
 from typing import Protocol
 
-from ether_ros.errors import MailboxError
-from ether_ros.master.abort_codes import mailbox_error_text
+from ether_ros._native.protocol import (
+    coe,
+    mailbox,
+    mailbox_header,
+    mailbox_type_name,
+    parse_mailbox_header,
+    sm,
+)
+from ether_ros._native.protocol import reg as registers
+from ether_ros.errors import MailboxError, MailboxErrorReply, MailboxTimeout
 
-MAILBOX_HEADER_LEN = 6
+MAILBOX_HEADER_LEN = mailbox.HEADER_LEN
 
-# SyncManager registers: SM n lives at 0x0800 + 8 n; byte 5 is the status register.
-SM0_STATUS = 0x0805
-SM1_STATUS = 0x080D
-SM1_ACTIVATE = 0x080E
-SM1_PDI_CONTROL = 0x080F
-SM_STATUS_MAILBOX_FULL = 0x08
-# Activate register bit 1: repeat request; PDI control bit 1: the slave's repeat acknowledge.
-SM_REPEAT = 0x02
-
-# CoE header service of emergency messages (upper 4 bits of the first CoE word).
-COE_SERVICE_EMERGENCY = 1
+# The mailbox SyncManagers' registers: SM0 is the write mailbox (master -> slave), SM1 the read
+# mailbox. SM1's activate register carries the master's repeat request, its PDI control
+# register the slave's repeat acknowledge.
+SM0_STATUS = registers.SM0 + sm.STATUS
+SM1_STATUS = registers.SM0 + registers.SM_LEN + sm.STATUS
+SM1_ACTIVATE = registers.SM0 + registers.SM_LEN + sm.ACTIVATE
+SM1_PDI_CONTROL = registers.SM0 + registers.SM_LEN + sm.PDI_CONTROL
 
 
 class MailboxType(IntEnum):
-    ERROR = 0
-    AOE = 1
-    EOE = 2
-    COE = 3
-    FOE = 4
-    SOE = 5
-    VOE = 15
+    ERROR = mailbox.TYPE_ERR
+    AOE = mailbox.TYPE_AOE
+    EOE = mailbox.TYPE_EOE
+    COE = mailbox.TYPE_COE
+    FOE = mailbox.TYPE_FOE
+    SOE = mailbox.TYPE_SOE
+    VOE = mailbox.TYPE_VOE
 
 
 class Datagrams(Protocol):
@@ -51,10 +55,6 @@ class Datagrams(Protocol):
     def fprd(self, station: int, ado: int, length: int) -> tuple[bytes, int]: ...  # (data, wkc)
 
     def fpwr(self, station: int, ado: int, data: bytes) -> int: ...  # wkc
-
-
-def mailbox_header(length: int, mbx_type: int, counter: int, address: int = 0) -> bytes:
-    return struct.pack("<HHBB", length, address, 0, (mbx_type & 0x0F) | ((counter & 0x07) << 4))
 
 
 class Mailbox:
@@ -76,8 +76,9 @@ class Mailbox:
     ) -> None:
         if rx_size <= MAILBOX_HEADER_LEN or tx_size <= MAILBOX_HEADER_LEN:
             raise MailboxError(
-                f"slave '{slave_name}': mailbox too small (write {rx_size} bytes, read "
-                f"{tx_size} bytes; both must exceed the {MAILBOX_HEADER_LEN}-byte header)"
+                f"mailbox too small (write {rx_size} bytes, read {tx_size} bytes; both must "
+                f"exceed the {MAILBOX_HEADER_LEN}-byte header)",
+                slave=slave_name,
             )
         self.dg = dg
         self.station = station
@@ -122,8 +123,9 @@ class Mailbox:
     def send(self, mbx_type: int, payload: bytes, timeout_s: float) -> None:
         if len(payload) > self.max_send_payload:
             raise MailboxError(
-                f"slave '{self.slave_name}': mailbox message of {len(payload)} bytes exceeds the "
-                f"write mailbox ({self.max_send_payload} bytes of data)"
+                f"mailbox message of {len(payload)} bytes exceeds the write mailbox "
+                f"({self.max_send_payload} bytes of data)",
+                slave=self.slave_name,
             )
         header = mailbox_header(len(payload), mbx_type, self._next_counter())
         message = (header + payload).ljust(self.rx_size, b"\x00")
@@ -132,13 +134,14 @@ class Mailbox:
         while True:
             status, wkc = self.dg.fprd(self.station, SM0_STATUS, 1)
             # A full mailbox (or a lost frame) leaves the write unacknowledged: retry.
-            empty = wkc == 1 and status and not status[0] & SM_STATUS_MAILBOX_FULL
+            empty = wkc == 1 and status and not status[0] & sm.STATUS_MAILBOX_FULL
             if empty and self.dg.fpwr(self.station, self.rx_offset, message) == 1:
                 return
             if time.monotonic() >= deadline:
-                raise MailboxError(
-                    f"slave '{self.slave_name}': timed out after {timeout_s:g} s waiting for the "
-                    "write mailbox to accept a message (it stays full)"
+                raise MailboxTimeout(
+                    self.slave_name,
+                    timeout_s,
+                    "the write mailbox to accept a message (it stays full)",
                 )
             attempt += 1
             self._sleep(attempt)
@@ -156,9 +159,10 @@ class Mailbox:
                 self._dispatch(got_type, payload)
                 attempt = 0
             elif time.monotonic() >= deadline:
-                raise MailboxError(
-                    f"slave '{self.slave_name}': timed out after {timeout_s:g} s waiting for a "
-                    f"{_type_name(mbx_type)} reply in the read mailbox"
+                raise MailboxTimeout(
+                    self.slave_name,
+                    timeout_s,
+                    f"a {_type_name(mbx_type)} reply in the read mailbox",
                 )
             else:
                 attempt += 1
@@ -188,7 +192,7 @@ class Mailbox:
 
     def _poll(self) -> tuple[int, bytes] | None:
         status, wkc = self.dg.fprd(self.station, SM1_STATUS, 1)
-        if wkc != 1 or not status or not status[0] & SM_STATUS_MAILBOX_FULL:
+        if wkc != 1 or not status or not status[0] & sm.STATUS_MAILBOX_FULL:
             return None
         data, wkc = self.dg.fprd(self.station, self.tx_offset, self.tx_size)
         if wkc != 1:
@@ -196,15 +200,17 @@ class Mailbox:
             # slave (which emptied the mailbox) but the answer got lost. Ask for the message again.
             self._request_repeat()
             return None
-        if len(data) < MAILBOX_HEADER_LEN:
+        header = parse_mailbox_header(data)
+        if header is None:
             return None
-        length, _address, _channel, type_counter = struct.unpack_from("<HHBB", data)
+        length, _address, _channel, mbx_type, _counter = header
         if length > len(data) - MAILBOX_HEADER_LEN:
             raise MailboxError(
-                f"slave '{self.slave_name}': read mailbox message says {length} bytes but the "
-                f"mailbox holds only {len(data) - MAILBOX_HEADER_LEN}"
+                f"read mailbox message says {length} bytes but the mailbox holds only "
+                f"{len(data) - MAILBOX_HEADER_LEN}",
+                slave=self.slave_name,
             )
-        return type_counter & 0x0F, data[MAILBOX_HEADER_LEN : MAILBOX_HEADER_LEN + length]
+        return mbx_type, data[MAILBOX_HEADER_LEN : MAILBOX_HEADER_LEN + length]
 
     def _request_repeat(self) -> None:
         """Repeat request (ETG.1000.4): toggle the repeat bit of SM1's activate register; the
@@ -213,13 +219,13 @@ class Mailbox:
         activate, wkc = self.dg.fprd(self.station, SM1_ACTIVATE, 1)
         if wkc != 1 or not activate:
             return
-        wanted = (activate[0] ^ SM_REPEAT) & SM_REPEAT
-        if self.dg.fpwr(self.station, SM1_ACTIVATE, bytes([activate[0] ^ SM_REPEAT])) != 1:
+        wanted = (activate[0] ^ sm.REPEAT) & sm.REPEAT
+        if self.dg.fpwr(self.station, SM1_ACTIVATE, bytes([activate[0] ^ sm.REPEAT])) != 1:
             return
         self.repeats += 1
         for attempt in range(20):
             ack, wkc = self.dg.fprd(self.station, SM1_PDI_CONTROL, 1)
-            if wkc == 1 and ack and ack[0] & SM_REPEAT == wanted:
+            if wkc == 1 and ack and ack[0] & sm.REPEAT == wanted:
                 return
             self._sleep(attempt)
 
@@ -228,15 +234,13 @@ class Mailbox:
         return (
             mbx_type == MailboxType.COE
             and len(payload) >= 2
-            and payload[1] >> 4 == COE_SERVICE_EMERGENCY
+            and payload[1] >> 4 == coe.SERVICE_EMERGENCY
         )
 
     def _dispatch(self, mbx_type: int, payload: bytes) -> None:
         if mbx_type == MailboxType.ERROR:
             code = struct.unpack_from("<H", payload, 2)[0] if len(payload) >= 4 else 0
-            raise MailboxError(
-                f"slave '{self.slave_name}': mailbox error {mailbox_error_text(code)}"
-            )
+            raise MailboxErrorReply(self.slave_name, code)
         if self._is_emergency(mbx_type, payload) and self.emergency_handler is not None:
             self.emergency_handler(payload)
             return
@@ -244,7 +248,4 @@ class Mailbox:
 
 
 def _type_name(mbx_type: int) -> str:
-    try:
-        return MailboxType(mbx_type).name.replace("COE", "CoE")
-    except ValueError:
-        return f"type {mbx_type}"
+    return mailbox_type_name(mbx_type) or f"type {mbx_type}"

@@ -17,11 +17,12 @@ import struct
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+from ether_ros._native.protocol import coe, format_address
 from ether_ros.config.esi import EsiDevice, Pdo, PdoEntry
 from ether_ros.errors import BusError
 
-RX_ASSIGN = 0x1C12
-TX_ASSIGN = 0x1C13
+RX_ASSIGN = coe.RXPDO_ASSIGN
+TX_ASSIGN = coe.TXPDO_ASSIGN
 
 
 @dataclass(frozen=True)
@@ -128,7 +129,7 @@ def assignment_writes(selection: PdoSelection, write_mapping: bool) -> list[SdoW
                         pdo.index,
                         sub,
                         struct.pack("<I", entry.mapping_value),
-                        f"mapping 0x{pdo.index:04X}:{sub}",
+                        f"mapping {format_address(pdo.index, sub)}",
                     )
                 )
             writes.append(

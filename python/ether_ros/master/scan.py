@@ -22,24 +22,22 @@ import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from ether_ros._native.protocol import al, features, reg
 from ether_ros.config.sii import SiiInfo, parse_sii
-from ether_ros.errors import BusError, ConfigError
-from ether_ros.master.al import AL_CONTROL, ERROR_FLAG, AlState
-from ether_ros.master.datagrams import Cmd, Datagram, DatagramService, fixed_address, u16
+from ether_ros.errors import BusError, ConfigError, IdentityMismatch
+from ether_ros.master.al import AlState
+from ether_ros.master.datagrams import (
+    Cmd,
+    Datagram,
+    DatagramService,
+    auto_address,
+    fixed_address,
+    u16,
+)
 from ether_ros.master.sii import read_sii
-from ether_ros.master.sm_fmmu import FMMU_BASE, FMMU_LEN, MAX_FMMUS, MAX_SMS, SM_BASE, SM_LEN
 from ether_ros.topology import Link, first_difference, open_ports, tree_from_ports
 
 FIRST_STATION = 0x1001
-STATION_ADDRESS = 0x0010
-STATION_ALIAS = 0x0012
-ESC_TYPE = 0x0000
-ESC_FEATURES = 0x0008
-DL_STATUS = 0x0110
-DL_CONTROL_LOOP = 0x0101  # DL control byte 1: loop control of ports 0..3 (0 = automatic)
-FEATURE_DC = 0x0004
-FEATURE_DC_64 = 0x0008
-FEATURE_NO_LRW = 0x0200  # ESC features bit 9: LRW not supported, use LRD + LWR
 
 
 def station_address(position: int) -> int:
@@ -83,11 +81,11 @@ class FoundSlave:
 
     @property
     def dc_supported(self) -> bool:
-        return bool(self.esc_features & FEATURE_DC)
+        return bool(self.esc_features & features.DC)
 
     @property
     def lrw_supported(self) -> bool:
-        return not self.esc_features & FEATURE_NO_LRW
+        return not self.esc_features & features.LRW_NOT_SUPPORTED
 
     def identity(self) -> str:
         return (
@@ -109,7 +107,7 @@ class Expected:
 
 
 def count_slaves(dg: DatagramService) -> int:
-    _data, wkc = dg.brd(ESC_TYPE, 2)
+    _data, wkc = dg.brd(reg.TYPE, 2)
     return wkc
 
 
@@ -117,12 +115,12 @@ def reset_bus(dg: DatagramService) -> None:
     """Put every slave into a known state before addressing (broadcasts, one frame)."""
     dg.batch(
         [
-            Datagram(Cmd.BWR, fixed_address(0, DL_CONTROL_LOOP), b"\0"),
-            Datagram(Cmd.BWR, fixed_address(0, AL_CONTROL), u16(AlState.INIT | ERROR_FLAG)),
-            Datagram(Cmd.BWR, fixed_address(0, FMMU_BASE), bytes(FMMU_LEN * MAX_FMMUS)),
-            Datagram(Cmd.BWR, fixed_address(0, SM_BASE), bytes(SM_LEN * MAX_SMS)),
-            Datagram(Cmd.BWR, fixed_address(0, 0x0981), b"\0"),  # DC activation off
-            Datagram(Cmd.BWR, fixed_address(0, 0x0500), b"\0"),  # EEPROM to EtherCAT
+            Datagram(Cmd.BWR, fixed_address(0, reg.DL_CONTROL_LOOP), b"\0"),
+            Datagram(Cmd.BWR, fixed_address(0, reg.AL_CONTROL), u16(AlState.INIT | al.ERROR)),
+            Datagram(Cmd.BWR, fixed_address(0, reg.FMMU0), bytes(reg.FMMU_LEN * reg.MAX_FMMUS)),
+            Datagram(Cmd.BWR, fixed_address(0, reg.SM0), bytes(reg.SM_LEN * reg.MAX_SMS)),
+            Datagram(Cmd.BWR, fixed_address(0, reg.DC_ACTIVATION), b"\0"),  # DC activation off
+            Datagram(Cmd.BWR, fixed_address(0, reg.SII_CONFIG), b"\0"),  # EEPROM to EtherCAT
         ]
     )
 
@@ -131,7 +129,7 @@ def assign_stations(dg: DatagramService, count: int) -> list[int]:
     stations = [station_address(p) for p in range(count)]
     replies = dg.batch(
         [
-            Datagram(Cmd.APWR, (-p & 0xFFFF) | (STATION_ADDRESS << 16), u16(s))
+            Datagram(Cmd.APWR, auto_address(p, reg.STATION_ADDRESS), u16(s))
             for p, s in enumerate(stations)
         ]
     )
@@ -150,9 +148,9 @@ def scan(dg: DatagramService, reset: bool = True) -> list[FoundSlave]:
         reset_bus(dg)
     stations = assign_stations(dg, count)
     info = dg.batch(
-        [Datagram(Cmd.FPRD, fixed_address(s, STATION_ALIAS), 2) for s in stations]
-        + [Datagram(Cmd.FPRD, fixed_address(s, ESC_TYPE), 10) for s in stations]
-        + [Datagram(Cmd.FPRD, fixed_address(s, DL_STATUS), 2) for s in stations]
+        [Datagram(Cmd.FPRD, fixed_address(s, reg.STATION_ALIAS), 2) for s in stations]
+        + [Datagram(Cmd.FPRD, fixed_address(s, reg.TYPE), 10) for s in stations]
+        + [Datagram(Cmd.FPRD, fixed_address(s, reg.DL_STATUS), 2) for s in stations]
     )
     images = read_sii(dg, stations, [f"slave {p}" for p in range(count)])
     found: list[FoundSlave] = []
@@ -164,14 +162,14 @@ def scan(dg: DatagramService, reset: bool = True) -> list[FoundSlave]:
             header = parse_sii(images[p])
         except ConfigError as exc:
             raise BusError(f"slave {p}: unreadable SII EEPROM: {exc}") from None
-        (features,) = struct.unpack_from("<H", esc_r.data, ESC_FEATURES)
+        (feature_bits,) = struct.unpack_from("<H", esc_r.data, reg.FEATURES)
         found.append(
             FoundSlave(
                 position=p,
                 station=s,
                 alias=struct.unpack("<H", alias_r.data)[0],
                 esc_type=esc_r.data[0],
-                esc_features=features,
+                esc_features=feature_bits,
                 sii=images[p],
                 header=header,
                 dl_status=struct.unpack("<H", dl_r.data)[0],
@@ -221,10 +219,11 @@ def match_configuration(found: Sequence[FoundSlave], expected: Sequence[Expected
         if exp.revision is not None and slave.revision != exp.revision:
             mismatch = True
         if mismatch:
-            want = f"vendor 0x{exp.vendor_id:08X} product 0x{exp.product_code:08X}"
-            if exp.revision is not None:
-                want += f" revision 0x{exp.revision:08X}"
-            raise BusError(f"{label}: expected {want}, found {slave.identity()}")
+            raise IdentityMismatch(
+                label,
+                (exp.vendor_id, exp.product_code, exp.revision),
+                (slave.vendor_id, slave.product_code, slave.revision),
+            )
         positions.append(slave.position)
     if len(set(positions)) != len(positions):
         raise BusError("two configured slaves resolve to the same slave on the bus")

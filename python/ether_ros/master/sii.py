@@ -2,46 +2,42 @@
 
 The master takes the EEPROM from the PDI (0x0500 = 0), then for each read writes the word
 address (0x0504) and the read command (0x0502 = 0x0100), polls until the busy bit (15) clears and
-takes 4 or 8 bytes from 0x0508 (bit 6 of 0x0502 says which). All slaves are read at the same time,
-one datagram each per frame, and each stops at the end marker of its category list (decoded by
-``ether_ros.config.sii.parse_sii``), so a scan
-costs about two round trips per 8 bytes of the longest EEPROM.
+takes 4 or 8 bytes from 0x0508 (bit 6 of 0x0502 says which). A read failed when the EEPROM did
+not acknowledge or the command was refused (bits 13 and 14). Bit 11 is the ESC's checksum error
+of the configuration area (words 0..6): the EEPROM still reads, but the ESC did not load those
+words, so the slave runs without its configured PDI and alias settings: the master says so once.
+The register's bits are the protocol crate's (``ether_ros._native.protocol.sii``).
+
+All slaves are read at the same time, one datagram each per frame, and each stops at the end
+marker of its category list (decoded by ``ether_ros.config.sii.parse_sii``), so a scan costs
+about two round trips per 8 bytes of the longest EEPROM.
 """
 
 from __future__ import annotations
 
+import logging
 import struct
 import time
 from collections.abc import Sequence
 
-from ether_ros.errors import BusError
+from ether_ros._native.protocol import reg, sii, sii_category, sii_word
+from ether_ros.errors import BusError, SiiReadError
 from ether_ros.master.datagrams import Cmd, Datagram, DatagramService, fixed_address, u16, u32
 
-SII_CONFIG = 0x0500
-SII_CONTROL = 0x0502
-SII_ADDRESS = 0x0504
-SII_DATA = 0x0508
+log = logging.getLogger(__name__)
 
-READ_COMMAND = 0x0100
-BUSY = 0x8000
-READ_8_BYTES = 0x0040
-ERROR_BITS = 0x6000  # bit 13 checksum error, bit 14 error command
-ERROR_ACK_NACK = 0x2000
-
-FIRST_CATEGORY_WORD = 0x40
-CATEGORY_END = 0xFFFF
 MAX_SII_BYTES = 64 * 1024
 
 
 def sii_complete(image: bytes) -> bool:
     """True once ``image`` holds the whole category list up to its end marker."""
-    word = FIRST_CATEGORY_WORD
+    word = sii_word.FIRST_CATEGORY
     while True:
         pos = 2 * word
         if pos + 2 > len(image):
             return False
         (kind,) = struct.unpack_from("<H", image, pos)
-        if kind == CATEGORY_END:
+        if kind == sii_category.END:
             return True
         if pos + 4 > len(image):
             return False
@@ -66,15 +62,22 @@ def read_sii(
     if n == 0:
         return []
     take = dg.batch(
-        [Datagram(Cmd.FPWR, fixed_address(s, SII_CONFIG), b"\0") for s in stations]
-        + [Datagram(Cmd.FPRD, fixed_address(s, SII_CONTROL), 2) for s in stations]
+        [Datagram(Cmd.FPWR, fixed_address(s, reg.SII_CONFIG), b"\0") for s in stations]
+        + [Datagram(Cmd.FPRD, fixed_address(s, reg.SII_CONTROL), 2) for s in stations]
     )
     for i, reply in enumerate(take[n:]):
         if reply.wkc != 1:
             raise BusError(f"{_who(names, i)}: no answer from the SII EEPROM interface")
-        if struct.unpack("<H", reply.data)[0] & ERROR_BITS:
+        status = struct.unpack("<H", reply.data)[0]
+        if status & sii.CHECKSUM_ERROR:
+            log.warning(
+                "%s: the ESC reports a checksum error in the SII configuration area (words "
+                "0..6): it did not load them and runs with its defaults",
+                _who(names, i),
+            )
+        if status & sii.COMMAND_ERRORS:
             # Clear a stale error from before (e.g. a read interrupted by a reset).
-            dg.fpwr(stations[i], SII_CONTROL, u16(0))
+            dg.fpwr(stations[i], reg.SII_CONTROL, u16(0))
     images = [bytearray() for _ in stations]
     active = list(range(n))
     while active:
@@ -82,10 +85,10 @@ def read_sii(
         requests: list[Datagram] = []
         for i in active:
             requests.append(
-                Datagram(Cmd.FPWR, fixed_address(stations[i], SII_ADDRESS), u32(words[i]))
+                Datagram(Cmd.FPWR, fixed_address(stations[i], reg.SII_ADDRESS), u32(words[i]))
             )
             requests.append(
-                Datagram(Cmd.FPWR, fixed_address(stations[i], SII_CONTROL), u16(READ_COMMAND))
+                Datagram(Cmd.FPWR, fixed_address(stations[i], reg.SII_CONTROL), u16(sii.CMD_READ))
             )
         for k, reply in enumerate(dg.batch(requests)):
             if reply.wkc != 1:
@@ -94,22 +97,22 @@ def read_sii(
         deadline = time.monotonic() + timeout_s
         while pending:
             replies = dg.batch(
-                [Datagram(Cmd.FPRD, fixed_address(stations[i], SII_CONTROL), 14) for i in pending]
+                [
+                    Datagram(Cmd.FPRD, fixed_address(stations[i], reg.SII_CONTROL), 14)
+                    for i in pending
+                ]
             )
             still: list[int] = []
             for i, reply in zip(pending, replies, strict=True):
                 if reply.wkc != 1:
                     raise BusError(f"{_who(names, i)}: no answer while reading the SII")
                 (control,) = struct.unpack_from("<H", reply.data)
-                if control & BUSY:
+                if control & sii.BUSY:
                     still.append(i)
                     continue
-                if control & ERROR_BITS:
-                    raise BusError(
-                        f"{_who(names, i)}: SII read at word 0x{words[i]:04X} failed "
-                        f"(EEPROM control 0x{control:04X})"
-                    )
-                size = 8 if control & READ_8_BYTES else 4
+                if control & sii.COMMAND_ERRORS:
+                    raise SiiReadError(_who(names, i), words[i], control)
+                size = 8 if control & sii.READ_8_BYTES else 4
                 images[i].extend(reply.data[6 : 6 + size])
             if still and time.monotonic() > deadline:
                 raise BusError(f"{_who(names, still[0])}: SII EEPROM stays busy")
@@ -117,7 +120,7 @@ def read_sii(
         done: list[int] = []
         for i in active:
             img = bytes(images[i])
-            if len(img) >= 2 * FIRST_CATEGORY_WORD and (
+            if len(img) >= 2 * sii_word.FIRST_CATEGORY and (
                 sii_complete(img) or len(img) >= MAX_SII_BYTES
             ):
                 done.append(i)

@@ -11,31 +11,14 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 
-SM_BASE = 0x0800
-SM_LEN = 8
-FMMU_BASE = 0x0600
-FMMU_LEN = 16
-MAX_SMS = 16
-MAX_FMMUS = 16
+from ether_ros._native.protocol import reg, sm
 
-# SM control byte: bits 0-1 mode (00 three-buffer, 10 mailbox), bits 2-3 direction (00 master
-# reads, 01 master writes), bit 4 ECAT event, bit 5 PDI (AL) event, bit 6 watchdog trigger.
-# The slave's SII/ESI gives the control byte it expects; these are the usual defaults.
-SM_MODE_BUFFERED = 0x00
-SM_MODE_MAILBOX = 0x02
-SM_DIR_READ = 0x00
-SM_DIR_WRITE = 0x04
-SM_ECAT_EVENT = 0x10
-SM_PDI_EVENT = 0x20
-SM_WATCHDOG = 0x40
-
-MAILBOX_OUT_CONTROL = SM_MODE_MAILBOX | SM_DIR_WRITE | SM_PDI_EVENT  # 0x26, SM0
-MAILBOX_IN_CONTROL = SM_MODE_MAILBOX | SM_DIR_READ | SM_PDI_EVENT  # 0x22, SM1
-OUTPUTS_CONTROL = SM_MODE_BUFFERED | SM_DIR_WRITE | SM_PDI_EVENT | SM_WATCHDOG  # 0x64, SM2
-INPUTS_CONTROL = SM_MODE_BUFFERED | SM_DIR_READ | SM_PDI_EVENT  # 0x20, SM3
-
-FMMU_READ = 0x01  # slave memory → frame (inputs)
-FMMU_WRITE = 0x02  # frame → slave memory (outputs)
+# The control bytes the master uses when the slave's SII/ESI gives none (the usual defaults;
+# the bits are the protocol crate's, ``protocol.sm``).
+MAILBOX_OUT_CONTROL = sm.MODE_MAILBOX | sm.DIR_WRITE | sm.PDI_EVENT  # 0x26, SM0
+MAILBOX_IN_CONTROL = sm.MODE_MAILBOX | sm.DIR_READ | sm.PDI_EVENT  # 0x22, SM1
+OUTPUTS_CONTROL = sm.MODE_BUFFERED | sm.DIR_WRITE | sm.PDI_EVENT | sm.WATCHDOG  # 0x64, SM2
+INPUTS_CONTROL = sm.MODE_BUFFERED | sm.DIR_READ | sm.PDI_EVENT  # 0x20, SM3
 
 
 @dataclass(frozen=True)
@@ -48,7 +31,7 @@ class SyncManager:
 
     @property
     def register(self) -> int:
-        return SM_BASE + SM_LEN * self.index
+        return reg.SM0 + reg.SM_LEN * self.index
 
     def encode(self) -> bytes:
         """Start (u16), length (u16), control (u8), status (u8, read-only), activate (u8),
@@ -60,7 +43,7 @@ class SyncManager:
     @classmethod
     def decode(cls, index: int, data: bytes) -> SyncManager:
         start, length, control, _status, activate, _pdi = struct.unpack_from("<HHBBBB", data)
-        return cls(index, start, length, control, bool(activate & 1))
+        return cls(index, start, length, control, bool(activate & sm.ACTIVATE_ENABLE))
 
 
 @dataclass(frozen=True)
@@ -69,7 +52,7 @@ class Fmmu:
     logical_start: int
     length: int
     physical_start: int
-    direction: int  # FMMU_READ or FMMU_WRITE
+    direction: int  # protocol.fmmu.READ (inputs) or WRITE (outputs)
     logical_start_bit: int = 0
     logical_end_bit: int = 7
     physical_start_bit: int = 0
@@ -77,7 +60,7 @@ class Fmmu:
 
     @property
     def register(self) -> int:
-        return FMMU_BASE + FMMU_LEN * self.index
+        return reg.FMMU0 + reg.FMMU_LEN * self.index
 
     def encode(self) -> bytes:
         """Logical start (u32), length (u16), start bit (u8), end bit (u8), physical start

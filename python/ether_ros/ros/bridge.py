@@ -9,11 +9,11 @@ so a change in the master's API shows up here only.
 from __future__ import annotations
 
 import math
-import struct
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from ether_ros._native import protocol
 from ether_ros.errors import EtherRosError
 from ether_ros.master.samples import (  # noqa: F401  (re-exported for the ROS side)
     FLAG_LOST,
@@ -143,70 +143,11 @@ def sample_arrays(batch: Any) -> tuple[Any, Any]:
     return records, images
 
 
-_STRUCT_CODES = {
-    ("int", 8): "b",
-    ("uint", 8): "B",
-    ("int", 16): "h",
-    ("uint", 16): "H",
-    ("int", 32): "i",
-    ("uint", 32): "I",
-    ("int", 64): "q",
-    ("uint", 64): "Q",
-    ("real", 32): "f",
-    ("real", 64): "d",
-}
-
-
-class AreaDecoder:
-    """Decodes one slave's input or output area into floats, in layout order, fast enough for
-    every published sample: byte-aligned numbers with one precompiled ``struct``, bit fields
-    (BOOL, BITn) with shifts. Gives the same values as ``ProcessLayout.unpack``."""
-
-    def __init__(self, variables: Any) -> None:
-        variables = list(variables)
-        self.size = len(variables)
-        aligned = []
-        # (index, first byte, end byte, bit shift, bit length, signed) of each bit field
-        self._bits: list[tuple[int, int, int, int, int, bool]] = []
-        for i, v in enumerate(variables):
-            code = _STRUCT_CODES.get((v.dtype.kind, v.bit_length))
-            if code is not None and v.bit_offset % 8 == 0:
-                aligned.append((v.bit_offset // 8, code, i, v))
-            else:
-                self._add_bits(i, v)
-        aligned.sort(key=lambda a: (a[0], a[2]))
-        fmt, pos = "<", 0
-        self._aligned_index: list[int] = []
-        for offset, code, i, v in aligned:
-            if offset < pos:  # overlaps the previous entry: decode it on its own
-                self._add_bits(i, v)
-                continue
-            fmt += "x" * (offset - pos) + code
-            pos = offset + struct.calcsize("<" + code)
-            self._aligned_index.append(i)
-        self._struct = struct.Struct(fmt)
-        self._last: tuple[bytes, list[float]] | None = None
-
-    def _add_bits(self, i: int, v: Any) -> None:
-        first, last = v.bit_offset // 8, (v.bit_offset + v.bit_length - 1) // 8
-        signed = v.dtype.kind == "int"
-        self._bits.append((i, first, last + 1, v.bit_offset % 8, v.bit_length, signed))
-
-    def decode(self, area: bytes) -> list[float]:
-        last = self._last
-        if last is not None and last[0] == area:
-            return last[1]
-        out = [0.0] * self.size
-        if self._aligned_index:
-            for i, value in zip(self._aligned_index, self._struct.unpack_from(area), strict=True):
-                out[i] = float(value)
-        for i, begin, end, shift, length, signed in self._bits:
-            raw = (int.from_bytes(area[begin:end], "little") >> shift) & ((1 << length) - 1)
-            if signed and raw & (1 << (length - 1)):
-                raw -= 1 << length
-            out[i] = float(raw)
-        self._last = (bytes(area), out)
-        return out
+def area_decoder(variables: Any) -> protocol.AreaDecoder:
+    """A decoder of one slave's input or output area into floats, in layout order, fast enough
+    for every published sample (the protocol crate's value codec, in native code). Gives the
+    same values as ``ProcessLayout.unpack``."""
+    return protocol.AreaDecoder([(v.bit_offset, v.bit_length, v.dtype.kind) for v in variables])
 
 
 def flat_stats(stats: Mapping[str, Any], prefix: str = "") -> dict[str, float]:
@@ -458,9 +399,12 @@ def follow_trajectories(
     plans: list[tuple[Any, list[tuple[float, float, float]]]], start_in: float
 ) -> None:
     """Start checked trajectories (axis, [(t, position, velocity)]) together, ``start_in``
-    seconds from now (on the engine's clock)."""
-    for axis, points in plans:
-        axis.follow(points, start_in=start_in)
+    seconds from now (on the engine's clock): one hand-over, every axis starts in the same
+    cycle."""
+    from ether_ros.master.axis import follow_together
+
+    if plans:
+        follow_together(plans[0][0].bus, dict(plans), start_in)
 
 
 def check_mode(axes: list[Any], mode: str) -> None:

@@ -18,8 +18,8 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
+from ether_ros._native.protocol import emergency_text
 from ether_ros.ros import bridge
-from ether_ros.ros.error_codes import describe
 
 OK = DiagnosticStatus.OK
 WARN = DiagnosticStatus.WARN
@@ -41,6 +41,11 @@ _COUNTERS = (
     "acyclic_timeouts",
 )
 _HISTOGRAMS = ("wake_latency", "exec", "period", "rtt")
+
+
+def describe(code: int) -> str:
+    """``0x2310 continuous over-current``: an error code and its text (the protocol crate's)."""
+    return f"0x{code & 0xFFFF:04X} {emergency_text(code)}"
 
 
 def master_status(
@@ -165,9 +170,9 @@ def axis_statuses(
             ("mode_display", str(st["mode_display"] or st["mode_display_code"])),
             ("statusword", f"0x{int(st['statusword']):04x}"),
             ("error_code", f"0x{code:04x}"),
-            ("error_text", describe(code).split(" ", 1)[1]),
+            ("error_text", emergency_text(code)),
             ("last_fault_code", f"0x{last:04x}"),
-            ("last_fault_text", describe(last).split(" ", 1)[1] if last else ""),
+            ("last_fault_text", emergency_text(last) if last else ""),
         ]
         values += [(k, f"{float(st[k]):.6g}") for k in _AXIS_NUMBERS]
         values += [(k, str(int(st[k]))) for k in _AXIS_COUNTS]

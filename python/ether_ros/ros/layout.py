@@ -8,9 +8,9 @@ and its tests use them without a ROS context. :mod:`ether_ros.ros.convert` turns
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 
+from ether_ros._native import protocol
 from ether_ros.errors import EtherRosError
 
 
@@ -32,7 +32,7 @@ class VariableSpec:
 
     @property
     def address(self) -> str:
-        return f"0x{self.index:04x}:{self.subindex:02x}"
+        return protocol.format_address(self.index, self.subindex)
 
 
 @dataclass(frozen=True)
@@ -86,16 +86,14 @@ class BusSpec:
         )
 
 
-_ADDRESS = re.compile(r"^(?:0x)?([0-9a-fA-F]{1,4}):(?:0x)?([0-9a-fA-F]{1,2})$")
-
-
 def parse_address(ref: str) -> tuple[int, int] | None:
-    """``"0x7030:03"`` / ``"7030:3"`` -> (0x7030, 3); anything else -> None. Both parts are hex,
-    as object dictionary addresses are always written."""
-    m = _ADDRESS.match(ref.strip())
-    if not m:
-        return None
-    return int(m.group(1), 16), int(m.group(2), 16)
+    """``"0x7030:03"`` / ``"7030:3"`` -> (0x7030, 3); a name -> None (the one grammar of
+    object addresses: ``ether_ros._native.protocol.parse_address``, both parts hexadecimal).
+    Raises :class:`LayoutError` for text of that shape that is out of range (``28720:10``)."""
+    try:
+        return protocol.parse_address(ref)
+    except ValueError as exc:
+        raise LayoutError(str(exc)) from None
 
 
 def _find(variables: tuple[VariableSpec, ...], ref: str, slave: str, kind: str) -> VariableSpec:
@@ -105,7 +103,7 @@ def _find(variables: tuple[VariableSpec, ...], ref: str, slave: str, kind: str) 
             if (v.index, v.subindex) == address:
                 return v
         raise LayoutError(
-            f"slave '{slave}' maps no {kind} variable at 0x{address[0]:04x}:{address[1]:02x}"
+            f"slave '{slave}' maps no {kind} variable at {protocol.format_address(*address)}"
         )
     for v in variables:
         if v.name == ref:

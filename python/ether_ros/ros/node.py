@@ -56,6 +56,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 
+from ether_ros._native.protocol import format_address
 from ether_ros.config import types as dt
 from ether_ros.errors import EtherRosError
 from ether_ros.ros import bridge, diagnostics, joints
@@ -851,7 +852,7 @@ class EtherRosNode(LifecycleNode):
             return True, "panic latched (no cyclic exchange running)"
         bus.panic()
         self.get_logger().error("PANIC: safe outputs on the wire")
-        return True, "panic: safe outputs on the wire until clear_panic"
+        return True, "safe outputs on the wire until the panic is cleared"
 
     def clear_panic(self) -> tuple[bool, str]:
         bus = self._bus
@@ -898,7 +899,7 @@ class EtherRosNode(LifecycleNode):
                 nbytes = (t.bit_length + 7) // 8
                 if len(data) < nbytes:
                     raise EtherRosError(
-                        f"{name} 0x{index:04x}:{subindex:02x}: {len(data)} byte(s) read, "
+                        f"{name} {format_address(index, subindex)}: {len(data)} byte(s) read, "
                         f"{t.name} needs {nbytes}"
                     )
                 value = dt.decode_value(t, data[:nbytes], t.bit_length)
@@ -920,7 +921,7 @@ class EtherRosNode(LifecycleNode):
         try:
             name = self._sdo_target(req.slave)
             lo, hi = type_range(req.type)
-            address = f"0x{req.index:04x}:{req.subindex:02x}"
+            address = format_address(req.index, req.subindex)
             var = VariableSpec(address, req.type, req.index, req.subindex, 0, lo, hi)
             value = to_python(parse_text(req.value, var), req.type)
             self._bus.sdo_write(name, int(req.index), int(req.subindex), value, req.type)

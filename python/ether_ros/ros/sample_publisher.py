@@ -88,7 +88,7 @@ class SamplePublisher:
         self._output_bytes = bridge.output_bytes(bus)
         self._expected_wkc = bridge.expected_wkc(bus)
         self._decoders = {
-            s.name: (bridge.AreaDecoder(s.layout.inputs), bridge.AreaDecoder(s.layout.outputs))
+            s.name: (bridge.area_decoder(s.layout.inputs), bridge.area_decoder(s.layout.outputs))
             for s in bus.slaves
             if s.layout is not None
         }

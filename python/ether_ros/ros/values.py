@@ -3,14 +3,16 @@ checked value.
 
 Used on both sides of ROS: the console refuses a bad value before anything is sent, and the node
 checks again every write it receives (any ROS client may publish), so an invalid write never
-reaches the process image. Types and ranges come from :mod:`ether_ros.config.types`, the one
-type table of the project.
+reaches the process image. Types, ranges and the check itself are the protocol crate's
+(``ether_ros._native.protocol``: the native command path checks with the same function).
 """
 
 from __future__ import annotations
 
+import functools
 import math
 
+from ether_ros._native import protocol
 from ether_ros.config import types as dt
 from ether_ros.errors import EtherRosError
 from ether_ros.ros.layout import VariableSpec
@@ -20,9 +22,7 @@ class InvalidValue(EtherRosError):
     """A value that does not fit its variable (names the variable, type and range)."""
 
 
-_FLOAT32_MAX = 3.4028234663852886e38
-
-
+@functools.lru_cache(maxsize=256)
 def data_type(type_name: str) -> dt.DataType:
     """The type a name denotes (``int16``, ``INT``, ``UINT``, ``bool``, ``real32`` ...)."""
     t = dt.config_type(type_name)
@@ -34,10 +34,9 @@ def data_type(type_name: str) -> dt.DataType:
 def type_range(type_name: str, bit_length: int = 0) -> tuple[float, float]:
     """(minimum, maximum) of a numeric type."""
     t = data_type(type_name)
-    if t.kind == "real":
-        limit = _FLOAT32_MAX if t.bit_length == 32 else math.inf
-        return -limit, limit
-    lo, hi = dt.int_range(t, bit_length or t.bit_length)
+    lo, hi = protocol.value_range(
+        t.kind, t.bit_length if t.kind == "real" else bit_length or t.bit_length
+    )
     return float(lo), float(hi)
 
 
@@ -90,15 +89,17 @@ def _integer(raw: str, text: str, var: VariableSpec) -> float:
 
 def check_value(value: float, var: VariableSpec) -> float:
     """``value`` if it is valid for ``var``, else :class:`InvalidValue` saying why."""
-    if math.isnan(value) or math.isinf(value):
-        raise InvalidValue(f"{var.name} ({var.type}): {value} is not a finite number")
-    if is_integer_type(var.type) and not float(value).is_integer():
-        raise InvalidValue(f"{var.name} is {var.type}: {value:g} is not an integer")
-    if value < var.minimum or value > var.maximum:
+    try:
+        protocol.check_value(data_type(var.type).kind, value, var.minimum, var.maximum)
+    except protocol.ValueCheckError as exc:
+        if exc.reason == "not_finite":
+            raise InvalidValue(f"{var.name} ({var.type}): {value} is not a finite number") from None
+        if exc.reason == "not_integer":
+            raise InvalidValue(f"{var.name} is {var.type}: {value:g} is not an integer") from None
         raise InvalidValue(
             f"{var.name} ({var.type}): {format_value(value, var)} is outside "
             f"{format_value(var.minimum, var)}..{format_value(var.maximum, var)}"
-        )
+        ) from None
     return float(value)
 
 

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from ether_ros._native.protocol import cia402
 from ether_ros.errors import EtherRosError
 
 RUN_DIR = Path("/run/ether_ros")
@@ -59,8 +60,8 @@ class Arg:
 
 # Faults of a CiA 402 drive (the simulator's `cia402` model), by the name `drive_fault` takes.
 DRIVE_FAULTS = ("over_current", "encoder", "under_voltage", "following_error")
-# Axes of one drive (ETG.6010: up to 8, objects 0x800 apart); the model checks its own count.
-MAX_AXES = 8
+# Axes of one drive (ETG.6010, the protocol crate's limit); the model checks its own count.
+MAX_AXES = cia402.MAX_AXES
 
 
 # Fault kinds and their arguments: the names passed on to SimNetwork.fault(kind, **args).

@@ -24,6 +24,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
+from ether_ros._native.protocol import coe
 from ether_ros.config.bus import BusConfig, SlaveConfig
 from ether_ros.config.process import ProcessLayout
 from ether_ros.errors import BusError, EtherRosError
@@ -254,7 +255,7 @@ def _preop_hook(
 
     def hook(slave: Any) -> None:
         if assign is not None:
-            for sm_index, pdos in ((0x1C12, assign.rx), (0x1C13, assign.tx)):
+            for sm_index, pdos in ((coe.RXPDO_ASSIGN, assign.rx), (coe.TXPDO_ASSIGN, assign.tx)):
                 if pdos is None:
                     continue
                 slave.sdo_write(sm_index, 0, bytes([0]))

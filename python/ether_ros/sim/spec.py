@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from ether_ros._native.protocol import coe
 from ether_ros.config.bus import BusConfig, SlaveConfig
 from ether_ros.config.esi import EsiDevice, Pdo, PdoEntry
 from ether_ros.config.sii import build_sii
@@ -106,7 +107,7 @@ def _dictionary(device: EsiDevice) -> tuple[list[tuple[Any, ...]], list[tuple[An
 _DICTIONARIES: dict[int, tuple[EsiDevice, list[tuple[Any, ...]], list[tuple[Any, ...]]]] = {}
 
 # The identity object's serial number (0x1018:4): the ESI can't know it, each slave has its own.
-_SERIAL_ENTRY = (0x1018, 4)
+_SERIAL_ENTRY = (coe.IDENTITY, 4)
 
 
 def device_spec(
@@ -136,7 +137,7 @@ def device_spec(
         "serial": serial,
         "alias": alias,
         "sii": build_sii(device, alias=alias, serial=serial),
-        "objects": objects,
+        "objects": list(objects),
         "entries": entries,
         "device": sim_device,
         "params": {k: float(v) for k, v in (params or {}).items()},

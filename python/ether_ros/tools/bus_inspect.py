@@ -19,10 +19,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from ether_ros._native.protocol import coe as coe_facts
+from ether_ros._native.protocol import esi_type_name, format_address, parse_address, reg
 from ether_ros.config import types as dt
 from ether_ros.config.esi import EsiDevice
 from ether_ros.config.sii import SiiInfo
-from ether_ros.errors import BusError, EtherRosError, LinkError
+from ether_ros.errors import BusError, EtherRosError, LinkError, MailboxTimeout
 from ether_ros.master.al import AlState, AlStateMachine, AlStatus, SlaveRef, al_code_text
 from ether_ros.master.datagrams import DatagramService
 from ether_ros.master.link import open_engine
@@ -33,26 +35,8 @@ class InspectError(EtherRosError):
     """An inspection request names something that is not there or does not fit."""
 
 
-ESC_REGISTER_SPACE = 0x1000  # registers; process data RAM follows up to 0xFFFF
+ESC_REGISTER_SPACE = reg.PDRAM  # registers; process data RAM follows up to 0xFFFF
 STATE_NAMES = {s.name: s for s in AlState}
-
-# ETG.1000.6 data type code -> the name an ESI file uses.
-ESI_TYPE_NAMES = {
-    0x0001: "BOOL",
-    0x0002: "SINT",
-    0x0003: "INT",
-    0x0004: "DINT",
-    0x0005: "USINT",
-    0x0006: "UINT",
-    0x0007: "UDINT",
-    0x0008: "REAL",
-    0x0009: "STRING",
-    0x000A: "OCTET_STRING",
-    0x0011: "LREAL",
-    0x0015: "LINT",
-    0x001B: "ULINT",
-    **{0x002F + n: f"BIT{n}" for n in range(1, 9)},
-}
 
 
 @dataclass(frozen=True)
@@ -317,22 +301,18 @@ class Inspector:
     def resolve_object(
         self, which: str | int, spec: str, type_name: str | None = None
     ) -> ObjectRef:
-        """``0x7030:3`` / ``0x7030:0a`` (hex) / ``28720:10`` (decimal), or a name from the ESI
+        """An object address (``0x7030:03``, ``7030:3``, ``0x1600:0a``: both parts hexadecimal,
+        the one grammar of ``ether_ros._native.protocol.parse_address``) or a name from the ESI
         dictionary (``a_ellipse100`` or ``TrajectoryParameters.a_ellipse100``)."""
         f = self.slave(which)
         device = self.device(f)
         forced = data_type(type_name) if type_name else None
-        m = re.fullmatch(r"\s*(0x[0-9a-fA-F]+|\d+)\s*:\s*(0x[0-9a-fA-F]+|\d+)\s*", spec)
-        if m:
-            # As everywhere in ether_ros (0x7000:0d): after a hex index the subindex is hex too.
-            index = int(m.group(1), 0)
-            sub_text = m.group(2)
-            hex_sub = m.group(1).lower().startswith("0x") or sub_text.lower().startswith("0x")
-            sub = int(sub_text.lower().removeprefix("0x"), 16 if hex_sub else 10)
-            if not (0 <= index <= 0xFFFF and 0 <= sub <= 0xFF):
-                raise InspectError(
-                    f"object {spec!r} is out of range (index 0..0xFFFF, subindex 0..0xFF)"
-                )
+        try:
+            address = parse_address(spec)
+        except ValueError as exc:
+            raise InspectError(f"object {exc}") from None
+        if address is not None:
+            index, sub = address
             entry = device.od_entry(index, sub) if device else None
             if entry is None and forced is None:
                 return self._describe_on_slave(f, index, sub)
@@ -351,7 +331,7 @@ class Inspector:
         if not hits:
             raise InspectError(f"no object {spec!r} in the dictionary of {self.ref(f)}")
         if len(hits) > 1:
-            where = ", ".join(f"0x{e.index:04X}:{e.subindex:02X}" for e in hits)
+            where = ", ".join(format_address(e.index, e.subindex) for e in hits)
             raise InspectError(f"{spec!r} is ambiguous ({where}); use index:subindex")
         e = hits[0]
         return _object_ref(e.index, e.subindex, e, forced)
@@ -397,7 +377,7 @@ class Inspector:
         ref = self.resolve_object(which, spec, type_name)
         if ref.dtype is None:
             raise InspectError(
-                f"the type of 0x{ref.index:04X}:{ref.subindex:02X} is unknown "
+                f"the type of {format_address(ref.index, ref.subindex)} is unknown "
                 "(not in the ESI dictionary): give --type"
             )
         value = parse_value(text, ref.dtype)
@@ -408,7 +388,7 @@ class Inspector:
             data = dt.encode_value(ref.dtype, value, bits)
         except ValueError as exc:
             raise InspectError(
-                f"0x{ref.index:04X}:{ref.subindex:02X} ({ref.name or ref.dtype.name}): {exc}"
+                f"{format_address(ref.index, ref.subindex)} ({ref.name or ref.dtype.name}): {exc}"
             ) from None
         self.sdo_client(which).download(ref.index, ref.subindex, data)
         return ref, data
@@ -441,7 +421,7 @@ class Inspector:
                         {
                             "subindex": e.subindex,
                             "name": e.name,
-                            "type": ESI_TYPE_NAMES.get(e.data_type, e.type_name),
+                            "type": esi_type_name(e.data_type) or e.type_name,
                             "bit_length": e.bit_length,
                             "access": e.access,
                             "pdo_mapping": e.pdo_mapping,
@@ -468,7 +448,7 @@ class Inspector:
                     {
                         "subindex": sub,
                         "name": e.name,
-                        "type": ESI_TYPE_NAMES.get(e.data_type, f"0x{e.data_type:04X}"),
+                        "type": esi_type_name(e.data_type) or f"0x{e.data_type:04X}",
                         "bit_length": e.bit_length,
                         "access": e.access_text,
                         "pdo_mapping": mapping,
@@ -507,8 +487,8 @@ class Inspector:
         tx = [_sii_pdo(p) for p in h.tx_pdos]
         if h.has_coe:
             try:
-                rx = self._pdos_by_coe(which, 0x1C12)
-                tx = self._pdos_by_coe(which, 0x1C13)
+                rx = self._pdos_by_coe(which, coe_facts.RXPDO_ASSIGN)
+                tx = self._pdos_by_coe(which, coe_facts.TXPDO_ASSIGN)
                 source = "coe"
             except EtherRosError:
                 source = "sii"  # the slave does not expose its assignment: the SII is all
@@ -543,7 +523,7 @@ class Inspector:
                         "subindex": sub,
                         "bit_length": bits,
                         "name": od.name if od else ("(gap)" if index == 0 else ""),
-                        "type": ESI_TYPE_NAMES.get(od.data_type, "") if od else "",
+                        "type": (esi_type_name(od.data_type) or "") if od else "",
                     }
                 )
             pdo_desc = device.pdo(pdo_index) if device else None
@@ -602,7 +582,7 @@ class Inspector:
         rtts = []
         for _ in range(probes):
             t0 = time.perf_counter_ns()
-            self.dg.brd(0x0000, 2)
+            self.dg.brd(reg.TYPE, 2)
             rtts.append((time.perf_counter_ns() - t0) / 1000.0)
         sys_stats: dict[str, Any] = {}
         base = Path("/sys/class/net") / self.interface
@@ -649,11 +629,12 @@ def _sync_mailbox_counter(probe: Any) -> None:
     """
     for _attempt in range(3):
         try:
-            probe.upload(0x1000, 0)
+            probe.upload(coe_facts.DEVICE_TYPE, 0)
             return
-        except EtherRosError as exc:
-            if "timed out" not in str(exc):
-                return  # an abort is an answer: the counter was accepted
+        except MailboxTimeout:
+            continue  # the message may have vanished as a repeat: try with the next counter
+        except EtherRosError:
+            return  # an abort is an answer: the counter was accepted
 
 
 def _check_register(address: int, length: int) -> None:
@@ -684,7 +665,7 @@ def _sii_pdo(p: Any) -> dict[str, Any]:
                 "subindex": e.subindex,
                 "bit_length": e.bit_length,
                 "name": e.name,
-                "type": ESI_TYPE_NAMES.get(e.data_type, ""),
+                "type": esi_type_name(e.data_type) or "",
             }
             for e in p.entries
         ],
@@ -754,9 +735,7 @@ def esi_from_sii(info: SiiInfo, vendor_name: str = "") -> str:
                 etree.SubElement(entry, "BitLen").text = str(e.bit_length)
                 if e.index:
                     etree.SubElement(entry, "Name").text = e.name
-                    etree.SubElement(entry, "DataType").text = ESI_TYPE_NAMES.get(
-                        e.data_type, "USINT"
-                    )
+                    etree.SubElement(entry, "DataType").text = esi_type_name(e.data_type) or "USINT"
     if info.mailbox[1] and info.mailbox[3]:
         mbx = etree.SubElement(dev, "Mailbox")
         if info.mailbox_protocols & 0x04:

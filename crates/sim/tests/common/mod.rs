@@ -2,9 +2,9 @@
 //! one input PDO, and a way to exchange single-datagram frames.
 #![allow(dead_code)]
 
+use ether_ros_protocol::{self as wire, Command, FrameBuilder};
 use ether_ros_sim::od::{dtype, Access, Entry, Object};
 use ether_ros_sim::{MailboxSpec, Network, SlaveSpec};
-use ether_ros_wire::{self as wire, Command, FrameBuilder};
 
 pub const MBX_RX: (u16, u16) = (0x1000, 128);
 pub const MBX_TX: (u16, u16) = (0x1080, 128);

@@ -1,9 +1,8 @@
-//! EtherCAT on the wire: frame and datagram layout, commands, and the ESC register map.
+//! EtherCAT on the wire: frame and datagram layout and the datagram commands.
 //!
-//! This crate is the contract between the master's engine and the simulator: both encode and
-//! decode frames with the same code, so the layout is written down exactly once. Everything here
-//! works on caller-provided byte slices and never allocates, because the engine uses it from its
-//! real-time thread.
+//! The master's engine and the simulator encode and decode frames with this code, so the layout
+//! is written down exactly once. Everything here works on caller-provided byte slices and never
+//! allocates, because the engine uses it from its real-time thread.
 //!
 //! Layout facts (IEC 61158-4-12 / ETG.1000.4):
 //! - Ethernet II header: destination (6), source (6), EtherType 0x88A4.
@@ -14,30 +13,31 @@
 //!   IRQ (2), data (length), working counter (2).
 //! - An Ethernet frame is at least 60 bytes without FCS: short frames are padded with zeros.
 
-#![forbid(unsafe_code)]
+crate::named_constants! {
+    /// Every layout constant, by name.
+    pub const TABLE;
+    /// EtherType of EtherCAT frames.
+    pub const ETHERTYPE: u16 = 0x88A4;
+    /// Ethernet II header length.
+    pub const ETH_HEADER_LEN: usize = 14;
+    /// EtherCAT frame header length (the 16-bit length/type word).
+    pub const ECAT_HEADER_LEN: usize = 2;
+    /// Datagram header: command, index, address, length word, IRQ.
+    pub const DATAGRAM_HEADER_LEN: usize = 10;
+    /// Working counter after each datagram's data.
+    pub const WKC_LEN: usize = 2;
+    /// Minimum Ethernet frame length without FCS.
+    pub const MIN_FRAME_LEN: usize = 60;
+    /// Largest Ethernet payload (standard MTU).
+    pub const MAX_PAYLOAD: usize = 1500;
+    /// Largest frame we build or accept (header + MTU payload).
+    pub const MAX_FRAME_LEN: usize = ETH_HEADER_LEN + MAX_PAYLOAD;
+    /// Largest data length one datagram can carry in a standard frame.
+    pub const MAX_DATAGRAM_DATA: usize = MAX_PAYLOAD - ECAT_HEADER_LEN - DATAGRAM_HEADER_LEN - WKC_LEN;
+    /// EtherCAT header type value for DLPDUs.
+    pub const ECAT_TYPE_DLPDU: u8 = 1;
+}
 
-pub mod reg;
-
-/// EtherType of EtherCAT frames.
-pub const ETHERTYPE: u16 = 0x88A4;
-/// Ethernet II header length.
-pub const ETH_HEADER_LEN: usize = 14;
-/// EtherCAT frame header length (the 16-bit length/type word).
-pub const ECAT_HEADER_LEN: usize = 2;
-/// Datagram header: command, index, address, length word, IRQ.
-pub const DATAGRAM_HEADER_LEN: usize = 10;
-/// Working counter after each datagram's data.
-pub const WKC_LEN: usize = 2;
-/// Minimum Ethernet frame length without FCS.
-pub const MIN_FRAME_LEN: usize = 60;
-/// Largest Ethernet payload (standard MTU).
-pub const MAX_PAYLOAD: usize = 1500;
-/// Largest frame we build or accept (header + MTU payload).
-pub const MAX_FRAME_LEN: usize = ETH_HEADER_LEN + MAX_PAYLOAD;
-/// Largest data length one datagram can carry in a standard frame.
-pub const MAX_DATAGRAM_DATA: usize = MAX_PAYLOAD - ECAT_HEADER_LEN - DATAGRAM_HEADER_LEN - WKC_LEN;
-/// EtherCAT header type value for DLPDUs.
-pub const ECAT_TYPE_DLPDU: u8 = 1;
 /// Masters conventionally send from a locally administered address; slaves flip bit 1 of the
 /// first source byte on the way back, which is how a master tells its own echo from the answer.
 pub const MASTER_MAC: [u8; 6] = [0x02, 0x00, 0x00, 0x00, 0x00, 0x01];
@@ -78,6 +78,26 @@ pub enum Addressing {
 }
 
 impl Command {
+    /// Every command, by code.
+    pub const ALL: [Command; 15] = [
+        Command::Nop,
+        Command::Aprd,
+        Command::Apwr,
+        Command::Aprw,
+        Command::Fprd,
+        Command::Fpwr,
+        Command::Fprw,
+        Command::Brd,
+        Command::Bwr,
+        Command::Brw,
+        Command::Lrd,
+        Command::Lwr,
+        Command::Lrw,
+        Command::Armw,
+        Command::Frmw,
+    ];
+
+    /// The command with code `v`.
     pub fn from_u8(v: u8) -> Option<Command> {
         use Command::*;
         Some(match v {

@@ -1,0 +1,145 @@
+//! Object dictionary addresses: the one grammar for index and subindex, and the one way to
+//! write them.
+//!
+//! Both parts are hexadecimal, as ETG and vendor documentation write them, with or without the
+//! `0x` prefix, in either case:
+//!
+//! ```text
+//! address  = index ":" subindex          (blanks around the whole are ignored)
+//! index    = ["0x" | "0X"] hexdigit+     value 0x0000..=0xFFFF
+//! subindex = ["0x" | "0X"] hexdigit+     value 0x00..=0xFF
+//! ```
+//!
+//! So `0x1600:0a`, `0x1600:0x0a`, `1600:0A` and `1600:a` are all index 0x1600 subindex 0x0A,
+//! `7000:01` is 0x7000 subindex 1 everywhere, and `0x1600:10` is subindex 0x10 (16), never
+//! decimal ten. There is no decimal form: `28720:10` is refused (index 0x28720 is too large)
+//! rather than read as 0x7030.
+//!
+//! Text that does not have the shape of an address (no colon, or something other than hex
+//! digits around it) is no address: where a name is allowed too (process variables, ESI object
+//! names), it is looked up as a name. Text with the shape but out of range is an error that
+//! says so. The canonical form, used for keys and messages, is `0x7000:01` (`format`).
+
+/// Why text that looks like an address is not a valid one.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum AddressError {
+    /// Not of the form `index:subindex` with hexadecimal parts (it may be a name).
+    NotAnAddress,
+    /// The index is larger than 0xFFFF.
+    IndexTooLarge,
+    /// The subindex is larger than 0xFF.
+    SubindexTooLarge,
+}
+
+impl core::fmt::Display for AddressError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            AddressError::NotAnAddress => {
+                "not an object address (index:subindex, both hexadecimal, e.g. 0x7000:01)"
+            }
+            AddressError::IndexTooLarge => {
+                "index out of range (0x0000..0xFFFF; object addresses are hexadecimal)"
+            }
+            AddressError::SubindexTooLarge => {
+                "subindex out of range (0x00..0xFF; object addresses are hexadecimal)"
+            }
+        })
+    }
+}
+
+impl std::error::Error for AddressError {}
+
+/// One hexadecimal part with an optional `0x`/`0X` prefix; `None` when it is not one, the value
+/// saturated at `u32::MAX` otherwise (leading zeros are fine).
+fn hex_part(part: &str) -> Option<u32> {
+    let digits = part
+        .strip_prefix("0x")
+        .or_else(|| part.strip_prefix("0X"))
+        .unwrap_or(part);
+    if digits.is_empty() || !digits.bytes().all(|b| b.is_ascii_hexdigit()) {
+        return None;
+    }
+    let mut value: u32 = 0;
+    for b in digits.bytes() {
+        let d = (b as char).to_digit(16)?;
+        value = value.saturating_mul(16).saturating_add(d);
+    }
+    Some(value)
+}
+
+/// Parse an object address (see the module documentation for the grammar).
+pub fn parse(text: &str) -> Result<(u16, u8), AddressError> {
+    let (index, subindex) = text
+        .trim()
+        .split_once(':')
+        .ok_or(AddressError::NotAnAddress)?;
+    let (Some(index), Some(subindex)) = (hex_part(index), hex_part(subindex)) else {
+        return Err(AddressError::NotAnAddress);
+    };
+    let index = u16::try_from(index).map_err(|_| AddressError::IndexTooLarge)?;
+    let subindex = u8::try_from(subindex).map_err(|_| AddressError::SubindexTooLarge)?;
+    Ok((index, subindex))
+}
+
+/// Write an address in the canonical form `0x7000:01` into `out` (no allocation).
+pub fn write(index: u16, subindex: u8, out: &mut impl core::fmt::Write) -> core::fmt::Result {
+    write!(out, "0x{index:04x}:{subindex:02x}")
+}
+
+/// The canonical form of an address: `0x7000:01`.
+pub fn format(index: u16, subindex: u8) -> String {
+    let mut s = String::with_capacity(9);
+    let _ = write(index, subindex, &mut s);
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_spelling_of_one_address() {
+        for text in [
+            "0x1600:0a",
+            "0x1600:0x0a",
+            "1600:0A",
+            "1600:a",
+            " 0X1600:0X0A ",
+            "01600:00a",
+        ] {
+            assert_eq!(parse(text), Ok((0x1600, 0x0A)), "{text}");
+        }
+        assert_eq!(parse("7000:01"), Ok((0x7000, 1)));
+        assert_eq!(
+            parse("0x1600:10"),
+            Ok((0x1600, 0x10)),
+            "the subindex is hex too"
+        );
+    }
+
+    #[test]
+    fn names_and_out_of_range_addresses() {
+        for name in [
+            "hip_angle",
+            "7000",
+            "7000:",
+            ":1",
+            "0x:1",
+            "7000:1:2",
+            "7000 :1",
+            "g000:1",
+        ] {
+            assert_eq!(parse(name), Err(AddressError::NotAnAddress), "{name}");
+        }
+        assert_eq!(parse("28720:10"), Err(AddressError::IndexTooLarge));
+        assert_eq!(parse("17000:3"), Err(AddressError::IndexTooLarge));
+        assert_eq!(parse("7000:103"), Err(AddressError::SubindexTooLarge));
+        assert_eq!(parse("ffffffffffff:1"), Err(AddressError::IndexTooLarge));
+    }
+
+    #[test]
+    fn canonical_form() {
+        assert_eq!(format(0x7030, 0x0a), "0x7030:0a");
+        assert_eq!(parse(&format(0x1c12, 0)), Ok((0x1c12, 0)));
+    }
+}

@@ -1,0 +1,535 @@
+//! `ether_ros._native.protocol`: the protocol crate seen from Python, so that no Python module
+//! keeps a copy of an EtherCAT fact.
+//!
+//! Constants come in namespaces built from the crate's tables (`protocol.reg.AL_CONTROL`,
+//! `protocol.sii.CHECKSUM_ERROR`, `protocol.cw.FAULT_RESET`, ...): each table is exported by
+//! name, so a constant is written once, in Rust. Functions give the texts of codes, the CRC,
+//! the object address grammar, the data types and the value checks; `AreaDecoder` decodes a
+//! slave's process area per published sample.
+
+use ether_ros_protocol as p;
+use p::dtype::Kind;
+use p::value::ValueError as CheckError;
+use pyo3::exceptions::{PyTypeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::sync::PyOnceLock;
+use pyo3::types::{PyDict, PyList, PyTuple, PyType};
+
+const MODULE: &str = "ether_ros._native.protocol";
+
+static VALUE_CHECK_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
+
+/// `protocol.ValueCheckError(ValueError)`: a value that does not fit a type or a variable's
+/// range. Carries `reason` (`not_finite`, `not_integer`, `out_of_range`, `not_numeric`),
+/// `minimum` and `maximum` as data.
+fn value_check_error(py: Python<'_>) -> &Bound<'_, PyType> {
+    VALUE_CHECK_ERROR
+        .get_or_init(py, || {
+            PyErr::new_type(
+                py,
+                c"ether_ros._native.protocol.ValueCheckError",
+                Some(
+                    c"A value does not fit: `reason` says why (not_finite, not_integer, \
+                      out_of_range, not_numeric); `minimum` and `maximum` give the range.",
+                ),
+                Some(&py.get_type::<PyValueError>()),
+                None,
+            )
+            .expect("creating ValueCheckError")
+        })
+        .bind(py)
+}
+
+fn check_error(py: Python<'_>, e: CheckError) -> PyErr {
+    let (minimum, maximum) = match e {
+        CheckError::OutOfRange { minimum, maximum } => (Some(minimum), Some(maximum)),
+        _ => (None, None),
+    };
+    let err = PyErr::from_type(value_check_error(py).clone(), e.to_string());
+    let value = err.value(py);
+    // Setting attributes on a fresh exception instance cannot fail short of memory exhaustion.
+    let _ = value.setattr("reason", e.reason());
+    let _ = value.setattr("minimum", minimum);
+    let _ = value.setattr("maximum", maximum);
+    err
+}
+
+fn kind(name: &str) -> PyResult<Kind> {
+    Kind::from_name(name).ok_or_else(|| {
+        PyValueError::new_err(format!(
+            "unknown value kind '{name}' (bool, int, uint, real, string, bytes)"
+        ))
+    })
+}
+
+/// The name of the AL state in bits 0..=3 of `state`, or None.
+#[pyfunction]
+fn al_state_name(state: u8) -> Option<&'static str> {
+    p::al::state_name(state)
+}
+
+/// Words for an AL status code (vendor-specific and unknown codes say so).
+#[pyfunction]
+fn al_status_text(code: u16) -> String {
+    p::al::code_text(code)
+}
+
+/// Text of an SDO abort code ("unknown abort code" when not in the table).
+#[pyfunction]
+fn sdo_abort_text(code: u32) -> &'static str {
+    p::coe::abort_text(code)
+}
+
+/// Text of a mailbox error code.
+#[pyfunction]
+fn mailbox_error_text(code: u16) -> &'static str {
+    p::mailbox::error_text(code)
+}
+
+/// Name of a mailbox type ("CoE"), or None.
+#[pyfunction]
+fn mailbox_type_name(mbx_type: u8) -> Option<&'static str> {
+    p::mailbox::type_name(mbx_type)
+}
+
+/// The 6-byte mailbox header of a message of `length` bytes after it.
+#[pyfunction]
+#[pyo3(signature = (length, mbx_type, counter, address = 0))]
+fn mailbox_header<'py>(
+    py: Python<'py>,
+    length: u16,
+    mbx_type: u8,
+    counter: u8,
+    address: u16,
+) -> Bound<'py, pyo3::types::PyBytes> {
+    let header = p::mailbox::Header {
+        length,
+        address,
+        channel: 0,
+        mbx_type,
+        counter,
+    };
+    pyo3::types::PyBytes::new(py, &header.encode())
+}
+
+/// `(length, address, channel, type, counter)` of the header `data` starts with, or None when
+/// it is shorter than a header.
+#[pyfunction]
+fn parse_mailbox_header(data: &[u8]) -> Option<(u16, u16, u8, u8, u8)> {
+    p::mailbox::Header::decode(data)
+        .map(|h| (h.length, h.address, h.channel, h.mbx_type, h.counter))
+}
+
+/// Text of an emergency / CiA 402 error code (its class when the exact code is not listed).
+#[pyfunction]
+fn emergency_text(code: u32) -> &'static str {
+    p::emergency::text((code & 0xFFFF) as u16)
+}
+
+/// Name of a CoE object code ("VAR", "ARRAY", "RECORD"), or None.
+#[pyfunction]
+fn object_code_name(code: u8) -> Option<&'static str> {
+    p::coe::object_code_name(code)
+}
+
+/// CRC-8 of the SII configuration area (the checksum in word 7).
+#[pyfunction]
+fn sii_checksum(data: &[u8]) -> u8 {
+    p::sii::checksum(data)
+}
+
+/// Parse an object address (`0x7000:01`, `7000:1`, hexadecimal): `(index, subindex)`, or None
+/// when the text is not of that shape (it may be a name). Raises `ValueError` when it is of
+/// that shape but out of range (`28720:10`).
+#[pyfunction]
+fn parse_address(text: &str) -> PyResult<Option<(u16, u8)>> {
+    match p::address::parse(text) {
+        Ok(a) => Ok(Some(a)),
+        Err(p::address::AddressError::NotAnAddress) => Ok(None),
+        Err(e) => Err(PyValueError::new_err(format!("{text:?}: {e}"))),
+    }
+}
+
+/// The canonical form of an object address: `0x7000:01`.
+#[pyfunction]
+fn format_address(index: u16, subindex: u8) -> String {
+    p::address::format(index, subindex)
+}
+
+/// Every basic data type: `(code, name, bit_length, kind)`.
+#[pyfunction]
+fn data_types() -> Vec<(u16, &'static str, u16, &'static str)> {
+    p::dtype::TYPES
+        .iter()
+        .map(|t| (t.code, t.name, t.bits, t.kind.name()))
+        .collect()
+}
+
+/// The code of the basic type an ESI type name denotes, or None.
+#[pyfunction]
+fn esi_type(name: &str) -> Option<u16> {
+    p::dtype::esi_type(name).map(|t| t.code)
+}
+
+/// The code of the type a configuration's `type:` names, or None.
+#[pyfunction]
+fn config_type(name: &str) -> Option<u16> {
+    p::dtype::config_type(name).map(|t| t.code)
+}
+
+/// The ESI name a type is usually written with (`UINT`), or None.
+#[pyfunction]
+fn esi_type_name(code: u16) -> Option<&'static str> {
+    p::dtype::esi_name(code)
+}
+
+/// Inclusive range of a numeric kind at a bit length: ints for bool/int/uint, floats for real.
+#[pyfunction]
+fn value_range<'py>(py: Python<'py>, kind_name: &str, bits: u32) -> PyResult<Bound<'py, PyTuple>> {
+    let k = kind(kind_name)?;
+    if let Some((lo, hi)) = p::value::int_range(k, bits) {
+        return PyTuple::new(py, [lo, hi]);
+    }
+    match p::value::range(k, bits) {
+        Some((lo, hi)) => PyTuple::new(py, [lo, hi]),
+        None => Err(check_error(py, CheckError::NotNumeric)),
+    }
+}
+
+/// The raw bits of an integer for an integral kind; `ValueCheckError` when it does not fit.
+#[pyfunction]
+fn encode_int(
+    py: Python<'_>,
+    kind_name: &str,
+    bits: u32,
+    value: &Bound<'_, PyAny>,
+) -> PyResult<u64> {
+    let k = kind(kind_name)?;
+    // Python ints beyond i128 are out of range for every type here.
+    let v: i128 = match value.extract() {
+        Ok(v) => v,
+        Err(_) if value.is_instance_of::<pyo3::types::PyInt>() => {
+            let range = p::value::range(k, bits).unwrap_or((0.0, 0.0));
+            return Err(check_error(
+                py,
+                CheckError::OutOfRange {
+                    minimum: range.0,
+                    maximum: range.1,
+                },
+            ));
+        }
+        Err(_) => return Err(PyTypeError::new_err("encode_int needs an int")),
+    };
+    p::value::encode_int(k, bits, v).map_err(|e| check_error(py, e))
+}
+
+/// The value of raw bits for an integral kind (sign extended for int).
+#[pyfunction]
+fn decode_int(kind_name: &str, bits: u32, raw: u64) -> PyResult<i128> {
+    Ok(p::value::decode_int(kind(kind_name)?, bits, raw))
+}
+
+/// The check of a numeric write: finite, whole for integral kinds, inside
+/// `minimum..=maximum`; `ValueCheckError` otherwise.
+#[pyfunction]
+fn check_value(
+    py: Python<'_>,
+    kind_name: &str,
+    value: f64,
+    minimum: f64,
+    maximum: f64,
+) -> PyResult<()> {
+    p::value::check(kind(kind_name)?, value, minimum, maximum).map_err(|e| check_error(py, e))
+}
+
+/// Datagram address of register `offset` of the slave at auto-increment `position`.
+#[pyfunction]
+fn auto_increment_address(position: u16, offset: u16) -> u32 {
+    p::auto_increment_address(position, offset)
+}
+
+/// Datagram address of register `offset` of the slave with station address `station`.
+#[pyfunction]
+fn fixed_address(station: u16, offset: u16) -> u32 {
+    p::fixed_address(station, offset)
+}
+
+/// Ports after port 0 in `mask` (bit p = port p), in the order a frame uses them.
+#[pyfunction]
+fn forwarding_ports(mask: u8) -> Vec<u32> {
+    // u32, not u8: PyO3 turns a Vec<u8> into bytes.
+    p::topology::forwarding_ports_of_mask(mask)
+        .map(u32::from)
+        .collect()
+}
+
+/// Ports a frame leaves through to another slave, from DL status (bit p = port p).
+#[pyfunction]
+fn open_ports(dl_status: u16) -> u8 {
+    p::reg::dl::open_ports(dl_status)
+}
+
+/// The signed system time difference (local − received, ns) of DC register 0x092C.
+#[pyfunction]
+fn dc_time_difference(raw: u32) -> i64 {
+    p::reg::dc::difference_ns(raw)
+}
+
+/// The CiA 402 state a statusword codes, by name (`operation_enabled`), or None.
+#[pyfunction]
+fn cia402_state(statusword: u16) -> Option<&'static str> {
+    p::cia402::State::from_statusword(statusword).map(|s| s.name())
+}
+
+/// One field of an area: bit offset, bit length, kind.
+struct Field {
+    bit_offset: usize,
+    bit_length: u32,
+    kind: Kind,
+}
+
+/// Decodes one slave's input or output area into floats, in the order its fields were given,
+/// for every published sample. Gives the values `ProcessLayout.unpack` gives; a field the area
+/// is too short for decodes as 0.0. Decoding the same bytes twice returns the same list.
+#[pyclass(module = "ether_ros._native.protocol")]
+struct AreaDecoder {
+    fields: Vec<Field>,
+    last: Option<(Vec<u8>, Py<PyList>)>,
+}
+
+#[pymethods]
+impl AreaDecoder {
+    /// `fields`: `(bit_offset, bit_length, kind)` per variable (kind bool, int, uint or real;
+    /// reals of 32 or 64 bits).
+    #[new]
+    fn new(fields: Vec<(usize, u32, String)>) -> PyResult<Self> {
+        let mut out = Vec::with_capacity(fields.len());
+        for (i, (bit_offset, bit_length, kind_name)) in fields.into_iter().enumerate() {
+            let k = kind(&kind_name)?;
+            let ok = match k {
+                Kind::Real => bit_length == 32 || bit_length == 64,
+                Kind::Bool | Kind::Int | Kind::Uint => (1..=64).contains(&bit_length),
+                Kind::String | Kind::Bytes => false,
+            };
+            if !ok {
+                return Err(PyValueError::new_err(format!(
+                    "field {i}: {kind_name} of {bit_length} bits cannot be decoded as a number"
+                )));
+            }
+            out.push(Field {
+                bit_offset,
+                bit_length,
+                kind: k,
+            });
+        }
+        Ok(AreaDecoder {
+            fields: out,
+            last: None,
+        })
+    }
+
+    /// Number of fields.
+    fn __len__(&self) -> usize {
+        self.fields.len()
+    }
+
+    /// The values of the fields in `area`.
+    fn decode<'py>(&mut self, py: Python<'py>, area: &[u8]) -> PyResult<Bound<'py, PyList>> {
+        if let Some((bytes, list)) = &self.last {
+            if bytes.as_slice() == area {
+                return Ok(list.bind(py).clone());
+            }
+        }
+        let values = self.fields.iter().map(|f| {
+            p::value::read_bits(area, f.bit_offset, f.bit_length)
+                .map_or(0.0, |raw| p::value::decode(f.kind, f.bit_length, raw))
+        });
+        let list = PyList::new(py, values)?;
+        match &mut self.last {
+            Some((bytes, cached)) => {
+                bytes.clear();
+                bytes.extend_from_slice(area);
+                *cached = list.clone().unbind();
+            }
+            None => self.last = Some((area.to_vec(), list.clone().unbind())),
+        }
+        Ok(list)
+    }
+}
+
+/// A table of named constants, as the protocol crate defines them.
+type Table<'a> = &'a [(&'a str, u64)];
+
+/// A class named `name` whose attributes are the constants of `table` (a namespace).
+fn namespace<'py>(
+    py: Python<'py>,
+    name: &str,
+    doc: &str,
+    tables: &[Table<'_>],
+) -> PyResult<Bound<'py, PyAny>> {
+    let attrs = PyDict::new(py);
+    attrs.set_item("__module__", MODULE)?;
+    attrs.set_item("__doc__", doc)?;
+    for table in tables {
+        for (key, value) in table.iter() {
+            attrs.set_item(*key, *value)?;
+        }
+    }
+    py.import("builtins")?
+        .getattr("type")?
+        .call1((name, PyTuple::empty(py), attrs))
+}
+
+/// Build the `protocol` submodule and add it to `parent` (and to `sys.modules`, so that
+/// `import ether_ros._native.protocol` works too).
+pub fn register(parent: &Bound<'_, PyModule>) -> PyResult<()> {
+    let py = parent.py();
+    let m = PyModule::new(py, MODULE)?;
+    m.add(
+        "__doc__",
+        "EtherCAT facts from the protocol crate (crates/protocol): registers, bits, codes and \
+         their texts, CRC, object addresses, data types and value checks, CiA 402 words.",
+    )?;
+    let commands: Vec<(&str, u64)> = p::Command::ALL
+        .iter()
+        .map(|c| (c.name(), *c as u64))
+        .collect();
+    let namespaces: [(&str, &str, Vec<Table<'_>>); 23] = [
+        ("frame", "Frame and datagram layout.", vec![p::frame::TABLE]),
+        ("cmd", "Datagram command codes.", vec![&commands]),
+        ("reg", "ESC register addresses.", vec![p::reg::TABLE]),
+        (
+            "features",
+            "ESC features (0x0008) bits.",
+            vec![p::reg::features::TABLE],
+        ),
+        (
+            "port_desc",
+            "Port descriptor (0x0007) values.",
+            vec![p::reg::port_desc::TABLE],
+        ),
+        ("dl", "DL control and status bits.", vec![p::reg::dl::TABLE]),
+        (
+            "sm",
+            "SyncManager register offsets and bits.",
+            vec![p::reg::sm::TABLE],
+        ),
+        (
+            "fmmu",
+            "FMMU register offsets and bits.",
+            vec![p::reg::fmmu::TABLE],
+        ),
+        ("dc", "Distributed clock bits.", vec![p::reg::dc::TABLE]),
+        (
+            "al",
+            "AL states and control/status bits.",
+            vec![p::al::TABLE],
+        ),
+        ("al_code", "AL status codes.", vec![p::al::CODES]),
+        (
+            "sii",
+            "SII control/status bits and commands.",
+            vec![p::sii::TABLE],
+        ),
+        (
+            "sii_word",
+            "SII header word addresses.",
+            vec![p::sii::word::TABLE],
+        ),
+        (
+            "sii_category",
+            "SII category types.",
+            vec![p::sii::category::TABLE],
+        ),
+        (
+            "mailbox",
+            "Mailbox header length and types.",
+            vec![p::mailbox::TABLE],
+        ),
+        (
+            "mailbox_error",
+            "Mailbox error codes.",
+            vec![p::mailbox::ERRORS],
+        ),
+        (
+            "coe",
+            "CoE services, SDO specifiers, SDO information.",
+            vec![p::coe::TABLE],
+        ),
+        ("sdo_abort", "SDO abort codes.", vec![p::coe::ABORTS]),
+        ("dtype", "CoE data type codes.", vec![p::dtype::TABLE]),
+        (
+            "cw",
+            "CiA 402 controlword bits.",
+            vec![p::cia402::cw::TABLE],
+        ),
+        ("sw", "CiA 402 statusword bits.", vec![p::cia402::sw::TABLE]),
+        (
+            "cia402",
+            "CiA 402 commands, objects and mode codes.",
+            vec![p::cia402::command::TABLE, p::cia402::object::TABLE],
+        ),
+        (
+            "mode",
+            "CiA 402 modes of operation (0x6060 values).",
+            vec![p::cia402::mode::TABLE],
+        ),
+    ];
+    for (name, doc, tables) in namespaces.iter() {
+        m.add(*name, namespace(py, name, doc, tables)?)?;
+    }
+    m.add("PORT_ORDER", PyTuple::new(py, p::topology::PORT_ORDER)?)?;
+    m.add("AL_STATES", PyTuple::new(py, p::al::STATES)?)?;
+    m.add("CIA402_STATES", PyTuple::new(py, p::cia402::State::NAMES)?)?;
+    let modes: Vec<(&str, i8, u32)> = p::cia402::Mode::ALL
+        .iter()
+        .map(|m| (m.name(), m.code(), m.supported_bit()))
+        .collect();
+    m.add("CIA402_MODES", PyTuple::new(py, modes)?)?;
+    let al_texts = PyDict::new(py);
+    for (code, text) in p::al::CODE_TEXTS {
+        al_texts.set_item(code, text)?;
+    }
+    m.add("AL_STATUS_TEXTS", al_texts)?;
+    let abort_texts = PyDict::new(py);
+    for (code, text) in p::coe::ABORT_TEXTS {
+        abort_texts.set_item(code, text)?;
+    }
+    m.add("SDO_ABORT_TEXTS", abort_texts)?;
+    let emergency = PyDict::new(py);
+    for (code, text) in p::emergency::CODES {
+        emergency.set_item(code, text)?;
+    }
+    m.add("EMERGENCY_TEXTS", emergency)?;
+    m.add("ValueCheckError", value_check_error(py))?;
+    m.add_class::<AreaDecoder>()?;
+    m.add_function(wrap_pyfunction!(al_state_name, &m)?)?;
+    m.add_function(wrap_pyfunction!(al_status_text, &m)?)?;
+    m.add_function(wrap_pyfunction!(sdo_abort_text, &m)?)?;
+    m.add_function(wrap_pyfunction!(mailbox_error_text, &m)?)?;
+    m.add_function(wrap_pyfunction!(mailbox_type_name, &m)?)?;
+    m.add_function(wrap_pyfunction!(emergency_text, &m)?)?;
+    m.add_function(wrap_pyfunction!(mailbox_header, &m)?)?;
+    m.add_function(wrap_pyfunction!(parse_mailbox_header, &m)?)?;
+    m.add_function(wrap_pyfunction!(object_code_name, &m)?)?;
+    m.add_function(wrap_pyfunction!(sii_checksum, &m)?)?;
+    m.add_function(wrap_pyfunction!(parse_address, &m)?)?;
+    m.add_function(wrap_pyfunction!(format_address, &m)?)?;
+    m.add_function(wrap_pyfunction!(data_types, &m)?)?;
+    m.add_function(wrap_pyfunction!(esi_type, &m)?)?;
+    m.add_function(wrap_pyfunction!(config_type, &m)?)?;
+    m.add_function(wrap_pyfunction!(esi_type_name, &m)?)?;
+    m.add_function(wrap_pyfunction!(value_range, &m)?)?;
+    m.add_function(wrap_pyfunction!(encode_int, &m)?)?;
+    m.add_function(wrap_pyfunction!(decode_int, &m)?)?;
+    m.add_function(wrap_pyfunction!(check_value, &m)?)?;
+    m.add_function(wrap_pyfunction!(auto_increment_address, &m)?)?;
+    m.add_function(wrap_pyfunction!(fixed_address, &m)?)?;
+    m.add_function(wrap_pyfunction!(forwarding_ports, &m)?)?;
+    m.add_function(wrap_pyfunction!(open_ports, &m)?)?;
+    m.add_function(wrap_pyfunction!(cia402_state, &m)?)?;
+    m.add_function(wrap_pyfunction!(dc_time_difference, &m)?)?;
+    parent.add("protocol", &m)?;
+    py.import("sys")?.getattr("modules")?.set_item(MODULE, &m)?;
+    Ok(())
+}
