@@ -44,6 +44,8 @@ const MAILBOX_QUEUE_LIMIT: usize = 32;
 /// Per-slave counters for `slave_info`.
 #[derive(Clone, Debug, Default)]
 pub struct SlaveCounters {
+    /// Frames that reached this slave before its last reset or topology change (the network
+    /// adds those since: `Network::slave_frames`).
     pub frames: u64,
     /// Frames in which a logical datagram reached this slave's FMMUs (its process data went
     /// by): with groups at their own cycles, this is the slave's own exchange rate.
@@ -52,6 +54,8 @@ pub struct SlaveCounters {
     pub device_steps_skipped: u64,
     pub sync0_events: u64,
     pub sync0_late_starts: u64,
+    /// SYNC0 events a frame latched because the firmware's worker had not got to them yet.
+    pub sync0_frame_latches: u64,
     pub watchdog_expirations: u64,
     pub mailbox_received: u64,
     pub mailbox_sent: u64,
@@ -176,6 +180,8 @@ pub struct Esc {
     pub counters: SlaveCounters,
     /// A logical datagram of the current frame hit an FMMU.
     process_data_seen: bool,
+    /// The firmware latches free-run process data around its steps (`set_firmware_latches`).
+    firmware_latches: bool,
 }
 
 impl Esc {
@@ -261,6 +267,7 @@ impl Esc {
             mailbox_stalled: false,
             counters: SlaveCounters::default(),
             process_data_seen: false,
+            firmware_latches: false,
             spec,
         };
         esc.power_on_registers();
@@ -428,6 +435,11 @@ impl Esc {
         self.dc
             .local(self.now)
             .wrapping_add(self.get64(reg::DC_SYSTEM_TIME_OFFSET))
+    }
+
+    /// The active FMMUs (the network's logical address map is built from them).
+    pub fn fmmus(&self) -> &[Fmmu] {
+        &self.fmmus
     }
 
     /// Raw memory, for diagnostics and tests (no side effects).
@@ -1539,6 +1551,104 @@ impl Esc {
     /// SYNC0 events in order, bounded catch-up, and the process-data watchdog.
     pub fn advance(&mut self, host: u64) {
         self.now = host;
+        self.run_events(host, true, u64::MAX);
+        self.check_watchdog();
+        // Time passes for a pending SAFEOP->OP request too (its timeout), before the frame's
+        // datagrams read the AL status.
+        self.resolve_pending_op();
+    }
+
+    /// The firmware's own clock (a worker thread, `crate::firmware`): what `advance` does,
+    /// then the mailbox, so emergencies the device raised reach the read mailbox without
+    /// waiting for a frame. At most `chunk_ns` of simulated time is run (from the first event
+    /// due) so that a firmware far behind lets the frame path in between; returns whether it
+    /// has caught up with `host`. The deadlines (watchdog, pending SAFEOP->OP) are those of
+    /// `host`: a firmware running behind sees the watchdog as it is now.
+    pub fn advance_firmware(&mut self, host: u64, chunk_ns: u64) -> bool {
+        self.now = host;
+        let caught_up = self.run_events(host, true, chunk_ns);
+        self.check_watchdog();
+        self.resolve_pending_op();
+        self.service_mailbox();
+        caught_up
+    }
+
+    /// A frame reaches this slave while its firmware runs on a worker thread: only what the
+    /// frame must see done by now. SYNC0 events already due are latched here if the worker
+    /// has not got to them yet, so the frame reads the inputs of the last SYNC0, exactly as in
+    /// simulated time; device steps are left to the worker, and so are the deadlines (the
+    /// watchdog, a pending SAFEOP->OP timeout), which it meets at their own instant.
+    pub fn frame_catch_up(&mut self, host: u64) {
+        self.now = host;
+        if self.sync0_due(host) {
+            self.counters.sync0_frame_latches += 1;
+            self.run_events(host, false, u64::MAX);
+        }
+    }
+
+    /// Is a SYNC0 event at or before host time `host` still to be latched?
+    fn sync0_due(&self, host: u64) -> bool {
+        match self.sync0_next {
+            Some(next) => {
+                let offset = self.get64(reg::DC_SYSTEM_TIME_OFFSET);
+                next.wrapping_sub(offset) <= self.dc.local(host)
+            }
+            None => false,
+        }
+    }
+
+    /// Host time (CLOCK_MONOTONIC ns, from `host` on) of the next thing the firmware side has
+    /// to do, and whether it must happen at that instant (`true`: a SYNC0 event, the watchdog
+    /// running out, a pending SAFEOP->OP request timing out) or is a device step (`false`,
+    /// which a worker may run a little later with its exact simulated time). None: nothing is
+    /// scheduled. Local times are turned into host time at the nominal rate: the worker may
+    /// wake a few ns early and look again.
+    pub fn next_firmware_event(&self, host: u64) -> Option<(u64, bool)> {
+        let local_now = self.dc.local(host);
+        let to_host = |local: u64| host.saturating_add(local.saturating_sub(local_now));
+        let mut exact: Option<u64> = None;
+        let mut consider = |t: u64| exact = Some(exact.map_or(t, |n: u64| n.min(t)));
+        if let Some(s) = self.sync0_next {
+            let offset = self.get64(reg::DC_SYSTEM_TIME_OFFSET);
+            consider(to_host(s.wrapping_sub(offset)));
+        }
+        let s = &self.sm[self.out_sm];
+        let armed = s.enabled() && s.control & WATCHDOG_TRIGGER != 0 && !s.is_mailbox();
+        let wd = self.watchdog_ns();
+        if armed && wd > 0 && !self.watchdog_expired {
+            consider(self.wd_last_trigger.saturating_add(wd + 1));
+        }
+        if let Some(since) = self.op_pending_since {
+            let timeout = u64::from(self.spec.safeop_op_timeout_ms) * 1_000_000;
+            consider(since.saturating_add(timeout + 1));
+        }
+        let step = self.device.as_ref().map(|_| to_host(self.app_next_step));
+        match (exact, step) {
+            (Some(e), Some(s)) if s < e => Some((s, false)),
+            (Some(e), _) => Some((e, true)),
+            (None, Some(s)) => Some((s, false)),
+            (None, None) => None,
+        }
+    }
+
+    /// The firmware latches process data itself (worker threads): in free run its outputs
+    /// are taken before and its inputs published after each device step, instead of on each
+    /// frame. A slave without firmware keeps the ESC's own latch on the frame (the digital
+    /// I/O of a simple terminal).
+    pub fn set_firmware_latches(&mut self, on: bool) {
+        self.firmware_latches = on;
+    }
+
+    /// Does the frame latch this slave's process data in free run?
+    fn frame_latches(&self) -> bool {
+        let firmware_does = self.firmware_latches && self.device.is_some();
+        !self.sync0_active() && !firmware_does
+    }
+
+    /// Device steps and SYNC0 events up to host time `host`, in time order (without `steps`,
+    /// SYNC0 events only: the frame path's catch-up, the device steps stay due), at most
+    /// `chunk_ns` of local time from the first one due; true when nothing due is left.
+    fn run_events(&mut self, host: u64, steps: bool, chunk_ns: u64) -> bool {
         let local_now = self.dc.local(host);
         let period = self.device.as_ref().map(|d| d.period_ns().max(1_000));
         if self.app_next_step == 0 {
@@ -1546,7 +1656,7 @@ impl Esc {
         }
         // Bound the catch-up.
         let horizon = local_now.saturating_sub(MAX_CATCH_UP_NS);
-        if let Some(p) = period {
+        if let (Some(p), true) = (period, steps) {
             if self.app_next_step < horizon {
                 let skipped = (horizon - self.app_next_step).div_ceil(p);
                 self.counters.device_steps_skipped += skipped;
@@ -1563,21 +1673,28 @@ impl Esc {
                 sync_local = Some(n.saturating_add(skip.saturating_mul(cycle)));
             }
         }
+        // The firmware latches around its own steps in free run (worker threads).
+        let step_latches = self.firmware_latches && self.sync0_next.is_none();
+        let first = match period {
+            Some(_) if steps => self.app_next_step,
+            _ => u64::MAX,
+        }
+        .min(sync_local.unwrap_or(u64::MAX));
+        let until = local_now.min(first.saturating_add(chunk_ns));
         // Never loop forever on absurd settings: past this many events, skip to now.
         let mut budget = 4 * MAX_CATCH_UP_NS / 1_000;
         loop {
-            let next_dev = if period.is_some() {
-                self.app_next_step
-            } else {
-                u64::MAX
+            let next_dev = match period {
+                Some(_) if steps => self.app_next_step,
+                _ => u64::MAX,
             };
             let next_sync = sync_local.unwrap_or(u64::MAX);
             let t = next_dev.min(next_sync);
-            if t > local_now {
+            if t > until {
                 break;
             }
             if budget == 0 {
-                if let Some(p) = period {
+                if let (Some(p), true) = (period, steps) {
                     self.app_next_step = local_now.saturating_add(p);
                 }
                 sync_local = sync_local.map(|_| local_now.saturating_add(cycle));
@@ -1591,9 +1708,15 @@ impl Esc {
                 self.counters.sync0_events += 1;
                 sync_local = Some(next_sync.saturating_add(cycle));
             } else {
+                if step_latches {
+                    self.latch_outputs();
+                }
                 let valid = self.outputs_valid();
                 if let Some(d) = self.device.as_mut() {
                     d.step(&mut self.od, t, valid);
+                }
+                if step_latches {
+                    self.latch_inputs();
                 }
                 self.send_device_emergencies();
                 self.counters.device_steps += 1;
@@ -1603,10 +1726,7 @@ impl Esc {
             }
         }
         self.sync0_next = sync_local.map(|n| n.wrapping_add(offset));
-        self.check_watchdog();
-        // Time passes for a pending SAFEOP->OP request too (its timeout), before the frame's
-        // datagrams read the AL status.
-        self.resolve_pending_op();
+        until == local_now
     }
 
     /// Queue the CoE emergencies the firmware raised (a slave with a mailbox, past INIT, as
@@ -1653,8 +1773,7 @@ impl Esc {
 
     /// Per-frame work before the datagrams: free-run input latch.
     pub fn before_frame(&mut self) {
-        self.counters.frames += 1;
-        if !self.sync0_active() {
+        if self.frame_latches() {
             self.latch_inputs();
         }
     }
@@ -1664,7 +1783,7 @@ impl Esc {
         if std::mem::take(&mut self.process_data_seen) {
             self.counters.process_data_frames += 1;
         }
-        if !self.sync0_active() {
+        if self.frame_latches() {
             self.latch_outputs();
         }
         self.resolve_pending_op();

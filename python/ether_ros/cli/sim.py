@@ -89,6 +89,20 @@ def register(subparsers: Any) -> None:
         help="how the simulator receives and answers: AF_PACKET (default), AF_XDP, or AF_XDP"
         " when available",
     )
+    p.add_argument(
+        "--threads",
+        type=_threads,
+        default=None,
+        help="worker threads running the device firmware, apart from the frame thread"
+        " (default: one per CPU the simulator may use; 0: the frame thread runs it)",
+    )
+    p.add_argument(
+        "--timing",
+        choices=("fast", "wire"),
+        default="fast",
+        help="when an answer leaves: as soon as it is processed (fast, default) or when the"
+        " modelled 100 Mbit/s wire would have brought it back (wire)",
+    )
     p.add_argument("--control", type=Path, help="control socket path (default:"
                    " /run/ether_ros/sim-INTERFACE.sock)")  # fmt: skip
     p.add_argument("--no-control", action="store_true", help="no control socket")
@@ -148,20 +162,50 @@ def register(subparsers: Any) -> None:
     f.set_defaults(func=run_fault)
 
 
-def _serve(net: Any, iface: str, link: str) -> None:
-    """Start the simulator's frame thread on ``iface`` through ``link``; ``auto`` falls back
-    to AF_PACKET with one line on stderr."""
+MAX_THREADS = 64  # the simulator's own limit (SimNetwork.run_on_interface)
+
+
+def _threads(text: str) -> int:
+    """A firmware thread count for ``--threads`` (0..MAX_THREADS)."""
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected a number 0..{MAX_THREADS}, got {text!r}"
+        ) from None
+    if not 0 <= n <= MAX_THREADS:
+        raise argparse.ArgumentTypeError(f"expected a number 0..{MAX_THREADS}, got {n}")
+    return n
+
+
+def _serve(net: Any, iface: str, link: str, threads: int | None, timing: str) -> None:
+    """Start the simulator's frame thread and firmware workers on ``iface`` through ``link``;
+    ``auto`` falls back to AF_PACKET with one line on stderr."""
     if link == "auto":
         try:
-            net.run_on_interface(iface, "xdp")
+            net.run_on_interface(iface, "xdp", threads=threads, timing=timing)
             return
         except OSError as exc:
             print(f"ether-ros sim: no AF_XDP ({exc}); using AF_PACKET", file=sys.stderr)
             link = "packet"
     try:
-        net.run_on_interface(iface, link)
+        net.run_on_interface(iface, link, threads=threads, timing=timing)
     except OSError as exc:
         raise LinkError(str(exc)) from None
+
+
+def _threads_line(net: Any) -> str:
+    """How the simulator uses the machine, for its ready line."""
+    fw = net.stats()["firmware"]
+    where = (
+        f"firmware on {fw['threads']} worker thread{'s' if fw['threads'] != 1 else ''}"
+        if fw["threads"]
+        else "firmware in the frame thread"
+    )
+    return (
+        f"{where} + 1 frame thread, {fw['cpus']} CPU{'s' if fw['cpus'] != 1 else ''}"
+        f" available; timing {fw['timing']}"
+    )
 
 
 def _drive_fault(text: str) -> str:
@@ -242,10 +286,11 @@ def _run(net: Any, cfg: Any, iface: str, args: argparse.Namespace) -> int:
             server = ControlServer(
                 path, slave_names(cfg), lambda op, kind, a: handle_request(net, op, kind, a)
             )
-        _serve(net, iface, args.link)
+        _serve(net, iface, args.link, args.threads, args.timing)
         if server is not None:
             server.start()
         print(f"ether-ros sim: {len(cfg.slaves)} slaves on {iface} ready", flush=True)
+        print(f"ether-ros sim: {_threads_line(net)}", flush=True)
         while signal.sigtimedwait(signals, 0.2) is None:
             if not _running(net):
                 print("ether-ros sim: the frame loop stopped", file=sys.stderr)

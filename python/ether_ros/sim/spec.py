@@ -308,23 +308,18 @@ def default_delay_ns(device: EsiDevice) -> int:
     return DELAY_EBUS_NS if device.physics[:1] == "K" else DELAY_MII_NS
 
 
-def device_spec(
-    device: EsiDevice,
-    *,
-    name: str,
-    sim_device: str = "none",
-    params: dict[str, float] | None = None,
-    alias: int = 0,
-    serial: int = 0,
-    drift_ppm: float = 0.0,
-    delay_ns: int | None = None,
-    esc: str = "et1100",
-    lrw: bool = True,
-) -> dict[str, Any]:
-    """The ``add_slave`` spec of one slave running ``device``."""
+def _dictionary(
+    device: EsiDevice, sim_device: str
+) -> tuple[list[tuple[Any, ...]], list[tuple[Any, ...]]]:
+    """The CoE objects and entries (with their ESI defaults) a slave running ``device`` with
+    the ``sim_device`` model starts with: the same for every such slave, so built once
+    (``_DICTIONARIES``; a thousand-slave bus has three devices). The serial number is each
+    slave's own and is put in by ``device_spec``."""
+    key = (id(device), sim_device)
+    cached = _DICTIONARIES.get(key)
+    if cached is not None and cached[0] is device:
+        return cached[1], cached[2]
     objects = [(o.index, o.name, o.object_code) for o in device.objects]
-    # The identity object carries this slave's serial number (the ESI can't know it).
-    identity = {(coe.IDENTITY, 4): serial}
     entries = [
         (
             e.index,
@@ -334,7 +329,7 @@ def device_spec(
             e.bit_length,
             e.access,
             e.pdo_mappable,
-            _default(e.default, identity.get((e.index, e.subindex)), e.bit_length),
+            bytes(e.default),
         )
         for o in device.objects
         for e in o.entries
@@ -361,6 +356,39 @@ def device_spec(
         for index, (name, code) in names.items()
         if any(r[0] == index for r in entries) and index not in known
     )
+    _DICTIONARIES[key] = (device, objects, entries)
+    return objects, entries
+
+
+# (id(device), sim_device) -> (device, objects, entries); the device is kept so its id stays
+# its own.
+_DICTIONARIES: dict[
+    tuple[int, str], tuple[EsiDevice, list[tuple[Any, ...]], list[tuple[Any, ...]]]
+] = {}
+
+# The identity object's serial number (0x1018:4): the ESI can't know it, each slave has its own.
+_SERIAL_ENTRY = (coe.IDENTITY, 4)
+
+
+def device_spec(
+    device: EsiDevice,
+    *,
+    name: str,
+    sim_device: str = "none",
+    params: dict[str, float] | None = None,
+    alias: int = 0,
+    serial: int = 0,
+    drift_ppm: float = 0.0,
+    delay_ns: int | None = None,
+    esc: str = "et1100",
+    lrw: bool = True,
+) -> dict[str, Any]:
+    """The ``add_slave`` spec of one slave running ``device``."""
+    objects, entries = _dictionary(device, sim_device)
+    entries = [
+        (*e[:7], _default(e[7], serial, e[4])) if (e[0], e[1]) == _SERIAL_ENTRY else e
+        for e in entries
+    ]
     return {
         "name": name,
         "vendor_id": device.vendor_id,
@@ -369,7 +397,7 @@ def device_spec(
         "serial": serial,
         "alias": alias,
         "sii": build_sii(device, alias=alias, serial=serial),
-        "objects": objects,
+        "objects": list(objects),
         "entries": entries,
         "device": sim_device,
         "params": {k: float(v) for k, v in (params or {}).items()},
