@@ -1612,8 +1612,7 @@ impl Esc {
             let offset = self.get64(reg::DC_SYSTEM_TIME_OFFSET);
             consider(to_host(s.wrapping_sub(offset)));
         }
-        let s = &self.sm[self.out_sm];
-        let armed = s.enabled() && s.control & WATCHDOG_TRIGGER != 0 && !s.is_mailbox();
+        let armed = self.watchdog_armed();
         let wd = self.watchdog_ns();
         if armed && wd > 0 && !self.watchdog_expired {
             consider(self.wd_last_trigger.saturating_add(wd + 1));
@@ -1740,6 +1739,14 @@ impl Esc {
         }
     }
 
+    /// The process-data watchdog runs on the output SMs that trigger it (control bit 6).
+    fn watchdog_armed(&self) -> bool {
+        self.pd_sms.iter().any(|p| {
+            let s = &self.sm[p.number];
+            p.output && s.enabled() && s.control & WATCHDOG_TRIGGER != 0 && !s.is_mailbox()
+        })
+    }
+
     fn watchdog_ns(&self) -> u64 {
         let divider = self.get16(reg::WATCHDOG_DIVIDER) as u64;
         let time = self.get16(reg::WATCHDOG_TIME_PD) as u64;
@@ -1747,11 +1754,7 @@ impl Esc {
     }
 
     fn check_watchdog(&mut self) {
-        // The process-data watchdog runs on the output SMs that trigger it (control bit 6).
-        let armed = self.pd_sms.iter().any(|p| {
-            let s = &self.sm[p.number];
-            p.output && s.enabled() && s.control & WATCHDOG_TRIGGER != 0 && !s.is_mailbox()
-        });
+        let armed = self.watchdog_armed();
         let wd = self.watchdog_ns();
         if !armed || wd == 0 || self.watchdog_expired {
             return;
