@@ -114,6 +114,10 @@ impl AddressMaps {
             }
             for f in esc.fmmus() {
                 let (a, b) = (f.first_bit(), f.end_bit());
+                if b <= a {
+                    // A stop bit before the start bit in a one-byte mapping: maps no bit.
+                    continue;
+                }
                 self.logical.push((a, b, p));
                 self.longest = self.longest.max(b - a);
             }
