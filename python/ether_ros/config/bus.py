@@ -40,6 +40,7 @@ from ether_ros.config.esi import (
 )
 from ether_ros.config.files import MAX_PATH_CHARS
 from ether_ros.config.process import ProcessLayout, ProcessValueError
+from ether_ros.config.urdf import MOVABLE_TYPES, apply_urdf_limits, load_urdf_joints
 from ether_ros.config.yamlsrc import KeyPath, SourceMap, load_yaml, shown
 from ether_ros.errors import ConfigError
 from ether_ros.topology import Link, visit_order
@@ -463,6 +464,9 @@ class BusConfig(_Model):
         Field(default_factory=list)
     )
     ros: RosConfig = Field(default_factory=RosConfig)
+    # The robot's URDF (relative to this file): limits for the axes named like its joints, where
+    # an axis does not set them itself (config/urdf.py, docs/cia402.md).
+    urdf: PathText | None = None
     # Positions 0..65534: the auto-increment address space.
     slaves: list[SlaveConfig] = Field(min_length=1, max_length=65535)
     groups: list[GroupConfig] = Field(default_factory=list)
@@ -648,6 +652,30 @@ def _schema_error(exc: ValidationError, data: Any, smap: SourceMap) -> ConfigErr
     return err
 
 
+def _apply_urdf(cfg: BusConfig, base: Path, smap: SourceMap) -> None:
+    """Fill the axes' limits from ``urdf:`` before the axes are checked and resolved."""
+    item = cfg.urdf
+    assert item is not None
+    try:
+        p = (base / item).resolve() if not Path(item).is_absolute() else Path(item)
+        found = p.exists()
+    except (OSError, RuntimeError) as exc:  # a name too long, a symlink loop
+        raise smap.error(("urdf",), f"not a usable path: {exc}", item) from None
+    if not found:
+        raise smap.error(("urdf",), f"URDF file not found ({p})", item)
+    joints = load_urdf_joints(p)
+    axes = [a for s in cfg.slaves for a in s.axes]
+    if apply_urdf_limits(p, joints, axes) == 0:
+        movable = ", ".join(sorted(n for n, j in joints.items() if j.type in MOVABLE_TYPES))
+        names = ", ".join(a.name for a in axes)
+        raise smap.error(
+            ("urdf",),
+            f"no axis is named like a movable joint of {p} (its joints: {movable or 'none'};"
+            f" the axes: {names or 'none'})",
+            item,
+        )
+
+
 def _resolve(cfg: BusConfig, file: Path, smap: SourceMap) -> None:
     base = file.parent
     devices: list[EsiDevice] = []
@@ -668,6 +696,8 @@ def _resolve(cfg: BusConfig, file: Path, smap: SourceMap) -> None:
         for f in files:
             devices.extend(load_esi(f))
     cfg._devices = devices
+    if cfg.urdf is not None:
+        _apply_urdf(cfg, base, smap)
 
     def err(path: KeyPath, msg: str, value: Any = None, show: bool = True) -> ConfigError:
         return smap.error(path, msg, value, show_value=show)
