@@ -75,6 +75,11 @@ from ether_ros.ros.values import InvalidValue, data_type, to_python
 
 log = logging.getLogger(__name__)
 
+#: The joint topics (relative names: under the node's namespace). External configurations name
+#: them too (config/topic_based_ros2_control/, tests/unit/test_topic_based_ros2_control.py).
+JOINT_STATES_TOPIC = "joint_states"
+JOINT_COMMANDS_TOPIC = "joint_commands"
+
 # QoS per stream. High-rate process data: best effort, a deep queue so a burst is not lost in
 # the middleware (subscribers must be best effort too, e.g. qos_profile_sensor_data).
 QOS_HIGH_RATE = QoSProfile(
@@ -203,7 +208,7 @@ class EtherRosNode(LifecycleNode):
             "pdo_in": self.create_publisher(SlaveValues, "pdo_in", QOS_SENSOR),
             "pdo_out": self.create_publisher(SlaveValues, "pdo_out", QOS_SENSOR),
             "pdo_out_timer": self.create_publisher(SlaveValues, "pdo_out_timer", QOS_RELIABLE),
-            "joint_states": self.create_publisher(JointState, "joint_states", QOS_RELIABLE),
+            "joint_states": self.create_publisher(JointState, JOINT_STATES_TOPIC, QOS_RELIABLE),
         }
         self._layout_pub = self.create_publisher(BusLayout, "bus_layout", QOS_LATCHED)
         self._diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", QOS_RELIABLE)
@@ -222,7 +227,11 @@ class EtherRosNode(LifecycleNode):
                 cfg, "pdo_listener", WriteVariable, self._result_pub, self._on_write_topic
             )
             self._native_joints = self._native_path(
-                cfg, "joint_commands", JointState, self._joint_result_pub, self._on_joint_commands
+                cfg,
+                JOINT_COMMANDS_TOPIC,
+                JointState,
+                self._joint_result_pub,
+                self._on_joint_commands,
             )
         # The Python subscriptions take the serialized message and check it before rclpy
         # turns it into Python (which would cut a name at a NUL): see _checked.
@@ -238,8 +247,8 @@ class EtherRosNode(LifecycleNode):
         if self._native_joints is None:
             commands.create_subscription(
                 JointState,
-                "joint_commands",
-                self._checked(JointState, "joint_commands", self._on_joint_commands),
+                JOINT_COMMANDS_TOPIC,
+                self._checked(JointState, JOINT_COMMANDS_TOPIC, self._on_joint_commands),
                 QOS_COMMANDS,
                 callback_group=None if self.command_node else self._writes_group,
                 raw=True,
