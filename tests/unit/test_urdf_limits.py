@@ -21,7 +21,7 @@ LIMIT_KEYS = ("position_limits", "velocity_limit", "torque_limit")
 
 def _axes(cfg: BusConfig) -> dict[str, tuple[tuple[float, float], float, float]]:
     return {
-        a.name: (tuple(a.position_limits), a.velocity_limit, a.torque_limit)  # type: ignore[misc]
+        a.name: (a.position_limits, a.velocity_limit, a.torque_limit)
         for s in cfg.slaves
         for a in s.axes
     }
