@@ -103,7 +103,10 @@ def test_sim_esi_refuses_a_missing_device_with_the_choices(tmp_path: Path) -> No
         ((), "give a bus configuration or --esi FILE (one of them)"),
         (("config/laelaps.yaml", "--esi", "x.xml"), "give a bus configuration or --esi FILE"),
         (("config/laelaps.yaml", "--count", "3"), "--device and --count go with --esi"),
-        (("--esi", str(CORPUS / "servo_vendor_style.xml")), "--esi needs --interface"),
+        (
+            ("--esi", str(CORPUS / "servo_vendor_style.xml")),
+            "'ether-ros sim --esi' needs -i/--interface",
+        ),
         (
             ("--esi", str(CORPUS / "multi_device_latin1.xml"), "--interface", "lo"),
             "holds several devices (CorpusDIO16, CorpusDIO8): give --device",
