@@ -108,6 +108,10 @@ class BusSection(_Model):
     # SO_BUSY_POLL time of the link's socket in µs (0: off): the kernel spins for a reply
     # before the RT thread sleeps.
     busy_poll_us: int = Field(default=0, ge=0, le=1_000_000)
+    # AF_PACKET frames through the kernel's transmit queue instead of straight to the driver, so
+    # a capture on the master's interface (tcpdump, tshark) sees them; costs a little per frame
+    # (docs/benchmarks.md, "capture").
+    capture: bool = False
     dc: DcConfig = Field(default_factory=DcConfig)
     realtime: RealtimeConfig = Field(default_factory=RealtimeConfig)
 
