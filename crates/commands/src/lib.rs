@@ -11,12 +11,16 @@
 //! thread: decoded here, resolved against the axes ([`joints`]) and written into the engine's
 //! axis command slots (`Engine::axis_setpoint`).
 //!
-//! Only requests that are certainly valid take the fast path; anything else (text values,
-//! unknown names, values out of range, malformed data) is handed to the node's Python code,
-//! which owns every error message, so both paths accept exactly the same writes.
+//! Only requests that are certainly valid take the fast path. Malformed data and structurally
+//! invalid joint commands are refused here, with the words Python uses; anything else (text
+//! values, unknown names, values out of range) is handed to the node's Python code, which owns
+//! those error messages, so both paths accept exactly the same writes. The queue for Python is
+//! fair per publisher, and with the control lease on ([`lease`]) only the holder's publishers
+//! get past the first check.
 
 pub mod cdr;
 pub mod joints;
+pub mod lease;
 pub mod rcl;
 pub mod receiver;
 pub mod table;
@@ -26,5 +30,6 @@ pub use cdr::{
     WriteRequest,
 };
 pub use joints::{JointEntry, JointTable, Setpoint};
+pub use lease::{Gid, LeaseGate, LeaseState, Verdict};
 pub use receiver::{CommandReceiver, ReceiverCounters, ReceiverHandles};
 pub use table::{CommandTable, Kind, Resolution, SlaveEntry, VariableEntry};

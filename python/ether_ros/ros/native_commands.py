@@ -12,7 +12,15 @@ refusals and their wording stay in one place (``bridge.resolve_write``).
 
 ``joint_commands`` (``sensor_msgs/JointState`` for CiA 402 axes) has a receiver of its own
 (``message="joint_state"``): certainly valid commands go straight into the engine's axis command
-slots; the rest to :meth:`EtherRosNode._on_joint_commands` (``bridge.resolve_joint_command``).
+slots, structurally invalid ones are refused natively; the rest go to
+:meth:`EtherRosNode._on_joint_commands` (``bridge.resolve_joint_command``). ``joint_trajectory``
+takes the native path too (``message="passthrough"``), only for who-may and fairness: every
+trajectory goes to Python.
+
+Every receiver checks the control lease (``lease``, a ``_native.LeaseGate``) for each message by
+its publisher's GID before anything else, and queues what it defers per publisher, served round
+robin, so one flooding publisher never delays another's commands (docs/ros.md, "The command
+path"). The deferred handler gets the message and its publisher's GID.
 
 The rcl objects are created with rclpy's low-level API so no executor ever waits on (and takes
 from) the same subscription; they are marked in use while the thread runs, so rclpy cannot
@@ -163,13 +171,17 @@ class NativeCommandPath:
         topic: str,
         qos: QoSProfile,
         results_publisher: Any,
-        handle_deferred: Callable[[Any], None],
+        handle_deferred: Callable[[Any, bytes], None],
         priority: int,
         cpus: set[int] | None = None,
         message_type: Any = WriteVariable,
+        kind: str | None = None,
+        lease: Any = None,
     ) -> None:
         self._handle_deferred = handle_deferred
         self._message_type = message_type
+        if kind is None:
+            kind = "write_variable" if message_type is WriteVariable else "joint_state"
         self._joints: Any = None
         check_is_valid_msg_type(message_type)  # loads the type support the subscription needs
         with node.handle:
@@ -190,7 +202,8 @@ class NativeCommandPath:
                 results=results_publisher.handle.pointer,
                 priority=priority,
                 cpus=sorted(cpus or ()),
-                message="write_variable" if message_type is WriteVariable else "joint_state",
+                message=kind,
+                lease=lease,
             )
         except (RuntimeError, CommandPathError) as exc:
             self._release()
@@ -200,7 +213,9 @@ class NativeCommandPath:
         self._stop = threading.Event()
         self._thread = threading.Thread(
             target=self._serve_deferred,
-            name="ether_ros-deferred" if message_type is WriteVariable else "ether_ros-jdeferred",
+            name={"write_variable": "ether_ros-deferred", "joint_state": "ether_ros-jdeferred"}.get(
+                kind, "ether_ros-tdeferred"
+            ),
             daemon=True,
         )
         self._thread.start()
@@ -258,15 +273,19 @@ class NativeCommandPath:
         self._in_use = []
         self._subscription.destroy_when_not_in_use()
 
+    def waiting_publishers(self) -> int:
+        return int(self.receiver.waiting_publishers())
+
     def _serve_deferred(self) -> None:
         while not self._stop.is_set():
-            data = self.receiver.next_deferred(_POLL_S)
-            if data is None:
+            taken = self.receiver.next_deferred(_POLL_S)
+            if taken is None:
                 continue
+            data, publisher = taken
             try:
                 message = deserialize_message(data, self._message_type)
-                self._handle_deferred(message)
+                self._handle_deferred(message, publisher)
             except Exception:  # one bad request must not end the command path
-                log.exception("handling a deferred write failed")
+                log.exception("handling a deferred request failed")
             finally:
                 self.receiver.deferred_done()
