@@ -133,6 +133,21 @@ class BusSection(_Model):
         return self
 
 
+class LeaseConfig(_Model):
+    """The control lease (docs/security.md): off by default, on in the shipped robot configs."""
+
+    enabled: bool = False
+    # Time to live a client gets when it asks for none (s), and the most it may ask for.
+    ttl_s: float = Field(default=3.0, ge=0.1, le=600.0)
+    max_ttl_s: float = Field(default=30.0, ge=0.1, le=3600.0)
+
+    @model_validator(mode="after")
+    def _default_within_max(self) -> LeaseConfig:
+        if self.ttl_s > self.max_ttl_s:
+            raise ValueError(f"ttl_s ({self.ttl_s}) must not exceed max_ttl_s ({self.max_ttl_s})")
+        return self
+
+
 class RosConfig(_Model):
     node_name: Identifier = "ether_comm"
     namespace: str = ""
@@ -142,6 +157,7 @@ class RosConfig(_Model):
     # SCHED_FIFO priority of the native thread that serves pdo_listener (0: normal scheduling);
     # capped below rt.priority so commands never delay a cycle.
     command_priority: int = Field(default=50, ge=0, le=98)
+    lease: LeaseConfig = Field(default_factory=LeaseConfig)
 
 
 class PdoAssign(_Model):

@@ -1,0 +1,116 @@
+"""No starvation (issue 19, item 3): publishers flooding the node, each a process of its own
+(tests/ros_actor.py), do not keep another client's valid commands from reaching the drives and
+the slaves, nor the node's services from answering — a client that connects during the flood
+included. Behaviour only: the latency under a flood is measured by bench/bench_flood.py.
+
+- config/arm6.yaml with the lease off (a copy): invalid ``joint_commands`` (unknown joints,
+  which the native path refuses by itself, and values beyond the limits, which it leaves to
+  Python through the fair queue) and garbage on ``pdo_listener``;
+- config/laelaps.yaml with the lease on: floods from publishers that do not hold it.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from test_ros_lease import Actor, on_wire
+
+from ether_ros.ros.rig import RosRig
+from ether_ros.testing.configs import config_without_lease
+
+pytestmark = [pytest.mark.netns, pytest.mark.ros]
+
+REPO = Path(__file__).resolve().parents[2]
+JOINT = "elbow"
+
+
+@pytest.fixture
+def arm_without_lease(tmp_path: Path) -> Path:
+    return config_without_lease("arm6.yaml", tmp_path)
+
+
+@pytest.fixture
+def floods() -> Iterator[list[Actor]]:
+    actors: list[Actor] = []
+    yield actors
+    for a in actors:
+        a.close()
+
+
+def flood(rig: RosRig, actors: list[Actor], topic: str, kind: str) -> Actor:
+    a = Actor(rig, f"flood_{len(actors)}")
+    actors.append(a)
+    assert a("flood", topic=topic, kind=kind)["ok"]
+    return a
+
+
+def joint_position(latest: Any) -> float:
+    js = latest.joint_state
+    if js is None or JOINT not in js.name:
+        return math.nan
+    return float(js.position[list(js.name).index(JOINT)])
+
+
+def test_a_joint_moves_and_services_answer_under_invalid_floods(
+    arm_without_lease: Path, floods: list[Actor]
+) -> None:
+    if os.geteuid() != 0:
+        pytest.skip("needs root (veth pairs)")
+    with RosRig(arm_without_lease, netns=True) as rig:
+        client = rig.client
+        client.wait_for_node()
+        ok, message, _ = client.axis_command("enable", [JOINT])
+        assert ok, message
+        flooders = [
+            flood(rig, floods, "joint_commands", "unknown"),  # refused natively
+            flood(rig, floods, "joint_commands", "limit"),  # left to Python, fairly queued
+            flood(rig, floods, "pdo_listener", "garbage"),  # refused natively
+        ]
+        client.wait_for(lambda _l: all(f("flood_count")["sent"] > 1000 for f in flooders), 30)
+        for target in (0.3, -0.2, 0.1):
+            client.publish_joint_command([JOINT], position=[target])
+            client.wait_for(lambda latest, t=target: abs(joint_position(latest) - t) < 0.02, 20)
+        # Services answer, on the lifecycle node and on the command node.
+        assert client.get_state() == "active"
+        assert client.sdo_read("base_drive", 0x1000, 0, "UDINT").success
+        # A client that connects now is answered as well.
+        newcomer = Actor(rig, "newcomer")
+        floods.append(newcomer)
+        assert newcomer("lease", action="status")["ok"]
+        assert newcomer("command", command="reset_watchdog")["ok"]
+        counters = client.master_status()
+        assert int(float(counters["ros_joint_commands_refused"])) > 0
+        assert all(f("flood_count")["sent"] > 5000 for f in flooders)
+
+
+def test_writes_reach_the_wire_while_non_holders_flood(floods: list[Actor]) -> None:
+    if os.geteuid() != 0:
+        pytest.skip("needs root (veth pairs)")
+    with RosRig(REPO / "config" / "laelaps.yaml", netns=True) as rig:
+        client = rig.client
+        client.wait_for_node()
+        assert client.write("front_left_leg", "Kp100_knee", 100)[0]  # takes the lease
+        flooders = [
+            flood(rig, floods, "pdo_listener", "text"),
+            flood(rig, floods, "pdo_listener", "garbage"),
+            flood(rig, floods, "joint_commands", "unknown"),
+        ]
+        client.wait_for(lambda _l: all(f("flood_count")["sent"] > 1000 for f in flooders), 30)
+        for value in (2001, 2002, 2003):
+            result = client.wait_result(
+                client.publish_write("front_left_leg", "Kp100_knee", value), timeout=20
+            )
+            assert result.success, result.message
+            on_wire(rig, "Kp100_knee", value)
+        ok, message = client.write("hind_left_leg", "Kp100_hip", 321)
+        assert ok, message
+        on_wire(rig, "Kp100_hip", 321, slave="hind_left_leg")
+        assert client.panic()[0]
+        assert client.command("clear_panic")[0]
+        status = client.master_status()
+        assert int(float(status["ros_commands_refused_lease"])) > 0
