@@ -84,9 +84,9 @@ pub const PUBLISHER_LIMIT: usize = 64;
 /// Refusals answered per publisher: a burst of this many, then this many per second. Beyond
 /// that a publisher's refused requests are only counted (`refusals_unanswered`): answering
 /// every message of a flood would cost the node more than the flood itself.
-const REFUSAL_ANSWERS_PER_S: u32 = 20;
+pub const REFUSAL_ANSWERS_PER_S: u32 = 20;
 /// Publishers the refusal answer budget is kept for (the least recently refused is forgotten).
-const ANSWER_BUDGETS: usize = 64;
+pub const ANSWER_BUDGETS: usize = 64;
 /// Initial size of the buffer serialized messages are taken into (rcl grows it if needed).
 const MESSAGE_CAPACITY: usize = 4096;
 

@@ -8,7 +8,9 @@ use std::time::Duration;
 use std::sync::Arc;
 
 use ether_ros_commands::lease::{refusal_text, GID_LEN, MAX_WRITERS};
-use ether_ros_commands::receiver::{MessageKind, Resolver};
+use ether_ros_commands::receiver::{
+    MessageKind, Resolver, ANSWER_BUDGETS, PUBLISHER_LIMIT, REFUSAL_ANSWERS_PER_S,
+};
 use ether_ros_commands::{
     decode_joint_state, decode_write_variable, CommandReceiver, CommandTable, Gid, JointEntry,
     JointTable, Kind, LeaseGate, ReceiverHandles, Resolution, SlaveEntry, VariableEntry, Verdict,
@@ -315,6 +317,17 @@ pub struct PyCommandReceiver {
 
 #[pymethods]
 impl PyCommandReceiver {
+    /// Refusals answered per publisher and second (a burst of as many): beyond that a
+    /// flooding publisher's refusals are counted, not answered.
+    #[classattr]
+    const REFUSAL_ANSWERS_PER_S: u32 = REFUSAL_ANSWERS_PER_S;
+    /// Publishers whose answer budget is kept.
+    #[classattr]
+    const ANSWER_BUDGETS: usize = ANSWER_BUDGETS;
+    /// Requests of one publisher that may wait for Python.
+    #[classattr]
+    const PUBLISHER_LIMIT: usize = PUBLISHER_LIMIT;
+
     #[new]
     /// `message`: "write_variable" (`pdo_listener`), "joint_state" (`joint_commands`) or
     /// "passthrough" (every message to Python: `joint_trajectory`). `lease`: the LeaseGate every

@@ -125,6 +125,10 @@ class CommandReceiver:
     """The native thread serving pdo_listener or joint_commands (see docs/ros.md, "The command
     path")."""
 
+    REFUSAL_ANSWERS_PER_S: int
+    ANSWER_BUDGETS: int
+    PUBLISHER_LIMIT: int
+
     def __init__(
         self,
         *,

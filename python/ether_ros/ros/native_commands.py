@@ -32,6 +32,7 @@ from __future__ import annotations
 import logging
 import os
 import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -146,6 +147,38 @@ def raise_middleware_receivers(
         except (OSError, ValueError):
             continue  # thread gone, or not permitted
     return changed
+
+
+class RefusalBudget:
+    """Refusals answered per publisher (by GID), as the native threads budget theirs: a burst
+    of ``CommandReceiver.REFUSAL_ANSWERS_PER_S``, then that many a second; beyond it a flooding
+    publisher's refusals are counted, not answered, so the flood does not turn into as many
+    answers. Kept for the ``ANSWER_BUDGETS`` publishers refused most recently."""
+
+    def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
+        self.rate = float(_native.CommandReceiver.REFUSAL_ANSWERS_PER_S)
+        self.size = int(_native.CommandReceiver.ANSWER_BUDGETS)
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._budgets: dict[bytes, tuple[float, float]] = {}
+        self.unanswered = 0
+
+    def spend(self, publisher: bytes | None) -> bool:
+        """Take one answer from ``publisher``'s budget; False when it is spent. A request
+        without a known publisher (a topic rclpy serves) is always answered."""
+        if publisher is None:
+            return True
+        now = self._clock()
+        with self._lock:
+            tokens, last = self._budgets.pop(publisher, (self.rate, now))
+            tokens = min(self.rate, tokens + (now - last) * self.rate)
+            ok = tokens >= 1.0
+            self._budgets[publisher] = (tokens - 1.0 if ok else tokens, now)
+            if len(self._budgets) > self.size:  # forget the least recently refused
+                del self._budgets[next(iter(self._budgets))]
+            if not ok:
+                self.unanswered += 1
+            return ok
 
 
 def housekeeping_cpus(rt_cpu: int | None) -> set[int]:

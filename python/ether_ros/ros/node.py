@@ -74,6 +74,7 @@ from ether_ros.ros.lease import ControlLease, LeaseRefused, graph_writer_gids
 from ether_ros.ros.native_commands import (
     CommandPathError,
     NativeCommandPath,
+    RefusalBudget,
     housekeeping_cpus,
 )
 from ether_ros.ros.sample_publisher import Rates, SamplePublisher
@@ -200,6 +201,9 @@ class EtherRosNode(LifecycleNode):
             stop_motion=self._stop_motion,
             lookup_writers=graph_writer_gids(self, COMMAND_TOPICS),
         )
+        # Refusals of topic requests Python answers, budgeted per publisher as the native
+        # threads budget theirs.
+        self._refusal_budget = RefusalBudget()
         # What protects the node (lease, discovery range, DDS profile, DDS security): found once,
         # logged now and reported in the diagnostics.
         self._security = security.detect(self._lease.enabled)
@@ -786,6 +790,8 @@ class EtherRosNode(LifecycleNode):
             ok, message = False, str(exc)
         if not ok:
             self._warn_refused("write", message)
+            if not self._refusal_budget.spend(publisher):
+                return
         self._result_pub.publish(
             WriteResult(request_id=msg.request_id, success=ok, message=message)
         )
@@ -837,6 +843,8 @@ class EtherRosNode(LifecycleNode):
             ok, message = False, str(exc)
         if not ok:  # applied commands are not answered: they come at the controller's rate
             self._warn_refused("joint_commands", message)
+            if not self._refusal_budget.spend(publisher):
+                return
             self._joint_result_pub.publish(
                 WriteResult(success=False, message=f"joint_commands refused: {message}")
             )
@@ -869,6 +877,8 @@ class EtherRosNode(LifecycleNode):
             ok, message = False, str(exc)
         if not ok:
             self._warn_refused("joint_trajectory", message)
+            if not self._refusal_budget.spend(publisher):
+                return
         text = f"joint_trajectory: {message}" if ok else f"joint_trajectory refused: {message}"
         self._joint_result_pub.publish(WriteResult(success=ok, message=text))
 
