@@ -4,9 +4,10 @@ process and network namespace across a veth pair, 1 kHz with DC. Nothing is fake
 
 Covers: all six axes enabled and following a trajectory within tolerance; enabling never moves
 an axis (not even after a quick stop left it away from its last setpoint); a drive fault
-injected through the simulator's control socket is reported with its error code, reset and
-re-enabled; panic puts a quick stop in every drive's controlword within two cycles; bad
-commands are refused. Timing is never asserted: waits have generous deadlines.
+injected through the simulator's control socket is reported with its error code, reset, and
+re-enabled by an explicit enable (restart: manual); panic puts a quick stop in every drive's
+controlword within two cycles; bad commands are refused. Timing is never asserted: waits have
+generous deadlines.
 """
 
 from __future__ import annotations
@@ -113,8 +114,10 @@ def test_enabling_never_moves_an_axis(arm: tuple[Bus, SimProcess]) -> None:
     assert stopped_at < 0.95
     bus.samples()  # drop what came before
     bus.clear_panic()
-    # Still wanted enabled: the engine brings it back by itself (disable voltage, then up).
-    wait_for("enabled again", lambda: elbow.state == "operation_enabled")
+    # Wanted enabled, but restart: manual: back only with an explicit enable (disable
+    # voltage, then up).
+    wait_for("blocked", lambda: elbow.status()["restart_blocked"])
+    elbow.enable(timeout=5)
     time.sleep(0.2)
     assert abs(elbow.position - stopped_at) < SETTLED_TOLERANCE
     images = bus.samples().images
@@ -136,10 +139,13 @@ def test_a_drive_fault_is_reported_reset_and_reenabled(arm: tuple[Bus, SimProces
     sim.fault("drive_fault", slave=1, axis=2, error="encoder")
     wait_for("the fault seen", lambda: wrist.status()["faults"] >= 1)
     assert wrist.status()["last_fault_code"] == 0x7305
-    # Policy auto: reset after the back-off, then enabled again.
-    wait_for("re-enabled", lambda: wrist.state == "operation_enabled")
+    # Policy auto: reset after the back-off; restart: manual: enabled again by an explicit
+    # enable only.
+    wait_for("reset", lambda: wrist.status()["fault_resets"] >= 1)
     st = wrist.status()
-    assert st["fault_resets"] >= 1 and st["error_code"] == 0
+    assert st["error_code"] == 0 and st["restart_blocked"]
+    assert wrist.state != "operation_enabled"
+    wrist.enable(timeout=5)
     # The other axes were not touched.
     others = [a for a in bus.axes() if a.name != "wrist_1"]
     assert all(a.state == "operation_enabled" and a.status()["faults"] == 0 for a in others)
@@ -175,7 +181,8 @@ def test_panic_puts_a_quick_stop_on_the_wire_within_two_cycles(
         sw = _field(s.images[first:], e["map"]["statusword"], "<u2")
         assert (sw[0] & 0x6F) == 0x27 and (sw[-1] & 0x4F) == 0x40, (e["name"], sw[:5])
     bus.clear_panic()
-    wait_for("enabled again", lambda: all(a.state == "operation_enabled" for a in bus.axes()))
+    for a in bus.axes():
+        a.enable(timeout=5)
 
 
 def test_bad_commands_are_refused_on_the_live_bus(arm: tuple[Bus, SimProcess]) -> None:

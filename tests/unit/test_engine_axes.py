@@ -200,14 +200,13 @@ def test_setpoints_are_clamped_and_nan_refused(rig: tuple[_native.Engine, Drive]
     # The engine's own record of every cycle: its wake-up time and the image it sent.
     records, images = engine.drain_samples(1 << 20)
     s = decode_samples(records, images, image_len=IMAGE)
-    t = s.records["t_wake_ns"].astype(np.int64)
     target = np.ascontiguousarray(s.images[:, TPOS : TPOS + 4]).view("<i4")[:, 0]
     moving = target != START_POSITION
     assert moving.any()
-    # 2 rad/s: 2 counts per ms since the previous cycle (one cycle at least), + rounding.
-    ms = np.maximum(np.diff(t) / 1e6, 1.0)
+    # 2 rad/s: 2 counts per cycle of the engine's 1 ms clock (+ rounding), however late a
+    # wake-up was on this loaded machine.
     steps = np.abs(np.diff(target.astype(np.int64)))
-    assert (steps <= 2 * ms + 1).all(), steps.max()
+    assert (steps <= 2 + 1).all(), steps.max()
     engine.axis_setpoint(0, "position", 50.0)
     wait_for("held at the position limit", lambda: drive.seen()[-1]["target"] == 10_000)
     assert engine.axis_status(0)["position_clamps"] > 0
@@ -238,25 +237,53 @@ def test_panic_puts_the_quick_stop_on_the_wire_within_two_cycles(
     wait_for("quick stop active", lambda: engine.axis_status(0)["state"] == "quick_stop_active")
     assert engine.axis_status(0)["halted"]
     engine.clear_panic()
-    wait_for("enabled again after the panic", lambda: enabled(engine))
+    # restart: manual (the default): no restart without an explicit enable.
+    # The drive stays in Quick Stop Active (its on_stop), blocked until the explicit enable.
+    wait_for("restart blocked", lambda: engine.axis_status(0)["restart_blocked"])
+    time.sleep(0.05)
+    assert not enabled(engine) and engine.axis_status(0)["enable_wanted"]
+    assert engine.axis_status(0)["controlword"] == 0x0002
+    engine.axis_enable(0, True)
+    wait_for("enabled again after the explicit enable", lambda: enabled(engine))
 
 
-def test_a_fault_is_reported_reset_and_reenabled(rig: tuple[_native.Engine, Drive]) -> None:
+def test_restart_auto_re_enables_after_the_panic() -> None:
+    drive = Drive()
+    engine = _native.Engine.open_sim(drive)
+    try:
+        engine.start_cyclic(plan(restart="auto"))
+        engine.axis_enable(0, True)
+        wait_for("operation enabled", lambda: enabled(engine))
+        engine.panic()
+        wait_for("quick stop", lambda: engine.axis_status(0)["state"] == "quick_stop_active")
+        engine.clear_panic()
+        wait_for("enabled again by itself", lambda: enabled(engine))
+    finally:
+        engine.close()
+
+
+def test_a_fault_is_reported_reset_and_waits_for_the_enable(
+    rig: tuple[_native.Engine, Drive],
+) -> None:
     engine, drive = rig
     engine.axis_enable(0, True)
     wait_for("operation enabled", lambda: enabled(engine))
     drive.fault(0x7305)
     wait_for("the fault seen", lambda: engine.axis_status(0)["faults"] == 1)
-    wait_for("re-enabled by the automatic reset", lambda: enabled(engine))
+    # The automatic reset clears the fault; the axis stays out until the explicit enable.
+    wait_for("reset", lambda: engine.axis_status(0)["fault_resets"] == 1)
     st = engine.axis_status(0)
-    assert (st["last_fault_code"], st["fault_resets"], st["error_code"]) == (0x7305, 1, 0)
+    assert (st["last_fault_code"], st["error_code"]) == (0x7305, 0)
+    assert st["restart_blocked"] and st["state"] == "switch_on_disabled"
+    engine.axis_enable(0, True)
+    wait_for("enabled", lambda: enabled(engine))
 
 
 def test_manual_policy_waits_for_reset_fault() -> None:
     drive = Drive()
     engine = _native.Engine.open_sim(drive)
     try:
-        engine.start_cyclic(plan(fault_reset="manual"))
+        engine.start_cyclic(plan(fault_reset="manual", restart="auto"))
         engine.axis_enable(0, True)
         wait_for("operation enabled", lambda: enabled(engine))
         drive.fault(0x2310)
@@ -264,6 +291,7 @@ def test_manual_policy_waits_for_reset_fault() -> None:
         time.sleep(0.05)
         assert engine.axis_status(0)["state"] == "fault"
         engine.axis_reset_fault(0)
+        # restart: auto (inside the limits): re-enabled once the fault is gone.
         wait_for("re-enabled after reset_fault", lambda: enabled(engine))
     finally:
         engine.close()
@@ -274,13 +302,16 @@ def test_trajectory_runs_on_the_engine_clock(rig: tuple[_native.Engine, Drive]) 
     engine.axis_enable(0, True)
     wait_for("operation enabled", lambda: enabled(engine))
     start = engine.now_ns() + 20_000_000
-    # 5.0 rad → 5.1 rad in 100 ms, back to 5.05 rad at 200 ms.
-    points = [(0, 5.0, 0.0), (100_000_000, 5.1, 0.0), (200_000_000, 5.05, 0.0)]
-    engine.axis_follow(0, start, points)
+    # 5.0 rad → 5.1 rad in 100 ms, held for 50 ms, back to 5.05 rad at 250 ms. (Overruns of
+    # this loaded machine may skip cycles: the step limit per cycle then counts clamps, which
+    # is why none are asserted here; the Rust tests check the timing on a bench clock.)
+    points = [(0, 5.0, 0.0), (100_000_000, 5.1, 0.0), (150_000_000, 5.1, 0.0),
+              (250_000_000, 5.05, 0.0)]  # fmt: skip
+    seq = engine.axis_follow(0, start, points)
     wait_for("the trajectory's end", lambda: engine.axis_status(0)["trajectory_done"])
+    assert engine.axis_status(0)["command_seq"] == seq
     targets = [f["target"] for f in drive.seen()]
     assert max(targets) == 5100 and targets[-1] == 5050
-    assert engine.axis_status(0)["position_clamps"] == 0
     with pytest.raises(ValueError, match="strictly increasing"):
         engine.axis_follow(0, start, [(0, 1.0, 0.0), (0, 2.0, 0.0)])
     with pytest.raises(ValueError, match=r"1\.\.=64 points"):

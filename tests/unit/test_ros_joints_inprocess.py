@@ -43,7 +43,12 @@ def wait_position(client: EtherRosClient, joint: str, target: float, timeout: fl
     deadline = time.monotonic() + timeout
     while abs(joint_positions(client)[joint] - target) > 0.01:
         if time.monotonic() > deadline:
-            raise AssertionError(f"{joint} at {joint_positions(client)[joint]}, not {target}")
+            diag = client.wait_for(lambda latest: latest.diagnostics)
+            axis = [dict((v.key, v.value) for v in s.values) for s in diag.status
+                    if s.name.endswith(f"axis {joint}")]  # fmt: skip
+            raise AssertionError(
+                f"{joint} at {joint_positions(client)[joint]}, not {target}: {axis}"
+            )
         time.sleep(0.05)
 
 

@@ -262,6 +262,23 @@ impl Cyclic {
         layout: CycleLayout,
     ) -> Cyclic {
         let image = ex.plan.initial_image.clone();
+        let mut axes = Axes::new(&ex.plan.axes, ex.plan.trajectory_capacity);
+        // Each axis belongs to the frame that carries its controlword: that group's own
+        // watchdog stops it.
+        let frame_of: Vec<usize> = ex
+            .plan
+            .axes
+            .iter()
+            .map(|a| {
+                let cw = a.map.controlword;
+                layout
+                    .frames
+                    .iter()
+                    .position(|f| f.outputs.iter().any(|&(o, l)| cw >= o && cw < o + l))
+                    .unwrap_or(0)
+            })
+            .collect();
+        axes.set_frames(&frame_of);
         Cyclic {
             link,
             tx: layout.frames.iter().map(|f| f.template.clone()).collect(),
@@ -275,7 +292,7 @@ impl Cyclic {
             scratch: image.clone(),
             image,
             out_version: u64::MAX,
-            axes: Axes::new(&ex.plan.axes, ex.plan.trajectory_capacity),
+            axes,
             layout,
             shared,
             ex,
@@ -338,7 +355,7 @@ impl Cyclic {
                 Order::SendAtWake => {
                     // Nothing in the frame depends on the previous reply, so the frame goes
                     // first and the reply is read after: the earliest, steadiest send instant.
-                    let t = self.build_and_send(t_wake);
+                    let t = self.build_and_send(t_wake, planned);
                     self.send_mailbox();
                     self.receive(0, false);
                     if let Some(prev) = self.cycle.checked_sub(1) {
@@ -347,7 +364,7 @@ impl Cyclic {
                     t
                 }
                 Order::SendThenWait => {
-                    let t = self.build_and_send(t_wake);
+                    let t = self.build_and_send(t_wake, planned);
                     self.send_mailbox();
                     self.receive(planned + window, true);
                     self.receive(0, false);
@@ -580,7 +597,9 @@ impl Cyclic {
 
     /// Fill the cyclic frame (outputs or the safe image, DC time, fresh index) and send it.
     /// Returns the time the frame was handed to the link.
-    fn build_and_send(&mut self, t_wake: i64) -> i64 {
+    /// `t_planned`: the cycle's planned wake-up, the time the axis stage computes its targets
+    /// for (on the cycle grid, whatever the wake-up's latency).
+    fn build_and_send(&mut self, t_wake: i64, t_planned: i64) -> i64 {
         let plan = &self.ex.plan;
         let panic = self.shared.panic.load(Ordering::Acquire);
         let stale = plan.watchdog_ns > 0
@@ -618,27 +637,13 @@ impl Cyclic {
         for &(o, l) in &self.layout.outputs {
             self.image[o..o + l].copy_from_slice(&source[o..o + l]);
         }
-        // The axes own their controlwords and targets: on panic or watchdog they put the
-        // configured stop there instead of the safe image's bytes, in this same frame.
-        self.axes.step(
-            &mut self.image,
-            t_wake,
-            plan.cycle_ns as i64,
-            panic || stale,
-            &self.ex.axes,
-        );
-        // The frames due this cycle go out back to back; the round trip of each starts as it
-        // is handed to the link (a synchronous in-process link answers before `send` returns),
-        // execution time ends when the last `send` returned.
-        let mut t_sent = now_ns();
-        let mut send_ns = 0;
-        for k in 0..self.tx.len() {
-            let layout = &self.layout.frames[k];
+        // The groups' own watchdogs, decided before the axis stage so that the axes of a
+        // stale group get their stop: its output bytes from the safe image (in the image too,
+        // so the samples show what went out), the axes' objects from the axis stage.
+        for (k, layout) in self.layout.frames.iter().enumerate() {
             if !self.cycle.is_multiple_of(layout.every as u64) {
                 continue;
             }
-            // The group's own watchdog: its output bytes from the safe image (in the image too,
-            // so the samples show what went out).
             let wd = layout.watchdog_ns as i64;
             let group_stale =
                 wd > 0 && t_wake - self.ex.frame_commands[k].load(Ordering::Acquire) > wd;
@@ -656,6 +661,39 @@ impl Cyclic {
             }
             self.frame_watchdog_tripped =
                 (self.frame_watchdog_tripped & !bit) | if group_stale { bit } else { 0 };
+        }
+        // The axes own their controlwords and targets: on panic or watchdog they put the
+        // configured stop there instead of the safe image's bytes, in this same frame (a
+        // group's watchdog holds between the cycles its frame goes out).
+        let moving = self.axes.step(
+            &mut self.image,
+            t_planned,
+            plan.cycle_ns as i64,
+            panic || stale,
+            self.frame_watchdog_tripped,
+            &self.ex.axes,
+        );
+        if moving != 0 && !panic {
+            // A trajectory in progress is a command being carried out: it feeds the
+            // watchdogs of the bus and of the frames its axes are in, so a commander that
+            // waits for it (or went quiet after sending it) does not stop it half-way.
+            self.shared.last_command_ns.store(t_wake, Ordering::Release);
+            for (k, c) in self.ex.frame_commands.iter().enumerate() {
+                if moving & (1 << k) != 0 {
+                    c.store(t_wake, Ordering::Release);
+                }
+            }
+        }
+        // The frames due this cycle go out back to back; the round trip of each starts as it
+        // is handed to the link (a synchronous in-process link answers before `send` returns),
+        // execution time ends when the last `send` returned.
+        let mut t_sent = now_ns();
+        let mut send_ns = 0;
+        for k in 0..self.tx.len() {
+            let layout = &self.layout.frames[k];
+            if !self.cycle.is_multiple_of(layout.every as u64) {
+                continue;
+            }
             let frame = &mut self.tx[k];
             for &(f, i, l) in &layout.writes {
                 frame[f..f + l].copy_from_slice(&self.image[i..i + l]);

@@ -111,10 +111,19 @@ pub struct Engine {
     output_writer: Mutex<Vec<u8>>,
     /// Serialises writers of the axis command slots; holds each axis's command as last written,
     /// with the cyclic run (`Exchange::run`) they belong to, so a new run starts afresh.
-    axis_writer: Mutex<(u64, Vec<AxisCommand>)>,
+    axis_writer: Mutex<AxisWriter>,
     /// Serialises consumers of the sample ring.
     drain: Mutex<()>,
     description: String,
+}
+
+/// The axis commands as last written, with the cyclic run (`Exchange::run`) they belong to
+/// (a new run starts afresh) and the number of the last setpoint or trajectory.
+#[derive(Default)]
+struct AxisWriter {
+    run: u64,
+    commands: Vec<AxisCommand>,
+    seq: u64,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -158,7 +167,7 @@ impl Engine {
             exchange: Mutex::new(None),
             acyclic: Mutex::new(()),
             output_writer: Mutex::new(Vec::new()),
-            axis_writer: Mutex::new((0, Vec::new())),
+            axis_writer: Mutex::new(AxisWriter::default()),
             drain: Mutex::new(()),
             description,
         }
@@ -492,110 +501,178 @@ impl Engine {
             .collect())
     }
 
-    /// Change axis `axis`'s command slot with `change` (under the axis writer mutex, so the
-    /// Python API and a native command thread never undo each other's requests). Feeds the
-    /// watchdog: an axis command is a command.
-    fn update_axis(&self, axis: usize, change: impl FnOnce(&mut AxisCommand)) -> Result<()> {
+    /// Change the commands of the axes in `axes` with `change` (under the axis writer mutex,
+    /// so the Python API and a native command thread never undo each other's requests) and
+    /// hand all commands to the RT thread in one write: the axes named take their new
+    /// commands in the same cycle. Feeds the watchdog first (an axis command is a command;
+    /// an enable that ends a watchdog stop then arrives after the stop's end, see
+    /// `AxisController::restart_blocked`).
+    fn update_axes(
+        &self,
+        axes: &[usize],
+        mut change: impl FnMut(usize, &mut AxisCommand, u64),
+    ) -> Result<u64> {
         let ex = self.exchange()?;
         let mut slots = lock(&self.axis_writer);
-        if slots.0 != ex.run {
+        if slots.run != ex.run {
             // A new cyclic run: start again from the plan's initial commands.
-            slots.0 = ex.run;
-            slots.1 = ex
+            slots.run = ex.run;
+            slots.commands = ex
                 .plan
                 .axes
                 .iter()
                 .map(|a| AxisCommand::initial(a.mode))
                 .collect();
         }
-        let Some(cmd) = slots.1.get_mut(axis) else {
+        let n = ex.plan.axes.len();
+        if let Some(&bad) = axes.iter().find(|&&a| a >= n) {
             return Err(Error::Invalid(format!(
-                "axis index {axis} is out of range (the plan has {} axes)",
-                ex.plan.axes.len()
+                "axis index {bad} is out of range (the plan has {n} axes)"
             )));
-        };
-        change(cmd);
-        let mut bytes = [0u8; cia402::COMMAND_LEN];
-        cmd.encode(&mut bytes);
-        ex.axes.commands[axis].write(0, &bytes);
-        drop(slots);
+        }
+        slots.seq += 1;
+        let seq = slots.seq;
+        for (k, &axis) in axes.iter().enumerate() {
+            change(k, &mut slots.commands[axis], seq);
+        }
+        let mut bytes = vec![0u8; n * cia402::COMMAND_LEN];
+        for (c, b) in slots
+            .commands
+            .iter()
+            .zip(bytes.chunks_exact_mut(cia402::COMMAND_LEN))
+        {
+            c.encode(b);
+        }
         self.feed_watchdog();
-        Ok(())
+        ex.axes.commands.write(0, &bytes);
+        Ok(seq)
     }
 
-    /// Ask for Operation Enabled (`true`) or the axis's `on_stop` command (`false`).
+    fn update_axis(&self, axis: usize, change: impl FnOnce(&mut AxisCommand)) -> Result<()> {
+        let mut change = Some(change);
+        self.update_axes(&[axis], |_, c, _| {
+            if let Some(f) = change.take() {
+                f(c)
+            }
+        })
+        .map(|_| ())
+    }
+
+    /// Ask for Operation Enabled (`true`: an explicit enable, also the deliberate action a
+    /// blocked restart waits for) or the axis's `on_stop` command (`false`).
     pub fn axis_enable(&self, axis: usize, enable: bool) -> Result<()> {
-        self.update_axis(axis, |c| c.enable = enable)
+        self.update_axis(axis, |c| {
+            c.enable = enable;
+            if enable {
+                c.enable_count = c.enable_count.wrapping_add(1);
+            }
+        })
     }
 
     /// Ask for a fault reset (a rising edge of controlword bit 7 while the drive is in Fault);
-    /// also gives the automatic reset its retries back.
+    /// also gives the automatic reset its retries back. It does not enable the axis.
     pub fn axis_reset_fault(&self, axis: usize) -> Result<()> {
         self.update_axis(axis, |c| c.reset_count = c.reset_count.wrapping_add(1))
     }
 
-    /// Command a mode of operation (0x6060); targets wait until 0x6061 shows it.
+    /// Command a mode of operation (0x6060); targets wait until 0x6061 shows it, and the new
+    /// mode starts from the actual state (docs/cia402.md, "Mode changes").
     pub fn axis_set_mode(&self, axis: usize, mode: Mode) -> Result<()> {
         self.update_axis(axis, |c| c.mode = mode)
     }
 
-    /// A setpoint in SI units, stamped with its arrival time; it replaces any trajectory.
-    pub fn axis_setpoint(&self, axis: usize, kind: SetpointKind, value: f64) -> Result<()> {
-        if !value.is_finite() {
-            return Err(Error::Invalid(format!(
-                "axis {axis}: setpoint {value} is not a finite number"
-            )));
-        }
-        let t = now_ns();
-        self.update_axis(axis, |c| {
-            c.seq += 1;
-            c.setpoint_kind = kind as u8;
-            c.value = value;
-            c.t_ns = t;
-        })
+    /// Start homing (mode hm; controlword bit 4 until the drive reports attained or error).
+    pub fn axis_home(&self, axis: usize) -> Result<()> {
+        self.update_axis(axis, |c| c.homing_count = c.homing_count.wrapping_add(1))
     }
 
-    /// Execute `points` (times from `start_ns`, CLOCK_MONOTONIC; strictly increasing, finite
-    /// values, at most the plan's trajectory_capacity) on the engine's clock.
-    pub fn axis_follow(&self, axis: usize, start_ns: i64, points: &[Point]) -> Result<()> {
-        let ex = self.exchange()?;
-        let cap = ex.axes.trajectory_capacity;
-        if points.is_empty() || points.len() > cap {
-            return Err(Error::Invalid(format!(
-                "a trajectory takes 1..={cap} points, got {}",
-                points.len()
-            )));
-        }
-        for (i, p) in points.iter().enumerate() {
-            let ordered = i == 0 || p.t_ns > points[i - 1].t_ns;
-            if p.t_ns < 0 || !ordered || !p.position.is_finite() || !p.velocity.is_finite() {
+    /// A setpoint in SI units, stamped with its arrival time; it replaces any trajectory.
+    pub fn axis_setpoint(&self, axis: usize, kind: SetpointKind, value: f64) -> Result<()> {
+        self.axis_setpoints(&[(axis, kind, value)])
+    }
+
+    /// Setpoints for several axes, taken over by all of them in the same cycle.
+    pub fn axis_setpoints(&self, setpoints: &[(usize, SetpointKind, f64)]) -> Result<()> {
+        for &(axis, _, value) in setpoints {
+            if !value.is_finite() {
                 return Err(Error::Invalid(format!(
-                    "trajectory point #{i} ({p:?}): times must be >= 0 and strictly increasing, \
-                     positions and velocities finite"
+                    "axis {axis}: setpoint {value} is not a finite number"
                 )));
             }
         }
-        let Some(slot) = ex.axes.trajectories.get(axis) else {
-            return self.update_axis(axis, |_| {});
-        };
-        let writer = lock(&self.axis_writer);
-        let seq = writer.1.get(axis).map_or(0, |c| c.seq) + 1;
-        let mut bytes = vec![0u8; cia402::TRAJECTORY_HEADER + points.len() * cia402::POINT_LEN];
-        bytes[..8].copy_from_slice(&seq.to_le_bytes());
-        for (p, b) in points
+        let axes: Vec<usize> = setpoints.iter().map(|s| s.0).collect();
+        if let Some(twice) = axes
             .iter()
-            .zip(bytes[cia402::TRAJECTORY_HEADER..].chunks_exact_mut(cia402::POINT_LEN))
+            .enumerate()
+            .find(|(i, a)| axes[..*i].contains(a))
         {
-            p.encode(b);
+            return Err(Error::Invalid(format!("axis {} is given twice", twice.1)));
         }
-        slot.write(0, &bytes);
-        drop(writer);
-        let n = points.len() as u32;
-        self.update_axis(axis, |c| {
+        let t = now_ns();
+        self.update_axes(&axes, |k, c, seq| {
+            c.seq = seq;
+            c.setpoint_kind = setpoints[k].1 as u8;
+            c.value = setpoints[k].2;
+            c.t_ns = t;
+        })
+        .map(|_| ())
+    }
+
+    /// Execute `points` (times from `start_ns`, CLOCK_MONOTONIC; strictly increasing, finite
+    /// values, at most the plan's trajectory_capacity) on the engine's clock. Returns the
+    /// command's number (`AxisStatus::command_seq` once taken over).
+    pub fn axis_follow(&self, axis: usize, start_ns: i64, points: &[Point]) -> Result<u64> {
+        self.axis_follow_many(start_ns, &[(axis, points)])
+    }
+
+    /// One trajectory for several axes, handed over at once: every axis starts it in the same
+    /// cycle (once all of them have their points), from the state it is commanded to have
+    /// then, on the common `start_ns` (docs/cia402.md, "Trajectories"). Returns the command's
+    /// number, the same for all of them.
+    pub fn axis_follow_many(&self, start_ns: i64, tracks: &[(usize, &[Point])]) -> Result<u64> {
+        let ex = self.exchange()?;
+        let cap = ex.axes.trajectory_capacity;
+        if tracks.is_empty() {
+            return Err(Error::Invalid("a trajectory names no axis".into()));
+        }
+        for (k, &(axis, points)) in tracks.iter().enumerate() {
+            if tracks[..k].iter().any(|t| t.0 == axis) {
+                return Err(Error::Invalid(format!("axis {axis} is given twice")));
+            }
+            if points.is_empty() || points.len() > cap {
+                return Err(Error::Invalid(format!(
+                    "axis {axis}: a trajectory takes 1..={cap} points, got {}",
+                    points.len()
+                )));
+            }
+            for (i, p) in points.iter().enumerate() {
+                let ordered = i == 0 || p.t_ns > points[i - 1].t_ns;
+                if p.t_ns < 0 || !ordered || !p.position.is_finite() || !p.velocity.is_finite() {
+                    return Err(Error::Invalid(format!(
+                        "axis {axis}: trajectory point #{i} ({p:?}): times must be >= 0 and \
+                         strictly increasing, positions and velocities finite"
+                    )));
+                }
+            }
+        }
+        let axes: Vec<usize> = tracks.iter().map(|t| t.0).collect();
+        // The points first, tagged with the seq the commands will carry; then the commands of
+        // all axes in one write.
+        self.update_axes(&axes, |k, c, seq| {
+            let (axis, points) = tracks[k];
+            let mut bytes = vec![0u8; cia402::TRAJECTORY_HEADER + points.len() * cia402::POINT_LEN];
+            bytes[..8].copy_from_slice(&seq.to_le_bytes());
+            for (p, b) in points
+                .iter()
+                .zip(bytes[cia402::TRAJECTORY_HEADER..].chunks_exact_mut(cia402::POINT_LEN))
+            {
+                p.encode(b);
+            }
+            ex.axes.trajectories[axis].write(0, &bytes);
             c.seq = seq;
             c.setpoint_kind = 0;
             c.t_ns = start_ns;
-            c.trajectory_len = n;
+            c.trajectory_len = points.len() as u32;
         })
     }
 

@@ -15,7 +15,9 @@ use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use ether_ros_engine::cia402::{AxisMap, AxisPlan, FaultReset, Limits, OnStop};
+use ether_ros_engine::cia402::{
+    AxisMap, AxisPlan, FaultReset, Limits, ModeChangeVelocity, OnStop, Restart,
+};
 use ether_ros_engine::plan::{DcMode, DcPlan, FramePlan, Logical, Order, Policy, RtPlan};
 use ether_ros_engine::{
     now_ns, Engine, Error, InProcessLink, Link, LinkOptions, Mode, Plan, Point, RawSocketLink,
@@ -286,6 +288,9 @@ fn audit_axis() -> AxisPlan {
             velocity_max: 1.0,
             torque_max: 1.0,
         },
+        deceleration: 20.0,
+        mode_change_velocity: ModeChangeVelocity::Actual,
+        restart: Restart::Auto,
         following_error_window: 0.1,
         on_stop: OnStop::QuickStop,
         fault_reset: FaultReset::Auto,
@@ -668,6 +673,11 @@ fn the_rt_path_source_has_no_lock_and_no_output() {
     let modules = [
         ("cyclic.rs", include_str!("../src/cyclic.rs")),
         ("cia402.rs", include_str!("../src/cia402.rs")),
+        ("cia402/motion.rs", include_str!("../src/cia402/motion.rs")),
+        (
+            "cia402/records.rs",
+            include_str!("../src/cia402/records.rs"),
+        ),
         ("handover.rs", include_str!("../src/handover.rs")),
         ("link.rs", include_str!("../src/link.rs")),
         ("xdp.rs", include_str!("../src/xdp.rs")),

@@ -348,6 +348,46 @@ pub mod object {
         pub const POSITION_ACTUAL: u16 = 0x6064;
         /// Following error window (u32).
         pub const FOLLOWING_ERROR_WINDOW: u16 = 0x6065;
+        /// Following error time out (u16, ms).
+        pub const FOLLOWING_ERROR_TIMEOUT: u16 = 0x6066;
+        /// Position window (u32).
+        pub const POSITION_WINDOW: u16 = 0x6067;
+        /// Velocity window (u16).
+        pub const VELOCITY_WINDOW: u16 = 0x606D;
+        /// Max torque (u16, per mille of the motor rated torque).
+        pub const MAX_TORQUE: u16 = 0x6072;
+        /// Motor rated torque (u32, mN·m).
+        pub const MOTOR_RATED_TORQUE: u16 = 0x6076;
+        /// Home offset (i32).
+        pub const HOME_OFFSET: u16 = 0x607C;
+        /// Max motor speed (u32, rpm).
+        pub const MAX_MOTOR_SPEED: u16 = 0x6080;
+        /// Quick stop deceleration (u32).
+        pub const QUICK_STOP_DECELERATION: u16 = 0x6085;
+        /// Position encoder resolution (record: 1 increments, 2 motor revolutions).
+        pub const POSITION_ENCODER_RESOLUTION: u16 = 0x608F;
+        /// Gear ratio (record: 1 motor revolutions, 2 shaft revolutions).
+        pub const GEAR_RATIO: u16 = 0x6091;
+        /// Homing speeds (record: 1 speed during search for switch, 2 for zero).
+        pub const HOMING_SPEEDS: u16 = 0x6099;
+        /// Homing acceleration (u32).
+        pub const HOMING_ACCELERATION: u16 = 0x609A;
+        /// Velocity offset (i32; velocity feed-forward in csp/csv).
+        pub const VELOCITY_OFFSET: u16 = 0x60B1;
+        /// Torque offset (i16; torque feed-forward in csp/csv/cst).
+        pub const TORQUE_OFFSET: u16 = 0x60B2;
+        /// Touch probe function (u16).
+        pub const TOUCH_PROBE_FUNCTION: u16 = 0x60B8;
+        /// Touch probe status (u16).
+        pub const TOUCH_PROBE_STATUS: u16 = 0x60B9;
+        /// Touch probe 1 position, positive edge (i32).
+        pub const TOUCH_PROBE_1_POSITIVE: u16 = 0x60BA;
+        /// Touch probe 1 position, negative edge (i32).
+        pub const TOUCH_PROBE_1_NEGATIVE: u16 = 0x60BB;
+        /// Digital inputs (u32).
+        pub const DIGITAL_INPUTS: u16 = 0x60FD;
+        /// Digital outputs (record: 1 physical outputs u32, 2 bit mask u32).
+        pub const DIGITAL_OUTPUTS: u16 = 0x60FE;
         /// Velocity actual value (i32).
         pub const VELOCITY_ACTUAL: u16 = 0x606C;
         /// Target torque (i16).

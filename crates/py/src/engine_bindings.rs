@@ -6,8 +6,8 @@
 use std::sync::{Arc, Mutex, Weak};
 
 use ether_ros_engine::cia402::{
-    status_flags, AxisMap, AxisPlan, DriveState, FaultReset, Limits, OnStop,
-    DEFAULT_TRAJECTORY_CAPACITY,
+    status_flags, AxisMap, AxisPlan, DriveState, FaultReset, Limits, ModeChangeVelocity, OnStop,
+    Restart, DEFAULT_TRAJECTORY_CAPACITY,
 };
 use ether_ros_engine::plan::{
     CyclicDatagram, DcMode, DcPlan, FramePlan, Logical, Order, Policy, RtPlan,
@@ -292,14 +292,15 @@ fn choice<T: Copy>(
         })
 }
 
-const MODES: [(&str, Mode); 6] = [
-    ("pp", Mode::ProfilePosition),
-    ("pv", Mode::ProfileVelocity),
-    ("hm", Mode::Homing),
-    ("csp", Mode::CyclicPosition),
-    ("csv", Mode::CyclicVelocity),
-    ("cst", Mode::CyclicTorque),
-];
+/// The modes by short name (the protocol crate's names and codes).
+fn modes() -> [(&'static str, Mode); 6] {
+    Mode::ALL.map(|m| (m.name(), m))
+}
+
+/// "pp, pv, hm, csp, csv, cst".
+fn mode_names() -> String {
+    Mode::ALL.map(|m| m.name()).join(", ")
+}
 
 /// `plan['axes']`: CiA 402 axes (docs/engine.md, "The axis stage").
 fn parse_axes(d: &Bound<'_, PyDict>) -> PyResult<Vec<AxisPlan>> {
@@ -340,7 +341,7 @@ fn parse_axes(d: &Bound<'_, PyDict>) -> PyResult<Vec<AxisPlan>> {
         axes.push(AxisPlan {
             name: req(&a, &path, "name", "a str")?,
             map,
-            mode: choice(&a, &path, "mode", &MODES)?,
+            mode: choice(&a, &path, "mode", &modes())?,
             position_scale: opt(&a, &path, "position_scale", num, 1.0)?,
             position_offset: opt(&a, &path, "position_offset", num, 0.0)?,
             velocity_scale: opt(&a, &path, "velocity_scale", num, 1.0)?,
@@ -350,6 +351,28 @@ fn parse_axes(d: &Bound<'_, PyDict>) -> PyResult<Vec<AxisPlan>> {
                 position_max: opt(&a, &path, "position_max", num, f64::INFINITY)?,
                 velocity_max: opt(&a, &path, "velocity_max", num, f64::INFINITY)?,
                 torque_max: opt(&a, &path, "torque_max", num, f64::INFINITY)?,
+            },
+            deceleration: opt(&a, &path, "deceleration", num, f64::INFINITY)?,
+            mode_change_velocity: match a.get_item("mode_change_velocity")? {
+                None => ModeChangeVelocity::Actual,
+                Some(_) => choice(
+                    &a,
+                    &path,
+                    "mode_change_velocity",
+                    &[
+                        ("actual", ModeChangeVelocity::Actual),
+                        ("zero", ModeChangeVelocity::Zero),
+                    ],
+                )?,
+            },
+            restart: match a.get_item("restart")? {
+                None => Restart::Manual,
+                Some(_) => choice(
+                    &a,
+                    &path,
+                    "restart",
+                    &[("manual", Restart::Manual), ("auto", Restart::Auto)],
+                )?,
             },
             following_error_window: opt(&a, &path, "following_error_window", num, 0.0)?,
             on_stop: choice(
@@ -387,16 +410,27 @@ fn parse_axes(d: &Bound<'_, PyDict>) -> PyResult<Vec<AxisPlan>> {
     Ok(axes)
 }
 
+/// A trajectory point as Python gives it: (t_ns, position, velocity).
+type PointTuple = (i64, f64, f64);
+
+fn setpoint_kind(kind: &str) -> PyResult<SetpointKind> {
+    match kind {
+        "position" => Ok(SetpointKind::Position),
+        "velocity" => Ok(SetpointKind::Velocity),
+        "torque" => Ok(SetpointKind::Torque),
+        _ => Err(PyValueError::new_err(format!(
+            "setpoint kind '{kind}': expected position, velocity or torque"
+        ))),
+    }
+}
+
 fn axis_status_dict<'py>(py: Python<'py>, s: &AxisStatus) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     let state = DriveState::NAMES
         .get(s.state as usize)
         .copied()
         .unwrap_or("not_ready_to_switch_on");
-    let mode = MODES
-        .iter()
-        .find(|(_, m)| *m as i8 == s.mode_display)
-        .map(|(n, _)| *n);
+    let mode = Mode::from_code(s.mode_display).map(Mode::name);
     d.set_item("cycle", s.cycle)?;
     d.set_item("state", state)?;
     d.set_item("statusword", s.statusword)?;
@@ -412,6 +446,13 @@ fn axis_status_dict<'py>(py: Python<'py>, s: &AxisStatus) -> PyResult<Bound<'py,
         ("following_error_exceeded", status_flags::FOLLOWING_ERROR),
         ("retries_exhausted", status_flags::RETRIES_EXHAUSTED),
         ("halted", status_flags::HALTED),
+        ("outside_limits", status_flags::OUTSIDE_LIMITS),
+        ("restart_blocked", status_flags::RESTART_BLOCKED),
+        ("limit_active", status_flags::LIMIT_ACTIVE),
+        ("idle", status_flags::IDLE),
+        ("homing_attained", status_flags::HOMING_ATTAINED),
+        ("homing_error", status_flags::HOMING_ERROR),
+        ("homing_active", status_flags::HOMING_ACTIVE),
     ] {
         d.set_item(name, s.flags & bit != 0)?;
     }
@@ -427,6 +468,9 @@ fn axis_status_dict<'py>(py: Python<'py>, s: &AxisStatus) -> PyResult<Bound<'py,
     d.set_item("torque", s.torque)?;
     d.set_item("following_error", s.following_error)?;
     d.set_item("target_position", s.target_position)?;
+    d.set_item("desired_velocity", s.desired_velocity)?;
+    d.set_item("target_velocity", s.target_velocity)?;
+    d.set_item("target_torque", s.target_torque)?;
     d.set_item("position_clamps", s.position_clamps)?;
     d.set_item("velocity_clamps", s.velocity_clamps)?;
     d.set_item("torque_clamps", s.torque_clamps)?;
@@ -741,27 +785,58 @@ impl PyEngine {
     /// Command a mode of operation by name: pp, pv, hm, csp, csv, cst.
     fn axis_set_mode(&self, py: Python<'_>, axis: usize, mode: &str) -> PyResult<()> {
         let m = Mode::from_name(mode).ok_or_else(|| {
-            PyValueError::new_err(format!(
-                "mode '{mode}': expected one of pp, pv, hm, csp, csv, cst"
-            ))
+            PyValueError::new_err(format!("mode '{mode}': expected one of {}", mode_names()))
         })?;
         self.inner.axis_set_mode(axis, m).map_err(|e| to_py(py, e))
     }
 
     /// A setpoint in SI units: kind 'position', 'velocity' or 'torque'.
     fn axis_setpoint(&self, py: Python<'_>, axis: usize, kind: &str, value: f64) -> PyResult<()> {
-        let k = match kind {
-            "position" => SetpointKind::Position,
-            "velocity" => SetpointKind::Velocity,
-            "torque" => SetpointKind::Torque,
-            _ => {
-                return Err(PyValueError::new_err(format!(
-                    "setpoint kind '{kind}': expected position, velocity or torque"
-                )))
-            }
-        };
+        let k = setpoint_kind(kind)?;
         self.inner
             .axis_setpoint(axis, k, value)
+            .map_err(|e| to_py(py, e))
+    }
+
+    /// Setpoints `[(axis, kind, value), ...]` taken over by all axes in the same cycle.
+    fn axis_setpoints(&self, py: Python<'_>, setpoints: Vec<(usize, String, f64)>) -> PyResult<()> {
+        let mut list = Vec::with_capacity(setpoints.len());
+        for (axis, kind, value) in setpoints {
+            list.push((axis, setpoint_kind(&kind)?, value));
+        }
+        self.inner.axis_setpoints(&list).map_err(|e| to_py(py, e))
+    }
+
+    /// Start homing on axis `axis` (in mode hm).
+    fn axis_home(&self, py: Python<'_>, axis: usize) -> PyResult<()> {
+        self.inner.axis_home(axis).map_err(|e| to_py(py, e))
+    }
+
+    /// One trajectory for several axes `[(axis, [(t_ns, position, velocity), ...]), ...]`,
+    /// all started in the same cycle, times from `start_ns` (engine clock).
+    fn axis_follow_many(
+        &self,
+        py: Python<'_>,
+        start_ns: i64,
+        tracks: Vec<(usize, Vec<PointTuple>)>,
+    ) -> PyResult<u64> {
+        let tracks: Vec<(usize, Vec<Point>)> = tracks
+            .into_iter()
+            .map(|(axis, pts)| {
+                let pts = pts
+                    .into_iter()
+                    .map(|(t_ns, position, velocity)| Point {
+                        t_ns,
+                        position,
+                        velocity,
+                    })
+                    .collect();
+                (axis, pts)
+            })
+            .collect();
+        let refs: Vec<(usize, &[Point])> = tracks.iter().map(|(a, p)| (*a, p.as_slice())).collect();
+        self.inner
+            .axis_follow_many(start_ns, &refs)
             .map_err(|e| to_py(py, e))
     }
 
@@ -772,7 +847,7 @@ impl PyEngine {
         axis: usize,
         start_ns: i64,
         points: Vec<(i64, f64, f64)>,
-    ) -> PyResult<()> {
+    ) -> PyResult<u64> {
         let points: Vec<Point> = points
             .into_iter()
             .map(|(t_ns, position, velocity)| Point {

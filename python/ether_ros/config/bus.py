@@ -206,6 +206,19 @@ class AxisConfig(_Model):
     velocity_limit: float = math.inf
     torque_limit: float = math.inf
     following_error_window: float = 0.0
+    # SI/s²: the quiet stop a mode change or an enable starts with, and the braking before the
+    # position limits in csv/pv/cst (inf: at once, cut at the limit itself).
+    deceleration: float = math.inf
+    # The velocity a mode change's quiet stop starts from: the actual one, or zero.
+    mode_change_velocity: Literal["actual", "zero"] = "actual"
+    # manual: after a panic, watchdog stop or fault the axis waits for an explicit enable;
+    # auto: it goes back to Operation Enabled by itself (never outside its position limits).
+    restart: Literal["manual", "auto"] = "manual"
+    # pp/pv: the drive's profile (0x6081 velocity, 0x6083 acceleration, 0x6084 deceleration) in
+    # SI, written in PREOP when given (else the drive keeps its own).
+    profile_velocity: float | None = None
+    profile_acceleration: float | None = None
+    profile_deceleration: float | None = None
     on_stop: Literal["quick_stop", "disable"] = "quick_stop"
     fault_reset: Literal["auto", "manual"] = "auto"
     fault_retries: int = Field(default=3, ge=0, le=100)
@@ -722,11 +735,12 @@ def _resolve_slave(
                       f"{joints[axis.name]})", axis.name)  # fmt: skip
         joints[axis.name] = s.name
     s._axis_specs = cia402.resolve_axes(dev, layout, s.name, s.axes, at, err)
-    # An axis whose 0x6060 is not in the PDOs gets its mode once, in PREOP.
+    # What the drives get once, in PREOP (an entry of the configuration's own wins): the mode
+    # of an axis whose 0x6060 is not in the PDOs, the software position limits (0x607D).
     given = {(i.index, i.subindex) for i in s.sdo_init}
-    for index, code in cia402.mode_sdo_inits(s._axis_specs):
-        if (index, 0) not in given:
-            s.sdo_init.append(SdoInit(index=index, subindex=0, value=code, type="int8"))
+    for index, subindex, raw, type_name in cia402.axis_sdo_inits(s._axis_specs, dev):
+        if (index, subindex) not in given:
+            s.sdo_init.append(SdoInit(index=index, subindex=subindex, value=raw, type=type_name))
 
     safe = bytearray(layout.output_bytes)
     for var_name, value in s.safe_outputs.items():

@@ -16,6 +16,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
+from ether_ros._native import protocol
 from ether_ros._native.protocol import CIA402_MODES
 from ether_ros._native.protocol import cia402 as cia402_facts
 from ether_ros.config.esi import EsiDevice, Pdo, PdoEntry
@@ -214,14 +215,64 @@ def _maps(p: Pdo, key: tuple[int, int]) -> bool:
     return any((e.index, e.subindex) == key for e in p.entries)
 
 
-def mode_sdo_inits(specs: Sequence[AxisSpec]) -> list[tuple[int, int]]:
-    """(0x6060 index, mode code) of every axis whose mode object is not in the PDOs: the mode
-    is then written once in PREOP, so the drive never runs without one."""
-    return [
-        (object_index("mode", a.axis_index), MODES[a.config.mode][0])
-        for a in specs
-        if "mode" not in a.variables
-    ]
+SOFTWARE_POSITION_LIMIT = cia402_facts.SOFTWARE_POSITION_LIMIT
+INT32_MIN, INT32_MAX = (int(x) for x in protocol.value_range("int", 32))
+UINT32_MAX = int(protocol.value_range("uint", 32)[1])
+# The pp/pv profile (config key → object): in the drive's velocity units (per second for the
+# accelerations), i.e. SI / velocity_scale.
+PROFILE_OBJECTS = {
+    "profile_velocity": cia402_facts.PROFILE_VELOCITY,
+    "profile_acceleration": cia402_facts.PROFILE_ACCELERATION,
+    "profile_deceleration": cia402_facts.PROFILE_DECELERATION,
+}
+
+
+def profile_raw(cfg: AxisConfig, key: str, value: float) -> int:
+    """A profile value in SI as the drive's raw UDINT (velocity units, /s for accelerations);
+    ValueError when it does not fit."""
+    raw = round(value / cfg.velocity_scale)
+    if not 1 <= raw <= UINT32_MAX:
+        raise ValueError(f"{key} {value:g} is {raw} in the drive's units (velocity_scale "
+                         f"{cfg.velocity_scale:g}): outside 1..{UINT32_MAX}")  # fmt: skip
+    return raw
+
+
+def software_limits_raw(cfg: AxisConfig) -> tuple[int, int] | None:
+    """``position_limits`` in the drive's position units (0x607D:1 min, :2 max), rounded
+    inwards, or None when a limit is infinite (the drive's own limits stay as they are)."""
+    lo, hi = cfg.position_limits
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        return None
+    raw_lo = math.ceil((lo - cfg.position_offset) / cfg.position_scale - 1e-9)
+    raw_hi = math.floor((hi - cfg.position_offset) / cfg.position_scale + 1e-9)
+    return max(raw_lo, INT32_MIN), min(raw_hi, INT32_MAX)
+
+
+def axis_sdo_inits(specs: Sequence[AxisSpec], dev: EsiDevice) -> list[tuple[int, int, int, str]]:
+    """(index, subindex, value, type) the master writes once in PREOP for the axes:
+
+    - 0x6060 with the mode of every axis whose mode object is not in the PDOs, so the drive
+      never runs without one;
+    - 0x607D:1/:2, the software position limits, from ``position_limits`` when both are finite
+      and the dictionary has the object: the drive holds them too, whatever the master sends;
+    - 0x6081/0x6083/0x6084, the pp/pv profile, from ``profile_*`` when given.
+    """
+    out: list[tuple[int, int, int, str]] = []
+    for a in specs:
+        n = a.axis_index
+        if "mode" not in a.variables:
+            out.append((object_index("mode", n), 0, MODES[a.config.mode][0], "int8"))
+        limits = software_limits_raw(a.config)
+        index = SOFTWARE_POSITION_LIMIT + n * AXIS_STRIDE
+        if limits is not None and dev.od_object(index) is not None:
+            out.append((index, 1, limits[0], "int32"))
+            out.append((index, 2, limits[1], "int32"))
+        for key, base in PROFILE_OBJECTS.items():
+            value = getattr(a.config, key)
+            if value is not None:
+                raw = profile_raw(a.config, key, value)
+                out.append((base + n * AXIS_STRIDE, 0, raw, "uint32"))
+    return out
 
 
 def check_axis(cfg: AxisConfig, path: tuple[Any, ...], err: ErrorFn) -> None:
@@ -242,6 +293,18 @@ def check_axis(cfg: AxisConfig, path: tuple[Any, ...], err: ErrorFn) -> None:
     w = cfg.following_error_window
     if math.isnan(w) or w < 0 or math.isinf(w):
         raise err((*path, "following_error_window"), "must be a finite number >= 0", w)
+    if math.isnan(cfg.deceleration) or cfg.deceleration <= 0:
+        raise err((*path, "deceleration"), "must be positive (inf: at once)", cfg.deceleration)
+    for key in PROFILE_OBJECTS:
+        v = getattr(cfg, key)
+        if v is None:
+            continue
+        if not math.isfinite(v) or v <= 0:
+            raise err((*path, key), "must be a positive finite number", v)
+        try:
+            profile_raw(cfg, key, v)
+        except ValueError as exc:
+            raise err((*path, key), str(exc), v) from None
 
 
 def resolve_axes(
@@ -264,6 +327,11 @@ def resolve_axes(
             raise err((*path, "mode"), f"{dev.type_name} axis {n + 1} does not offer this mode "
                       f"(0x{SUPPORTED_MODES + n * AXIS_STRIDE:04X} supported drive modes: "
                       f"{', '.join(modes) or 'none'})", cfg.mode)  # fmt: skip
+        for key, base in PROFILE_OBJECTS.items():
+            idx = base + n * AXIS_STRIDE
+            if getattr(cfg, key) is not None and dev.objects and dev.od_object(idx) is None:
+                raise err((*path, key), f"the {dev.type_name} dictionary has no object "
+                          f"0x{idx:04X} to write it to", getattr(cfg, key))  # fmt: skip
         for index in MODE_DICTIONARY.get(cfg.mode, ()):
             idx = index + n * AXIS_STRIDE
             if dev.objects and dev.od_object(idx) is None:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -24,8 +24,9 @@ if TYPE_CHECKING:
 # Setpoint kind per mode (None: homing takes no setpoint).
 SETPOINT_KIND = {"csp": "position", "pp": "position", "csv": "velocity", "pv": "velocity",
                  "cst": "torque", "hm": None}  # fmt: skip
-PROFILE_MODES = ("pp", "pv", "hm")
 POLL_S = 0.002
+# An axis still halted this long after an enable (which fed the watchdog) is held by a panic.
+HALT_SETTLE_S = 0.05
 
 
 class AxisError(BusError):
@@ -70,6 +71,9 @@ def plan_entries(specs: Sequence[AxisSpec], layout: ImageLayout) -> list[dict[st
                 "velocity_max": c.velocity_limit,
                 "torque_max": c.torque_limit,
                 "following_error_window": c.following_error_window,
+                "deceleration": c.deceleration,
+                "mode_change_velocity": c.mode_change_velocity,
+                "restart": c.restart,
                 "on_stop": c.on_stop,
                 "fault_reset": c.fault_reset,
                 "fault_retries": c.fault_retries,
@@ -93,6 +97,39 @@ def output_bits(specs: Sequence[AxisSpec], layout: ImageLayout) -> dict[int, str
     return owned
 
 
+def follow_together(
+    bus: Bus,
+    tracks: Mapping[Axis, Iterable[TrajectoryPoint | tuple[float, ...]]],
+    start_in: float = 0.0,
+) -> float:
+    """Hand the trajectories of several axes to the engine at once (one command number, one
+    start time): the engine starts them in the same cycle. Checked first, all or nothing.
+    Returns the start time (engine clock, s)."""
+    if not tracks:
+        raise AxisCommandError("a trajectory names no axis")
+    checked = [(axis, axis.check_trajectory(points)) for axis, points in tracks.items()]
+    if not math.isfinite(start_in) or start_in < 0:
+        raise AxisCommandError("start_in must be >= 0 s")
+    for axis, _ in checked:
+        axis._require_running()
+    engine = bus.engine
+    start_ns = int(engine.now_ns() + start_in * 1e9)
+    try:
+        seq = engine.axis_follow_many(
+            start_ns,
+            [
+                (axis.index, [(round(p.t * 1e9), p.position, p.velocity) for p in points])
+                for axis, points in checked
+            ],
+        )
+    except ValueError as exc:
+        names = ", ".join(a.name for a, _ in checked)
+        raise AxisCommandError(f"axes {names}: {exc}") from None
+    for axis, _ in checked:
+        bus.axis_trajectories[axis.index] = seq
+    return start_ns / 1e9
+
+
 class Axis:
     """One joint on a CiA 402 drive. Units are SI (rad or m, /s, N·m or N)."""
 
@@ -100,14 +137,24 @@ class Axis:
         self._bus = bus
         self._index = index
         self.spec = spec
-        self._mode: str = spec.config.mode
 
     def __repr__(self) -> str:
         return f"Axis({self.name!r}, slave {self.spec.slave!r}, axis {self.spec.axis_index + 1})"
 
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Axis) and other._bus is self._bus and other._index == self._index
+
+    def __hash__(self) -> int:
+        return hash((id(self._bus), self._index))
+
     @property
     def name(self) -> str:
         return self.spec.name
+
+    @property
+    def bus(self) -> Bus:
+        """The bus the axis is on."""
+        return self._bus
 
     @property
     def index(self) -> int:
@@ -116,8 +163,9 @@ class Axis:
 
     @property
     def mode(self) -> str:
-        """The mode last commanded (the drive shows it in ``status()['mode_display']``)."""
-        return self._mode
+        """The mode last commanded (the drive shows it in ``status()['mode_display']``); the
+        same for every ``Axis`` object of this axis on the bus."""
+        return self._bus.axis_modes.get(self._index, self.spec.config.mode)
 
     # ------------------------------------------------------------------------ status
     def status(self) -> dict[str, Any]:
@@ -153,16 +201,23 @@ class Axis:
     # ------------------------------------------------------------------------ power
     def enable(self, timeout: float = 2.0) -> None:
         """Fault reset if needed, shutdown, switch on, enable operation; returns once the drive
-        is in Operation Enabled in the commanded mode. Raises :class:`AxisError` naming the
-        state it stuck in and its error code after ``timeout`` seconds (or at once when a fault
-        will not be reset), never hangs."""
+        is in Operation Enabled in the commanded mode. This is the explicit enable a blocked
+        restart waits for (``restart: manual``, docs/cia402.md "Deliberate restart"); given
+        while the bus is in panic it does not count (clear the panic first). Raises
+        :class:`AxisError` naming the state it stuck in and its error code after ``timeout``
+        seconds (or at once when a fault will not be reset, or the bus is in panic), never
+        hangs."""
         self._require_running()
         engine = self._bus.engine
         st = self.status()
+        if engine.is_panicked:
+            raise AxisError(f"axis {self.name}: the bus is in panic (clear_panic first, then "
+                            "enable)")  # fmt: skip
         if st["state"] in ("fault", "fault_reaction_active"):
             engine.axis_reset_fault(self._index)
         engine.axis_enable(self._index, True)
         deadline = time.monotonic() + timeout
+        halted_since: float | None = None
         while True:
             st = self.status()
             if st["state"] == "operation_enabled" and st["mode_reached"]:
@@ -170,6 +225,13 @@ class Axis:
             # The automatic reset gave up: waiting longer changes nothing.
             if st["retries_exhausted"] or time.monotonic() > deadline:
                 break
+            # Halted after the enable (which fed the watchdog): the bus is in panic.
+            now = time.monotonic()
+            halted_since = (halted_since or now) if st["halted"] else None
+            if halted_since is not None and now - halted_since > HALT_SETTLE_S:
+                raise AxisError(f"axis {self.name}: the bus is in panic (clear_panic first, "
+                                "then enable)")  # fmt: skip
+            self._bus.feed_watchdog()
             time.sleep(POLL_S)
         raise AxisError(
             f"axis {self.name}: no operation_enabled within {timeout:g} s: stuck in "
@@ -189,14 +251,19 @@ class Axis:
 
     def reset_fault(self) -> None:
         """A rising edge of controlword bit 7 while the drive is in Fault (also gives the
-        automatic reset its retries back). Re-enables if the axis is enabled."""
+        automatic reset its retries back). It does not enable the axis: with ``restart:
+        manual`` call :meth:`enable` afterwards (``restart: auto`` re-enables an axis that is
+        wanted enabled and inside its limits)."""
         self._require_running()
         self._bus.engine.axis_reset_fault(self._index)
 
     def set_mode(self, mode: str, timeout: float = 1.0) -> None:
-        """Command a mode of operation (0x6060) and wait for 0x6061 to show it. Switching
-        between the cyclic modes (csp, csv, cst) is allowed while enabled; to or from a
-        profile mode (pp, pv, hm) only while not in Operation Enabled."""
+        """Command a mode of operation (0x6060) and return once 0x6061 shows it and the axis is
+        inside its position limits (and not in Fault). The csp, csv, cst, pp and pv modes switch
+        at any speed, also while enabled: the new mode starts from the actual state (position
+        from the actual position, velocity from the actual velocity or zero, torque from zero;
+        docs/cia402.md, "Mode changes"). To or from hm only while not in Operation Enabled.
+        Raises :class:`AxisError` naming what the axis did instead (never a hang)."""
         self._require_running()
         if mode not in MODES:
             raise AxisCommandError(f"axis {self.name}: unknown mode {mode!r} (modes: "
@@ -209,17 +276,28 @@ class Axis:
         if target is not None and target not in self.spec.variables:
             raise AxisCommandError(f"axis {self.name}: mode {mode} needs {target}, which the "
                                    "PDOs do not map")  # fmt: skip
-        if mode != self._mode and "mode" not in self.spec.variables:
+        if mode != self.mode and "mode" not in self.spec.variables:
             raise AxisCommandError(f"axis {self.name}: 0x6060 is not in the PDOs; the mode "
-                                   f"({self._mode}) is set once in PREOP")  # fmt: skip
-        profile_change = mode in PROFILE_MODES or self._mode in PROFILE_MODES
-        if profile_change and mode != self._mode and self.state == "operation_enabled":
-            raise AxisCommandError(f"axis {self.name}: switch from {self._mode} to {mode} only "
-                                   "while disabled (profile modes)")  # fmt: skip
+                                   f"({self.mode}) is set once in PREOP")  # fmt: skip
+        homing_change = "hm" in (mode, self.mode) and mode != self.mode
+        if homing_change and self.state == "operation_enabled":
+            raise AxisCommandError(f"axis {self.name}: switch from {self.mode} to {mode} only "
+                                   "while disabled (homing)")  # fmt: skip
         self._bus.engine.axis_set_mode(self._index, mode)
-        self._mode = mode
-        if "mode_display" in self.spec.variables:
-            self._wait(lambda st: st["mode_display"] == mode, timeout, f"show mode {mode}")
+        self._bus.axis_modes[self._index] = mode
+        lo, hi = self.spec.config.position_limits
+
+        def problem(st: dict[str, Any]) -> str | None:
+            if "mode_display" in self.spec.variables and st["mode_display"] != mode:
+                return f"0x6061 shows {st['mode_display']}, not {mode}"
+            if st["state"] in ("fault", "fault_reaction_active"):
+                return f"the drive is in {st['state']} (error code 0x{st['error_code']:04X})"
+            if st["outside_limits"]:
+                return (f"the axis is outside its position limits [{lo:g}, {hi:g}] at "
+                        f"{st['position']:.4g}")  # fmt: skip
+            return None
+
+        self._wait(lambda st: problem(st) is None, timeout, f"run mode {mode}", problem)
 
     # ------------------------------------------------------------------------ motion
     def command(
@@ -245,10 +323,10 @@ class Axis:
         """Raise :class:`AxisCommandError` if ``command(**{kind: value})`` would be refused for
         its kind (the mode's) or its value; writes nothing. Lets a caller check the setpoints
         of several axes before commanding any (all or nothing)."""
-        want = SETPOINT_KIND[self._mode]
+        want = SETPOINT_KIND[self.mode]
         if kind != want:
             raise AxisCommandError(f"axis {self.name}: a {kind} command for an axis in mode "
-                                   f"{self._mode} (it takes {want or 'no setpoint'})")  # fmt: skip
+                                   f"{self.mode} (it takes {want or 'no setpoint'})")  # fmt: skip
         self._check_value(kind, value)
 
     def follow(
@@ -258,32 +336,20 @@ class Axis:
     ) -> float:
         """Run a timed trajectory on the engine's clock: points ``(t, position, velocity)``
         (seconds from the start, SI), t strictly increasing; position mode interpolates
-        positions (cubic, with the velocities), velocity mode the velocities. Starts
-        ``start_in`` seconds from now; returns the start time (engine clock, s)."""
-        points = self.check_trajectory(trajectory)
-        if not math.isfinite(start_in) or start_in < 0:
-            raise AxisCommandError(f"axis {self.name}: start_in must be >= 0 s")
-        self._require_running()
-        engine = self._bus.engine
-        start_ns = int(engine.now_ns() + start_in * 1e9)
-        try:
-            engine.axis_follow(
-                self._index,
-                start_ns,
-                [(round(p.t * 1e9), p.position, p.velocity) for p in points],
-            )
-        except ValueError as exc:
-            raise AxisCommandError(f"axis {self.name}: {exc}") from None
-        return start_ns / 1e9
+        positions (cubic, with the velocities), velocity mode the velocities linearly. Starts
+        ``start_in`` seconds from now; from the cycle the engine takes it over, the axis moves
+        from the state it is commanded to have to the first point (held when they are equal).
+        Returns the start time (engine clock, s). Several axes together: ``bus.follow``."""
+        return follow_together(self._bus, {self: trajectory}, start_in)
 
     def check_trajectory(
         self, trajectory: Iterable[TrajectoryPoint | tuple[float, ...]]
     ) -> list[TrajectoryPoint]:
         """The points :meth:`follow` would run, or :class:`AxisCommandError` saying why it
         would refuse them (mode, times, values, limits); writes nothing."""
-        if self._mode not in ("csp", "csv"):
+        if self.mode not in ("csp", "csv"):
             raise AxisCommandError(f"axis {self.name}: trajectories need mode csp or csv "
-                                   f"(the axis is in {self._mode})")  # fmt: skip
+                                   f"(the axis is in {self.mode})")  # fmt: skip
         points = [p if isinstance(p, TrajectoryPoint) else TrajectoryPoint(*p) for p in trajectory]
         if not points:
             raise AxisCommandError(f"axis {self.name}: the trajectory has no points")
@@ -294,14 +360,27 @@ class Axis:
             if i and p.t <= points[i - 1].t:
                 raise AxisCommandError(f"axis {self.name}: trajectory point {i}: t {p.t} is not "
                                        f"after {points[i - 1].t}")  # fmt: skip
-            if self._mode == "csp":
+            if self.mode == "csp":
                 self._check_value("position", p.position, f"trajectory point {i}: ")
             self._check_value("velocity", p.velocity, f"trajectory point {i}: ")
         return points
 
     def wait_trajectory(self, timeout: float) -> None:
-        """Until the trajectory has run to its end."""
-        self._wait(lambda st: st["trajectory_done"], timeout, "finish its trajectory")
+        """Until the trajectory last started on this axis has run to its end (or a later
+        command replaced it); feeds the command watchdog while it waits."""
+        seq = self._bus.axis_trajectories.get(self._index, 0)
+        self._wait(
+            lambda st: (
+                st["command_seq"] > seq
+                or (
+                    st["command_seq"] == seq
+                    and st["trajectory_done"]
+                    and not st["trajectory_active"]
+                )
+            ),
+            timeout,
+            "finish its trajectory",
+        )
 
     # ------------------------------------------------------------------------ helpers
     def _check_value(self, kind: str, value: float, what: str = "") -> None:
@@ -328,15 +407,27 @@ class Axis:
         if not self._bus.running:
             raise AxisCommandError(f"axis {self.name}: the bus is not in OP (call start())")
 
-    def _wait(self, done: Any, timeout: float, what: str) -> None:
+    def _wait(
+        self,
+        done: Any,
+        timeout: float,
+        what: str,
+        problem: Callable[[dict[str, Any]], str | None] | None = None,
+    ) -> None:
+        """Poll the status until ``done``; the caller is alive and waiting for this axis, so
+        the wait feeds the command watchdog (``bus.watchdog_ms``)."""
         deadline = time.monotonic() + timeout
         while True:
             st = self.status()
             if done(st):
                 return
             if time.monotonic() > deadline:
+                why = problem(st) if problem is not None else None
                 raise AxisError(
-                    f"axis {self.name}: did not {what} within {timeout:g} s: in {st['state']} "
-                    f"(statusword 0x{st['statusword']:04X}, error code 0x{st['error_code']:04X})"
+                    f"axis {self.name}: did not {what} within {timeout:g} s: "
+                    + (f"{why}; " if why else "")
+                    + f"in {st['state']} (statusword 0x{st['statusword']:04X}, error code "
+                    f"0x{st['error_code']:04X})"
                 )
+            self._bus.feed_watchdog()
             time.sleep(POLL_S)

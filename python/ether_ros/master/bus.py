@@ -137,6 +137,10 @@ class Bus:
         self.supervisor: Supervisor | None = None
         # Image byte → axis name of the output bytes the engine's axis stage owns (lazily).
         self._axis_owned: dict[int, str] | None = None
+        # Per engine axis index, for this cyclic run: the mode last commanded and the number of
+        # the last trajectory started (shared by every Axis object of the axis).
+        self.axis_modes: dict[int, str] = {}
+        self.axis_trajectories: dict[int, int] = {}
 
     # ---------------------------------------------------------------------------- opening
     @classmethod
@@ -324,6 +328,8 @@ class Bus:
             raise BusError("the bus is closed")
         if self._running:
             return
+        self.axis_modes.clear()
+        self.axis_trajectories.clear()
         with self._acyclic:
             self._reset_and_verify()
             refs = [s.ref for s in self.slaves]
@@ -426,6 +432,31 @@ class Bus:
     def axes(self) -> list[axis_mod.Axis]:
         """Every CiA 402 axis of the bus (docs/cia402.md), in bus order."""
         return [axis_mod.Axis(self, i, spec) for i, spec in enumerate(self._axis_specs())]
+
+    def follow(
+        self,
+        tracks: Mapping[str, Iterable[axis_mod.TrajectoryPoint | tuple[float, ...]]],
+        start_in: float = 0.0,
+    ) -> float:
+        """One trajectory for several axes (by joint name), handed to the engine at once: all
+        of them start it in the same cycle (docs/cia402.md, "Trajectories"). Every axis's
+        points are checked first (all or nothing). Returns the start time (engine clock, s)."""
+        by_name = {a.name: a for a in self.axes()}
+        unknown = [n for n in tracks if n not in by_name]
+        if unknown:
+            names = ", ".join(by_name) or "none"
+            raise axis_mod.AxisCommandError(f"no axis {unknown[0]!r} on this bus (axes: {names})")
+        return axis_mod.follow_together(
+            self, {by_name[n]: points for n, points in tracks.items()}, start_in
+        )
+
+    def wait_trajectories(self, names: Iterable[str] | None = None, timeout: float = 10.0) -> None:
+        """Until the trajectory last started on each axis named (every axis by default) has run
+        to its end; feeds the command watchdog while it waits."""
+        chosen = [self.axis(n) for n in names] if names is not None else self.axes()
+        deadline = time.monotonic() + timeout
+        for a in chosen:
+            a.wait_trajectory(max(deadline - time.monotonic(), 0.0))
 
     def axis(self, name: str) -> axis_mod.Axis:
         """A CiA 402 axis by joint name."""

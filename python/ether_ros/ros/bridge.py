@@ -414,9 +414,12 @@ def follow_trajectories(
     plans: list[tuple[Any, list[tuple[float, float, float]]]], start_in: float
 ) -> None:
     """Start checked trajectories (axis, [(t, position, velocity)]) together, ``start_in``
-    seconds from now (on the engine's clock)."""
-    for axis, points in plans:
-        axis.follow(points, start_in=start_in)
+    seconds from now (on the engine's clock): one hand-over, every axis starts in the same
+    cycle."""
+    from ether_ros.master.axis import follow_together
+
+    if plans:
+        follow_together(plans[0][0].bus, dict(plans), start_in)
 
 
 def check_mode(axes: list[Any], mode: str) -> None:

@@ -18,6 +18,7 @@ use super::period_clock::PeriodClock;
 use super::servo_motor::{limit, Cascade, Mechanics, MotorParams};
 use crate::device::{DeviceApp, Emergency};
 use crate::od::{dtype, Access, Entry, ObjectDictionary};
+use ether_ros_protocol::cia402::object;
 
 /// Drive loop period: 8 kHz (position and velocity loops).
 pub const PERIOD_NS: u64 = 125_000;
@@ -25,11 +26,10 @@ pub const PERIOD_NS: u64 = 125_000;
 const SUBSTEPS: u32 = 2;
 /// Longest stretch of time one `step` catches up on (100 ms).
 const MAX_CATCH_UP_PERIODS: u64 = 800;
-/// Axes a drive may have (objects up to 0x6040 + 7·0x800 = 0x9840 would leave the profile
-/// area; eight is ETG.6010's limit).
-pub const MAX_AXES: usize = 8;
+/// Axes a drive may have (objects up to 0x6040 + 7·0x800 = 0x9840; eight is ETG.6010's limit).
+pub const MAX_AXES: usize = object::MAX_AXES as usize;
 /// Object index distance between axes (ETG.6010 multi-axis layout).
-pub const AXIS_OFFSET: u16 = 0x800;
+pub const AXIS_OFFSET: u16 = object::AXIS_OFFSET;
 /// Motor speed under which a stop (quick stop, fault reaction, halt) counts as done, rad/s.
 const STANDSTILL_SPEED: f64 = 0.5;
 /// Interpolation period when 0x60C2 holds no usable value, s.
@@ -39,41 +39,41 @@ const DEFAULT_INTERPOLATION_S: f64 = 1e-3;
 /// with the value the drive uses when the dictionary lacks the object (a vendor ESI without it):
 /// the defaults of devices/servo_drive.xml.
 const AXIS_KEYS: [(u16, u8, i64); 35] = [
-    (0x6040, 0, 0),               // 0 controlword
-    (0x6060, 0, 0),               // 1 modes of operation
-    (0x607A, 0, 0),               // 2 target position
-    (0x60FF, 0, 0),               // 3 target velocity
-    (0x6071, 0, 0),               // 4 target torque
-    (0x6041, 0, 0),               // 5 statusword
-    (0x6061, 0, 0),               // 6 modes of operation display
-    (0x6064, 0, 0),               // 7 position actual value
-    (0x606C, 0, 0),               // 8 velocity actual value
-    (0x6077, 0, 0),               // 9 torque actual value
-    (0x603F, 0, 0),               // 10 error code
-    (0x60F4, 0, 0),               // 11 following error actual value
-    (0x6065, 0, 16_384),          // 12 following error window
-    (0x6066, 0, 10),              // 13 following error time out (ms)
-    (0x6502, 0, 0x3A5),           // 14 supported drive modes
-    (0x6076, 0, 200),             // 15 motor rated torque (mNm)
-    (0x6072, 0, 3000),            // 16 max torque (per mille)
-    (0x6080, 0, 6000),            // 17 max motor speed (rpm)
-    (0x605A, 0, 2),               // 18 quick stop option code
-    (0x6085, 0, 1_638_400),       // 19 quick stop deceleration
-    (0x607D, 1, i32::MIN as i64), // 20 software position limit min
-    (0x607D, 2, i32::MAX as i64), // 21 software position limit max
-    (0x60C2, 1, 1),               // 22 interpolation time period value
-    (0x60C2, 2, -3),              // 23 interpolation time index
-    (0x6081, 0, 16_384),          // 24 profile velocity
-    (0x6083, 0, 163_840),         // 25 profile acceleration
-    (0x6084, 0, 163_840),         // 26 profile deceleration
-    (0x6098, 0, 37),              // 27 homing method
-    (0x607C, 0, 0),               // 28 home offset
-    (0x6067, 0, 163),             // 29 position window
-    (0x606D, 0, 1_638),           // 30 velocity window
-    (0x608F, 1, 16_384),          // 31 encoder increments
-    (0x608F, 2, 1),               // 32 motor revolutions
-    (0x6091, 1, 50),              // 33 gear ratio: motor revolutions
-    (0x6091, 2, 1),               // 34 gear ratio: shaft revolutions
+    (object::CONTROLWORD, 0, 0),                           // 0
+    (object::MODES_OF_OPERATION, 0, 0),                    // 1
+    (object::TARGET_POSITION, 0, 0),                       // 2
+    (object::TARGET_VELOCITY, 0, 0),                       // 3
+    (object::TARGET_TORQUE, 0, 0),                         // 4
+    (object::STATUSWORD, 0, 0),                            // 5
+    (object::MODES_OF_OPERATION_DISPLAY, 0, 0),            // 6
+    (object::POSITION_ACTUAL, 0, 0),                       // 7
+    (object::VELOCITY_ACTUAL, 0, 0),                       // 8
+    (object::TORQUE_ACTUAL, 0, 0),                         // 9
+    (object::ERROR_CODE, 0, 0),                            // 10
+    (object::FOLLOWING_ERROR_ACTUAL, 0, 0),                // 11
+    (object::FOLLOWING_ERROR_WINDOW, 0, 16_384),           // 12
+    (object::FOLLOWING_ERROR_TIMEOUT, 0, 10),              // 13 (ms)
+    (object::SUPPORTED_MODES, 0, 0x3A5),                   // 14
+    (object::MOTOR_RATED_TORQUE, 0, 200),                  // 15 (mNm)
+    (object::MAX_TORQUE, 0, 3000),                         // 16 (per mille)
+    (object::MAX_MOTOR_SPEED, 0, 6000),                    // 17 (rpm)
+    (object::QUICK_STOP_OPTION, 0, 2),                     // 18
+    (object::QUICK_STOP_DECELERATION, 0, 1_638_400),       // 19
+    (object::SOFTWARE_POSITION_LIMIT, 1, i32::MIN as i64), // 20 min
+    (object::SOFTWARE_POSITION_LIMIT, 2, i32::MAX as i64), // 21 max
+    (object::INTERPOLATION_TIME_PERIOD, 1, 1),             // 22 value
+    (object::INTERPOLATION_TIME_PERIOD, 2, -3),            // 23 index
+    (object::PROFILE_VELOCITY, 0, 16_384),                 // 24
+    (object::PROFILE_ACCELERATION, 0, 163_840),            // 25
+    (object::PROFILE_DECELERATION, 0, 163_840),            // 26
+    (object::HOMING_METHOD, 0, 37),                        // 27
+    (object::HOME_OFFSET, 0, 0),                           // 28
+    (object::POSITION_WINDOW, 0, 163),                     // 29
+    (object::VELOCITY_WINDOW, 0, 1_638),                   // 30
+    (object::POSITION_ENCODER_RESOLUTION, 1, 16_384),      // 31 increments
+    (object::POSITION_ENCODER_RESOLUTION, 2, 1),           // 32 motor revolutions
+    (object::GEAR_RATIO, 1, 50),                           // 33 motor revolutions
+    (object::GEAR_RATIO, 2, 1),                            // 34 shaft revolutions
 ];
 /// Data type and bit length of each `AXIS_KEYS` object (as in devices/servo_drive.xml).
 const AXIS_TYPES: [(u16, u16); 35] = [
@@ -177,134 +177,22 @@ mod slot {
     pub const GEAR_SHAFT: usize = 34;
 }
 /// The device's error register (CiA 301), shared by the axes.
-const ERROR_REGISTER: [(u16, u8); 1] = [(0x1001, 0)];
+const ERROR_REGISTER: [(u16, u8); 1] = [(ether_ros_protocol::coe::ERROR_REGISTER, 0)];
 
-/// Modes of operation (0x6060 values).
+/// The standard's facts — modes, statusword and controlword bits, the states and their
+/// coding, the device control commands — are the protocol crate's.
+pub use ether_ros_protocol::cia402::{cw, sw, Command, State};
+
+/// Modes of operation (0x6060 values), and the ones this model implements.
 pub mod mode {
-    pub const NONE: i8 = 0;
-    pub const PP: i8 = 1;
-    pub const PV: i8 = 3;
-    pub const HM: i8 = 6;
-    pub const CSP: i8 = 8;
-    pub const CSV: i8 = 9;
-    pub const CST: i8 = 10;
+    pub use ether_ros_protocol::cia402::mode::*;
+
     /// The modes this model implements.
     pub const IMPLEMENTED: [i8; 6] = [PP, PV, HM, CSP, CSV, CST];
 
-    /// The 0x6502 bit of a mode (bit 0 PP ... bit 9 CST), None for modes without one.
-    pub fn supported_bit(m: i8) -> Option<u32> {
-        (1..=10).contains(&m).then(|| 1u32 << (m - 1))
-    }
-}
-
-/// Statusword bits (IEC 61800-7-201).
-pub mod sw {
-    pub const READY_TO_SWITCH_ON: u16 = 1 << 0;
-    pub const SWITCHED_ON: u16 = 1 << 1;
-    pub const OPERATION_ENABLED: u16 = 1 << 2;
-    pub const FAULT: u16 = 1 << 3;
-    pub const VOLTAGE_ENABLED: u16 = 1 << 4;
-    pub const QUICK_STOP: u16 = 1 << 5;
-    pub const SWITCH_ON_DISABLED: u16 = 1 << 6;
-    pub const WARNING: u16 = 1 << 7;
-    pub const REMOTE: u16 = 1 << 9;
-    pub const TARGET_REACHED: u16 = 1 << 10;
-    pub const INTERNAL_LIMIT: u16 = 1 << 11;
-    /// CSP/CSV/CST: drive follows the command value; PP: set-point acknowledge; PV: speed
-    /// is zero; HM: homing attained.
-    pub const MODE_12: u16 = 1 << 12;
-    /// CSP/PP: following error; HM: homing error.
-    pub const MODE_13: u16 = 1 << 13;
-}
-
-/// Controlword bits.
-pub mod cw {
-    pub const NEW_SETPOINT: u16 = 1 << 4; // PP; HM: homing operation start
-    pub const CHANGE_SET_IMMEDIATELY: u16 = 1 << 5;
-    pub const RELATIVE: u16 = 1 << 6;
-    pub const FAULT_RESET: u16 = 1 << 7;
-    pub const HALT: u16 = 1 << 8;
-}
-
-/// States of the power drive state machine.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum State {
-    NotReadyToSwitchOn,
-    SwitchOnDisabled,
-    ReadyToSwitchOn,
-    SwitchedOn,
-    OperationEnabled,
-    QuickStopActive,
-    FaultReactionActive,
-    Fault,
-}
-
-impl State {
-    /// Statusword bits 0–3, 5 and 6 coding the state (bit 5 "quick stop" is active low: set in
-    /// the states where no quick stop is under way).
-    pub fn statusword_bits(self) -> u16 {
-        match self {
-            State::NotReadyToSwitchOn => 0x0000,
-            State::SwitchOnDisabled => 0x0040,
-            State::ReadyToSwitchOn => 0x0021,
-            State::SwitchedOn => 0x0023,
-            State::OperationEnabled => 0x0027,
-            State::QuickStopActive => 0x0007,
-            State::FaultReactionActive => 0x000F,
-            State::Fault => 0x0008,
-        }
-    }
-
-    /// The state a statusword codes (masks 0x4F / 0x6F of the standard), for masters and tests.
-    pub fn from_statusword(word: u16) -> Option<State> {
-        match (word & 0x4F, word & 0x6F) {
-            (0x00, _) => Some(State::NotReadyToSwitchOn),
-            (0x40, _) => Some(State::SwitchOnDisabled),
-            (_, 0x21) => Some(State::ReadyToSwitchOn),
-            (_, 0x23) => Some(State::SwitchedOn),
-            (_, 0x27) => Some(State::OperationEnabled),
-            (_, 0x07) => Some(State::QuickStopActive),
-            (0x0F, _) => Some(State::FaultReactionActive),
-            (0x08, _) => Some(State::Fault),
-            _ => None,
-        }
-    }
-
-    /// Number used by `probe` (the order of the standard's state diagram).
-    pub fn number(self) -> f64 {
-        self as u8 as f64
-    }
-}
-
-/// The device control command coded in controlword bits 0–3 (bit 7, fault reset, acts on its
-/// rising edge and is handled apart).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Command {
-    /// xxxx xx0x
-    DisableVoltage,
-    /// xxxx x01x
-    QuickStop,
-    /// xxxx x110
-    Shutdown,
-    /// xxxx 0111: "switch on", and in Operation enabled "disable operation".
-    SwitchOn,
-    /// xxxx 1111: "enable operation" (and "switch on" from Ready to switch on).
-    EnableOperation,
-}
-
-impl Command {
-    pub fn decode(controlword: u16) -> Command {
-        if controlword & 0x0002 == 0 {
-            Command::DisableVoltage
-        } else if controlword & 0x0004 == 0 {
-            Command::QuickStop
-        } else if controlword & 0x0001 == 0 {
-            Command::Shutdown
-        } else if controlword & 0x0008 == 0 {
-            Command::SwitchOn
-        } else {
-            Command::EnableOperation
-        }
+    /// The 0x6502 mask of a mode (bit 0 PP ... bit 9 CST), None for modes without one.
+    pub fn supported_mask(m: i8) -> Option<u32> {
+        supported_bit(m).map(|b| 1u32 << b)
     }
 }
 
@@ -594,7 +482,7 @@ impl Inputs {
 
     fn mode_supported(&self, m: i8) -> bool {
         mode::IMPLEMENTED.contains(&m)
-            && mode::supported_bit(m).is_some_and(|b| self.supported_modes & b != 0)
+            && mode::supported_mask(m).is_some_and(|b| self.supported_modes & b != 0)
     }
 }
 
@@ -840,7 +728,31 @@ impl Axis {
         }
     }
 
-    /// Start from where the motor is: no jump on enabling or on a mode change.
+    /// A mode change: the new mode starts from the motor's position and speed, the loops
+    /// keep their state (no jump, no torque step).
+    fn continue_here(&mut self) {
+        self.demand = self.measured_angle();
+        self.demand_speed = self.mechanics.speed;
+        self.pp_goal = None;
+        self.pp_last_goal = self.demand;
+        self.pp_buffered = None;
+        self.fe_outside_s = 0.0;
+    }
+
+    /// Is the axis at or beyond a software position limit (0x607D) in the direction of
+    /// `direction` (> 0: towards max)? Motion that way is refused in the velocity and torque
+    /// modes (statusword bit 11).
+    fn at_software_limit(&self, inp: &Inputs, direction: f64) -> bool {
+        match inp.sw_limits {
+            Some((min, max)) => {
+                let p = self.position_actual();
+                direction > 0.0 && p >= max || direction < 0.0 && p <= min
+            }
+            None => false,
+        }
+    }
+
+    /// Start from where the motor is, at rest: no jump on enabling.
     fn hold_here(&mut self) {
         self.demand = self.measured_angle();
         self.demand_speed = 0.0;
@@ -907,9 +819,10 @@ impl Axis {
         }
         self.previous_controlword = cw_now;
         if inp.mode != self.mode && inp.mode_supported(inp.mode) {
-            // A mode change is bumpless: the new mode starts from the present position.
+            // A mode change is bumpless: the new mode starts from the present position and
+            // speed.
             self.mode = inp.mode;
-            self.hold_here();
+            self.continue_here();
             self.homing_attained = false;
             self.homing_error = false;
             self.setpoint_acknowledge = false;
@@ -1083,16 +996,28 @@ impl Axis {
                 torque
             }
             mode::CSV => {
-                let speed = inp.target_velocity as f64 / self.params().counts_per_rad();
+                let mut speed = inp.target_velocity as f64 / self.params().counts_per_rad();
+                self.target_limited = self.at_software_limit(inp, speed);
+                if self.target_limited {
+                    speed = 0.0;
+                }
                 self.demand_speed = speed;
                 self.velocity_control(inp, speed, dt)
             }
             mode::CST => {
-                let (torque, cut) = limit(
+                let (mut torque, cut) = limit(
                     inp.target_torque as f64 * 1e-3 * inp.rated_torque_nm,
                     inp.max_torque(),
                 );
                 self.limit_active |= cut;
+                // At a software limit, pushing or moving outward: the velocity loop stops the
+                // motor there instead (a drive's limit stop).
+                let speed = self.mechanics.speed;
+                self.target_limited =
+                    self.at_software_limit(inp, torque) || self.at_software_limit(inp, speed);
+                if self.target_limited {
+                    torque = self.velocity_control(inp, 0.0, dt);
+                }
                 torque
             }
             mode::PP => {
@@ -1101,7 +1026,9 @@ impl Axis {
                 } else {
                     inp.profile_velocity
                 };
-                if halt {
+                if halt || self.pp_goal.is_none() {
+                    // Halt, or no target yet (entered moving, from another mode): stop at the
+                    // profile deceleration.
                     self.demand_speed = ramp(
                         self.demand_speed,
                         0.0,
@@ -1136,11 +1063,15 @@ impl Axis {
                 torque
             }
             mode::PV => {
-                let target = if halt {
+                let mut target = if halt {
                     0.0
                 } else {
                     inp.target_velocity as f64 / self.params().counts_per_rad()
                 };
+                self.target_limited = self.at_software_limit(inp, target);
+                if self.target_limited {
+                    target = 0.0;
+                }
                 self.demand_speed = ramp(
                     self.demand_speed,
                     target,
@@ -1500,7 +1431,7 @@ impl DeviceApp for Cia402Drive {
                 (names[2], a.torque * gear),
                 (names[3], a.torque),
                 (names[4], a.demand / gear),
-                (names[5], a.state.number()),
+                (names[5], f64::from(a.state as u8)),
                 (names[6], f64::from(a.mode)),
                 (names[7], a.fault.map_or(0.0, |f| f64::from(f.error_code()))),
                 (
@@ -2134,6 +2065,51 @@ mod tests {
         b.run_ms(100.0);
         assert!((b.position(0) - 1000).abs() <= 3);
         assert_ne!(b.statusword(0) & sw::INTERNAL_LIMIT, 0);
+    }
+
+    #[test]
+    fn software_position_limits_hold_in_the_velocity_and_torque_modes() {
+        // CSV towards max: stops at the limit (the speed is cut there, bit 11), then moves
+        // back in when asked.
+        let mut b = Bench::new(1);
+        b.set(0, 0x607D, 1, -20_000);
+        b.set(0, 0x607D, 2, 20_000);
+        b.enable(0, mode::CSV);
+        b.set(0, 0x60FF, 0, 50_000);
+        b.run_ms(1000.0);
+        let p = b.position(0);
+        assert!((20_000..21_000).contains(&p), "{p}");
+        assert!(b.get(0, 0x606C, 0).abs() < 500);
+        assert_ne!(b.statusword(0) & sw::INTERNAL_LIMIT, 0);
+        b.set(0, 0x60FF, 0, -50_000);
+        b.run_ms(100.0);
+        assert!(b.position(0) < p - 1000);
+        // CST: an outward torque at the limit is refused, the motor stopped there.
+        b.set(0, 0x60FF, 0, 0);
+        b.set(0, 0x6060, 0, i64::from(mode::CST));
+        b.set(0, 0x6071, 0, -100);
+        b.run_ms(3000.0);
+        let p = b.position(0);
+        assert!(p > -22_000, "{p}");
+        assert_ne!(b.statusword(0) & sw::INTERNAL_LIMIT, 0);
+    }
+
+    #[test]
+    fn a_mode_change_continues_from_the_present_speed() {
+        // PV at speed, then PP without a target: the profile stops at 0x6084, no jump.
+        let mut b = Bench::new(1);
+        b.enable(0, mode::PV);
+        b.set(0, 0x60FF, 0, 16_384);
+        b.run_ms(500.0);
+        let v0 = b.get(0, 0x606C, 0);
+        assert!((v0 - 16_384).abs() < 400, "{v0}");
+        let p0 = b.position(0);
+        b.set(0, 0x6060, 0, i64::from(mode::PP));
+        b.run_ms(400.0);
+        // 1 rev/s at 10 rev/s²: 0.1 s and 819 increments to stop.
+        let p1 = b.position(0);
+        assert!((p1 - p0 - 819).abs() < 200, "{}", p1 - p0);
+        assert!(b.get(0, 0x606C, 0).abs() < 200);
     }
 
     #[test]

@@ -1,0 +1,299 @@
+//! The records the axis stage exchanges with other threads, as fixed-size little-endian bytes:
+//! the command of every axis (one seqlock buffer for all axes, so a multi-axis command is
+//! taken over in one cycle), each axis's trajectory points, and the status of every axis.
+
+use super::{AxisPlan, Mode};
+use crate::handover::SeqBuffer;
+
+/// What the command slot of an axis holds (the latest of each request).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AxisCommand {
+    /// Wanted in Operation Enabled (false: the `on_stop` command).
+    pub enable: bool,
+    pub mode: Mode,
+    /// Incremented for every fault reset asked for.
+    pub reset_count: u32,
+    /// Incremented for every setpoint or trajectory (one number for the whole engine, so the
+    /// axes of one multi-axis trajectory share it): the newest wins.
+    pub seq: u64,
+    /// 0: the last command is a trajectory, else a SetpointKind code.
+    pub setpoint_kind: u8,
+    pub value: f64,
+    /// When the setpoint arrived (CLOCK_MONOTONIC ns), or the trajectory's start.
+    pub t_ns: i64,
+    pub trajectory_len: u32,
+    /// Incremented by every explicit enable: the deliberate action a blocked restart waits for.
+    pub enable_count: u32,
+    /// Incremented by every request to start homing (mode hm).
+    pub homing_count: u32,
+}
+
+/// Encoded size of an AxisCommand.
+pub const COMMAND_LEN: usize = 48;
+
+impl AxisCommand {
+    pub fn initial(mode: Mode) -> AxisCommand {
+        AxisCommand {
+            enable: false,
+            mode,
+            reset_count: 0,
+            seq: 0,
+            setpoint_kind: 0,
+            value: 0.0,
+            t_ns: 0,
+            trajectory_len: 0,
+            enable_count: 0,
+            homing_count: 0,
+        }
+    }
+
+    pub fn encode(&self, b: &mut [u8]) {
+        b[0] = self.enable as u8;
+        b[1] = self.mode as i8 as u8;
+        b[2] = self.setpoint_kind;
+        b[3] = 0;
+        b[4..8].copy_from_slice(&self.reset_count.to_le_bytes());
+        b[8..16].copy_from_slice(&self.seq.to_le_bytes());
+        b[16..24].copy_from_slice(&self.value.to_le_bytes());
+        b[24..32].copy_from_slice(&self.t_ns.to_le_bytes());
+        b[32..36].copy_from_slice(&self.trajectory_len.to_le_bytes());
+        b[36..40].copy_from_slice(&self.enable_count.to_le_bytes());
+        b[40..44].copy_from_slice(&self.homing_count.to_le_bytes());
+        b[44..48].fill(0);
+    }
+
+    pub fn decode(b: &[u8]) -> AxisCommand {
+        let u32_at = |i: usize| u32::from_le_bytes(b[i..i + 4].try_into().unwrap());
+        let u64_at = |i: usize| u64::from_le_bytes(b[i..i + 8].try_into().unwrap());
+        AxisCommand {
+            enable: b[0] != 0,
+            mode: Mode::from_code(b[1] as i8).unwrap_or(Mode::CyclicPosition),
+            setpoint_kind: b[2],
+            reset_count: u32_at(4),
+            seq: u64_at(8),
+            value: f64::from_bits(u64_at(16)),
+            t_ns: u64_at(24) as i64,
+            trajectory_len: u32_at(32),
+            enable_count: u32_at(36),
+            homing_count: u32_at(40),
+        }
+    }
+}
+
+/// One trajectory point: `t_ns` after the trajectory's start, position and velocity (SI).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Point {
+    pub t_ns: i64,
+    pub position: f64,
+    pub velocity: f64,
+}
+
+/// Bytes of one trajectory point: t (ns since start) i64, position f64, velocity f64.
+pub const POINT_LEN: usize = 24;
+/// The trajectory slot starts with the `seq` of the command the points belong to (u64), so the
+/// RT thread never runs one command with another's points.
+pub const TRAJECTORY_HEADER: usize = 8;
+
+impl Point {
+    pub fn encode(&self, b: &mut [u8]) {
+        b[0..8].copy_from_slice(&self.t_ns.to_le_bytes());
+        b[8..16].copy_from_slice(&self.position.to_le_bytes());
+        b[16..24].copy_from_slice(&self.velocity.to_le_bytes());
+    }
+
+    pub fn decode(b: &[u8]) -> Point {
+        let u64_at = |i: usize| u64::from_le_bytes(b[i..i + 8].try_into().unwrap());
+        Point {
+            t_ns: u64_at(0) as i64,
+            position: f64::from_bits(u64_at(8)),
+            velocity: f64::from_bits(u64_at(16)),
+        }
+    }
+}
+
+/// Status flags of an axis (AxisStatus::flags).
+pub mod status_flags {
+    /// Operation Enabled is wanted.
+    pub const ENABLE_WANTED: u16 = 1 << 0;
+    /// The drive shows the commanded mode (0x6061 = 0x6060).
+    pub const MODE_REACHED: u16 = 1 << 1;
+    /// A trajectory is being executed.
+    pub const TRAJECTORY_ACTIVE: u16 = 1 << 2;
+    /// The last trajectory has run to its end.
+    pub const TRAJECTORY_DONE: u16 = 1 << 3;
+    /// |following error| > following_error_window.
+    pub const FOLLOWING_ERROR: u16 = 1 << 4;
+    /// The automatic fault reset gave up (retries used up); a manual reset clears it.
+    pub const RETRIES_EXHAUSTED: u16 = 1 << 5;
+    /// The stop (panic, watchdog) is forced on the axis.
+    pub const HALTED: u16 = 1 << 6;
+    /// The actual position is outside `position_limits`.
+    pub const OUTSIDE_LIMITS: u16 = 1 << 7;
+    /// Wanted enabled, but kept out of Operation Enabled until an explicit enable (restart:
+    /// manual after a panic, a watchdog stop or a fault; or an axis outside its limits).
+    pub const RESTART_BLOCKED: u16 = 1 << 8;
+    /// A position limit cut the command this cycle (clamp, or braking in csv/pv/cst).
+    pub const LIMIT_ACTIVE: u16 = 1 << 9;
+    /// The axis needs no live commander: not enabled, or holding still (position mode with
+    /// the target at rest, zero velocity or torque) and no trajectory running.
+    pub const IDLE: u16 = 1 << 10;
+    /// Homing: the drive reports homing attained (hm, statusword bit 12 with target reached).
+    pub const HOMING_ATTAINED: u16 = 1 << 11;
+    /// Homing: the drive reports a homing error (hm, statusword bit 13).
+    pub const HOMING_ERROR: u16 = 1 << 12;
+    /// Homing was started and is in progress (neither attained nor error yet).
+    pub const HOMING_ACTIVE: u16 = 1 << 13;
+}
+
+/// What the RT thread publishes about an axis every cycle.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct AxisStatus {
+    pub cycle: u64,
+    pub statusword: u16,
+    pub controlword: u16,
+    pub state: u8,
+    pub mode_display: i8,
+    pub flags: u16,
+    pub error_code: u16,
+    /// The error code seen when the last fault was detected.
+    pub last_fault_code: u16,
+    pub position_raw: i32,
+    pub velocity_raw: i32,
+    pub torque_raw: i16,
+    pub following_error_raw: i32,
+    pub target_position_raw: i32,
+    pub position: f64,
+    pub velocity: f64,
+    pub torque: f64,
+    pub following_error: f64,
+    /// The position target sent this cycle (SI).
+    pub target_position: f64,
+    pub position_clamps: u32,
+    pub velocity_clamps: u32,
+    pub torque_clamps: u32,
+    pub faults: u32,
+    pub fault_resets: u32,
+    /// `seq` of the last command taken over.
+    pub command_seq: u64,
+    /// The velocity the axis is commanded to have this cycle (SI): the trajectory's or the
+    /// interpolation's slope in a position mode, the velocity target in a velocity mode.
+    pub desired_velocity: f64,
+    /// The velocity and torque targets sent this cycle (SI; 0 when not mapped or not used).
+    pub target_velocity: f64,
+    pub target_torque: f64,
+}
+
+/// Encoded size of an AxisStatus.
+pub const STATUS_LEN: usize = 144;
+
+impl AxisStatus {
+    pub fn encode(&self, b: &mut [u8]) {
+        b[0..8].copy_from_slice(&self.cycle.to_le_bytes());
+        b[8..10].copy_from_slice(&self.statusword.to_le_bytes());
+        b[10..12].copy_from_slice(&self.controlword.to_le_bytes());
+        b[12] = self.state;
+        b[13] = self.mode_display as u8;
+        b[14..16].copy_from_slice(&self.flags.to_le_bytes());
+        b[16..18].copy_from_slice(&self.error_code.to_le_bytes());
+        b[18..20].copy_from_slice(&self.last_fault_code.to_le_bytes());
+        b[20..24].copy_from_slice(&self.position_raw.to_le_bytes());
+        b[24..28].copy_from_slice(&self.velocity_raw.to_le_bytes());
+        b[28..30].copy_from_slice(&self.torque_raw.to_le_bytes());
+        b[30..32].fill(0);
+        b[32..36].copy_from_slice(&self.following_error_raw.to_le_bytes());
+        b[36..40].copy_from_slice(&self.target_position_raw.to_le_bytes());
+        b[40..48].copy_from_slice(&self.position.to_le_bytes());
+        b[48..56].copy_from_slice(&self.velocity.to_le_bytes());
+        b[56..64].copy_from_slice(&self.torque.to_le_bytes());
+        b[64..72].copy_from_slice(&self.following_error.to_le_bytes());
+        b[72..80].copy_from_slice(&self.target_position.to_le_bytes());
+        b[80..84].copy_from_slice(&self.position_clamps.to_le_bytes());
+        b[84..88].copy_from_slice(&self.velocity_clamps.to_le_bytes());
+        b[88..92].copy_from_slice(&self.torque_clamps.to_le_bytes());
+        b[92..96].copy_from_slice(&self.faults.to_le_bytes());
+        b[96..100].copy_from_slice(&self.fault_resets.to_le_bytes());
+        b[100..104].fill(0);
+        b[104..112].copy_from_slice(&self.command_seq.to_le_bytes());
+        b[112..120].copy_from_slice(&self.desired_velocity.to_le_bytes());
+        b[120..128].copy_from_slice(&self.target_velocity.to_le_bytes());
+        b[128..136].copy_from_slice(&self.target_torque.to_le_bytes());
+        b[136..144].fill(0);
+    }
+
+    pub fn decode(b: &[u8]) -> AxisStatus {
+        let u16_at = |i: usize| u16::from_le_bytes(b[i..i + 2].try_into().unwrap());
+        let u32_at = |i: usize| u32::from_le_bytes(b[i..i + 4].try_into().unwrap());
+        let u64_at = |i: usize| u64::from_le_bytes(b[i..i + 8].try_into().unwrap());
+        let f64_at = |i: usize| f64::from_bits(u64_at(i));
+        AxisStatus {
+            cycle: u64_at(0),
+            statusword: u16_at(8),
+            controlword: u16_at(10),
+            state: b[12],
+            mode_display: b[13] as i8,
+            flags: u16_at(14),
+            error_code: u16_at(16),
+            last_fault_code: u16_at(18),
+            position_raw: u32_at(20) as i32,
+            velocity_raw: u32_at(24) as i32,
+            torque_raw: u16_at(28) as i16,
+            following_error_raw: u32_at(32) as i32,
+            target_position_raw: u32_at(36) as i32,
+            position: f64_at(40),
+            velocity: f64_at(48),
+            torque: f64_at(56),
+            following_error: f64_at(64),
+            target_position: f64_at(72),
+            position_clamps: u32_at(80),
+            velocity_clamps: u32_at(84),
+            torque_clamps: u32_at(88),
+            faults: u32_at(92),
+            fault_resets: u32_at(96),
+            command_seq: u64_at(104),
+            desired_velocity: f64_at(112),
+            target_velocity: f64_at(120),
+            target_torque: f64_at(128),
+        }
+    }
+}
+
+/// The hand-over buffers of all axes for one cyclic run (shared by the engine and the RT
+/// thread): the commands of all axes in one buffer (a multi-axis command is one write, taken
+/// over in one cycle), one trajectory slot per axis, one status buffer for all.
+pub struct AxisExchange {
+    pub commands: SeqBuffer,
+    pub trajectories: Vec<SeqBuffer>,
+    pub status: SeqBuffer,
+    pub trajectory_capacity: usize,
+}
+
+impl AxisExchange {
+    pub fn new(axes: &[AxisPlan], trajectory_capacity: usize) -> AxisExchange {
+        let mut commands = vec![0u8; axes.len() * COMMAND_LEN];
+        for (a, b) in axes.iter().zip(commands.chunks_exact_mut(COMMAND_LEN)) {
+            AxisCommand::initial(a.mode).encode(b);
+        }
+        AxisExchange {
+            commands: SeqBuffer::new(&commands),
+            trajectories: axes
+                .iter()
+                .map(|_| {
+                    SeqBuffer::new(&vec![
+                        0u8;
+                        TRAJECTORY_HEADER + trajectory_capacity * POINT_LEN
+                    ])
+                })
+                .collect(),
+            status: SeqBuffer::new(&vec![0u8; axes.len() * STATUS_LEN]),
+            trajectory_capacity,
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.trajectories.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.trajectories.is_empty()
+    }
+}
