@@ -269,6 +269,7 @@ class RecordingWriter:
                             "position": slave.position,
                             "cycle": t.cycle,
                             "values": [float(x) for x in values],
+                            "stale": False,  # the recorder's sources carry no freshness
                         },
                         ns,
                     )
