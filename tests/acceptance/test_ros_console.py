@@ -36,6 +36,9 @@ def rig(veth_allowed: bool) -> Iterator[RosRig]:
 
 
 def console(rig: RosRig, *args: str, stdin: str | None = None) -> subprocess.CompletedProcess[str]:
+    # The node's control lease is on (config/laelaps.yaml): the test's own client hands it over,
+    # the console process acquires it at its first command and gives it back when it ends.
+    rig.client.release_lease()
     return subprocess.run(
         [sys.executable, "-m", "ether_ros.cli.main", "console", *args],
         input=stdin if stdin is not None else "",

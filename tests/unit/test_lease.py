@@ -123,16 +123,20 @@ def test_a_lapsed_lease_stops_motion_once(clock: Clock) -> None:
     acquire(lease_, "/rig")  # and anyone may acquire it again
 
 
-def test_release_stops_motion_and_needs_the_token(clock: Clock) -> None:
+def test_release_needs_the_token_and_hands_control_back(clock: Clock) -> None:
     stops: list[str] = []
     lease_ = lease(clock, stops=stops)
     token = acquire(lease_, "/rig")
     answer = lease_.request("release", "/other", 0.0, token + 1, b"", [])
-    assert not answer.success and not stops
+    assert not answer.success
     assert lease_.request("release", "/rig", 0.0, token, b"", []).success
-    assert stops == ["the control lease was released by '/rig'"]
-    with pytest.raises(LeaseRefused):
+    assert not stops  # a deliberate hand-back leaves the outputs as they are
+    with pytest.raises(LeaseRefused, match="lapsed"):
         lease_.check_token(token)
+    clock.advance(10.0)
+    lease_.poll()
+    assert not stops  # and nothing lapses later
+    assert lease_.status()["released"] == 1
 
 
 def test_writer_nodes_are_looked_up_and_refreshed(clock: Clock) -> None:

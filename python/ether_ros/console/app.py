@@ -174,7 +174,7 @@ class Console:
 
     def _lease(self, action: str) -> tuple[bool, str]:
         """``lease``: who holds it; ``lease take``: take it over (this console commands from
-        now on); ``lease release``: give it back (the node stops motion)."""
+        now on); ``lease release``: give it back (the outputs stay as they are)."""
         if action == "take":
             return self.client.acquire_lease(takeover=True)
         if action == "release":

@@ -570,7 +570,7 @@ class EtherRosClient:
         return bool(resp.success), str(resp.message)
 
     def release_lease(self, timeout: float = 5.0) -> tuple[bool, str]:
-        """Give the lease back (the node stops motion as on_stop says)."""
+        """Give the lease back: a deliberate hand-back, the outputs stay as they are."""
         with self._lease_lock:
             token, self.lease_token = self.lease_token, 0
         if not token:

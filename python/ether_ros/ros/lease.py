@@ -5,10 +5,12 @@ with a time to live and keeps it alive by renewing it; while the node's lease is
 (``ros.lease.enabled``), only the holder's writes, joint commands, trajectories, SDO writes,
 mode changes, axis services and lifecycle commands are accepted, and everyone else is refused
 with the holder's name. ``panic`` is accepted from anyone; ``clear_panic`` needs the lease. The
-operator console can take the lease over. When nobody holds it any more (it lapsed, or the
-holder released it) motion stops as each axis's ``on_stop`` says and every slave's outputs go
-back to their configured safe values (the cyclic exchange goes on; the next holder commands
-again).
+operator console can take the lease over. When the lease lapses (its holder stopped renewing
+it: crashed, hung, cut off) motion stops as each axis's ``on_stop`` says and every slave's
+outputs go back to their configured safe values (the cyclic exchange goes on; the next holder
+commands again). A holder that releases the lease hands control back deliberately: the outputs
+stay as it left them, as when a client ends without a lease (the command watchdog,
+``command_timeout_ms``, is the guard for a client that stops commanding).
 
 Who is who:
 
@@ -281,8 +283,7 @@ class ControlLease:
             self._end_locked()
             self.counters["released"] += 1
         log.info("control lease released by '%s'", holder)
-        self._stop_motion(f"the control lease was released by '{holder}'")
-        return self._answer(True, f"lease of '{holder}' released: motion stopped")
+        return self._answer(True, f"lease of '{holder}' released")
 
     # ------------------------------------------------------------------------ lapse
     def poll(self) -> None:

@@ -1110,7 +1110,7 @@ class EtherRosNode(LifecycleNode):
         return resp
 
     def _stop_motion(self, why: str) -> None:
-        """Nobody holds the lease any more: stop as ``on_stop`` says (bridge.stop_motion)."""
+        """The lease lapsed: stop as ``on_stop`` says (bridge.stop_motion)."""
         try:
             bridge.stop_motion(self._bus)
         except EtherRosError as exc:

@@ -18,8 +18,11 @@ from pathlib import Path
 
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
-#: The environment variables Fast DDS reads its XML profile from (newer name first).
-PROFILE_VARIABLES = ("FASTDDS_DEFAULT_PROFILES_FILE", "FASTRTPS_DEFAULT_PROFILES_FILE")
+#: The environment variable each Fast DDS generation reads its XML profile from: 2.x (the
+#: library libfastrtps, ROS 2 Jazzy) reads only FASTRTPS_DEFAULT_PROFILES_FILE, 3.x (libfastdds)
+#: FASTDDS_DEFAULT_PROFILES_FILE.
+PROFILE_VARIABLES = {"libfastrtps": "FASTRTPS_DEFAULT_PROFILES_FILE",
+                     "libfastdds": "FASTDDS_DEFAULT_PROFILES_FILE"}  # fmt: skip
 #: A profile larger than this is not read (it is reported as unreadable).
 MAX_PROFILE_BYTES = 1 << 20
 #: What a Fast DDS build with the security plugins carries (the PKI-DH authentication
@@ -54,6 +57,16 @@ class SecurityReport:
         if self.discovery_range in ("LOCALHOST", "OFF"):
             return True
         return bool(self.profile_interfaces) and not self.profile_builtin_transports
+
+    @property
+    def transport_limited(self) -> bool:
+        """The traffic stays on the profile's interfaces (a profile with an allow-list and no
+        built-in transports, which rmw leaves alone unless the discovery range is LOCALHOST)."""
+        return (
+            bool(self.profile_interfaces)
+            and not self.profile_builtin_transports
+            and self.discovery_range != "LOCALHOST"
+        )
 
     @property
     def authenticated(self) -> bool:
@@ -94,8 +107,8 @@ def read_profile(path: str) -> tuple[tuple[str, ...], bool, str]:
     return tuple(a for a in dict.fromkeys(allowed) if a), builtin, ""
 
 
-def security_plugins(maps: str = "/proc/self/maps") -> bool | None:
-    """Whether the Fast DDS loaded into this process was built with the security plugins."""
+def loaded_fastdds(maps: str = "/proc/self/maps") -> Path | None:
+    """The Fast DDS library loaded into this process (None: none found)."""
     try:
         lines = Path(maps).read_text().splitlines()
     except OSError:
@@ -103,11 +116,18 @@ def security_plugins(maps: str = "/proc/self/maps") -> bool | None:
     for line in lines:
         path = line.split(maxsplit=5)[-1] if line.count(" ") >= 5 else ""
         if Path(path).name.startswith(("libfastrtps.so", "libfastdds.so")):
-            try:
-                return _SECURITY_MARK in Path(path).read_bytes()
-            except OSError:
-                return None
+            return Path(path)
     return None
+
+
+def security_plugins(library: Path | None) -> bool | None:
+    """Whether that Fast DDS was built with the security plugins (None: unknown)."""
+    if library is None:
+        return None
+    try:
+        return _SECURITY_MARK in library.read_bytes()
+    except OSError:
+        return None
 
 
 def detect(lease: bool, env: Mapping[str, str] | None = None) -> SecurityReport:
@@ -116,16 +136,31 @@ def detect(lease: bool, env: Mapping[str, str] | None = None) -> SecurityReport:
     discovery = env.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "").strip().upper() or "SUBNET"
     if env.get("ROS_LOCALHOST_ONLY", "").strip() == "1" and discovery == "SUBNET":
         discovery = "LOCALHOST"  # the deprecated switch, still honoured by Jazzy
-    profile = next((env[v] for v in PROFILE_VARIABLES if env.get(v)), "")
+    library = loaded_fastdds()
+    kind = library.name.split(".so")[0] if library is not None else "libfastrtps"
+    variable = PROFILE_VARIABLES.get(kind, PROFILE_VARIABLES["libfastrtps"])
+    profile = env.get(variable, "")
     interfaces: tuple[str, ...] = ()
     builtin, profile_error = True, ""
     if profile:
         interfaces, builtin, profile_error = read_profile(profile)
     requested = env.get("ROS_SECURITY_ENABLE", "").strip().lower() == "true"
-    plugins = security_plugins()
+    plugins = security_plugins(library)
     warnings = []
+    for other in PROFILE_VARIABLES.values():
+        if other != variable and env.get(other) and not profile:
+            warnings.append(
+                f"{other} is set, but the loaded Fast DDS ({kind}) reads {variable}: "
+                "the profile is not used"
+            )
     if profile_error:
         warnings.append(f"the DDS profile cannot be read: {profile_error}")
+    if interfaces and not builtin and discovery == "LOCALHOST":
+        warnings.append(
+            f"ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST with the profile {profile}: rmw_fastrtps "
+            "then adds a UDP transport of its own beside the profile's, on every interface; "
+            "use ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT with a profile"
+        )
     if requested and plugins is False:
         warnings.append(
             "ROS_SECURITY_ENABLE=true, but the loaded Fast DDS has no security plugins: "
@@ -185,6 +220,7 @@ def status(node_name: str, r: SecurityReport, lease: Mapping[str, object]) -> Di
         ("discovery_range", r.discovery_range),
         ("static_peers", r.static_peers),
         ("discovery_limited", str(r.discovery_limited).lower()),
+        ("transport_limited", str(r.transport_limited).lower()),
         ("dds_profile", r.profile),
         ("dds_profile_interfaces", " ".join(r.profile_interfaces)),
         ("dds_builtin_transports", str(r.profile_builtin_transports).lower()),
