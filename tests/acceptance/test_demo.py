@@ -5,8 +5,11 @@ from __future__ import annotations
 import re
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
+
+from ether_ros.tools.recording import read_recording
 
 pytestmark = [pytest.mark.netns, pytest.mark.slow]
 
@@ -20,12 +23,37 @@ def _demo(*args: str, timeout: float) -> subprocess.CompletedProcess[str]:
     )
 
 
-def test_demo_trots_through_the_ros_node() -> None:
-    out = _demo(timeout=240)
+def test_demo_trots_through_the_ros_node(tmp_path: Path) -> None:
+    output = tmp_path / "demo-output"
+    out = _demo("--output", str(output), timeout=420)
     assert out.returncode == 0, out.stdout + out.stderr
-    # The summary names every leg of config/laelaps.yaml with its tracking error.
-    for leg in ("hind_right_leg", "hind_left_leg", "front_left_leg", "front_right_leg"):
+    legs = ("hind_right_leg", "hind_left_leg", "front_left_leg", "front_right_leg")
+    # The summary names every leg of config/laelaps.yaml with its tracking error, and the
+    # steady-trot report gives each leg's share of time at the PWM limit.
+    for leg in legs:
         assert leg in out.stdout
+        assert re.search(rf"^{leg}\s+\d+\.\d%\s+\d+\.\d%", out.stdout, re.MULTILINE), out.stdout
+    # The run's recording and figures are left where the demo says.
+    assert f"are in {output}/" in out.stdout, out.stdout
+    figures = sorted(p.name for p in output.glob("fig6_*.png"))
+    assert figures == sorted(
+        f"{name}.png"
+        for name in (
+            "fig6_5_toe_trajectory",
+            "fig6_6_knee_angle",
+            "fig6_7_hip_angle",
+            "fig6_8_knee_pwm",
+            "fig6_9_hip_pwm",
+            "fig6_10_knee_velocity",
+            "fig6_11_hip_velocity",
+        )
+    ), out.stdout
+    for name in figures:
+        assert (output / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        assert str(output / name) in out.stdout
+    rec = read_recording(output / "trot.mcap")
+    assert sorted(rec.inputs) == sorted(legs)
+    assert rec.outputs["front_left_leg"]["a_ellipse100"].max() == 5
 
 
 def test_demo_trots_through_pysoem() -> None:

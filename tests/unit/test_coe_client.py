@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 import pytest
 
 from ether_ros._native.protocol import emergency_text
-from ether_ros.errors import MailboxError
-from ether_ros.master.coe import SdoClient, abort_description
+from ether_ros.errors import MailboxError, MailboxErrorReply, MailboxTimeout, SdoAbort
+from ether_ros.master.coe import SdoClient
 from ether_ros.master.mailbox import Mailbox
 
 RX_OFFSET, RX_SIZE = 0x1000, 128
@@ -267,14 +267,18 @@ def test_segmented_upload_and_download(slave: FakeSlave) -> None:
 
 def test_abort_is_raised_with_slave_object_and_text(slave: FakeSlave) -> None:
     sdo = make_client(slave)
-    with pytest.raises(MailboxError) as e:
+    with pytest.raises(SdoAbort) as e:
         sdo.upload(0x6010, 1)
+    assert (e.value.slave, e.value.index, e.value.subindex, e.value.code) == (
+        "front_left_leg", 0x6010, 1, 0x06020000
+    )  # fmt: skip
     assert str(e.value) == (
         "slave 'front_left_leg': SDO upload 0x6010:01 aborted: "
         "0x06020000 object does not exist in the object dictionary"
     )
-    with pytest.raises(MailboxError, match=r"download 0x1008:00 aborted: 0x06010002 attempt"):
+    with pytest.raises(SdoAbort, match=r"download 0x1008:00 aborted: 0x06010002 attempt") as e:
         sdo.download(0x1008, 0, b"xxxxxxxx")
+    assert e.value.code == 0x06010002
 
 
 def test_toggle_error_from_slave_aborts_the_transfer(slave: FakeSlave) -> None:
@@ -289,8 +293,11 @@ def test_toggle_error_from_slave_aborts_the_transfer(slave: FakeSlave) -> None:
 def test_timeout_names_slave_and_what_was_awaited(slave: FakeSlave) -> None:
     slave.silent = True
     sdo = make_client(slave, timeout_s=0.05)
-    with pytest.raises(MailboxError) as e:
+    with pytest.raises(MailboxTimeout) as e:
         sdo.upload(0x1000, 0)
+    assert (e.value.slave, e.value.context, e.value.timeout_s) == (
+        "front_left_leg", "SDO upload 0x1000:00", 0.05
+    )  # fmt: skip
     assert "slave 'front_left_leg': SDO upload 0x1000:00 failed: timed out" in str(e.value)
     assert "CoE reply in the read mailbox" in str(e.value)
 
@@ -331,8 +338,11 @@ def test_lost_read_mailbox_answer_is_repeated(slave: FakeSlave) -> None:
 def test_mailbox_error_reply_raises(slave: FakeSlave) -> None:
     slave.mailbox_error = 0x0004
     sdo = make_client(slave)
-    with pytest.raises(MailboxError, match="mailbox error 0x0004 the service in the mailbox"):
+    with pytest.raises(
+        MailboxErrorReply, match="mailbox error 0x0004 the service in the mail"
+    ) as e:
         sdo.upload(0x1000, 0)
+    assert e.value.code == 0x0004 and e.value.context == "SDO upload 0x1000:00"
 
 
 def test_emergency_does_not_end_the_wait_and_is_decoded(slave: FakeSlave) -> None:
@@ -362,15 +372,18 @@ def test_sdo_information(slave: FakeSlave) -> None:
     assert desc.object_code_name == "VAR"
     ed = sdo.entry_description(0x2003, 0)
     assert (ed.bit_length, ed.name, ed.access_text) == (3200, "Blob", "rw")
-    with pytest.raises(MailboxError, match=r"entry description 0x2003:05 failed: 0x06090011"):
+    with pytest.raises(SdoAbort, match=r"entry description 0x2003:05 failed: 0x06090011") as e:
         sdo.entry_description(0x2003, 5)
+    assert (e.value.index, e.value.subindex, e.value.code) == (0x2003, 5, 0x06090011)
     with pytest.raises(MailboxError, match=r"object description 0x5555 failed: 0x06020000"):
         sdo.object_description(0x5555)
 
 
 def test_texts() -> None:
-    assert abort_description(0x08000022).startswith("0x08000022 data cannot be transferred")
-    assert abort_description(0x12345678) == "0x12345678 unknown abort code"
+    assert SdoAbort(None, 0, 0, 0x08000022).reason.startswith(
+        "0x08000022 data cannot be transferred"
+    )
+    assert SdoAbort(None, 0, 0, 0x12345678).reason == "0x12345678 unknown abort code"
     # One table of emergency codes now (CiA 301 + 402): 0x2310 is "continuous over-current"
     # in CiA 402; the CoE client's own copy used to know only its class ("current error"),
     # while the diagnostics' copy had the exact text.

@@ -243,6 +243,9 @@ def test_bad_config_names_file_line_key_and_value(
     assert re.search(pattern, msg), msg
     if line is not None:
         assert msg.startswith(f"{path}:{line}:"), msg
+        assert info.value.line == line  # the place as data, too
+    assert info.value.file == str(path)
+    assert info.value.field is not None and info.value.field in msg
 
 
 def test_missing_file_and_empty_file(tmp_path: Path) -> None:

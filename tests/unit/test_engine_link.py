@@ -17,7 +17,7 @@ from typing import Any
 import pytest
 
 import ether_ros._native as _native
-from ether_ros.errors import LinkError
+from ether_ros.errors import FrameTimeout, LinkError
 from ether_ros.master.samples import (
     FLAG_ACYCLIC,
     FLAG_LOST,
@@ -216,9 +216,12 @@ def test_transact_over_veth(wire: tuple[_native.Engine, FakeEsc, VethResponder])
 def test_transact_times_out_after_its_retries(sim: tuple[_native.Engine, FakeEsc]) -> None:
     engine, esc = sim
     esc.drop = True
-    with pytest.raises(_native.EngineTimeout, match=r"4 attempt\(s\)"):
+    with pytest.raises(_native.EngineTimeout, match=r"4 attempt\(s\)") as err:
         engine.transact([("BRD", 0, 2)], timeout_us=100, retries=3)
     assert esc.frames == 4
+    # One hierarchy: the engine's timeout is a FrameTimeout (a LinkError) carrying its data.
+    assert isinstance(err.value, FrameTimeout) and isinstance(err.value, _native.EngineError)
+    assert (err.value.commands, err.value.attempts, err.value.timeout_us) == (("BRD",), 4, 100)
 
 
 def test_bad_datagrams_are_value_errors_naming_the_problem(

@@ -8,7 +8,7 @@ from collections.abc import Sequence
 import pytest
 
 from ether_ros._native.protocol import reg
-from ether_ros.errors import BusError
+from ether_ros.errors import AlStateRefused, AlStateTimeout
 from ether_ros.master.al import (
     AlState,
     AlStateMachine,
@@ -86,8 +86,15 @@ def test_refusal_is_acknowledged_and_explained() -> None:
     slave = ScriptedSlave(refuse=AlState.OP, code=0x001D)
     slave.state = AlState.SAFEOP
     al = AlStateMachine(DatagramService(slave), poll_interval_s=0)
-    with pytest.raises(BusError) as err:
+    with pytest.raises(AlStateRefused) as err:
         al.transition([REF], AlState.OP, timeout_s=1)
+    # The codes as data: what was asked, where the slave stays, and why.
+    assert (err.value.state, err.value.reached, err.value.code) == (
+        AlState.OP,
+        AlState.SAFEOP,
+        0x1D,
+    )
+    assert err.value.slave == str(REF)
     msg = str(err.value)
     assert "slave 2 (front_left_leg) refused OP" in msg
     assert "0x001D (invalid output configuration)" in msg
@@ -104,5 +111,10 @@ def test_timeout_names_the_slave() -> None:
             return replies
 
     al = AlStateMachine(DatagramService(Stuck()), poll_interval_s=0)
-    with pytest.raises(BusError, match=r"slave 2 \(front_left_leg\) did not reach SAFEOP"):
+    with pytest.raises(
+        AlStateTimeout, match=r"slave 2 \(front_left_leg\) did not reach SAFEOP"
+    ) as err:
         al.transition([REF], AlState.SAFEOP, timeout_s=0.05)
+    assert (err.value.state, err.value.reached, err.value.timeout_s) == (
+        AlState.SAFEOP, AlState.INIT, 0.05
+    )  # fmt: skip

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from ether_ros.config import build_sii, load_esi
-from ether_ros.errors import BusError
+from ether_ros.errors import BusError, IdentityMismatch, SiiReadError
 from ether_ros.master.datagrams import Cmd, DatagramService
 from ether_ros.master.scan import Expected, match_configuration, scan
 
@@ -107,8 +107,10 @@ def test_identity_mismatch_names_slave_expected_and_found(leg_sii: bytes) -> Non
         Expected("hind_left_leg", 0xA12, 0x00A986FD, position=1),
         Expected("front_left_leg", 0xA12, 0x0BADBEEF, position=2),
     ]
-    with pytest.raises(BusError) as err:
+    with pytest.raises(IdentityMismatch) as err:
         match_configuration(found, expected)
+    assert err.value.expected == (0xA12, 0x0BADBEEF, None)
+    assert err.value.found[:2] == (0xA12, 0x00A986FD)
     assert str(err.value).startswith(
         "slave 2 (front_left_leg): expected vendor 0x00000A12 product 0x0BADBEEF, found vendor "
         "0x00000A12 product 0x00A986FD"
@@ -141,8 +143,10 @@ def test_sii_with_4_byte_reads_gives_the_same_image(leg_sii: bytes) -> None:
 
 def test_sii_read_error_names_the_slave(leg_sii: bytes) -> None:
     line = FakeLine([FakeEsc(leg_sii), FakeEsc(leg_sii, fail=True)])
-    with pytest.raises(BusError, match=r"slave 1: SII read at word 0x0000 failed"):
+    with pytest.raises(SiiReadError, match=r"slave 1: SII read at word 0x0000 failed") as err:
         scan(DatagramService(line))
+    # Bit 13 of 0x0502: no acknowledge or invalid command (not the checksum, that is bit 11).
+    assert err.value.word == 0 and err.value.status & 0x2000
 
 
 def test_sii_checksum_error_is_reported_not_taken_for_a_failed_read(

@@ -218,20 +218,20 @@ def test_the_console_operates_the_axes(arm: Any) -> None:
 
     node, client, _net = arm
     lines: list[str] = []
-    console = Console(client, out=lines.append)
-    seq = command_seq(node)
-    console.line("move elbow 9")  # refused by the console: nothing is sent
-    assert "outside the limits [-2.5, 2.5]" in lines[-1]
-    assert command_seq(node) == seq
-    console.line("move elbow -0.25")
-    assert lines[-1] == "sent elbow position=-0.25"
-    wait_position(client, "elbow", -0.25)
-    console.line("set_mode elbow warp")
-    assert "unknown mode 'warp'" in lines[-1]
-    console.line("disable elbow")
-    assert lines[-1].startswith("disable done (elbow: switch_on_disabled)")
-    console.line("enable all")
-    assert lines[-1].startswith("enable done (shoulder_pan: operation_enabled")
+    with Console(client, out=lines.append) as console:
+        seq = command_seq(node)
+        console.line("move elbow 9")  # refused by the console: nothing is sent
+        assert "outside the limits [-2.5, 2.5]" in lines[-1]
+        assert command_seq(node) == seq
+        console.line("move elbow -0.25")
+        assert lines[-1] == "sent elbow position=-0.25"
+        wait_position(client, "elbow", -0.25)
+        console.line("set_mode elbow warp")
+        assert "unknown mode 'warp'" in lines[-1]
+        console.line("disable elbow")
+        assert lines[-1].startswith("disable done (elbow: switch_on_disabled)")
+        console.line("enable all")
+        assert lines[-1].startswith("enable done (shoulder_pan: operation_enabled")
 
 
 def test_a_slow_enable_holds_up_no_other_callback(arm: Any, monkeypatch: Any) -> None:

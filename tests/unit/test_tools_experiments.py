@@ -120,6 +120,10 @@ def test_trot_needs_laelaps_legs() -> None:
             "--step-us must be positive",
         ),
         (["experiment", "trot", "no/such.yaml"], "no/such.yaml"),
+        (
+            ["experiment", "trot", "config/laelaps.yaml", "--watchdog-ms", "-1"],
+            "--watchdog-ms must be 0..60000, got -1",
+        ),
     ],
 )
 def test_cli_bad_input(

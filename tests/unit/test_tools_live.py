@@ -74,6 +74,23 @@ def test_screen_shows_slaves_stats_and_histograms_and_updates() -> None:
     asyncio.run(run())
 
 
+def test_ctrl_p_and_f1_panic_and_the_command_palette_stays_shut() -> None:
+    source = StaticSource([snapshot(0, "OP")])
+
+    async def run() -> None:
+        app = TopApp(source, interval=3600)
+        async with app.run_test(size=(140, 40)) as pilot:
+            await pilot.pause()
+            await pilot.press("ctrl+p")
+            await pilot.press("f1")
+            await pilot.pause()
+            assert source.panics == 2
+            assert len(app.screen_stack) == 1  # no command palette on top of the view
+            assert "PANIC (static source, 2)" in text_of(app, "#message")
+
+    asyncio.run(run())
+
+
 def test_a_failing_source_is_shown_not_raised() -> None:
     class Broken:
         def poll(self) -> LiveSnapshot:
@@ -213,6 +230,16 @@ def test_diagnostics_source_reads_the_nodes_statuses() -> None:
             ("hind_left_leg", "SAFEOP ERR"),
         ]
         assert snap.quantiles_us["rtt"] == (110.0, 120.0, 150.0)
+        assert not snap.stale
+        # The node stops reporting (it died): after two of its periods the view says so, and
+        # no slave is shown in the state of its last report.
+        deadline = time.monotonic() + 30
+        while not snap.stale and time.monotonic() < deadline:
+            time.sleep(0.05)
+            snap = source.poll()
+        assert "the node is gone or stalled" in snap.stale
+        assert [r.state for r in snap.slaves] == ["?", "?"]
+        assert stats_text(snap).startswith("STALE: no report from node")
     finally:
         node.destroy_node()
         source.close()

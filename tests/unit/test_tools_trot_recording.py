@@ -97,6 +97,18 @@ def test_legs_actually_moved(trot_run: tuple[TrotResult, Recording]) -> None:
         assert knee.max() - knee.min() > 5.0, leg  # degrees: the leg stepped
 
 
+def test_the_result_carries_the_steady_trot_report(
+    trot_run: tuple[TrotResult, Recording],
+) -> None:
+    result, _rec = trot_run
+    assert [r.slave for r in result.report] == LEGS
+    for r in result.report:
+        assert r.samples > 100, r
+        # No knee chatters between its limits (the defect of issue 21): at most a small share.
+        assert r.knee.share_at_limit < 0.05, r
+        assert r.toe_error_rms_mm < 15.0, r
+
+
 def test_forward_kinematics_eq_4_1() -> None:
     x, y = forward_kinematics(np.array([0.0, math.pi / 2]), np.array([0.0, math.pi / 2]))
     assert x[0] == pytest.approx(0.0) and y[0] == pytest.approx(600.0)

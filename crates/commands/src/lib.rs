@@ -11,6 +11,9 @@
 //! thread: decoded here, resolved against the axes ([`joints`]) and written into the engine's
 //! axis command slots (`Engine::axis_setpoint`).
 //!
+//! The operator console's panic key is read here too ([`panic_keys`]): a native thread reads the
+//! terminal and sends the node's `panic` request through rcl without waiting for Python.
+//!
 //! Only requests that are certainly valid take the fast path. Malformed data and structurally
 //! invalid joint commands are refused here, with the words Python uses; anything else (text
 //! values, unknown names, values out of range) is handed to the node's Python code, which owns
@@ -21,6 +24,7 @@
 pub mod cdr;
 pub mod joints;
 pub mod lease;
+pub mod panic_keys;
 pub mod rcl;
 pub mod receiver;
 pub mod table;
@@ -31,5 +35,6 @@ pub use cdr::{
 };
 pub use joints::{JointEntry, JointTable, Setpoint};
 pub use lease::{Gid, LeaseGate, LeaseState, Verdict};
+pub use panic_keys::{PanicKeyHandles, PanicKeys, Sent, PANIC_KEYS};
 pub use receiver::{CommandReceiver, ReceiverCounters, ReceiverHandles};
 pub use table::{CommandTable, Kind, Resolution, SlaveEntry, VariableEntry};

@@ -117,6 +117,8 @@ type TakeSerialized = unsafe extern "C" fn(
 ) -> RclRet;
 type PublishSerialized =
     unsafe extern "C" fn(*const c_void, *const SerializedMessage, *mut c_void) -> RclRet;
+type SendRequest = unsafe extern "C" fn(*const c_void, *const c_void, *mut i64) -> RclRet;
+type ServerIsAvailable = unsafe extern "C" fn(*const c_void, *const c_void, *mut bool) -> RclRet;
 type ResetError = unsafe extern "C" fn();
 /// rcutils_error_string_t: the formatted error, returned by value.
 #[repr(C)]
@@ -137,6 +139,8 @@ pub struct Rcl {
     wait: Wait,
     take_serialized: TakeSerialized,
     publish_serialized: PublishSerialized,
+    send_request: SendRequest,
+    server_is_available: ServerIsAvailable,
     reset_error: ResetError,
     get_error: GetError,
     default_allocator: DefaultAllocator,
@@ -188,6 +192,8 @@ impl Rcl {
             wait: symbol(rcl, librcl, "rcl_wait")?,
             take_serialized: symbol(rcl, librcl, "rcl_take_serialized_message")?,
             publish_serialized: symbol(rcl, librcl, "rcl_publish_serialized_message")?,
+            send_request: symbol(rcl, librcl, "rcl_send_request")?,
+            server_is_available: symbol(rcl, librcl, "rcl_service_server_is_available")?,
             reset_error: symbol(rcutils, librcutils, "rcutils_reset_error")?,
             get_error: symbol(rcutils, librcutils, "rcutils_get_error_string")?,
             default_allocator: symbol(rcutils, librcutils, "rcutils_get_default_allocator")?,
@@ -337,6 +343,39 @@ pub unsafe fn publish_serialized(
     };
     match (rcl.publish_serialized)(publisher, &message, ptr::null_mut()) {
         RCL_RET_OK => Ok(()),
+        ret => Err(rcl.take_error(ret)),
+    }
+}
+
+/// Send a request on an rcl client: its sequence number.
+///
+/// # Safety
+/// `client` must be a valid `rcl_client_t*` and `request` point to the C message struct of
+/// its service's request type.
+pub unsafe fn send_request(
+    rcl: &Rcl,
+    client: *const c_void,
+    request: *const c_void,
+) -> Result<i64, String> {
+    let mut sequence = 0i64;
+    match (rcl.send_request)(client, request, &mut sequence) {
+        RCL_RET_OK => Ok(sequence),
+        ret => Err(rcl.take_error(ret)),
+    }
+}
+
+/// Whether a server for `client`'s service is known to `node`'s graph.
+///
+/// # Safety
+/// `node` and `client` must be a valid `rcl_node_t*` and an `rcl_client_t*` of that node.
+pub unsafe fn server_is_available(
+    rcl: &Rcl,
+    node: *const c_void,
+    client: *const c_void,
+) -> Result<bool, String> {
+    let mut available = false;
+    match (rcl.server_is_available)(node, client, &mut available) {
+        RCL_RET_OK => Ok(available),
         ret => Err(rcl.take_error(ret)),
     }
 }

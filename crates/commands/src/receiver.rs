@@ -862,7 +862,7 @@ fn set_affinity(cpus: &[usize]) -> Option<String> {
 }
 
 /// Ask for SCHED_FIFO `priority` for the calling thread; describe what it got.
-fn set_priority(priority: i32) -> String {
+pub(crate) fn set_priority(priority: i32) -> String {
     if priority <= 0 {
         return "normal (not asked for real-time priority)".into();
     }

@@ -39,20 +39,14 @@ impl OutputField {
     /// Put the field's bits into `bytes`, whose first element is image byte `base`, leaving
     /// every other bit alone. The field must be well formed and lie inside `bytes`.
     pub fn apply(&self, bytes: &mut [u8], base: usize) {
-        let start = self.bit_offset;
-        let end = start + self.bit_length as usize;
-        let mut bit = start;
-        while bit < end {
-            // The part of the field inside one byte: `count` bits from bit `shift` of the byte.
-            let byte = bit / 8;
-            let shift = bit % 8;
-            let count = (8 - shift).min(end - bit);
-            let mask = (((1u16 << count) - 1) as u8) << shift;
-            let value = ((self.raw >> (bit - start)) as u8) << shift;
-            let cell = &mut bytes[byte - base];
-            *cell = (*cell & !mask) | (value & mask);
-            bit += count;
-        }
+        // The protocol crate's bit-field codec (EtherCAT bit order, no allocation).
+        let inside = ether_ros_protocol::value::write_bits(
+            bytes,
+            self.bit_offset - base * 8,
+            self.bit_length,
+            self.raw,
+        );
+        debug_assert!(inside, "a well-formed field inside `bytes`");
     }
 }
 

@@ -41,29 +41,111 @@ pub use xdp::{XdpLink, XdpMode};
 
 use ether_ros_protocol::MAX_FRAME_LEN;
 
-/// What went wrong, by kind (the Python binding maps kinds to exception types).
+/// What went wrong, by kind, with its data (the Python binding maps each kind to an exception
+/// class of `ether_ros.errors` and hands the data over as attributes).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Error {
-    /// Bad argument: plan, datagrams, output write.
+    /// Bad argument: plan, datagrams, output write (what is wrong, in words; no protocol code).
     Invalid(String),
-    /// The link failed or is closed.
-    Link(String),
-    /// No reply within the retries.
-    Timeout(String),
-    /// Wrong state for the call (already cyclic, closed, ...).
-    State(String),
+    /// The link failed: opening, sending or receiving.
+    Link {
+        /// The link (`packet on eth0`, or the interface when it could not be opened).
+        link: String,
+        /// What was being done.
+        action: LinkAction,
+        /// The OS error code, when the OS gave one.
+        errno: Option<i32>,
+        /// The OS's words for it.
+        detail: String,
+    },
+    /// No reply to an acyclic frame within its retries.
+    Timeout {
+        /// The link.
+        link: String,
+        /// The frame's datagram commands.
+        commands: Vec<&'static str>,
+        /// Frames sent.
+        attempts: u32,
+        /// Wait per attempt, µs.
+        timeout_us: i64,
+    },
+    /// Wrong state for the call.
+    State(StateError),
     /// The real-time setup was refused (policy, affinity, memory lock).
-    Realtime(String),
+    Realtime(rt::SetupError),
+}
+
+/// What a link was doing when it failed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LinkAction {
+    /// Opening the interface.
+    Open,
+    /// Sending a frame.
+    Send,
+    /// Receiving a frame.
+    Receive,
+}
+
+/// A call the engine's state does not allow.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum StateError {
+    /// The engine on this link is closed.
+    Closed(String),
+    /// `start_cyclic` while the cyclic thread runs.
+    AlreadyCyclic,
+    /// Process data before `start_cyclic`.
+    NoProcessImage,
+    /// The RT thread ended during its setup.
+    RtThreadEnded,
+}
+
+impl Error {
+    /// The link error of `e` while doing `action` on `link`.
+    pub fn link(link: &str, action: LinkAction, e: &std::io::Error) -> Error {
+        Error::Link {
+            link: link.to_string(),
+            action,
+            errno: e.raw_os_error(),
+            detail: e.to_string(),
+        }
+    }
 }
 
 impl std::fmt::Display for Error {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            Error::Invalid(m)
-            | Error::Link(m)
-            | Error::Timeout(m)
-            | Error::State(m)
-            | Error::Realtime(m) => f.write_str(m),
+            Error::Invalid(m) => f.write_str(m),
+            Error::Link {
+                link,
+                action,
+                detail,
+                ..
+            } => match action {
+                LinkAction::Open => f.write_str(detail),
+                LinkAction::Send => write!(f, "cannot send on {link}: {detail}"),
+                LinkAction::Receive => write!(f, "cannot receive on {link}: {detail}"),
+            },
+            Error::Timeout {
+                link,
+                commands,
+                attempts,
+                timeout_us,
+            } => write!(
+                f,
+                "no reply to the frame [{}] on {link} after {attempts} attempt(s) of {timeout_us} µs",
+                commands.join(", ")
+            ),
+            Error::State(StateError::Closed(link)) => write!(f, "the engine on {link} is closed"),
+            Error::State(StateError::AlreadyCyclic) => {
+                f.write_str("the cyclic thread is already running")
+            }
+            Error::State(StateError::NoProcessImage) => {
+                f.write_str("no process image yet: call start_cyclic first")
+            }
+            Error::State(StateError::RtThreadEnded) => {
+                f.write_str("the RT thread ended during setup")
+            }
+            Error::Realtime(e) => f.write_str(&e.message),
         }
     }
 }
@@ -154,7 +236,7 @@ impl Engine {
             }
             LinkKind::Xdp => XdpLink::open(ifname, options).map(|l| Box::new(l) as Box<dyn Link>),
         }
-        .map_err(|e| Error::Link(e.to_string()))?;
+        .map_err(|e| Error::link(ifname, LinkAction::Open, &e))?;
         Ok(Engine::with_link(link))
     }
 
@@ -233,18 +315,16 @@ impl Engine {
                 LinkState::Closed => return Err(self.closed()),
             }
         }
-        let names: Vec<&str> = requests.iter().map(|r| r.cmd.name()).collect();
-        Err(Error::Timeout(format!(
-            "no reply to the frame [{}] on {} after {} attempt(s) of {} µs",
-            names.join(", "),
-            self.description,
-            retries + 1,
-            timeout_ns / 1000
-        )))
+        Err(Error::Timeout {
+            link: self.description.clone(),
+            commands: requests.iter().map(|r| r.cmd.name()).collect(),
+            attempts: retries + 1,
+            timeout_us: timeout_ns / 1000,
+        })
     }
 
     fn closed(&self) -> Error {
-        Error::State(format!("the engine on {} is closed", self.description))
+        Error::State(StateError::Closed(self.description.clone()))
     }
 
     fn direct_attempt(
@@ -254,7 +334,7 @@ impl Engine {
         timeout_ns: i64,
     ) -> Result<Option<Vec<u8>>> {
         link.send(request)
-            .map_err(|e| Error::Link(format!("cannot send on {}: {e}", self.description)))?;
+            .map_err(|e| Error::link(&self.description, LinkAction::Send, &e))?;
         let deadline = now_ns() + timeout_ns;
         let mut buf = vec![0u8; MAX_FRAME_LEN];
         loop {
@@ -271,12 +351,7 @@ impl Engine {
                         .fetch_add(1, Ordering::Relaxed);
                 }
                 Ok(None) => return Ok(None),
-                Err(e) => {
-                    return Err(Error::Link(format!(
-                        "cannot receive on {}: {e}",
-                        self.description
-                    )))
-                }
+                Err(e) => return Err(Error::link(&self.description, LinkAction::Receive, &e)),
             }
         }
     }
@@ -331,7 +406,7 @@ impl Engine {
                 let running = matches!(other, LinkState::Cyclic(_));
                 *state = other;
                 return Err(if running {
-                    Error::State("the cyclic thread is already running".into())
+                    Error::State(StateError::AlreadyCyclic)
                 } else {
                     self.closed()
                 });
@@ -350,7 +425,7 @@ impl Engine {
         shared.last_command_ns.store(now_ns(), Ordering::Release);
         ex.note_command_all(now_ns());
         let mut cyclic = Cyclic::new(link, shared.clone(), ex.clone(), layout);
-        let (ready_tx, ready_rx) = mpsc::sync_channel::<std::result::Result<(), String>>(1);
+        let (ready_tx, ready_rx) = mpsc::sync_channel::<std::result::Result<(), rt::SetupError>>(1);
         let spawned = std::thread::Builder::new()
             .name("ether_ros-rt".into())
             .stack_size(rt::RT_STACK)
@@ -370,7 +445,12 @@ impl Engine {
             });
         let handle = match spawned {
             Ok(h) => h,
-            Err(e) => return Err(Error::Realtime(format!("cannot start the RT thread: {e}"))),
+            Err(e) => {
+                return Err(Error::Realtime(rt::SetupError {
+                    message: format!("cannot start the RT thread: {e}"),
+                    errno: e.raw_os_error(),
+                }))
+            }
         };
         match ready_rx.recv() {
             Ok(Ok(())) => {
@@ -386,7 +466,7 @@ impl Engine {
             Err(_) => {
                 *state = LinkState::Cyclic(handle);
                 self.join_into(&mut state);
-                Err(Error::Realtime("the RT thread ended during setup".into()))
+                Err(Error::State(StateError::RtThreadEnded))
             }
         }
     }
@@ -416,7 +496,7 @@ impl Engine {
     fn exchange(&self) -> Result<Arc<Exchange>> {
         lock(&self.exchange)
             .clone()
-            .ok_or_else(|| Error::State("no process image yet: call start_cyclic first".into()))
+            .ok_or(Error::State(StateError::NoProcessImage))
     }
 
     /// Write output bytes at image `offset`; the range must lie inside the plan's outputs.

@@ -11,33 +11,58 @@ pub const PREFAULT_STACK: usize = 256 * 1024;
 /// Stack size the RT thread is spawned with.
 pub const RT_STACK: usize = 1024 * 1024;
 
+/// Why the real-time setup was refused: what failed, in words, and the OS error code.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct SetupError {
+    /// What failed and the remedy.
+    pub message: String,
+    /// The errno of the refused call (None for a plan the OS was not asked about).
+    pub errno: Option<i32>,
+}
+
+impl SetupError {
+    fn os(message: String, e: &io::Error) -> SetupError {
+        SetupError {
+            message,
+            errno: e.raw_os_error(),
+        }
+    }
+}
+
 /// Apply `rt` to the calling thread. The error says what failed and why.
-pub fn apply(rt: &RtPlan, cycle_ns: u64) -> Result<(), String> {
+pub fn apply(rt: &RtPlan, cycle_ns: u64) -> Result<(), SetupError> {
     if let Some(cpu) = rt.cpu {
         // SAFETY: the cpu_set_t is a plain bitmap initialised by CPU_ZERO.
         let r = unsafe {
             let mut set: libc::cpu_set_t = std::mem::zeroed();
             libc::CPU_ZERO(&mut set);
             if cpu >= libc::CPU_SETSIZE as usize {
-                return Err(format!("rt.cpu = {cpu} is not a valid CPU number"));
+                return Err(SetupError {
+                    message: format!("rt.cpu = {cpu} is not a valid CPU number"),
+                    errno: None,
+                });
             }
             libc::CPU_SET(cpu, &mut set);
             libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set)
         };
         if r != 0 {
-            return Err(format!(
-                "cannot pin the real-time thread to CPU {cpu}: {}",
-                io::Error::last_os_error()
+            let e = io::Error::last_os_error();
+            return Err(SetupError::os(
+                format!("cannot pin the real-time thread to CPU {cpu}: {e}"),
+                &e,
             ));
         }
     }
     if rt.lock_memory {
         // SAFETY: plain syscall.
         if unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) } != 0 {
-            return Err(format!(
-                "cannot lock memory (mlockall; needs root, CAP_IPC_LOCK or a large enough \
-                 RLIMIT_MEMLOCK): {}",
-                io::Error::last_os_error()
+            let e = io::Error::last_os_error();
+            return Err(SetupError::os(
+                format!(
+                    "cannot lock memory (mlockall; needs root, CAP_IPC_LOCK or a large enough \
+                     RLIMIT_MEMLOCK): {e}"
+                ),
+                &e,
             ));
         }
     }
@@ -49,11 +74,14 @@ pub fn apply(rt: &RtPlan, cycle_ns: u64) -> Result<(), String> {
             };
             // SAFETY: valid sched_param for the calling thread.
             if unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) } != 0 {
-                return Err(format!(
-                    "cannot set SCHED_FIFO priority {} (needs root, CAP_SYS_NICE or an rtprio \
-                     limit): {}",
-                    rt.priority,
-                    io::Error::last_os_error()
+                let e = io::Error::last_os_error();
+                return Err(SetupError::os(
+                    format!(
+                        "cannot set SCHED_FIFO priority {} (needs root, CAP_SYS_NICE or an \
+                         rtprio limit): {e}",
+                        rt.priority
+                    ),
+                    &e,
                 ));
             }
         }
@@ -64,10 +92,13 @@ pub fn apply(rt: &RtPlan, cycle_ns: u64) -> Result<(), String> {
             } else {
                 ""
             };
-            format!(
-                "cannot set SCHED_DEADLINE runtime {} ns, deadline = period = {cycle_ns} ns: \
-                 {e}{hint}",
-                rt.runtime_ns
+            SetupError::os(
+                format!(
+                    "cannot set SCHED_DEADLINE runtime {} ns, deadline = period = {cycle_ns} \
+                     ns: {e}{hint}",
+                    rt.runtime_ns
+                ),
+                &e,
             )
         })?,
     }

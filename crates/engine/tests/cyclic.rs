@@ -191,7 +191,7 @@ fn transact_retries_then_reports_timeout() {
         )
         .unwrap_err();
     assert!(
-        matches!(err, Error::Timeout(ref m) if m.contains("3 attempt(s)") && m.contains("BRD")),
+        matches!(err, Error::Timeout { attempts: 3, timeout_us: 1, ref commands, .. } if commands == &["BRD"]),
         "{err:?}"
     );
     assert_eq!(bus.lock().unwrap().frames, 3);

@@ -48,6 +48,18 @@ crate::named_constants! {
     pub const COMPLETE_ACCESS: u8 = 0x10;
     /// Command byte bit 4 on a segment: toggle.
     pub const TOGGLE: u8 = 0x10;
+    /// Command byte bit 1 on an initiate: expedited transfer (the data is in the 4 bytes).
+    pub const EXPEDITED: u8 = 0x02;
+    /// Command byte bit 0 on an initiate: the size is indicated.
+    pub const SIZE_INDICATED: u8 = 0x01;
+    /// Command byte bit 0 on a segment: last segment.
+    pub const LAST_SEGMENT: u8 = 0x01;
+    /// Command byte bits 2..=3 of an expedited initiate: bytes of the 4 that hold no data.
+    pub const EXPEDITED_UNUSED_SHIFT: u8 = 2;
+    /// Command byte bits 1..=3 of a segment: bytes of the 7 that hold no data.
+    pub const SEGMENT_UNUSED_SHIFT: u8 = 1;
+    /// Bits 5..=7 of the command byte: the command specifier.
+    pub const SPECIFIER_SHIFT: u8 = 5;
     /// SDO information: get OD list request.
     pub const INFO_OD_LIST_REQ: u8 = 1;
     /// SDO information: get OD list response.
@@ -64,8 +76,18 @@ crate::named_constants! {
     pub const INFO_ERROR: u8 = 7;
     /// SDO information opcode bit 7: more fragments follow.
     pub const INFO_INCOMPLETE: u8 = 0x80;
+    /// SDO information: the opcode bits.
+    pub const INFO_OPCODE_MASK: u8 = 0x7F;
     /// SDO information header: CoE header, opcode, reserved, fragments left (u16).
     pub const INFO_HEADER_LEN: usize = 6;
+    /// Entry description access bits 0..=2: readable in PREOP, SAFEOP, OP.
+    pub const ACCESS_READ: u16 = 0x07;
+    /// Entry description access bits 3..=5: writable in PREOP, SAFEOP, OP.
+    pub const ACCESS_WRITE: u16 = 0x38;
+    /// Entry description access bit 6: mappable in an RxPDO.
+    pub const ACCESS_RXPDO: u16 = 0x40;
+    /// Entry description access bit 7: mappable in a TxPDO.
+    pub const ACCESS_TXPDO: u16 = 0x80;
     /// OD list type: all objects.
     pub const OD_LIST_ALL: u16 = 1;
     /// Object code: variable.
@@ -80,10 +102,14 @@ crate::named_constants! {
     pub const ERROR_REGISTER: u16 = 0x1001;
     /// Communication area: identity object (1 vendor, 2 product, 3 revision, 4 serial).
     pub const IDENTITY: u16 = 0x1018;
-    /// First RxPDO mapping object (0x1600..=0x17FF).
+    /// First RxPDO mapping object.
     pub const RXPDO_MAPPING: u16 = 0x1600;
-    /// First TxPDO mapping object (0x1A00..=0x1BFF).
+    /// Last RxPDO mapping object.
+    pub const RXPDO_MAPPING_LAST: u16 = 0x17FF;
+    /// First TxPDO mapping object.
     pub const TXPDO_MAPPING: u16 = 0x1A00;
+    /// Last TxPDO mapping object.
+    pub const TXPDO_MAPPING_LAST: u16 = 0x1BFF;
     /// SyncManager communication types.
     pub const SM_COMM_TYPE: u16 = 0x1C00;
     /// PDO assignment of SyncManager n is at `SM_PDO_ASSIGN + n`.

@@ -3,6 +3,19 @@
 //! CoE emergency message and a drive in 0x603F. A code missing from the table is described by
 //! its class (0xFFF0, then 0xFF00, then 0xF000 of it); 0xFF00..=0xFFFF are the manufacturer's.
 
+crate::named_constants! {
+    /// The codes the project raises itself, by name.
+    pub const TABLE;
+    /// Error reset or no error.
+    pub const NO_ERROR: u16 = 0x0000;
+    /// ETG.1000.6: the transition PREOP → SAFEOP failed.
+    pub const PREOP_TO_SAFEOP_FAILED: u16 = 0xA000;
+    /// ETG.1000.6: the transition SAFEOP → OP failed.
+    pub const SAFEOP_TO_OP_FAILED: u16 = 0xA001;
+    /// CiA 301 error register (0x1001) bit 0: generic error.
+    pub const ERROR_REGISTER_GENERIC: u8 = 0x01;
+}
+
 /// Codes with their texts, in ascending order.
 pub const CODES: &[(u16, &str)] = &[
     (0x0000, "no error"),

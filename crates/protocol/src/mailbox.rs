@@ -26,6 +26,8 @@ crate::named_constants! {
     pub const TYPE_VOE: u8 = 0x0F;
     /// Largest counter value; counters run 1..=7.
     pub const MAX_COUNTER: u8 = 7;
+    /// The `type` word of a mailbox error reply's body (followed by the error code).
+    pub const ERROR_REPLY_TYPE: u16 = 0x0001;
 }
 
 /// The name of a mailbox type (`"CoE"`), `None` when the type is not assigned.

@@ -34,6 +34,8 @@ crate::named_constants! {
     pub const DL_CONTROL: u16 = 0x0100;
     /// DL control byte 1: loop control of ports 0..=3.
     pub const DL_CONTROL_LOOP: u16 = 0x0101;
+    /// DL control byte 3: bit 0 enables the station alias for configured-address commands.
+    pub const DL_CONTROL_ALIAS: u16 = 0x0103;
     /// DL status (u16): link and loop status per port, see `dl`.
     pub const DL_STATUS: u16 = 0x0110;
     /// AL control (u16): requested state + error acknowledge, see `crate::al`.
@@ -52,6 +54,8 @@ crate::named_constants! {
     pub const AL_EVENT_REQUEST: u16 = 0x0220;
     /// RX error counters (0x0300..=0x030D).
     pub const RX_ERROR_COUNTER: u16 = 0x0300;
+    /// Lost link counters, one u8 per port (0x0310..=0x0313).
+    pub const LOST_LINK_COUNTER: u16 = 0x0310;
     /// Watchdog divider (u16), in 40 ns units minus 2.
     pub const WATCHDOG_DIVIDER: u16 = 0x0400;
     /// Watchdog time PDI (u16).
@@ -62,6 +66,8 @@ crate::named_constants! {
     pub const WATCHDOG_STATUS_PD: u16 = 0x0440;
     /// Watchdog counter process data (u8).
     pub const WATCHDOG_COUNTER_PD: u16 = 0x0442;
+    /// Watchdog counter PDI (u8).
+    pub const WATCHDOG_COUNTER_PDI: u16 = 0x0443;
     /// SII EEPROM configuration (u8), see `crate::sii`.
     pub const SII_CONFIG: u16 = 0x0500;
     /// SII EEPROM PDI access state (u8).
@@ -72,6 +78,8 @@ crate::named_constants! {
     pub const SII_ADDRESS: u16 = 0x0504;
     /// SII data (4 or 8 bytes).
     pub const SII_DATA: u16 = 0x0508;
+    /// MII management interface (0x0510..=0x0517).
+    pub const MII_MANAGEMENT: u16 = 0x0510;
     /// First FMMU; FMMU n is at `FMMU0 + n·FMMU_LEN`, see `fmmu`.
     pub const FMMU0: u16 = 0x0600;
     /// Bytes per FMMU.
@@ -127,31 +135,32 @@ pub const fn fmmu(n: u16, offset: u16) -> u16 {
     FMMU0 + n * FMMU_LEN + offset
 }
 
-/// ESC features supported (0x0008).
+/// ESC features supported (0x0008, ESC datasheet section II, "ESC Features supported").
+/// Bits 9..=11 are "not supported"/"fixed" flags: 0 means the feature is there.
 pub mod features {
     crate::named_constants! {
         /// Every bit, by name.
         pub const TABLE;
-        /// Bit 0: FMMU operation is bit oriented (0: byte oriented).
-        pub const FMMU_BIT_ORIENTED: u16 = 1 << 0;
+        /// Bit 0: FMMU operation byte-oriented only (0: bit-oriented).
+        pub const FMMU_BYTE_ORIENTED: u16 = 1 << 0;
         /// Bit 2: distributed clocks available.
         pub const DC: u16 = 1 << 2;
-        /// Bit 3: 64-bit distributed clocks.
-        pub const DC_64: u16 = 1 << 3;
-        /// Bit 4: low jitter EBUS.
+        /// Bit 3: the DC time is 64 bits wide.
+        pub const DC_64BIT: u16 = 1 << 3;
+        /// Bit 4: low-jitter EBUS.
         pub const LOW_JITTER_EBUS: u16 = 1 << 4;
-        /// Bit 5: enhanced link detection EBUS.
+        /// Bit 5: enhanced link detection on EBUS ports.
         pub const ENHANCED_LINK_EBUS: u16 = 1 << 5;
-        /// Bit 6: enhanced link detection MII.
+        /// Bit 6: enhanced link detection on MII ports.
         pub const ENHANCED_LINK_MII: u16 = 1 << 6;
-        /// Bit 7: separate handling of FCS errors.
-        pub const SEPARATE_FCS: u16 = 1 << 7;
-        /// Bit 8: enhanced DC SYNC activation.
+        /// Bit 7: FCS errors counted separately from other receive errors.
+        pub const SEPARATE_FCS_ERRORS: u16 = 1 << 7;
+        /// Bit 8: enhanced DC SYNC activation (0x0981 bits 3..=7, 0x0984).
         pub const ENHANCED_DC_SYNC: u16 = 1 << 8;
         /// Bit 9: LRW not supported (the master uses LRD + LWR).
-        pub const NO_LRW: u16 = 1 << 9;
+        pub const LRW_NOT_SUPPORTED: u16 = 1 << 9;
         /// Bit 10: BRW, APRW, FPRW not supported.
-        pub const NO_READ_WRITE: u16 = 1 << 10;
+        pub const READ_WRITE_NOT_SUPPORTED: u16 = 1 << 10;
         /// Bit 11: fixed FMMU/SyncManager configuration.
         pub const FIXED_FMMU_SM: u16 = 1 << 11;
     }

@@ -13,7 +13,8 @@ use ether_ros_commands::receiver::{
 };
 use ether_ros_commands::{
     decode_joint_state, decode_write_variable, CommandReceiver, CommandTable, Gid, JointEntry,
-    JointTable, Kind, LeaseGate, ReceiverHandles, Resolution, SlaveEntry, VariableEntry, Verdict,
+    JointTable, Kind, LeaseGate, PanicKeyHandles, PanicKeys, ReceiverHandles, Resolution, Sent,
+    SlaveEntry, VariableEntry, Verdict, PANIC_KEYS,
 };
 use ether_ros_engine::SetpointKind;
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
@@ -446,10 +447,99 @@ impl PyCommandReceiver {
     }
 }
 
+/// The console's terminal reader that sends the panic request itself (see
+/// `ether_ros_commands::panic_keys`); it runs from construction until `stop`.
+#[pyclass(name = "PanicKeys", module = "ether_ros._native", frozen)]
+pub struct PyPanicKeys {
+    inner: PanicKeys,
+}
+
+/// (sequence number, CLOCK_MONOTONIC ns when the read holding the key returned and when the
+/// request was sent, "") for a request sent, or (None, 0, 0, why) when none was.
+type SentRow = (Option<i64>, i64, i64, String);
+
+#[pymethods]
+impl PyPanicKeys {
+    /// `node`, `client`: `handle.pointer` of the rclpy node and its std_srvs/Trigger `panic`
+    /// client; `terminal`: the terminal's descriptor (in raw mode; not closed here);
+    /// `forward`: the write end of the pipe the bytes go on to (closed when the thread ends);
+    /// `priority`: SCHED_FIFO priority to ask for (0: none; refused without CAP_SYS_NICE).
+    #[new]
+    #[pyo3(signature = (*, librcl, librcutils, node, client, terminal, forward, priority=0))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        py: Python<'_>,
+        librcl: String,
+        librcutils: String,
+        node: usize,
+        client: usize,
+        terminal: i32,
+        forward: i32,
+        priority: i32,
+    ) -> PyResult<Self> {
+        let handles = PanicKeyHandles {
+            librcl,
+            librcutils,
+            node,
+            client,
+            terminal,
+            forward,
+            priority,
+        };
+        let inner = py
+            .detach(move || PanicKeys::start(handles))
+            .map_err(PyRuntimeError::new_err)?;
+        Ok(PyPanicKeys { inner })
+    }
+
+    /// What the thread did for each read that held a panic key since the last call:
+    /// (sequence number, read ns, sent ns, "") for a request sent (CLOCK_MONOTONIC), (None, 0,
+    /// 0, why) when it could not send one.
+    fn take_sent(&self) -> Vec<SentRow> {
+        self.inner
+            .take_sent()
+            .into_iter()
+            .map(|sent| match sent {
+                Sent::Request {
+                    sequence,
+                    read_ns,
+                    at_ns,
+                } => (Some(sequence), read_ns, at_ns, String::new()),
+                Sent::Failed(why) => (None, 0, 0, why),
+            })
+            .collect()
+    }
+
+    fn presses(&self) -> u64 {
+        self.inner.presses()
+    }
+
+    fn dropped(&self) -> u64 {
+        self.inner.dropped()
+    }
+
+    fn is_running(&self) -> bool {
+        self.inner.is_running()
+    }
+
+    /// How the thread is scheduled ("SCHED_FIFO 50", or "normal: ..." saying why).
+    fn scheduling(&self) -> String {
+        self.inner.scheduling()
+    }
+
+    /// Stop and join the thread (idempotent).
+    fn stop(&self, py: Python<'_>) {
+        py.detach(|| self.inner.stop());
+    }
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyCommandTable>()?;
     m.add_class::<PyJointTable>()?;
     m.add_class::<PyCommandReceiver>()?;
     m.add_class::<PyLeaseGate>()?;
+    m.add_class::<PyPanicKeys>()?;
+    let keys: Vec<&[u8]> = PANIC_KEYS.to_vec();
+    m.add("PANIC_KEYS", keys)?;
     Ok(())
 }

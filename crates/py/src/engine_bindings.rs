@@ -29,16 +29,19 @@ use crate::sim_bindings::SimNetwork;
 static ENGINE_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
 static ENGINE_TIMEOUT: PyOnceLock<Py<PyType>> = PyOnceLock::new();
 
+/// A class of `ether_ros.errors` (`Exception` if that module cannot be imported).
+fn errors_class<'py>(py: Python<'py>, name: &str) -> Bound<'py, PyType> {
+    py.import("ether_ros.errors")
+        .and_then(|m| m.getattr(name))
+        .and_then(|c| c.cast_into::<PyType>().map_err(PyErr::from))
+        .unwrap_or_else(|_| py.get_type::<PyException>())
+}
+
 /// `EngineError` subclasses `ether_ros.errors.LinkError` (so the CLI reports it as a one-line
-/// user error); `Exception` if that module cannot be imported.
+/// user error).
 fn engine_error(py: Python<'_>) -> &Bound<'_, PyType> {
     ENGINE_ERROR
         .get_or_init(py, || {
-            let base = py
-                .import("ether_ros.errors")
-                .and_then(|m| m.getattr("LinkError"))
-                .and_then(|c| c.cast_into::<PyType>().map_err(PyErr::from))
-                .unwrap_or_else(|_| py.get_type::<PyException>());
             PyErr::new_type(
                 py,
                 c"ether_ros._native.EngineError",
@@ -46,7 +49,7 @@ fn engine_error(py: Python<'_>) -> &Bound<'_, PyType> {
                     c"The engine cannot do what was asked: link failure, wrong state, or the \
                         real-time setup was refused.",
                 ),
-                Some(&base),
+                Some(&errors_class(py, "LinkError")),
                 None,
             )
             .expect("creating EngineError")
@@ -54,29 +57,79 @@ fn engine_error(py: Python<'_>) -> &Bound<'_, PyType> {
         .bind(py)
 }
 
+/// `EngineTimeout` is an `EngineError` and an `ether_ros.errors.FrameTimeout`: no reply to a
+/// frame within its retries, with the frame's commands, the attempts and the wait as data.
 fn engine_timeout(py: Python<'_>) -> &Bound<'_, PyType> {
     ENGINE_TIMEOUT
         .get_or_init(py, || {
-            PyErr::new_type(
-                py,
-                c"ether_ros._native.EngineTimeout",
-                Some(c"No reply to an acyclic frame within its retries."),
-                Some(engine_error(py)),
-                None,
-            )
-            .expect("creating EngineTimeout")
+            let attrs = PyDict::new(py);
+            let made = attrs
+                .set_item("__module__", "ether_ros._native")
+                .and_then(|_| {
+                    attrs.set_item(
+                        "__doc__",
+                        "No reply to an acyclic frame within its retries.",
+                    )
+                })
+                .and_then(|_| py.import("builtins"))
+                .and_then(|b| b.getattr("type"))
+                .and_then(|t| {
+                    let bases = PyTuple::new(
+                        py,
+                        [engine_error(py).clone(), errors_class(py, "FrameTimeout")],
+                    )?;
+                    t.call1(("EngineTimeout", bases, attrs))
+                })
+                .and_then(|c| c.cast_into::<PyType>().map_err(PyErr::from));
+            made.expect("creating EngineTimeout").unbind()
         })
         .bind(py)
 }
 
+/// The engine's error as the Python exception of its kind, its data as attributes.
 fn to_py(py: Python<'_>, e: Error) -> PyErr {
-    match e {
-        Error::Invalid(m) => PyValueError::new_err(m),
-        Error::Timeout(m) => PyErr::from_type(engine_timeout(py).clone(), m),
-        Error::Link(m) | Error::State(m) | Error::Realtime(m) => {
-            PyErr::from_type(engine_error(py).clone(), m)
+    let text = e.to_string();
+    let (err, attrs): (PyErr, Vec<(&str, Py<PyAny>)>) = match e {
+        Error::Invalid(m) => (PyValueError::new_err(m), vec![]),
+        Error::Timeout {
+            link,
+            commands,
+            attempts,
+            timeout_us,
+        } => {
+            let attrs = (|| -> PyResult<Vec<(&str, Py<PyAny>)>> {
+                Ok(vec![
+                    ("link", link.into_pyobject(py)?.into_any().unbind()),
+                    ("commands", PyTuple::new(py, commands)?.into_any().unbind()),
+                    ("attempts", attempts.into_pyobject(py)?.into_any().unbind()),
+                    (
+                        "timeout_us",
+                        timeout_us.into_pyobject(py)?.into_any().unbind(),
+                    ),
+                ])
+            })()
+            .unwrap_or_default();
+            (PyErr::from_type(engine_timeout(py).clone(), text), attrs)
         }
+        Error::Link { errno, .. }
+        | Error::Realtime(ether_ros_engine::rt::SetupError { errno, .. }) => {
+            let errno = errno
+                .into_pyobject(py)
+                .map(|v| v.into_any().unbind())
+                .unwrap_or_else(|_| py.None());
+            (
+                PyErr::from_type(engine_error(py).clone(), text),
+                vec![("errno", errno)],
+            )
+        }
+        Error::State(_) => (PyErr::from_type(engine_error(py).clone(), text), vec![]),
+    };
+    let value = err.value(py);
+    for (name, v) in attrs {
+        // Setting an attribute on a fresh exception cannot fail short of memory exhaustion.
+        let _ = value.setattr(name, v);
     }
+    err
 }
 
 // ----- plan dict ---------------------------------------------------------------------------

@@ -4,29 +4,8 @@
 //! (they all implement the ET1100 register set); `docs/simulator.md` has the table with the
 //! sources.
 
-/// ESC features (register 0x0008, Beckhoff ESC datasheet section II, "ESC Features
-/// supported"). Bits 9–11 are "not supported"/"fixed" flags: 0 means the feature is there.
-pub mod feature {
-    /// 0: bit-oriented FMMU operation, 1: byte-oriented only.
-    pub const FMMU_BYTE_ORIENTED: u16 = 1 << 0;
-    /// Distributed clocks available.
-    pub const DC: u16 = 1 << 2;
-    /// DC time is 64 bits wide.
-    pub const DC_64BIT: u16 = 1 << 3;
-    /// Low-jitter EBUS.
-    pub const LOW_JITTER_EBUS: u16 = 1 << 4;
-    /// Enhanced link detection on EBUS ports.
-    pub const ENHANCED_LINK_EBUS: u16 = 1 << 5;
-    /// Enhanced link detection on MII ports.
-    pub const ENHANCED_LINK_MII: u16 = 1 << 6;
-    /// FCS errors counted separately from other receive errors.
-    pub const SEPARATE_FCS_ERRORS: u16 = 1 << 7;
-    /// Enhanced DC SYNC activation (0x0981[7:3], 0x0984): masters check it before they start
-    /// SYNC0 (ethercrab treats a DC slave without it as a reference clock only).
-    pub const ENHANCED_DC_SYNC: u16 = 1 << 8;
-    /// LRW not supported: the master must use LRD + LWR.
-    pub const LRW_NOT_SUPPORTED: u16 = 1 << 9;
-}
+/// ESC features (register 0x0008): the protocol crate's bits.
+pub use ether_ros_protocol::reg::features as feature;
 
 /// One selectable slave controller.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

@@ -19,66 +19,57 @@
 
 use crate::od::{dtype, Access, Entry, ObjectDictionary};
 
-/// CoE services (upper 4 bits of the CoE header).
+/// CoE services (upper 4 bits of the CoE header): the protocol crate's.
 pub mod service {
-    pub const EMERGENCY: u16 = 1;
-    pub const SDO_REQUEST: u16 = 2;
-    pub const SDO_RESPONSE: u16 = 3;
-    pub const SDO_INFORMATION: u16 = 8;
+    pub use ether_ros_protocol::coe::{
+        SERVICE_EMERGENCY as EMERGENCY, SERVICE_SDO_INFORMATION as SDO_INFORMATION,
+        SERVICE_SDO_REQUEST as SDO_REQUEST, SERVICE_SDO_RESPONSE as SDO_RESPONSE,
+    };
 }
 
-/// SDO abort codes (ETG.1000.6 / CiA 301) the server sends.
+/// SDO abort codes (ETG.1000.6 / CiA 301) the server sends: the protocol crate's.
 pub mod abort {
-    pub const TOGGLE_BIT: u32 = 0x0503_0000;
-    pub const INVALID_COMMAND: u32 = 0x0504_0001;
-    pub const UNSUPPORTED_ACCESS: u32 = 0x0601_0000;
-    pub const WRITE_ONLY: u32 = 0x0601_0001;
-    pub const READ_ONLY: u32 = 0x0601_0002;
-    pub const SUBINDEX0_NOT_ZERO: u32 = 0x0601_0003;
-    pub const NO_OBJECT: u32 = 0x0602_0000;
-    pub const CANNOT_MAP: u32 = 0x0604_0041;
-    pub const PDO_TOO_LONG: u32 = 0x0604_0042;
-    pub const LENGTH_MISMATCH: u32 = 0x0607_0010;
-    pub const LENGTH_TOO_HIGH: u32 = 0x0607_0012;
-    pub const LENGTH_TOO_LOW: u32 = 0x0607_0013;
-    pub const NO_SUBINDEX: u32 = 0x0609_0011;
-    pub const VALUE_RANGE: u32 = 0x0609_0030;
-    pub const VALUE_TOO_HIGH: u32 = 0x0609_0031;
-    pub const DEVICE_STATE: u32 = 0x0800_0022;
+    pub use ether_ros_protocol::coe::{
+        ABORT_CANNOT_MAP as CANNOT_MAP, ABORT_DEVICE_STATE as DEVICE_STATE,
+        ABORT_INVALID_COMMAND as INVALID_COMMAND, ABORT_LENGTH_MISMATCH as LENGTH_MISMATCH,
+        ABORT_LENGTH_TOO_HIGH as LENGTH_TOO_HIGH, ABORT_LENGTH_TOO_LOW as LENGTH_TOO_LOW,
+        ABORT_NO_OBJECT as NO_OBJECT, ABORT_NO_SUBINDEX as NO_SUBINDEX,
+        ABORT_PDO_TOO_LONG as PDO_TOO_LONG, ABORT_READ_ONLY as READ_ONLY,
+        ABORT_SUBINDEX0_NOT_ZERO as SUBINDEX0_NOT_ZERO, ABORT_TOGGLE_BIT as TOGGLE_BIT,
+        ABORT_UNSUPPORTED_ACCESS as UNSUPPORTED_ACCESS, ABORT_VALUE_RANGE as VALUE_RANGE,
+        ABORT_VALUE_TOO_HIGH as VALUE_TOO_HIGH, ABORT_WRITE_ONLY as WRITE_ONLY,
+    };
 }
 
-/// Command specifiers (bits 5..=7 of the SDO command byte).
+/// Command specifiers (bits 5..=7 of the SDO command byte): the protocol crate's.
 mod cs {
-    /// Client: download segment; server: upload segment.
-    pub const SEGMENT_DOWN_REQ: u8 = 0;
-    pub const DOWNLOAD_INITIATE: u8 = 1;
-    pub const UPLOAD_INITIATE: u8 = 2;
-    pub const UPLOAD_SEGMENT_REQ: u8 = 3;
-    pub const ABORT: u8 = 4;
-    /// Server responses.
-    pub const DOWNLOAD_SEGMENT_RESP: u8 = 1;
-    pub const UPLOAD_INITIATE_RESP: u8 = 2;
-    pub const DOWNLOAD_INITIATE_RESP: u8 = 3;
-    pub const UPLOAD_SEGMENT_RESP: u8 = 0;
+    pub use ether_ros_protocol::coe::{
+        CCS_DOWNLOAD_INITIATE as DOWNLOAD_INITIATE, CCS_DOWNLOAD_SEGMENT as SEGMENT_DOWN_REQ,
+        CCS_UPLOAD_INITIATE as UPLOAD_INITIATE, CCS_UPLOAD_SEGMENT as UPLOAD_SEGMENT_REQ,
+        CS_ABORT as ABORT, SCS_DOWNLOAD_INITIATE as DOWNLOAD_INITIATE_RESP,
+        SCS_DOWNLOAD_SEGMENT as DOWNLOAD_SEGMENT_RESP, SCS_UPLOAD_INITIATE as UPLOAD_INITIATE_RESP,
+        SCS_UPLOAD_SEGMENT as UPLOAD_SEGMENT_RESP,
+    };
 }
 
-/// SDO Information opcodes (bits 0..=6 of the first byte; bit 7 = more fragments follow).
+/// SDO Information opcodes: the protocol crate's.
 mod info {
-    pub const OD_LIST_REQ: u8 = 1;
-    pub const OD_LIST_RESP: u8 = 2;
-    pub const OBJECT_DESC_REQ: u8 = 3;
-    pub const OBJECT_DESC_RESP: u8 = 4;
-    pub const ENTRY_DESC_REQ: u8 = 5;
-    pub const ENTRY_DESC_RESP: u8 = 6;
-    pub const ERROR: u8 = 7;
-    pub const INCOMPLETE: u8 = 0x80;
+    pub use ether_ros_protocol::coe::{
+        INFO_ENTRY_DESC_REQ as ENTRY_DESC_REQ, INFO_ENTRY_DESC_RESP as ENTRY_DESC_RESP,
+        INFO_ERROR as ERROR, INFO_INCOMPLETE as INCOMPLETE,
+        INFO_OBJECT_DESC_REQ as OBJECT_DESC_REQ, INFO_OBJECT_DESC_RESP as OBJECT_DESC_RESP,
+        INFO_OD_LIST_REQ as OD_LIST_REQ, INFO_OD_LIST_RESP as OD_LIST_RESP,
+        INFO_OPCODE_MASK as OPCODE_MASK,
+    };
 }
+
+use ether_ros_protocol::coe as facts;
 
 /// Largest process data one PDO may map, in bits: what one datagram of a standard frame carries.
 const MAX_PDO_BITS: u32 = 1486 * 8;
 /// The smallest payload a response needs (an SDO frame); a smaller mailbox is treated as this.
 const MIN_PAYLOAD: usize = 10;
-const AL_PREOP: u8 = 0x02;
+const AL_PREOP: u8 = ether_ros_protocol::al::PREOP;
 
 /// A transfer that spans several mailbox messages.
 #[derive(Debug, Default)]
@@ -136,7 +127,7 @@ fn sdo_frame(service: u16, command: u8, index: u16, subindex: u8, data: [u8; 4])
 fn abort_frame(index: u16, subindex: u8, code: u32) -> Vec<u8> {
     sdo_frame(
         service::SDO_REQUEST,
-        cs::ABORT << 5,
+        cs::ABORT << facts::SPECIFIER_SHIFT,
         index,
         subindex,
         code.to_le_bytes(),
@@ -148,15 +139,15 @@ fn is_string(data_type: u16) -> bool {
 }
 
 fn is_pdo_assign(index: u16) -> bool {
-    index == 0x1C12 || index == 0x1C13
+    index == facts::RXPDO_ASSIGN || index == facts::TXPDO_ASSIGN
 }
 
 fn is_rx_mapping(index: u16) -> bool {
-    (0x1600..=0x17FF).contains(&index)
+    (facts::RXPDO_MAPPING..=facts::RXPDO_MAPPING_LAST).contains(&index)
 }
 
 fn is_tx_mapping(index: u16) -> bool {
-    (0x1A00..=0x1BFF).contains(&index)
+    (facts::TXPDO_MAPPING..=facts::TXPDO_MAPPING_LAST).contains(&index)
 }
 
 /// Objects the master may only change in PREOP, with the PDO rules of ETG.1000.6.
@@ -218,7 +209,7 @@ fn check_pdo_entry(od: &ObjectDictionary, index: u16, value: &[u8]) -> Result<()
     let v = le_u32(value);
     if is_pdo_assign(index) {
         let pdo = v as u16;
-        let in_range = if index == 0x1C12 {
+        let in_range = if index == facts::RXPDO_ASSIGN {
             is_rx_mapping(pdo)
         } else {
             is_tx_mapping(pdo)
@@ -305,7 +296,12 @@ impl CoeServer {
         let max_payload = max_payload.max(MIN_PAYLOAD);
         match header >> 12 {
             service::SDO_REQUEST => {
-                let reply = self.sdo_request(request, od, al_state & 0x0F, max_payload);
+                let reply = self.sdo_request(
+                    request,
+                    od,
+                    al_state & ether_ros_protocol::al::STATE_MASK,
+                    max_payload,
+                );
                 out.extend(reply);
             }
             service::SDO_INFORMATION => Self::sdo_information(request, od, max_payload, out),
@@ -338,7 +334,7 @@ impl CoeServer {
             return Some(abort_frame(index, subindex, abort::INVALID_COMMAND));
         }
         let command = r[2];
-        match command >> 5 {
+        match command >> facts::SPECIFIER_SHIFT {
             cs::DOWNLOAD_INITIATE => Some(self.download_initiate(r, od, al_state)),
             cs::SEGMENT_DOWN_REQ => Some(self.download_segment(r, od, al_state)),
             cs::UPLOAD_INITIATE => Some(self.upload_initiate(r, od, max_payload)),
@@ -358,11 +354,11 @@ impl CoeServer {
     fn download_initiate(&mut self, r: &[u8], od: &mut ObjectDictionary, al: u8) -> Vec<u8> {
         self.transfer = Transfer::Idle;
         let (command, index, subindex) = (r[2], u16_at(r, 3).unwrap_or(0), r[5]);
-        let complete_access = command & 0x10 != 0;
-        let expedited = command & 0x02 != 0;
+        let complete_access = command & facts::COMPLETE_ACCESS != 0;
+        let expedited = command & facts::EXPEDITED != 0;
         let (size, first) = if expedited {
-            let n = if command & 0x01 != 0 {
-                4 - ((command >> 2) & 0x03) as usize
+            let n = if command & facts::SIZE_INDICATED != 0 {
+                4 - ((command >> facts::EXPEDITED_UNUSED_SHIFT) & 0x03) as usize
             } else {
                 4
             };
@@ -390,10 +386,14 @@ impl CoeServer {
                 toggle: false,
             };
         }
-        let ca = if complete_access { 0x10 } else { 0 };
+        let ca = if complete_access {
+            facts::COMPLETE_ACCESS
+        } else {
+            0
+        };
         sdo_frame(
             service::SDO_RESPONSE,
-            cs::DOWNLOAD_INITIATE_RESP << 5 | ca,
+            cs::DOWNLOAD_INITIATE_RESP << facts::SPECIFIER_SHIFT | ca,
             index,
             subindex,
             [0; 4],
@@ -413,7 +413,7 @@ impl CoeServer {
         else {
             return abort_frame(0, 0, abort::INVALID_COMMAND);
         };
-        let this_toggle = command & 0x10 != 0;
+        let this_toggle = command & facts::TOGGLE != 0;
         if this_toggle != toggle {
             return abort_frame(index, subindex, abort::TOGGLE_BIT);
         }
@@ -422,10 +422,10 @@ impl CoeServer {
         let n = if segment.len() > 7 {
             segment.len()
         } else {
-            (7 - ((command >> 1) & 0x07) as usize).min(segment.len())
+            (7 - ((command >> facts::SEGMENT_UNUSED_SHIFT) & 0x07) as usize).min(segment.len())
         };
         data.extend_from_slice(&segment[..n]);
-        let last = command & 0x01 != 0;
+        let last = command & facts::LAST_SEGMENT != 0;
         if data.len() > size {
             return abort_frame(index, subindex, abort::LENGTH_TOO_HIGH);
         }
@@ -446,10 +446,10 @@ impl CoeServer {
                 toggle: !toggle,
             };
         }
-        let t = if this_toggle { 0x10 } else { 0 };
+        let t = if this_toggle { facts::TOGGLE } else { 0 };
         let mut v = Vec::with_capacity(10);
         v.extend_from_slice(&coe_header(service::SDO_RESPONSE));
-        v.push(cs::DOWNLOAD_SEGMENT_RESP << 5 | t);
+        v.push(cs::DOWNLOAD_SEGMENT_RESP << facts::SPECIFIER_SHIFT | t);
         v.extend_from_slice(&[0; 7]);
         v
     }
@@ -457,20 +457,26 @@ impl CoeServer {
     fn upload_initiate(&mut self, r: &[u8], od: &ObjectDictionary, max_payload: usize) -> Vec<u8> {
         self.transfer = Transfer::Idle;
         let (command, index, subindex) = (r[2], u16_at(r, 3).unwrap_or(0), r[5]);
-        let complete_access = command & 0x10 != 0;
+        let complete_access = command & facts::COMPLETE_ACCESS != 0;
         let data = match Self::read(od, index, subindex, complete_access) {
             Ok(d) => d,
             Err(code) => return abort_frame(index, subindex, code),
         };
-        let ca = if complete_access { 0x10 } else { 0 };
-        let resp = cs::UPLOAD_INITIATE_RESP << 5 | ca;
+        let ca = if complete_access {
+            facts::COMPLETE_ACCESS
+        } else {
+            0
+        };
+        let resp = cs::UPLOAD_INITIATE_RESP << facts::SPECIFIER_SHIFT | ca;
         if (1..=4).contains(&data.len()) {
             let mut d = [0u8; 4];
             d[..data.len()].copy_from_slice(&data);
             let unused = (4 - data.len()) as u8;
             return sdo_frame(
                 service::SDO_RESPONSE,
-                resp | unused << 2 | 0x03,
+                resp | unused << facts::EXPEDITED_UNUSED_SHIFT
+                    | facts::EXPEDITED
+                    | facts::SIZE_INDICATED,
                 index,
                 subindex,
                 d,
@@ -481,7 +487,7 @@ impl CoeServer {
         let first = data.len().min(max_payload - 10);
         let mut v = sdo_frame(
             service::SDO_RESPONSE,
-            resp | 0x01,
+            resp | facts::SIZE_INDICATED,
             index,
             subindex,
             (data.len() as u32).to_le_bytes(),
@@ -510,7 +516,7 @@ impl CoeServer {
         else {
             return abort_frame(0, 0, abort::INVALID_COMMAND);
         };
-        let this_toggle = command & 0x10 != 0;
+        let this_toggle = command & facts::TOGGLE != 0;
         if this_toggle != toggle {
             return abort_frame(index, subindex, abort::TOGGLE_BIT);
         }
@@ -520,8 +526,8 @@ impl CoeServer {
         let mut v = Vec::with_capacity(3 + n.max(7));
         v.extend_from_slice(&coe_header(service::SDO_RESPONSE));
         v.push(
-            cs::UPLOAD_SEGMENT_RESP << 5
-                | if this_toggle { 0x10 } else { 0 }
+            cs::UPLOAD_SEGMENT_RESP << facts::SPECIFIER_SHIFT
+                | if this_toggle { facts::TOGGLE } else { 0 }
                 | unused << 1
                 | u8::from(last),
         );
@@ -734,7 +740,7 @@ impl CoeServer {
             return;
         };
         let body = &r[r.len().min(6)..];
-        let result = match opcode & 0x7F {
+        let result = match opcode & info::OPCODE_MASK {
             info::OD_LIST_REQ => Self::od_list(body, od).map(|b| (info::OD_LIST_RESP, b)),
             info::OBJECT_DESC_REQ => {
                 Self::object_description(body, od).map(|b| (info::OBJECT_DESC_RESP, b))
@@ -863,20 +869,25 @@ impl CoeServer {
             return Err(abort::NO_OBJECT);
         }
         let e = od.entry(index, subindex).ok_or(abort::NO_SUBINDEX)?;
-        // Object access bits: 0..=2 read in PREOP/SAFEOP/OP, 3..=5 write in PREOP/SAFEOP/OP,
-        // 6 RxPDO mappable, 7 TxPDO mappable.
+        // Object access bits (the protocol crate's): read and write per state, mappable.
         let mut access: u16 = 0;
         if e.access != Access::WriteOnly {
-            access |= 0x07;
+            access |= facts::ACCESS_READ;
         }
         if e.access != Access::ReadOnly {
-            access |= if is_pdo_config(index) { 0x08 } else { 0x38 };
+            // PDO configuration objects are writable in PREOP only (bit 3).
+            let preop_only = facts::ACCESS_WRITE & !(facts::ACCESS_WRITE << 1);
+            access |= if is_pdo_config(index) {
+                preop_only
+            } else {
+                facts::ACCESS_WRITE
+            };
         }
         if Self::is_rx_mappable(e) {
-            access |= 0x40;
+            access |= facts::ACCESS_RXPDO;
         }
         if Self::is_tx_mappable(e) {
-            access |= 0x80;
+            access |= facts::ACCESS_TXPDO;
         }
         let mut v = Vec::with_capacity(10 + e.name.len());
         v.extend_from_slice(&index.to_le_bytes());

@@ -8,7 +8,9 @@
 
 use std::collections::VecDeque;
 
-use ether_ros_protocol::reg;
+use ether_ros_protocol::reg::{self, dc, dl, sm as smr};
+use ether_ros_protocol::sii::{category as sii_category, word as sii_word};
+use ether_ros_protocol::{al, coe as coe_facts, mailbox};
 
 use crate::coe::CoeServer;
 use crate::dc::{encode_time_difference, DcClock};
@@ -21,7 +23,7 @@ use crate::sm::{SyncManager, ACT_ENABLE, ACT_REPEAT, WATCHDOG_TRIGGER};
 use crate::spec::{MailboxSpec, SlaveSpec};
 
 pub const MEM_SIZE: usize = 0x1_0000;
-pub const REGISTER_END: usize = 0x1000;
+pub const REGISTER_END: usize = reg::PDRAM as usize;
 pub const N_FMMU: usize = 8;
 pub const N_SM: usize = 8;
 /// Default watchdog divider (100 µs units) and process-data watchdog time (100 ms).
@@ -30,8 +32,10 @@ const DEFAULT_WD_TIME: u16 = 0x03E8;
 /// Catch-up bound for device steps: beyond this the device skips ahead.
 pub const MAX_CATCH_UP_NS: u64 = 100_000_000;
 /// CoE emergency error codes of refused AL state transitions (ETG.1000.6).
-const EMERGENCY_PREOP_TO_SAFEOP: u16 = 0xA000;
-const EMERGENCY_SAFEOP_TO_OP: u16 = 0xA001;
+use ether_ros_protocol::emergency::{
+    PREOP_TO_SAFEOP_FAILED as EMERGENCY_PREOP_TO_SAFEOP,
+    SAFEOP_TO_OP_FAILED as EMERGENCY_SAFEOP_TO_OP,
+};
 /// Mailbox messages queued at most for the master (older ones are kept, new ones dropped).
 const MAILBOX_QUEUE_LIMIT: usize = 32;
 
@@ -53,30 +57,65 @@ pub struct SlaveCounters {
     pub al_errors: u64,
 }
 
+/// A register address as an offset into the ESC memory.
+const fn at(register: u16) -> usize {
+    register as usize
+}
+
+/// Registers the master may write, as (first, bytes); special registers (SII control, FMMUs,
+/// SMs, counters that clear on write) are handled by `register_write` itself.
+const WRITABLE: [(u16, u16); 16] = [
+    (reg::STATION_ADDRESS, 2),
+    (reg::DL_CONTROL, 4),
+    (reg::AL_CONTROL, 2),
+    (reg::ECAT_EVENT_MASK, 4),
+    (reg::WATCHDOG_DIVIDER, 2),
+    (reg::WATCHDOG_TIME_PDI, 2),
+    (reg::WATCHDOG_TIME_PD, 2),
+    (reg::SII_CONFIG, 2),
+    (reg::SII_ADDRESS, 12),
+    (reg::MII_MANAGEMENT, 8),
+    (reg::DC_SYSTEM_TIME_OFFSET, 12),
+    (reg::DC_SPEED_COUNTER_START, 2),
+    (reg::DC_FILTER_DEPTH, 2),
+    (reg::DC_CYCLIC_UNIT_CONTROL, 2),
+    (reg::DC_START_TIME, 8),
+    (reg::DC_SYNC0_CYCLE, 10),
+];
+
+/// `WRITABLE` as one flag per register byte (built at compile time: one load per byte).
+static WRITABLE_BYTES: [bool; REGISTER_END] = {
+    let mut map = [false; REGISTER_END];
+    let mut i = 0;
+    while i < WRITABLE.len() {
+        let (first, len) = WRITABLE[i];
+        let mut k = 0;
+        while k < len {
+            map[(first + k) as usize] = true;
+            k += 1;
+        }
+        i += 1;
+    }
+    map
+};
+
 /// Is a register byte writable by the master? (Special registers are handled by hooks.)
 fn reg_writable(a: usize) -> bool {
-    matches!(a,
-        0x0010..=0x0011
-        | 0x0100..=0x0103
-        | 0x0120..=0x0121
-        | 0x0200..=0x0203
-        | 0x0400..=0x0401
-        | 0x0410..=0x0411
-        | 0x0420..=0x0421
-        | 0x0500..=0x0501
-        | 0x0504..=0x050F
-        | 0x0510..=0x0517
-        | 0x0600..=0x067F
-        | 0x0920..=0x092B
-        | 0x0930..=0x0931
-        | 0x0934..=0x0935
-        | 0x0980..=0x0981
-        | 0x0990..=0x0997
-        | 0x09A0..=0x09A9)
+    a < REGISTER_END && WRITABLE_BYTES[a]
 }
 
 fn overlaps(a: usize, len: usize, lo: usize, hi: usize) -> bool {
     a < hi && a + len > lo
+}
+
+/// End of the SyncManager registers this model has.
+const SM_END: usize = at(reg::SM0) + N_SM * at(reg::SM_LEN);
+/// End of the FMMU registers this model has.
+const FMMU_END: usize = at(reg::FMMU0) + N_FMMU * at(reg::FMMU_LEN);
+
+/// First register of SyncManager `k`.
+const fn sm_base(k: usize) -> usize {
+    at(reg::SM0) + k * at(reg::SM_LEN)
 }
 
 pub struct Esc {
@@ -139,27 +178,28 @@ impl Esc {
             od.add_entry(e.clone());
         }
         let sii = Sii::new(spec.sii.clone());
-        let w = |n: usize| sii::word(&sii.image, n);
-        let mailbox = if w(0x19) != 0 && w(0x1B) != 0 {
+        let w = |n: u16| sii::word(&sii.image, n as usize);
+        let mailbox = if w(sii_word::STD_RX_MBX_SIZE) != 0 && w(sii_word::STD_TX_MBX_SIZE) != 0 {
             Some(MailboxSpec {
-                rx_offset: w(0x18),
-                rx_size: w(0x19),
-                tx_offset: w(0x1A),
-                tx_size: w(0x1B),
+                rx_offset: w(sii_word::STD_RX_MBX_OFFSET),
+                rx_size: w(sii_word::STD_RX_MBX_SIZE),
+                tx_offset: w(sii_word::STD_TX_MBX_OFFSET),
+                tx_size: w(sii_word::STD_TX_MBX_SIZE),
             })
         } else {
             spec.mailbox
         };
-        let boot_mailbox = if w(0x15) != 0 && w(0x17) != 0 {
-            Some(MailboxSpec {
-                rx_offset: w(0x14),
-                rx_size: w(0x15),
-                tx_offset: w(0x16),
-                tx_size: w(0x17),
-            })
-        } else {
-            None
-        };
+        let boot_mailbox =
+            if w(sii_word::BOOT_RX_MBX_SIZE) != 0 && w(sii_word::BOOT_TX_MBX_SIZE) != 0 {
+                Some(MailboxSpec {
+                    rx_offset: w(sii_word::BOOT_RX_MBX_OFFSET),
+                    rx_size: w(sii_word::BOOT_RX_MBX_SIZE),
+                    tx_offset: w(sii_word::BOOT_TX_MBX_OFFSET),
+                    tx_size: w(sii_word::BOOT_TX_MBX_SIZE),
+                })
+            } else {
+                None
+            };
         // Process-data SyncManagers: from the SII SyncM category, else the usual layout.
         let sms = sii::sync_managers(&sii.image);
         let find = |kind: u8| sms.iter().position(|s| s.kind == kind);
@@ -261,7 +301,7 @@ impl Esc {
         let chip = self.spec.esc.profile();
         self.mem[reg::TYPE as usize] = chip.type_code;
         self.mem[reg::TYPE as usize + 1] = chip.revision;
-        self.put16(0x0002, chip.build);
+        self.put16(reg::BUILD, chip.build);
         self.mem[reg::FMMU_COUNT as usize] = chip.fmmus;
         self.mem[reg::SM_COUNT as usize] = chip.sync_managers;
         self.mem[reg::RAM_SIZE as usize] = ((self.pdram_end - REGISTER_END) / 1024) as u8;
@@ -312,26 +352,26 @@ impl Esc {
         self.get16(reg::SII_CONTROL) & sii::NOT_LOADED == 0
     }
 
-    /// DL status (0x0110) from the ports' link state: per port p, a link is bit 4+p and an
-    /// open port with communication bit 9+2p; a port without a link has its loop closed
-    /// (bit 8+2p). Bit 1: PDI watchdog not expired.
+    /// DL status (0x0110) from the ports' link state: an open port has its link and
+    /// communication bits, a port without a link its loop closed (`dl::port_bits`); the PDI
+    /// watchdog never expires; the PDI is operational once the EEPROM is loaded.
     pub fn update_dl_status(&mut self) {
-        let mut s: u16 = 0x0002;
+        let mut s = dl::STATUS_PDI_WATCHDOG;
         if self.eeprom_loaded() {
-            s |= 0x0001;
+            s |= dl::STATUS_PDI_OPERATIONAL;
         }
         for p in 0..4 {
-            if self.open_ports & (1 << p) != 0 {
-                s |= (1 << (4 + p)) | (1 << (9 + 2 * p));
-            } else {
-                s |= 1 << (8 + 2 * p);
-            }
+            s |= dl::port_bits(p, self.open_ports & (1 << p) != 0);
         }
         self.put16(reg::DL_STATUS, s);
     }
 
     pub fn update_al_registers(&mut self) {
-        let status = self.al_state as u16 | if self.al_error { 0x10 } else { 0 };
+        let status = al::AlStatus {
+            state: self.al_state,
+            error: self.al_error,
+        }
+        .encode();
         self.put16(reg::AL_STATUS, status);
         self.put16(reg::AL_STATUS_CODE, self.al_code);
     }
@@ -356,7 +396,7 @@ impl Esc {
     }
 
     pub fn alias_enabled(&self) -> bool {
-        self.mem[0x0103] & 1 != 0
+        self.mem[at(reg::DL_CONTROL_ALIAS)] & 1 != 0
     }
 
     /// Does a configured-address datagram with ADP `adp` address this slave?
@@ -540,18 +580,20 @@ impl Esc {
     }
 
     fn refresh_registers(&mut self, a: usize, len: usize) {
-        if overlaps(a, len, 0x0800, 0x0800 + N_SM * 8) {
+        if overlaps(a, len, at(reg::SM0), SM_END) {
             for k in 0..N_SM {
-                let base = 0x0800 + k * 8;
-                self.mem[base + 5] = self.sm[k].status();
-                self.mem[base + 7] = self.sm[k].pdi_control();
+                let base = sm_base(k);
+                self.mem[base + at(smr::STATUS)] = self.sm[k].status();
+                self.mem[base + at(smr::PDI_CONTROL)] = self.sm[k].pdi_control();
             }
         }
-        if overlaps(a, len, 0x0910, 0x0918) {
+        if overlaps(a, len, at(reg::DC_SYSTEM_TIME), at(reg::DC_SYSTEM_TIME) + 8) {
             let t = self.system_time();
             self.put64(reg::DC_SYSTEM_TIME, t);
         }
-        if overlaps(a, len, 0x0502, 0x0504) && !self.sii.busy(self.now) {
+        if overlaps(a, len, at(reg::SII_CONTROL), at(reg::SII_CONTROL) + 2)
+            && !self.sii.busy(self.now)
+        {
             let v = self.get16(reg::SII_CONTROL) & !sii::BUSY;
             self.put16(reg::SII_CONTROL, v);
         }
@@ -564,8 +606,13 @@ impl Esc {
             *o = if or { *o | v } else { v };
         }
         // SYNC0 status clears on read.
-        if overlaps(a, seg.len(), 0x098E, 0x098F) {
-            self.mem[0x098E] = 0;
+        if overlaps(
+            a,
+            seg.len(),
+            at(reg::DC_SYNC0_STATUS),
+            at(reg::DC_SYNC0_STATUS) + 1,
+        ) {
+            self.mem[at(reg::DC_SYNC0_STATUS)] = 0;
         }
     }
 
@@ -574,9 +621,9 @@ impl Esc {
         // SyncManager configuration bytes are locked while the SM is enabled, unless the same
         // write disables it.
         let mut sm_config_ok = [true; N_SM];
-        if overlaps(a, len, 0x0800, 0x0800 + N_SM * 8) {
+        if overlaps(a, len, at(reg::SM0), SM_END) {
             for (k, ok) in sm_config_ok.iter_mut().enumerate() {
-                let act_addr = 0x0800 + k * 8 + 6;
+                let act_addr = sm_base(k) + at(smr::ACTIVATE);
                 let new_act = if act_addr >= a && act_addr < a + len {
                     seg[act_addr - a]
                 } else {
@@ -589,22 +636,38 @@ impl Esc {
         for (i, &v) in seg.iter().enumerate() {
             let r = a + i;
             match r {
-                0x0300..=0x0313 | 0x0442..=0x0443 => self.mem[r] = 0,
-                0x0502 => {
+                // Error and watchdog counters clear on any write.
+                _ if (at(reg::RX_ERROR_COUNTER)..at(reg::LOST_LINK_COUNTER) + 4).contains(&r)
+                    || (at(reg::WATCHDOG_COUNTER_PD)..=at(reg::WATCHDOG_COUNTER_PDI))
+                        .contains(&r) =>
+                {
+                    self.mem[r] = 0
+                }
+                _ if r == at(reg::SII_CONTROL) => {
                     let c = self.get16(reg::SII_CONTROL);
                     sii_cmd = Some((c & 0xff00) | v as u16);
                 }
-                0x0503 => {
+                _ if r == at(reg::SII_CONTROL) + 1 => {
                     let lo = sii_cmd.unwrap_or(0) & 0x00ff;
                     sii_cmd = Some(lo | ((v as u16) << 8));
                 }
-                0x0600..=0x067F if (r - 0x0600) / 16 >= self.fmmu_count() => {}
-                0x0800..=0x083F if (r - 0x0800) / 8 >= self.sm_count() => {}
-                0x0800..=0x083F => {
-                    let k = (r - 0x0800) / 8;
-                    match (r - 0x0800) % 8 {
-                        0..=4 if sm_config_ok[k] => self.mem[r] = v,
-                        6 => self.mem[r] = v,
+                // FMMUs the chip does not have ignore writes (not in WRITABLE either).
+                _ if (at(reg::FMMU0)..FMMU_END).contains(&r)
+                    && (r - at(reg::FMMU0)) / at(reg::FMMU_LEN) < self.fmmu_count() =>
+                {
+                    self.mem[r] = v;
+                }
+                _ if (at(reg::SM0)..SM_END).contains(&r) => {
+                    let k = (r - at(reg::SM0)) / at(reg::SM_LEN);
+                    if k >= self.sm_count() {
+                        continue;
+                    }
+                    // Start, length and control are locked while enabled; activate is not;
+                    // status and PDI control are the slave's.
+                    let offset = ((r - at(reg::SM0)) % at(reg::SM_LEN)) as u16;
+                    match offset {
+                        smr::START..=smr::CONTROL if sm_config_ok[k] => self.mem[r] = v,
+                        smr::ACTIVATE => self.mem[r] = v,
                         _ => {}
                     }
                 }
@@ -613,40 +676,41 @@ impl Esc {
             }
         }
         // Hooks, in register order.
-        if overlaps(a, len, 0x0120, 0x0122) {
+        if overlaps(a, len, at(reg::AL_CONTROL), at(reg::AL_CONTROL) + 2) {
             let ctl = self.get16(reg::AL_CONTROL);
             self.request_state(ctl);
         }
         if let Some(ctl) = sii_cmd {
             self.sii_command(ctl);
         }
-        if overlaps(a, len, 0x0600, 0x0600 + N_FMMU * 16) {
+        if overlaps(a, len, at(reg::FMMU0), FMMU_END) {
             self.fmmus.clear();
             for k in 0..N_FMMU {
-                let base = 0x0600 + k * 16;
-                if let Some(f) = Fmmu::decode(&self.mem[base..base + 16]) {
+                let base = at(reg::FMMU0) + k * at(reg::FMMU_LEN);
+                if let Some(f) = Fmmu::decode(&self.mem[base..base + at(reg::FMMU_LEN)]) {
                     self.fmmus.push(f);
                 }
             }
         }
-        if overlaps(a, len, 0x0800, 0x0800 + N_SM * 8) {
+        if overlaps(a, len, at(reg::SM0), SM_END) {
             for k in 0..N_SM {
-                let base = 0x0800 + k * 8;
-                if overlaps(a, len, base, base + 8) {
+                let base = sm_base(k);
+                if overlaps(a, len, base, base + at(reg::SM_LEN)) {
                     self.sm_configured(k);
                 }
             }
         }
-        if overlaps(a, len, 0x0900, 0x0904) {
+        let dc_register = |r: u16, n: usize| overlaps(a, len, at(r), at(r) + n);
+        if dc_register(reg::DC_RECEIVE_TIME_PORT0, 4) {
             self.latch_receive_times();
         }
-        if overlaps(a, len, 0x0910, 0x0918) {
+        if dc_register(reg::DC_SYSTEM_TIME, 8) {
             self.system_time_compare(a, seg);
         }
-        if overlaps(a, len, 0x0930, 0x0932) {
+        if dc_register(reg::DC_SPEED_COUNTER_START, 2) {
             self.dc.reset_loop(self.now);
         }
-        if overlaps(a, len, 0x0981, 0x0982) {
+        if dc_register(reg::DC_ACTIVATION, 1) {
             self.dc_activation();
         }
     }
@@ -663,10 +727,10 @@ impl Esc {
         }
         let address = self.get32(reg::SII_ADDRESS);
         let mut data = [0u8; 8];
-        data.copy_from_slice(&self.mem[0x0508..0x0510]);
+        data.copy_from_slice(&self.mem[at(reg::SII_DATA)..at(reg::SII_DATA) + 8]);
         let mut status = self.sii.execute(ctl, address, &mut data, self.now);
         if ctl & sii::CMD_MASK == sii::CMD_READ {
-            self.mem[0x0508..0x0510].copy_from_slice(&data);
+            self.mem[at(reg::SII_DATA)..at(reg::SII_DATA) + 8].copy_from_slice(&data);
         }
         if ctl & sii::CMD_MASK == sii::CMD_RELOAD && status & sii::CHECKSUM_ERROR == 0 {
             self.load_eeprom();
@@ -679,11 +743,16 @@ impl Esc {
     }
 
     fn sm_configured(&mut self, k: usize) {
-        let base = 0x0800 + k * 8;
-        let start = u16::from_le_bytes([self.mem[base], self.mem[base + 1]]);
-        let len = u16::from_le_bytes([self.mem[base + 2], self.mem[base + 3]]);
-        let control = self.mem[base + 4];
-        let activate = self.mem[base + 6];
+        let base = sm_base(k);
+        let field = |offset: u16| base + at(offset);
+        let start =
+            u16::from_le_bytes([self.mem[field(smr::START)], self.mem[field(smr::START) + 1]]);
+        let len = u16::from_le_bytes([
+            self.mem[field(smr::LENGTH)],
+            self.mem[field(smr::LENGTH) + 1],
+        ]);
+        let control = self.mem[field(smr::CONTROL)];
+        let activate = self.mem[field(smr::ACTIVATE)];
         let s = &mut self.sm[k];
         let changed = s.start != start || s.len != len || s.control != control;
         let enabling = activate & ACT_ENABLE != 0 && s.activate & ACT_ENABLE == 0;
@@ -728,9 +797,10 @@ impl Esc {
         let mut n = 0;
         for (i, &b) in seg.iter().enumerate() {
             let r = a + i;
-            if (0x0910..0x0918).contains(&r) {
-                v[r - 0x0910] = b;
-                n = n.max(r - 0x0910 + 1);
+            let time = at(reg::DC_SYSTEM_TIME);
+            if (time..time + 8).contains(&r) {
+                v[r - time] = b;
+                n = n.max(r - time + 1);
             }
         }
         let received = u64::from_le_bytes(v);
@@ -750,7 +820,8 @@ impl Esc {
     fn dc_activation(&mut self) {
         let act = self.mem[reg::DC_ACTIVATION as usize];
         let cycle = self.get32(reg::DC_SYNC0_CYCLE) as u64;
-        if !self.spec.dc_supported || act & 0x03 != 0x03 || cycle == 0 {
+        let sync0 = dc::ACTIVATE_CYCLIC | dc::ACTIVATE_SYNC0;
+        if !self.spec.dc_supported || act & sync0 != sync0 || cycle == 0 {
             self.sync0_next = None;
             self.sync0_cycle = 0;
             return;
@@ -902,8 +973,8 @@ impl Esc {
     /// The master wrote AL control.
     pub fn request_state(&mut self, ctl: u16) {
         use ether_ros_protocol::al::*;
-        let requested = (ctl & 0x0f) as u8;
-        let ack = ctl & 0x10 != 0;
+        let requested = ctl as u8 & STATE_MASK;
+        let ack = ctl as u8 & ERROR != 0;
         if self.al_error {
             if !ack {
                 // An error must be acknowledged before the slave follows a new request.
@@ -971,8 +1042,9 @@ impl Esc {
         if self.mailbox.is_some() && self.al_state != ether_ros_protocol::al::INIT {
             // CoE emergency "state machine transition error" carrying the AL status code.
             let c = code.to_le_bytes();
-            let msg = CoeServer::emergency(emergency, 0x01, [c[0], c[1], 0, 0, 0]);
-            self.queue_mailbox(ether_ros_protocol::mailbox::TYPE_COE, msg);
+            let generic = ether_ros_protocol::emergency::ERROR_REGISTER_GENERIC;
+            let msg = CoeServer::emergency(emergency, generic, [c[0], c[1], 0, 0, 0]);
+            self.queue_mailbox(mailbox::TYPE_COE, msg);
         }
     }
 
@@ -1039,11 +1111,11 @@ impl Esc {
         let ok0 = s0.configured()
             && s0.start == m.rx_offset
             && s0.len == m.rx_size
-            && s0.control & 0x0f == 0x06;
+            && s0.control & (smr::MODE_MASK | smr::DIR_MASK) == smr::MODE_MAILBOX | smr::DIR_WRITE;
         let ok1 = s1.configured()
             && s1.start == m.tx_offset
             && s1.len == m.tx_size
-            && s1.control & 0x0f == 0x02;
+            && s1.control & (smr::MODE_MASK | smr::DIR_MASK) == smr::MODE_MAILBOX | smr::DIR_READ;
         if ok0 && ok1 {
             Ok(())
         } else {
@@ -1054,15 +1126,15 @@ impl Esc {
     /// Recompute the process-data maps from the dictionary (or the SII).
     fn build_maps(&mut self) -> Result<(), u16> {
         use ether_ros_protocol::al::*;
-        let out = match crate::pdo::from_od(&self.od, 0x1C12) {
+        let out = match crate::pdo::from_od(&self.od, coe_facts::RXPDO_ASSIGN) {
             Some(Ok(m)) => m,
             Some(Err(_)) => return Err(INVALID_OUTPUT_MAPPING),
-            None => self.sii_map(51, self.out_sm),
+            None => self.sii_map(sii_category::RXPDO, self.out_sm),
         };
-        let inp = match crate::pdo::from_od(&self.od, 0x1C13) {
+        let inp = match crate::pdo::from_od(&self.od, coe_facts::TXPDO_ASSIGN) {
             Some(Ok(m)) => m,
             Some(Err(_)) => return Err(INVALID_INPUT_MAPPING),
-            None => self.sii_map(50, self.in_sm),
+            None => self.sii_map(sii_category::TXPDO, self.in_sm),
         };
         self.out_map = out;
         self.in_map = inp;
@@ -1086,13 +1158,23 @@ impl Esc {
             if bytes == 0 {
                 !s.configured()
             } else {
-                s.configured() && s.len as usize == bytes && s.control & 0x0f == control
+                s.configured()
+                    && s.len as usize == bytes
+                    && s.control & (smr::MODE_MASK | smr::DIR_MASK) == control
             }
         };
-        if !check(&self.sm[self.out_sm], self.out_map.bytes(), 0x04) {
+        if !check(
+            &self.sm[self.out_sm],
+            self.out_map.bytes(),
+            smr::MODE_BUFFERED | smr::DIR_WRITE,
+        ) {
             return Err(INVALID_OUTPUT_CONFIG);
         }
-        if !check(&self.sm[self.in_sm], self.in_map.bytes(), 0x00) {
+        if !check(
+            &self.sm[self.in_sm],
+            self.in_map.bytes(),
+            smr::MODE_BUFFERED | smr::DIR_READ,
+        ) {
             return Err(INVALID_INPUT_CONFIG);
         }
         if self.spec.dc_required && !self.sync0_active() {
@@ -1151,10 +1233,15 @@ impl Esc {
 
     fn queue_mailbox(&mut self, kind: u8, payload: Vec<u8>) {
         if self.mbx_queue.len() < MAILBOX_QUEUE_LIMIT {
-            let mut msg =
-                Vec::with_capacity(ether_ros_protocol::mailbox::HEADER_LEN + payload.len());
-            msg.extend_from_slice(&(payload.len() as u16).to_le_bytes());
-            msg.extend_from_slice(&[0, 0, 0, kind & 0x0f]);
+            let mut msg = Vec::with_capacity(mailbox::HEADER_LEN + payload.len());
+            let header = mailbox::Header {
+                length: payload.len() as u16,
+                address: 0,
+                channel: 0,
+                mbx_type: kind,
+                counter: 0,
+            };
+            msg.extend_from_slice(&header.encode());
             msg.extend_from_slice(&payload);
             self.mbx_queue.push_back(msg);
         }
@@ -1163,9 +1250,9 @@ impl Esc {
     fn mailbox_error(&mut self, detail: u16) {
         self.counters.mailbox_errors += 1;
         let mut p = Vec::with_capacity(4);
-        p.extend_from_slice(&1u16.to_le_bytes());
+        p.extend_from_slice(&mailbox::ERROR_REPLY_TYPE.to_le_bytes());
         p.extend_from_slice(&detail.to_le_bytes());
-        self.queue_mailbox(ether_ros_protocol::mailbox::TYPE_ERR, p);
+        self.queue_mailbox(mailbox::TYPE_ERR, p);
     }
 
     /// The slave application's mailbox work: consume a full write mailbox, fill an empty read
@@ -1180,45 +1267,41 @@ impl Esc {
             let end = (start + self.sm[0].len as usize).min(MEM_SIZE);
             let area = &self.mem[start..end];
             let len = area.len();
-            let (msg_len, kind, counter) = if len >= ether_ros_protocol::mailbox::HEADER_LEN {
-                let l = u16::from_le_bytes([area[0], area[1]]) as usize;
-                (l, area[5] & 0x0f, (area[5] >> 4) & 0x07)
-            } else {
-                (0, 0, 0)
+            let (msg_len, kind, counter) = match mailbox::Header::decode(area) {
+                Some(h) => (h.length as usize, h.mbx_type, h.counter),
+                None => (0, 0, 0),
             };
             self.sm[0].full = false;
             self.counters.mailbox_received += 1;
             let repeated = counter != 0 && counter == self.mbx_last_rx_counter;
             self.mbx_last_rx_counter = counter;
-            if len < ether_ros_protocol::mailbox::HEADER_LEN
-                || msg_len + ether_ros_protocol::mailbox::HEADER_LEN > len
-            {
-                self.mailbox_error(0x0008); // invalid size
-            } else if msg_len < 2 && kind == ether_ros_protocol::mailbox::TYPE_COE {
-                self.mailbox_error(0x0006); // size too short
+            if len < mailbox::HEADER_LEN || msg_len + mailbox::HEADER_LEN > len {
+                self.mailbox_error(mailbox::ERR_INVALID_SIZE);
+            } else if msg_len < 2 && kind == mailbox::TYPE_COE {
+                self.mailbox_error(mailbox::ERR_SIZE_TOO_SHORT);
             } else if repeated {
                 // A retry of the message already handled: ignore it.
-            } else if kind == ether_ros_protocol::mailbox::TYPE_COE {
+            } else if kind == mailbox::TYPE_COE {
                 let mut out = Vec::new();
-                let max_payload = (self.sm[1].len as usize)
-                    .saturating_sub(ether_ros_protocol::mailbox::HEADER_LEN);
-                let data_start = start + ether_ros_protocol::mailbox::HEADER_LEN;
+                let max_payload = (self.sm[1].len as usize).saturating_sub(mailbox::HEADER_LEN);
+                let data_start = start + mailbox::HEADER_LEN;
                 let request = self.mem[data_start..data_start + msg_len].to_vec();
                 self.coe
                     .handle(&request, &mut self.od, self.al_state, max_payload, &mut out);
                 for p in out {
-                    self.queue_mailbox(ether_ros_protocol::mailbox::TYPE_COE, p);
+                    self.queue_mailbox(mailbox::TYPE_COE, p);
                 }
             } else {
-                self.mailbox_error(0x0002); // unsupported protocol
+                self.mailbox_error(mailbox::ERR_UNSUPPORTED_PROTOCOL);
             }
         }
         let s1 = &self.sm[1];
         if !self.mbx_queue.is_empty() && s1.enabled() && s1.is_mailbox() && !s1.full {
             if let Some(mut msg) = self.mbx_queue.pop_front() {
                 self.mbx_tx_counter = self.mbx_tx_counter % 7 + 1;
-                if let Some(b) = msg.get_mut(5) {
-                    *b = (*b & 0x8f) | (self.mbx_tx_counter << 4);
+                if let Some(mut header) = mailbox::Header::decode(&msg) {
+                    header.counter = self.mbx_tx_counter;
+                    msg[..mailbox::HEADER_LEN].copy_from_slice(&header.encode());
                 }
                 self.place_in_read_mailbox(&msg);
                 self.mbx_last_sent = msg;
@@ -1370,7 +1453,7 @@ impl Esc {
         while let Some(e) = self.device.as_mut().and_then(|d| d.take_emergency()) {
             if self.mailbox.is_some() && self.al_state != ether_ros_protocol::al::INIT {
                 let msg = CoeServer::emergency(e.error_code, e.error_register, e.data);
-                self.queue_mailbox(ether_ros_protocol::mailbox::TYPE_COE, msg);
+                self.queue_mailbox(mailbox::TYPE_COE, msg);
             }
         }
     }

@@ -4,25 +4,17 @@
 
 use std::collections::{BTreeMap, HashMap};
 
-/// ETG.1000.6 data type codes used by the simulator.
+/// ETG.1000.6 data type codes: the protocol crate's (`ether_ros_protocol::dtype`).
 pub mod dtype {
-    pub const BOOL: u16 = 0x0001;
-    pub const INT8: u16 = 0x0002;
-    pub const INT16: u16 = 0x0003;
-    pub const INT32: u16 = 0x0004;
-    pub const UINT8: u16 = 0x0005;
-    pub const UINT16: u16 = 0x0006;
-    pub const UINT32: u16 = 0x0007;
-    pub const REAL32: u16 = 0x0008;
-    pub const VISIBLE_STRING: u16 = 0x0009;
-    pub const OCTET_STRING: u16 = 0x000A;
-    pub const INT64: u16 = 0x0015;
-    pub const REAL64: u16 = 0x0011;
-    pub const UINT64: u16 = 0x001B;
+    use ether_ros_protocol::dtype::{by_code, Kind};
+    pub use ether_ros_protocol::dtype::{
+        BOOL, INT16, INT24, INT32, INT64, INT8, OCTET_STRING, REAL32, REAL64, UINT16, UINT24,
+        UINT32, UINT64, UINT8, VISIBLE_STRING,
+    };
 
     /// Signed integer types (their values are sign-extended when read as i64).
     pub fn is_signed(t: u16) -> bool {
-        matches!(t, INT8 | INT16 | INT32 | INT64)
+        by_code(t).is_some_and(|d| d.kind == Kind::Int)
     }
 }
 

@@ -12,18 +12,11 @@
 //! three buffers live outside the 64 KiB memory; the master sees them at the configured
 //! address as on a real ESC.
 
-/// Control byte: operation mode bits.
-pub const MODE_MASK: u8 = 0x03;
-pub const MODE_BUFFERED: u8 = 0x00;
-pub const MODE_MAILBOX: u8 = 0x02;
-/// Control byte: direction bits (0 = ECAT reads, 1 = ECAT writes).
-pub const DIR_MASK: u8 = 0x0c;
-pub const DIR_ECAT_WRITES: u8 = 0x04;
-/// Control byte: watchdog trigger enable.
-pub const WATCHDOG_TRIGGER: u8 = 0x40;
-/// Activate byte: enable, repeat request.
-pub const ACT_ENABLE: u8 = 0x01;
-pub const ACT_REPEAT: u8 = 0x02;
+/// Control, status and activate bits: the protocol crate's (`ether_ros_protocol::reg::sm`).
+pub use ether_ros_protocol::reg::sm::{
+    ACTIVATE_ENABLE as ACT_ENABLE, DIR_MASK, DIR_WRITE as DIR_ECAT_WRITES, MODE_BUFFERED,
+    MODE_MAILBOX, MODE_MASK, REPEAT as ACT_REPEAT, WATCHDOG as WATCHDOG_TRIGGER,
+};
 
 #[derive(Clone, Debug, Default)]
 pub struct SyncManager {

@@ -81,11 +81,11 @@ impl Default for SlaveSpec {
     }
 }
 
-/// SII category of the FMMU usage list (one byte per FMMU the device uses).
-const SII_CATEGORY_FMMU: u16 = 40;
-/// SII categories of the TxPDOs (inputs) and RxPDOs (outputs).
-const SII_CATEGORY_TXPDO: u16 = 50;
-const SII_CATEGORY_RXPDO: u16 = 51;
+/// SII categories: the FMMU usage list (one byte per FMMU the device uses), the TxPDOs
+/// (inputs) and RxPDOs (outputs).
+use ether_ros_protocol::sii::category::{
+    FMMU as SII_CATEGORY_FMMU, RXPDO as SII_CATEGORY_RXPDO, TXPDO as SII_CATEGORY_TXPDO,
+};
 
 impl SlaveSpec {
     /// Whether the chosen chip can carry the device the SII describes, checked the way the

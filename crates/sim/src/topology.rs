@@ -1,35 +1,18 @@
 //! Where each virtual slave is connected, and how a frame walks the tree of ports.
 //!
-//! Facts (Beckhoff ESC datasheet section I, "Frame processing order" and "Loop control"): a
-//! frame entering port 0 passes the EtherCAT processing unit, then leaves through the next port
-//! in the order 0 → 3 → 1 → 2 → 0 (ports a chip does not have are skipped: ET1200 0 → 1 → 2,
-//! two-port chips 0 → 1). A port without a link is closed: the frame is forwarded internally
-//! to the next port at once. What comes back into a port goes out of the next one in the order,
-//! until it leaves through port 0 again. So the frame visits the slaves depth first, in port
-//! order, and that visiting order is the auto-increment order. Only the pass through the
-//! processing unit (after port 0) processes datagrams.
+//! The port order is `ether_ros_protocol::topology`'s (0 → 3 → 1 → 2 → 0, ports a chip does
+//! not have skipped): the frame visits the slaves depth first in port order, and that visiting
+//! order is the auto-increment order. A port without a link is closed: the frame is forwarded
+//! internally to the next port at once. Only the pass through the processing unit (after port
+//! 0) processes datagrams.
 //!
 //! The walk is static between topology changes, so it is computed once (`Walk::compute`) and
 //! each frame only replays it: which slaves, in which order, at what offset from the frame's
 //! arrival at the first slave, and when the frame comes back into each open port (the receive
 //! time latches 0x0900..0x090C).
 
-/// Order in which an ESC passes a frame from port to port (after port 0's processing unit).
-pub const PORT_ORDER: [u8; 4] = [0, 3, 1, 2];
-
-/// Ports after port 0, in the order the frame leaves through them, on a chip with `ports`
-/// ports (0..ports).
-pub fn forwarding_ports(ports: u8) -> impl Iterator<Item = u8> {
-    PORT_ORDER[1..].iter().copied().filter(move |&p| p < ports)
-}
-
-/// Rank of `port` in the forwarding order (port 0 first).
-pub fn order_rank(port: u8) -> usize {
-    PORT_ORDER
-        .iter()
-        .position(|&p| p == port)
-        .unwrap_or(usize::MAX)
-}
+/// The port order (0 → 3 → 1 → 2) and the forwarding ports: the protocol crate's.
+pub use ether_ros_protocol::topology::{forwarding_ports, order_rank, PORT_ORDER};
 
 /// One slave as the walk needs it.
 #[derive(Clone, Copy, Debug)]

@@ -15,7 +15,9 @@ def register(subparsers: Any) -> None:
         description="Operate a running ether_ros node over ROS 2: start/stop/restart, panic "
         "(Ctrl-P or F1), set variables (checked against the ESI types and ranges and the "
         "Laelaps leg workspace), states, statistics, SDO, sequence files. Without -c/--run "
-        "and with a terminal it is interactive; otherwise it reads commands from stdin.",
+        "and with a terminal it is interactive; otherwise it reads commands from stdin. On a "
+        "terminal the keys work while commands run: Ctrl-P/F1 panic, Ctrl-C stops the "
+        "running command (docs/console.md).",
     )
     p.add_argument("--node", default="ether_comm", help="node name (default ether_comm)")
     p.add_argument("--namespace", default="", help="ROS namespace of the node")
@@ -35,10 +37,12 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ether_ros.console.app import Console, repl, run_lines
+    from ether_ros.console.app import Console, bounded_lines, run_lines
+    from ether_ros.console.interactive import repl
     from ether_ros.ros.client import ClientError, EtherRosClient
 
     client = EtherRosClient(args.node, namespace=args.namespace)
+    console: Console | None = None
     try:
         console = Console(client)
         try:
@@ -61,10 +65,13 @@ def run(args: argparse.Namespace) -> int:
         lines = list(args.command)
         if args.run:
             lines.append(f"run {shlex.quote(args.run)}")
+        console.panic_line.ready(timeout=2.0)  # discovered before a key may need it
+        if sys.stdin.isatty() and sys.stdout.isatty():  # keys read while commands run
+            return repl(console, lines=lines or None)
         if lines:
             return run_lines(console, lines)
-        if sys.stdin.isatty():
-            return repl(console)
-        return run_lines(console, [line.rstrip("\n") for line in sys.stdin])
+        return run_lines(console, bounded_lines(sys.stdin.buffer))
     finally:
+        if console is not None:
+            console.close()
         client.close()

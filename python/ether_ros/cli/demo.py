@@ -6,8 +6,11 @@ ROS 2 and prints the tracking error per joint (see ``ether_ros.ros.arm_demo``).
 
 By default the trot is driven through the ROS 2 node (``--via ros``): the simulator and
 ``ether-ros run`` each run in their own process on a veth pair, and the trot of thesis Table 6.1
-is published over ROS 2 only (see ``ether_ros.ros.demo``). ``--via pysoem`` drives the same
-simulated bus with pysoem (SOEM) instead, a check that needs neither our master nor ROS.
+is published over ROS 2 only (see ``ether_ros.ros.demo``). What the ROS 2 client received is
+left in ``--output`` (default ``demo-output/`` in the current directory): ``trot.mcap`` and the
+thesis's Figs. 6.5-6.11 of this run as PNG, with the share of time at the PWM limit per leg and
+joint printed. ``--via pysoem`` drives the same simulated bus with pysoem (SOEM) instead, a check
+that needs neither our master nor ROS.
 
 With pysoem, the demo creates a veth pair (the simulator's end in its own network
 namespace), starts ``ether-ros sim`` on it as a separate process, brings the four legs to OP with
@@ -53,6 +56,14 @@ def register(subparsers: Any) -> None:
         help="drive the trot through the ROS 2 node (default) or with pysoem",
     )
     p.add_argument("--seconds", type=float, default=10.0, help="pysoem: length of the run")
+    p.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        default=Path("demo-output"),
+        help="laelaps via ros: directory for the run's recording and figures "
+        "(default: demo-output)",
+    )
     p.add_argument("--no-netns", action="store_true", help="keep the simulator's veth end in"
                    " this network namespace")  # fmt: skip
     p.set_defaults(func=run_demo)
@@ -69,7 +80,7 @@ def run_demo(args: argparse.Namespace) -> int:
     if args.via == "ros":
         from ether_ros.ros.demo import run_demo as run_ros_demo
 
-        return run_ros_demo(args.config)
+        return run_ros_demo(args.config, output=args.output)
     return run_pysoem_demo(args)
 
 

@@ -9,7 +9,13 @@ from typing import Any
 
 def register(subparsers: Any) -> None:
     parser = subparsers.add_parser(
-        "plot", help="figures of a recording (toe path, angles, PWM, velocities, loop timing)"
+        "plot",
+        help="figures of a recording (toe path, angles, PWM, velocities, loop timing)",
+        description="Write the thesis's trot figures 6.5-6.11 (toe path, knee and hip angles, "
+        "PWM commands, velocities, each against its limits) and the loop timing histograms of "
+        "a recording as images, and print the steady-trot report (share of time at the PWM "
+        "limit per leg and joint, toe path error). "
+        "Example: ether-ros plot trot.mcap -o figures --format png",
     )
     parser.add_argument(
         "recording", help="an MCAP file written by `ether-ros record` or an experiment"
@@ -33,6 +39,7 @@ def run(args: argparse.Namespace) -> int:
     matplotlib.use("Agg")
     from ether_ros.tools.plots import build_figures, save_figures
     from ether_ros.tools.recording import RecordingError, read_recording
+    from ether_ros.tools.trot_metrics import format_trot_report, trot_report
 
     formats = [f.strip().lower() for f in args.format.split(",") if f.strip()]
     unknown = [f for f in formats if f not in ("png", "svg", "pdf")]
@@ -48,4 +55,7 @@ def run(args: argparse.Namespace) -> int:
     )
     for path in save_figures(build_figures(recording), out, formats):
         print(path)
+    report = trot_report(recording)
+    if report:
+        print(format_trot_report(report))
     return 0

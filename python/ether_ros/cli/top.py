@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from typing import Any
 
 from ether_ros.master.link import add_link_argument
@@ -10,7 +11,11 @@ from ether_ros.master.link import add_link_argument
 
 def register(subparsers: Any) -> None:
     parser = subparsers.add_parser(
-        "top", help="live view of a bus (standalone with --config, else the running node)"
+        "top",
+        help="live view of a bus (standalone with --config, else the running node)",
+        description="A full-screen live view: each slave's AL state, cycle counters, loop "
+        "timing, DC sync error. Ctrl-P or F1: PANIC; q: quit. Reports older than two of the "
+        "node's periods are marked stale. Needs a terminal.",
     )
     parser.add_argument("--config", help="bus configuration: open the bus in this process")
     parser.add_argument("--interface", help="network interface (with --config)")
@@ -28,10 +33,21 @@ def register(subparsers: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ether_ros.errors import EtherRosError
-    from ether_ros.tools.live import BusLiveSource, DiagnosticsLiveSource, LiveSource, TopApp
+    from ether_ros.tools.live import (
+        BusLiveSource,
+        DiagnosticsLiveSource,
+        LiveSource,
+        TopApp,
+        run_top,
+    )
 
     if args.interval <= 0:
         raise EtherRosError(f"--interval must be positive, got {args.interval}")
+    if not (sys.stdin.isatty() and sys.stdout.isatty()):
+        raise EtherRosError(
+            "top is a full-screen view and needs a terminal on stdin and stdout; without one, "
+            "'ether-ros console -c states -c stats' prints the same in text"
+        )
     source: LiveSource
     if args.config:
         from ether_ros.master.bus import Bus
@@ -50,5 +66,5 @@ def run(args: argparse.Namespace) -> int:
         if args.interface:
             raise EtherRosError("--interface needs --config (a standalone bus)")
         source = DiagnosticsLiveSource(args.topic)
-    TopApp(source, interval=args.interval).run()
+    run_top(TopApp(source, interval=args.interval))
     return 0

@@ -473,7 +473,13 @@ def _schema_error(exc: ValidationError, data: Any, smap: SourceMap) -> ConfigErr
     show = first["type"] != "missing"
     err = smap.error(tuple(path), msg, first.get("input"), show_value=show)
     if len(errors) > 1:
-        return ConfigError(f"{err} [and {len(errors) - 1} more error(s)]")
+        return ConfigError(
+            f"{err} [and {len(errors) - 1} more error(s)]",
+            file=err.file,
+            line=err.line,
+            field=err.field,
+            value=err.value,
+        )
     return err
 
 

@@ -288,7 +288,13 @@ class _Ctx:
     def error(self, el: etree._Element, msg: str, value: object = None) -> ConfigError:
         where = f"{self.path}:{el.sourceline}: <{_local(el)}>"
         tail = "" if value is None else f": {value!r}"
-        return ConfigError(f"{where}: {msg}{tail}")
+        return ConfigError(
+            f"{where}: {msg}{tail}",
+            file=str(self.path),
+            line=_line(el) or None,
+            field=f"<{_local(el)}>",
+            value=value,
+        )
 
 
 def _local(el: etree._Element) -> str:

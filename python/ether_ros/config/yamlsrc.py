@@ -50,7 +50,13 @@ class SourceMap:
         line = self.line(path)
         where = f"{self.file}:{line}" if line else str(self.file)
         tail = f" (got {value!r})" if show_value else ""
-        return ConfigError(f"{where}: {format_path(path)}: {msg}{tail}")
+        return ConfigError(
+            f"{where}: {format_path(path)}: {msg}{tail}",
+            file=str(self.file),
+            line=line or None,
+            field=format_path(path),
+            value=value,
+        )
 
 
 def load_yaml(path: Path) -> tuple[Any, SourceMap]:
@@ -70,8 +76,14 @@ def load_yaml(path: Path) -> tuple[Any, SourceMap]:
         return _build(loader, node, (), smap), smap
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
-        line = f":{mark.line + 1}" if mark is not None else ""
-        raise ConfigError(f"{path}{line}: invalid YAML: {exc.problem or exc.context}") from None
+        number = mark.line + 1 if mark is not None else None
+        line = f":{number}" if number is not None else ""
+        raise ConfigError(
+            f"{path}{line}: invalid YAML: {exc.problem or exc.context}",
+            file=str(path),
+            line=number,
+            field="",
+        ) from None
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: invalid YAML: {exc}") from None
     finally:
@@ -89,8 +101,13 @@ def _build(loader: yaml.SafeLoader, node: yaml.Node, path: KeyPath, smap: Source
                 raise smap.error(path, "mapping keys must be plain values", key)
             if key in out:
                 line = key_node.start_mark.line + 1
+                field = format_path((*path, str(key)))
                 raise ConfigError(
-                    f"{smap.file}:{line}: {format_path((*path, str(key)))}: duplicate key"
+                    f"{smap.file}:{line}: {field}: duplicate key",
+                    file=str(smap.file),
+                    line=line,
+                    field=field,
+                    value=key,
                 )
             sub = (*path, key if isinstance(key, str) else str(key))
             smap.lines[sub] = value_node.start_mark.line + 1

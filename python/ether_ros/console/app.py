@@ -1,19 +1,27 @@
-"""The operator console: a prompt_toolkit REPL that operates a running ether_ros node over ROS 2.
+"""The operator console's commands: :class:`Console` runs parsed console lines against a running
+ether_ros node over ROS 2.
 
 Every line goes through :func:`ether_ros.console.commands.parse_command` first; an invalid line
-gets its reason and nothing is sent. Panic is one key away: Ctrl-P or F1 call the node's
-``panic`` service at once, whatever is typed on the line (and ``panic`` works as a command).
-Sequence files run step by step (``run FILE [step]``); Ctrl-C stops a running sequence.
+gets its reason and nothing is sent. Panic has a path of its own
+(:class:`ether_ros.ros.panic_line.PanicLine`): it never waits for a running command, and it
+interrupts one. A running command stops at its next interruption point when
+:meth:`Console.interrupt` is called (a panic, Ctrl-C): a ``wait`` at once, a sequence before its
+next step, a step-mode question at once; a request already sent to the node is not recalled (the
+console takes its answer first).
+
+The interactive loop that reads the keys while commands run is
+:mod:`ether_ros.console.interactive`; :func:`run_lines` runs lines without a terminal.
 """
 
 from __future__ import annotations
 
 import contextlib
+import enum
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import replace
-from pathlib import Path
-from typing import Any
+from typing import IO
 
 from ether_ros.console.commands import (
     AxisOp,
@@ -37,16 +45,38 @@ from ether_ros.console.commands import (
     help_text,
     parse_command,
 )
-from ether_ros.console.sequence import load_sequence
+from ether_ros.console.keys import LINE_LIMIT
+from ether_ros.console.sequence import Step, load_sequence
 from ether_ros.errors import EtherRosError
 from ether_ros.ros.client import EtherRosClient, make_write
+from ether_ros.ros.freshness import describe_age
+from ether_ros.ros.panic_line import PanicLine
 from ether_ros.ros.values import format_value
 
-HISTORY_FILE = Path.home() / ".ether_ros_console_history"
-PANIC_KEYS = ("c-p", "f1")
 SENT_MEMORY_S = 2.0
 # How long a move waits for the node to refuse it (it answers only refusals).
 MOVE_ANSWER_S = 0.3
+# `states` asks the node for its lifecycle state with this timeout (a dead node never answers).
+STATE_TIMEOUT_S = 2.0
+# How long a write waits for the node's answer (as long as an SDO transfer: a node on a loaded
+# machine may take seconds; a panic never waits for it).
+WRITE_TIMEOUT_S = 10.0
+# What a successful panic answer adds: the console command that clears it.
+CLEAR_HINT = "type 'clear' to resume the commanded outputs"
+
+
+class Outcome(enum.Enum):
+    OK = "ok"
+    FAILED = "failed"  # refused, an error, or interrupted
+    QUIT = "quit"
+
+
+class Interrupted(Exception):
+    """The running command was interrupted (``reason``: "panic", "Ctrl-C", ...)."""
+
+    def __init__(self, reason: str) -> None:
+        super().__init__(reason)
+        self.reason = reason
 
 
 class QuitConsole(Exception):
@@ -54,22 +84,64 @@ class QuitConsole(Exception):
 
 
 class Console:
-    """Executes parsed commands against the node; prints through ``out``."""
+    """Executes parsed commands against the node; prints through ``out``.
+
+    ``confirm(question)`` answers step mode's questions (None: no answer, the sequence stops);
+    by default it reads a line from stdin. ``panic_line``: the path to the node's panic service
+    (one of its own by default, closed by :meth:`close`)."""
 
     def __init__(
         self,
         client: EtherRosClient,
         out: Callable[[str], None] = print,
-        confirm: Callable[[str], str] | None = None,
+        confirm: Callable[[str], str | None] | None = None,
+        panic_line: PanicLine | None = None,
     ) -> None:
         self.client = client
         self.out = out
-        self.confirm = confirm or (lambda prompt: input(prompt))
+        self.confirm = confirm or _ask_stdin
         # What this console wrote recently, until the node's snapshots (pdo_out_timer, every
         # ros.snapshot_period_ms) have surely caught up: the next command is checked against
         # the values just sent, not against a snapshot from before them.
         self._sent: dict[tuple[str, str], tuple[float, float]] = {}
         self._axes: dict[str, JointLimits] | None = None  # from the node's parameters, once
+        # Set to stop the running command at its next interruption point.
+        self.cancel = threading.Event()
+        self._reason = ""
+        # When this console last had a lifecycle command answered (start, stop, restart): the
+        # node's reports from before it show the old states.
+        self._lifecycle_at = 0.0
+        self._own_panic_line = panic_line is None
+        self.panic_line = panic_line or PanicLine(
+            client.prefix, client.node.context, report=lambda m: self.out(m), hint=CLEAR_HINT
+        )
+        # A panic, however it was sent, interrupts the running command.
+        self.panic_line.on_press.append(lambda: self.interrupt("panic"))
+
+    def close(self) -> None:
+        self.interrupt("the console is closing")
+        if self._own_panic_line:
+            self.panic_line.close()
+
+    def __enter__(self) -> Console:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def interrupt(self, reason: str) -> None:
+        """Stop the running command at its next interruption point (from any thread)."""
+        self._reason = reason
+        self.cancel.set()
+
+    def _check(self) -> None:
+        if self.cancel.is_set():
+            raise Interrupted(self._reason or "interrupted")
+
+    def _wait(self, seconds: float) -> None:
+        """A wait that ends at once when the command is interrupted."""
+        if self.cancel.wait(seconds):
+            raise Interrupted(self._reason or "interrupted")
 
     def context(self) -> ConsoleContext:
         """The layout and the last commanded outputs (``pdo_out_timer``; the wire echo when no
@@ -108,35 +180,57 @@ class Console:
 
     def line(self, text: str) -> bool:
         """Parse and run one line; False when the console should end."""
+        return self.run_line(text) is not Outcome.QUIT
+
+    def run_line(self, text: str) -> Outcome:
+        """Parse and run one line (from a fresh start: an earlier interrupt is forgotten)."""
+        self.cancel.clear()
+        self._reason = ""
         try:
+            if len(text.encode(errors="replace")) > LINE_LIMIT:
+                raise CommandError(f"the line is longer than {LINE_LIMIT} bytes: refused")
             command = parse_command(text, self.context())
-            if command is not None:
-                self.execute(command)
+            if command is None:
+                return Outcome.OK
+            return Outcome.OK if self.execute(command) else Outcome.FAILED
         except QuitConsole:
-            return False
+            return Outcome.QUIT
+        except Interrupted as exc:
+            self.out(f"interrupted ({exc.reason})")
+            return Outcome.FAILED
         except EtherRosError as exc:
             self.out(f"error: {exc}")
-        return True
+            return Outcome.FAILED
 
-    def panic(self) -> None:
-        try:
-            ok, message = self.client.panic()
-        except EtherRosError as exc:
-            ok, message = False, str(exc)
-        self.out(("PANIC: " if ok else "panic FAILED: ") + message)
+    def panic(self) -> tuple[bool, str]:
+        """Send the panic (the panic line reports the answer) and wait for the answer. A panic
+        that is a command (typed, or a sequence step) does not interrupt the command itself."""
+        answer = self.panic_line.press(hooks=False)
+        answer.wait(self.panic_line.answer_timeout + 1.0)
+        return answer.ok, ""
+
+    def _control(self, command: str) -> tuple[bool, str]:
+        if command == "panic":
+            return self.panic()
+        sent = time.monotonic()
+        ok, message = self.client.command(command)
+        if command in ("start", "stop", "restart"):
+            self._lifecycle_at = time.monotonic()
+        if self.panic_line.last_press > sent:
+            # A panic key was pressed while this command (a clear, a start) was on its way:
+            # the node may have served the panic first. The panic stands: send it again.
+            self.panic_line.press(hooks=False)
+            message += " — a panic was pressed meanwhile and has been sent again"
+        return ok, message
 
     def execute(self, command: Command) -> bool:
         """Run one command; False when the node refused it (the reason is printed)."""
         ok, message = True, ""
         if isinstance(command, Control):
-            if command.command == "panic":
-                ok, message = self.client.panic()
-                message = ("PANIC: " if ok else "") + message
-            else:
-                ok, message = self.client.command(command.command)
+            ok, message = self._control(command.command)
         elif isinstance(command, Write):
             writes = [make_write(op.slave, op.variable, op.value) for op in command.ops]
-            ok, message = self.client.write_many(writes)
+            ok, message = self.client.write_many(writes, timeout=WRITE_TIMEOUT_S)
             if ok:
                 now = time.monotonic()
                 for op in command.ops:
@@ -144,7 +238,7 @@ class Console:
         elif isinstance(command, Get):
             self._get(command)
         elif isinstance(command, Show):
-            self._show(command)
+            ok = self._show(command)
         elif isinstance(command, SdoRead):
             r = self.client.sdo_read(command.slave, command.index, command.subindex, command.type)
             ok, message = bool(r.success), str(r.message)
@@ -155,7 +249,7 @@ class Console:
         elif isinstance(command, RunSequence):
             ok = self.run_sequence(command.path, command.step)
         elif isinstance(command, Wait):
-            time.sleep(command.seconds)
+            self._wait(command.seconds)
         elif isinstance(command, AxisOp):
             ok, message, _ = self.client.axis_command(command.command, list(command.joints))
         elif isinstance(command, SetMode):
@@ -198,56 +292,111 @@ class Console:
     def _get(self, command: Get) -> None:
         latest = self.client.latest
         groups = (
-            ("inputs", latest.inputs.get(command.slave, {})),
-            ("outputs (on the wire)", latest.outputs.get(command.slave, {})),
+            ("inputs", "inputs", latest.inputs.get(command.slave, {})),
+            ("outputs (on the wire)", "outputs", latest.outputs.get(command.slave, {})),
         )
         if command.variable is not None:
-            for label, values in groups:
+            for label, kind, values in groups:
                 if command.variable in values:
                     self.out(f"{command.slave}.{command.variable} = {values[command.variable]:g}")
-                    self.out(f"  ({label})")
+                    self.out(f"  ({label}{self._staleness(f'{kind}/{command.slave}')})")
                     return
             self.out(f"no value of {command.variable} received yet")
             return
-        for label, values in groups:
-            self.out(f"{command.slave} {label}:")
+        for label, kind, values in groups:
+            self.out(f"{command.slave} {label}{self._staleness(f'{kind}/{command.slave}')}:")
             if not values:
                 self.out("  (nothing received yet)")
             for name, value in values.items():
                 self.out(f"  {name:24} {value:g}")
 
-    def _show(self, command: Show) -> None:
+    def _staleness(self, key: str) -> str:
+        """ "" for a fresh report; else what to print after its label."""
+        arrivals = self.client.latest.arrivals
+        age = arrivals.age(key)
+        if age is None or arrivals.fresh(key):
+            return ""
+        return f" — STALE: received {describe_age(age)} ago, the node is gone or stalled"
+
+    def _show(self, command: Show) -> bool:
         if command.what == "states":
-            with contextlib.suppress(EtherRosError):
-                self.client.wait_for(lambda latest: latest.diagnostics, timeout=2.5)
-            try:
-                state = self.client.get_state()
-            except EtherRosError as exc:
-                state = f"unknown ({exc})"
-            self.out(f"node {self.client.target}: {state}")
-            for slave, al in self.client.slave_states().items():
-                self.out(f"  {slave:24} {al}")
-        elif command.what == "stats":
-            with contextlib.suppress(EtherRosError):  # the node reports once a second
-                self.client.wait_for(lambda latest: latest.diagnostics, timeout=2.5)
-            status = self.client.master_status()
-            if not status:
-                self.out("no diagnostics received yet")
-            for key, value in status.items():
-                self.out(f"  {key:24} {value}")
-        elif command.what == "layout":
-            layout = self.client.latest.layout
-            if layout is None:
-                self.out("no layout received yet (is the node configured?)")
-                return
-            for s in layout.slaves:
-                if command.slave is not None and s.name != command.slave:
-                    continue
-                self.out(f"{s.name} (position {s.position}, {s.device})")
-                for kind, variables in (("out", s.outputs), ("in", s.inputs)):
-                    for v in variables:
-                        lo, hi = format_value(v.minimum, v), format_value(v.maximum, v)
-                        self.out(f"  {kind:3} {v.name:24} {v.address}  {v.type:7} {lo}..{hi}")
+            return self._states()
+        if command.what == "stats":
+            return self._stats()
+        layout = self.client.latest.layout
+        if layout is None:
+            self.out("no layout received yet (is the node configured?)")
+            return True
+        for s in layout.slaves:
+            if command.slave is not None and s.name != command.slave:
+                continue
+            self.out(f"{s.name} (position {s.position}, {s.device})")
+            for kind, variables in (("out", s.outputs), ("in", s.inputs)):
+                for v in variables:
+                    lo, hi = format_value(v.minimum, v), format_value(v.maximum, v)
+                    self.out(f"  {kind:3} {v.name:24} {v.address}  {v.type:7} {lo}..{hi}")
+        return True
+
+    def _states(self) -> bool:
+        """The node's lifecycle state and the slaves' AL states from a report that is fresh
+        (not older than two of the node's periods) and came after this console's last `start`,
+        `stop` or `restart` — else from the next one: the slaves are never shown from an old
+        report (right after a `start` the last one still says INIT, and a dead node's last one
+        says OP)."""
+        asked = time.monotonic()
+        arrivals = self.client.latest.arrivals
+        try:
+            state = self.client.get_state(timeout=STATE_TIMEOUT_S)
+        except EtherRosError as exc:
+            self.out(f"node {self.client.target}: gone — it does not answer ({exc})")
+            age = arrivals.age("diagnostics")
+            seen = "none received" if age is None else f"the last is {describe_age(age)} old"
+            self.out(f"  slave states unknown: no report from the node ({seen})")
+            return False
+        self.out(f"node {self.client.target}: {state}")
+        last = arrivals.last.get("diagnostics", 0.0)
+        current = last > self._lifecycle_at and arrivals.fresh("diagnostics")
+        if not current and not self._wait_report(asked):
+            age = arrivals.age("diagnostics")
+            seen = "none received" if age is None else f"the last is {describe_age(age)} old"
+            self.out(
+                f"  slave states unknown: no new report within "
+                f"{describe_age(arrivals.stale_after('diagnostics'))} ({seen})"
+            )
+            return False
+        states = self.client.slave_states()
+        if not states:
+            self.out("  (the node reports no slaves)")
+        for slave, al in states.items():
+            self.out(f"  {slave:24} {al}")
+        return True
+
+    def _wait_report(self, after: float) -> bool:
+        """Wait (interruptibly) for a diagnostics report that arrived after ``after``
+        (monotonic), at most two of the node's periods; True when one did."""
+        arrivals = self.client.latest.arrivals
+        with contextlib.suppress(EtherRosError):
+            self.client.wait_for(
+                lambda _l: self.cancel.is_set() or arrivals.last.get("diagnostics", 0.0) > after,
+                timeout=arrivals.stale_after("diagnostics"),
+            )
+        self._check()
+        return arrivals.last.get("diagnostics", 0.0) > after
+
+    def _stats(self) -> bool:
+        arrivals = self.client.latest.arrivals
+        if arrivals.age("diagnostics") is None:  # none yet: the node reports once a period
+            self._wait_report(0.0)
+        status = self.client.master_status()
+        if not status:
+            self.out("no diagnostics received yet")
+            return False
+        stale = self._staleness("diagnostics")
+        if stale:
+            self.out(f"the node's last report{stale}; the values below are from then")
+        for key, value in status.items():
+            self.out(f"  {key:24} {value}")
+        return not stale
 
     def run_sequence(self, path: str, step: bool = False) -> bool:
         sequence = load_sequence(path, self.context())
@@ -256,94 +405,91 @@ class Console:
             f"sequence {sequence.path}: {total} steps, {sequence.duration_s:g} s of waits"
             + (f" — {sequence.description}" if sequence.description else "")
         )
+        number = 0
         try:
             for s in sequence.steps:
+                number = s.number
+                self._check()
                 if step:
-                    answer = self.confirm(f"[{s.number}/{total}] {s.text}  (Enter/s/q) ")
-                    if answer.strip().lower() == "q":
-                        self.out("sequence stopped")
+                    decision = self._ask_step(s, total)
+                    if decision == "stop":
+                        self.out(f"sequence stopped before step {s.number}")
                         return True
-                    if answer.strip().lower() == "s":
+                    if decision == "skip":
+                        self.out(f"[{s.number}/{total}] skipped")
                         continue
                 self.out(f"[{s.number}/{total}] {s.text}")
                 if not self.execute(s.command):
                     self.out(f"sequence stopped at step {s.number}")
                     return False
-        except KeyboardInterrupt:
-            self.out("sequence interrupted (outputs stay as last commanded; 'panic' for safe)")
+        except (Interrupted, KeyboardInterrupt) as exc:
+            reason = exc.reason if isinstance(exc, Interrupted) else "Ctrl-C"
+            after = (
+                "safe outputs on the wire"
+                if reason == "panic"
+                else "outputs stay as last commanded; 'panic' for safe outputs"
+            )
+            self.out(f"sequence interrupted at step {number} ({reason}): {after}")
             return False
         return True
 
-
-def repl(
-    console: Console,
-    history: Path | None = HISTORY_FILE,
-    input: Any = None,
-    output: Any = None,
-) -> int:
-    """The interactive loop with history, completion and the panic keys (``input``/``output``:
-    prompt_toolkit I/O, for driving the console from tests)."""
-    from prompt_toolkit import PromptSession
-    from prompt_toolkit.application import run_in_terminal
-    from prompt_toolkit.history import FileHistory, InMemoryHistory
-    from prompt_toolkit.key_binding import KeyBindings, KeyPressEvent
-
-    from ether_ros.console.completion import ConsoleCompleter
-
-    bindings = KeyBindings()
-
-    def on_panic(event: KeyPressEvent) -> None:
-        run_in_terminal(console.panic)
-
-    for key in PANIC_KEYS:
-        bindings.add(key, eager=True)(on_panic)
-
-    hist: Any = InMemoryHistory()
-    if history is not None:
-        try:
-            history.touch(exist_ok=True)
-            hist = FileHistory(str(history))
-        except OSError:
-            pass
-    session: PromptSession[str] = PromptSession(
-        history=hist,
-        completer=ConsoleCompleter(console.context),
-        key_bindings=bindings,
-        complete_while_typing=False,
-        input=input,
-        output=output,
-    )
-    console.out(
-        f"ether_ros console — node {console.client.target}. 'help' for commands; "
-        "Ctrl-P or F1: PANIC."
-    )
-    while True:
-        try:
-            text = session.prompt("ether_ros> ")
-        except KeyboardInterrupt:
-            continue
-        except EOFError:
-            return 0
-        if not console.line(text):
-            return 0
+    def _ask_step(self, s: Step, total: int) -> str:
+        """Step mode: "run" only on an explicit yes; "skip" or "stop" otherwise."""
+        question = f"[{s.number}/{total}] {s.text} — run it? y(es) / s(kip) / n(o: stop) "
+        while True:
+            answer = self.confirm(question)
+            self._check()
+            if answer is None:
+                return "stop"
+            word = answer.strip().lower()
+            if word in ("y", "yes"):
+                return "run"
+            if word in ("n", "no", "q", "quit"):
+                return "stop"
+            if word in ("s", "skip"):
+                if isinstance(s.command, Write):
+                    self.out(
+                        "a write cannot be skipped: the later steps were checked with it "
+                        "applied; answer y or n"
+                    )
+                    continue
+                return "skip"
+            self.out(f"answer y (run the step), s (skip it) or n (stop), not '{answer.strip()}'")
 
 
-def run_lines(console: Console, lines: list[str]) -> int:
+def _ask_stdin(question: str) -> str | None:
+    try:
+        return input(question)
+    except EOFError:
+        return None
+
+
+def run_lines(console: Console, lines: Iterable[str]) -> int:
     """Non-interactive: run lines in order, stop at the first error (exit code 1)."""
     for text in lines:
         try:
-            command = parse_command(text, console.context())
-        except CommandError as exc:
-            console.out(f"error: {exc}")
+            outcome = console.run_line(text)
+        except KeyboardInterrupt:
+            console.out("interrupted (Ctrl-C)")
             return 1
-        if command is None:
-            continue
-        try:
-            if not console.execute(command):
-                return 1
-        except QuitConsole:
+        if outcome is Outcome.QUIT:
             return 0
-        except EtherRosError as exc:
-            console.out(f"error: {exc}")
+        if outcome is Outcome.FAILED:
             return 1
     return 0
+
+
+def bounded_lines(stream: IO[bytes], limit: int = LINE_LIMIT) -> Iterable[str]:
+    """The lines of ``stream`` one at a time (never more than one in memory); a line longer
+    than ``limit`` bytes is given cut at ``limit + 1`` bytes (the rest skipped), which
+    :meth:`Console.run_line` refuses."""
+    while True:
+        raw = stream.readline(limit + 1)
+        if not raw:
+            return
+        if len(raw) > limit and not raw.endswith(b"\n"):
+            while True:  # skip the rest of the overlong line
+                rest = stream.readline(65536)
+                if not rest or rest.endswith(b"\n"):
+                    break
+        yield raw.decode(errors="replace").rstrip("\r\n")

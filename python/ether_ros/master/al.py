@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 
 from ether_ros._native.protocol import al, al_state_name, al_status_text, reg
-from ether_ros.errors import BusError
+from ether_ros.errors import AlStateRefused, AlStateTimeout, WorkingCounterError
 from ether_ros.master.datagrams import Cmd, Datagram, DatagramService, fixed_address, u16
 
 
@@ -114,7 +114,9 @@ class AlStateMachine:
         )
         for slave, reply in zip(slaves, replies, strict=True):
             if reply.wkc != 1:
-                raise BusError(f"{slave}: no answer when requesting {state.name}")
+                raise WorkingCounterError(
+                    f"requesting {state.name}", 1, reply.wkc, slave=str(slave)
+                )
 
     def acknowledge(self, slave: SlaveRef, status: AlStatus) -> None:
         """Acknowledge an error indication by requesting the current state with bit 4 set."""
@@ -145,18 +147,13 @@ class AlStateMachine:
             for slave, status in zip(slaves, statuses, strict=True):
                 if status.answered and status.error:
                     self.acknowledge(slave, status)
-                    raise BusError(
-                        f"{slave} refused {state.name}: stays in {status.name}, "
-                        f"AL status code 0x{status.code:04X} ({al_code_text(status.code)})"
-                    )
+                    raise AlStateRefused(str(slave), int(state), status.state, status.code)
                 if not status.answered or status.state != state:
                     pending.append((slave, status))
             if not pending:
                 return
             if time.monotonic() > deadline:
                 slave, status = pending[0]
-                raise BusError(
-                    f"{slave} did not reach {state.name} within {limit:g} s "
-                    f"(AL status: {status.describe()})"
-                )
+                reached = status.state if status.answered else None
+                raise AlStateTimeout(str(slave), int(state), reached, limit, status.describe())
             time.sleep(self.poll_interval_s)

@@ -2,8 +2,9 @@
 mailbox, collect emergency messages, and browse the dictionary with the SDO Information service.
 
 The transfer type is chosen from the data size: up to 4 bytes expedited, otherwise normal, and
-segmented when the data does not fit into one mailbox message. A slave's abort is raised as a
-``MailboxError`` naming the slave, the object and the abort code with its meaning.
+segmented when the data does not fit into one mailbox message. A slave's abort is raised as
+``SdoAbort`` carrying the slave, the object and the abort code (its text from the protocol
+crate); a missing answer as ``MailboxTimeout``: callers decide by the class and the data.
 """
 
 from __future__ import annotations
@@ -19,19 +20,13 @@ from ether_ros._native.protocol import (
     format_address,
     object_code_name,
     sdo_abort,
-    sdo_abort_text,
 )
-from ether_ros.errors import MailboxError
+from ether_ros.errors import MailboxError, SdoAbort
 from ether_ros.master.mailbox import Mailbox, MailboxType
 
 # A segment: CoE header (2), command (1), then at least 7 data bytes.
 SEGMENT_HEADER_LEN = 3
 MIN_SEGMENT_DATA = 7
-
-
-def abort_description(code: int) -> str:
-    """``0x06020000 object does not exist in the object dictionary``: the code and its meaning."""
-    return f"0x{code:08X} {sdo_abort_text(code)}"
 
 
 @dataclass(frozen=True)
@@ -79,34 +74,34 @@ class EntryDescription:
 
     @property
     def readable(self) -> bool:
-        return bool(self.access & 0x07)
+        return bool(self.access & coe.ACCESS_READ)
 
     @property
     def writable(self) -> bool:
-        return bool(self.access & 0x38)
+        return bool(self.access & coe.ACCESS_WRITE)
 
     @property
     def rx_mappable(self) -> bool:
-        return bool(self.access & 0x40)
+        return bool(self.access & coe.ACCESS_RXPDO)
 
     @property
     def tx_mappable(self) -> bool:
-        return bool(self.access & 0x80)
+        return bool(self.access & coe.ACCESS_TXPDO)
 
     @property
     def access_text(self) -> str:
         """ESI-style access: ro, rw, wo, or per state like ``rw(PREOP) ro``."""
-        read, write = self.access & 0x07, (self.access >> 3) & 0x07
+        read, write = self.access & coe.ACCESS_READ, (self.access & coe.ACCESS_WRITE) >> 3
         if write == 0:
             return "ro" if read else "none"
-        if write == 0x07:
-            return "rw" if read == 0x07 else "wo"
+        if write == coe.ACCESS_READ:  # written in all three states
+            return "rw" if read == coe.ACCESS_READ else "wo"
         states = "/".join(n for bit, n in ((1, "PREOP"), (2, "SAFEOP"), (4, "OP")) if write & bit)
         return f"rw({states}) ro" if read else f"wo({states})"
 
 
 def _coe_header(service: int) -> bytes:
-    return struct.pack("<H", service << 12)
+    return struct.pack("<H", service << 12)  # CoE header: number 0, service in bits 12..15
 
 
 def _sdo(command: int, index: int, subindex: int, data: bytes = b"\x00\x00\x00\x00") -> bytes:
@@ -146,30 +141,25 @@ class SdoClient:
 
     # ---- helpers ----------------------------------------------------------------------------
 
-    def _what(self, action: str, index: int, subindex: int, complete_access: bool) -> str:
+    @staticmethod
+    def _what(action: str, index: int, subindex: int, complete_access: bool) -> str:
         ca = " (complete access)" if complete_access else ""
-        return f"slave '{self.slave_name}': SDO {action} {format_address(index, subindex)}{ca}"
+        return f"SDO {action} {format_address(index, subindex)}{ca}"
 
     def _fail(self, what: str, reason: str) -> MailboxError:
-        return MailboxError(f"{what} {reason}")
+        return MailboxError(reason, slave=self.slave_name, context=what)
 
-    def _exchange(self, request: bytes, what: str) -> bytes:
+    def _exchange(self, request: bytes, what: str, index: int, subindex: int) -> bytes:
         try:
             self.mailbox.send(MailboxType.COE, request, self.timeout_s)
-        except MailboxError as e:
-            raise MailboxError(f"{what} failed: {_after_slave(e)}") from None
-        return self._receive_sdo(what)
-
-    def _receive_sdo(self, what: str) -> bytes:
-        try:
             reply = self.mailbox.receive(MailboxType.COE, self.timeout_s)
         except MailboxError as e:
-            raise MailboxError(f"{what} failed: {_after_slave(e)}") from None
-        if len(reply) >= coe.SDO_HEADER_LEN and reply[2] >> 5 == coe.CS_ABORT:
+            raise e.in_context(what) from None
+        if len(reply) >= coe.SDO_HEADER_LEN and reply[2] >> coe.SPECIFIER_SHIFT == coe.CS_ABORT:
             code = struct.unpack_from("<I", reply, 6)[0]
-            raise self._fail(what, f"aborted: {abort_description(code)}")
+            raise SdoAbort(self.slave_name, index, subindex, code, context=what)
         if _service(reply) != coe.SERVICE_SDO_RESPONSE or len(reply) < coe.SDO_HEADER_LEN:
-            raise self._fail(what, f"failed: unexpected CoE reply {reply[:10].hex(' ')}")
+            raise self._fail(what, f"unexpected CoE reply {reply[:10].hex(' ')}")
         return reply
 
     def _abort(self, index: int, subindex: int, code: int) -> None:
@@ -177,18 +167,17 @@ class SdoClient:
         with contextlib.suppress(MailboxError):
             self.mailbox.send(
                 MailboxType.COE,
-                _sdo(coe.CS_ABORT << 5, index, subindex, struct.pack("<I", code)),
+                _sdo(coe.CS_ABORT << coe.SPECIFIER_SHIFT, index, subindex, struct.pack("<I", code)),
                 0.1,
             )
 
     def _check_echo(self, reply: bytes, scs: int, index: int, subindex: int, what: str) -> None:
         got_index, got_sub = struct.unpack_from("<HB", reply, 3)
-        if reply[2] >> 5 != scs or (got_index, got_sub) != (index, subindex):
+        if reply[2] >> coe.SPECIFIER_SHIFT != scs or (got_index, got_sub) != (index, subindex):
             self._abort(index, subindex, sdo_abort.ABORT_INVALID_COMMAND)
             raise self._fail(
                 what,
-                f"failed: slave answered command 0x{reply[2]:02X} for "
-                f"{format_address(got_index, got_sub)}",
+                f"slave answered command 0x{reply[2]:02X} for {format_address(got_index, got_sub)}",
             )
 
     # ---- upload -----------------------------------------------------------------------------
@@ -197,36 +186,40 @@ class SdoClient:
         """Read an entry (or, with complete access, the whole object from ``subindex`` 0 or 1)."""
         what = self._what("upload", index, subindex, complete_access)
         self.mailbox.flush()
-        command = coe.CCS_UPLOAD_INITIATE << 5 | (coe.COMPLETE_ACCESS if complete_access else 0)
-        reply = self._exchange(_sdo(command, index, subindex), what)
+        command = coe.CCS_UPLOAD_INITIATE << coe.SPECIFIER_SHIFT | (
+            coe.COMPLETE_ACCESS if complete_access else 0
+        )
+        reply = self._exchange(_sdo(command, index, subindex), what, index, subindex)
         self._check_echo(reply, coe.SCS_UPLOAD_INITIATE, index, subindex, what)
         flags = reply[2]
-        if flags & 0x02:  # expedited: the data is in the 4 data bytes
-            size = 4 - ((flags >> 2) & 0x03) if flags & 0x01 else 4
+        if flags & coe.EXPEDITED:  # the data is in the 4 data bytes
+            size = (
+                4 - ((flags >> coe.EXPEDITED_UNUSED_SHIFT) & 0x03)
+                if flags & coe.SIZE_INDICATED
+                else 4
+            )
             return reply[6 : 6 + size]
         size = struct.unpack_from("<I", reply, 6)[0]
         data = bytearray(reply[coe.SDO_HEADER_LEN : coe.SDO_HEADER_LEN + size])
         toggle = 0
         while len(data) < size:
-            segment = self._exchange(_segment_request(toggle), what)
-            if segment[2] >> 5 != coe.SCS_UPLOAD_SEGMENT:
+            segment = self._exchange(_segment_request(toggle), what, index, subindex)
+            if segment[2] >> coe.SPECIFIER_SHIFT != coe.SCS_UPLOAD_SEGMENT:
                 self._abort(index, subindex, sdo_abort.ABORT_INVALID_COMMAND)
-                raise self._fail(
-                    what, f"failed: expected an upload segment, got 0x{segment[2]:02X}"
-                )
+                raise self._fail(what, f"expected an upload segment, got 0x{segment[2]:02X}")
             if segment[2] & coe.TOGGLE != toggle:
                 self._abort(index, subindex, sdo_abort.ABORT_TOGGLE_BIT)
-                raise self._fail(what, "failed: slave did not alternate the toggle bit")
+                raise self._fail(what, "slave did not alternate the toggle bit")
             body = segment[SEGMENT_HEADER_LEN:]
             if len(body) <= MIN_SEGMENT_DATA:
-                body = body[: MIN_SEGMENT_DATA - ((segment[2] >> 1) & 0x07)]
+                body = body[: MIN_SEGMENT_DATA - ((segment[2] >> coe.SEGMENT_UNUSED_SHIFT) & 0x07)]
             data += body
-            last = bool(segment[2] & 0x01)
+            last = bool(segment[2] & coe.LAST_SEGMENT)
             if last or not body:
                 break
             toggle ^= coe.TOGGLE
         if len(data) != size:
-            raise self._fail(what, f"failed: slave announced {size} bytes but sent {len(data)}")
+            raise self._fail(what, f"slave announced {size} bytes but sent {len(data)}")
         return bytes(data)
 
     # ---- download ---------------------------------------------------------------------------
@@ -239,15 +232,23 @@ class SdoClient:
         self.mailbox.flush()
         ca = coe.COMPLETE_ACCESS if complete_access else 0
         if 0 < len(data) <= 4:
-            command = coe.CCS_DOWNLOAD_INITIATE << 5 | ca | (4 - len(data)) << 2 | 0x03
-            reply = self._exchange(_sdo(command, index, subindex, data.ljust(4, b"\x00")), what)
+            command = (
+                coe.CCS_DOWNLOAD_INITIATE << coe.SPECIFIER_SHIFT
+                | ca
+                | (4 - len(data)) << coe.EXPEDITED_UNUSED_SHIFT
+                | coe.EXPEDITED
+                | coe.SIZE_INDICATED
+            )
+            reply = self._exchange(
+                _sdo(command, index, subindex, data.ljust(4, b"\x00")), what, index, subindex
+            )
             self._check_echo(reply, coe.SCS_DOWNLOAD_INITIATE, index, subindex, what)
             return
         room = self.mailbox.max_send_payload - coe.SDO_HEADER_LEN
         first = data[:room]
-        command = coe.CCS_DOWNLOAD_INITIATE << 5 | ca | 0x01
+        command = coe.CCS_DOWNLOAD_INITIATE << coe.SPECIFIER_SHIFT | ca | coe.SIZE_INDICATED
         request = _sdo(command, index, subindex, struct.pack("<I", len(data))) + first
-        reply = self._exchange(request, what)
+        reply = self._exchange(request, what, index, subindex)
         self._check_echo(reply, coe.SCS_DOWNLOAD_INITIATE, index, subindex, what)
         sent = len(first)
         toggle = 0
@@ -255,48 +256,61 @@ class SdoClient:
         while sent < len(data):
             chunk = data[sent : sent + segment_room]
             sent += len(chunk)
-            last = 0x01 if sent == len(data) else 0
+            last = coe.LAST_SEGMENT if sent == len(data) else 0
             unused = MIN_SEGMENT_DATA - len(chunk) if len(chunk) < MIN_SEGMENT_DATA else 0
-            command = coe.CCS_DOWNLOAD_SEGMENT << 5 | toggle | unused << 1 | last
+            command = (
+                coe.CCS_DOWNLOAD_SEGMENT << coe.SPECIFIER_SHIFT
+                | toggle
+                | unused << coe.SEGMENT_UNUSED_SHIFT
+                | last
+            )
             segment = _coe_header(coe.SERVICE_SDO_REQUEST) + bytes([command])
             segment += chunk.ljust(MIN_SEGMENT_DATA, b"\x00")
-            reply = self._exchange(segment, what)
-            if reply[2] >> 5 != coe.SCS_DOWNLOAD_SEGMENT:
+            reply = self._exchange(segment, what, index, subindex)
+            if reply[2] >> coe.SPECIFIER_SHIFT != coe.SCS_DOWNLOAD_SEGMENT:
                 self._abort(index, subindex, sdo_abort.ABORT_INVALID_COMMAND)
-                raise self._fail(what, f"failed: expected a segment answer, got 0x{reply[2]:02X}")
+                raise self._fail(what, f"expected a segment answer, got 0x{reply[2]:02X}")
             if reply[2] & coe.TOGGLE != toggle:
                 self._abort(index, subindex, sdo_abort.ABORT_TOGGLE_BIT)
-                raise self._fail(what, "failed: slave did not alternate the toggle bit")
+                raise self._fail(what, "slave did not alternate the toggle bit")
             toggle ^= coe.TOGGLE
 
     # ---- SDO Information --------------------------------------------------------------------
 
-    def _info(self, opcode: int, body: bytes, expect: int, what: str) -> bytes:
-        """One SDO Information exchange; the fragments of the answer put together."""
+    def _info(
+        self, opcode: int, body: bytes, expect: int, what: str, index: int = 0, subindex: int = 0
+    ) -> bytes:
+        """One SDO Information exchange; the fragments of the answer put together. ``index``
+        and ``subindex`` name the object an abort is about."""
         request = _coe_header(coe.SERVICE_SDO_INFORMATION) + bytes([opcode, 0, 0, 0]) + body
         self.mailbox.flush()
         try:
             self.mailbox.send(MailboxType.COE, request, self.timeout_s)
         except MailboxError as e:
-            raise MailboxError(f"{what} failed: {_after_slave(e)}") from None
+            raise e.in_context(what) from None
         data = bytearray()
         while True:
             try:
                 reply = self.mailbox.receive(MailboxType.COE, self.timeout_s)
             except MailboxError as e:
-                raise MailboxError(f"{what} failed: {_after_slave(e)}") from None
+                raise e.in_context(what) from None
             if _service(reply) != coe.SERVICE_SDO_INFORMATION or len(reply) < coe.INFO_HEADER_LEN:
                 # An SDO abort in answer to an information request: the service is missing.
-                if len(reply) >= coe.SDO_HEADER_LEN and reply[2] >> 5 == coe.CS_ABORT:
+                if (
+                    len(reply) >= coe.SDO_HEADER_LEN
+                    and reply[2] >> coe.SPECIFIER_SHIFT == coe.CS_ABORT
+                ):
                     code = struct.unpack_from("<I", reply, 6)[0]
-                    raise self._fail(what, f"failed: {abort_description(code)}")
-                raise self._fail(what, f"failed: unexpected CoE reply {reply[:10].hex(' ')}")
-            got = reply[2] & 0x7F
+                    raise SdoAbort(
+                        self.slave_name, index, subindex, code, context=what, verb="failed"
+                    )
+                raise self._fail(what, f"unexpected CoE reply {reply[:10].hex(' ')}")
+            got = reply[2] & coe.INFO_OPCODE_MASK
             if got == coe.INFO_ERROR:
                 code = struct.unpack_from("<I", reply.ljust(10, b"\x00"), 6)[0]
-                raise self._fail(what, f"failed: {abort_description(code)}")
+                raise SdoAbort(self.slave_name, index, subindex, code, context=what, verb="failed")
             if got != expect:
-                raise self._fail(what, f"failed: unexpected SDO information opcode {got}")
+                raise self._fail(what, f"unexpected SDO information opcode {got}")
             data += reply[coe.INFO_HEADER_LEN :]
             fragments_left = struct.unpack_from("<H", reply, 4)[0]
             if not reply[2] & coe.INFO_INCOMPLETE or fragments_left == 0:
@@ -305,37 +319,37 @@ class SdoClient:
     def object_list(self, list_type: int = coe.OD_LIST_ALL) -> list[int]:
         """Indices of the objects in the dictionary (list type 1: all; 2/3: RxPDO/TxPDO
         mappable; 4: backup; 5: settings). List type 0 returns the five list lengths."""
-        what = f"slave '{self.slave_name}': SDO information object list"
+        what = "SDO information object list"
         body = self._info(
             coe.INFO_OD_LIST_REQ, struct.pack("<H", list_type), coe.INFO_OD_LIST_RESP, what
         )
         if len(body) < 2 or len(body) % 2:
-            raise self._fail(what, f"failed: malformed list of {len(body)} bytes")
+            raise self._fail(what, f"malformed list of {len(body)} bytes")
         return [v for (v,) in struct.iter_unpack("<H", body[2:])]
 
     def object_description(self, index: int) -> ObjectDescription:
-        what = f"slave '{self.slave_name}': SDO information object description 0x{index:04X}"
+        what = f"SDO information object description 0x{index:04X}"
         body = self._info(
-            coe.INFO_OBJECT_DESC_REQ, struct.pack("<H", index), coe.INFO_OBJECT_DESC_RESP, what
-        )
+            coe.INFO_OBJECT_DESC_REQ, struct.pack("<H", index), coe.INFO_OBJECT_DESC_RESP, what,
+            index,
+        )  # fmt: skip
         if len(body) < 6:
-            raise self._fail(what, f"failed: description of {len(body)} bytes is too short")
+            raise self._fail(what, f"description of {len(body)} bytes is too short")
         got_index, data_type, max_sub, code = struct.unpack_from("<HHBB", body)
         return ObjectDescription(got_index, data_type, max_sub, code, _text(body[6:]))
 
     def entry_description(self, index: int, subindex: int) -> EntryDescription:
-        what = (
-            f"slave '{self.slave_name}': SDO information entry description "
-            f"{format_address(index, subindex)}"
-        )
+        what = f"SDO information entry description {format_address(index, subindex)}"
         body = self._info(
             coe.INFO_ENTRY_DESC_REQ,
             struct.pack("<HBB", index, subindex, 0),
             coe.INFO_ENTRY_DESC_RESP,
             what,
+            index,
+            subindex,
         )
         if len(body) < 10:
-            raise self._fail(what, f"failed: description of {len(body)} bytes is too short")
+            raise self._fail(what, f"description of {len(body)} bytes is too short")
         got_index, got_sub, value_info, data_type, bits, access = struct.unpack_from(
             "<HBBHHH", body
         )
@@ -348,16 +362,10 @@ class SdoClient:
 def _segment_request(toggle: int) -> bytes:
     return (
         _coe_header(coe.SERVICE_SDO_REQUEST)
-        + bytes([coe.CCS_UPLOAD_SEGMENT << 5 | toggle])
+        + bytes([coe.CCS_UPLOAD_SEGMENT << coe.SPECIFIER_SHIFT | toggle])
         + bytes(7)
     )
 
 
 def _text(raw: bytes) -> str:
     return raw.split(b"\x00", 1)[0].decode("utf-8", errors="replace")
-
-
-def _after_slave(e: MailboxError) -> str:
-    """The reason of a mailbox error without its "slave 'x': " prefix (we add our own)."""
-    text = str(e)
-    return text.split(": ", 1)[1] if text.startswith("slave '") and ": " in text else text

@@ -16,7 +16,13 @@ from typing import Protocol
 
 from ether_ros._native import protocol
 from ether_ros._native.protocol import cmd, frame
-from ether_ros.errors import BusError, EtherRosError, LinkError
+from ether_ros.errors import (
+    BusError,
+    EtherRosError,
+    FrameTimeout,
+    LinkError,
+    WorkingCounterError,
+)
 
 # Frame budget: the Ethernet payload minus the EtherCAT header; every datagram adds its header
 # and a working counter to its data (the layout is the protocol crate's).
@@ -140,8 +146,12 @@ class DatagramService:
         except EtherRosError:
             raise
         except TimeoutError as exc:
-            names = ", ".join(d.cmd.name for d in frame)
-            raise LinkError(f"no answer to a frame ({names}) after {self.retries} retries") from exc
+            names = tuple(d.cmd.name for d in frame)
+            err = FrameTimeout(
+                f"no answer to a frame ({', '.join(names)}) after {self.retries} retries"
+            )
+            err.commands, err.attempts, err.timeout_us = names, self.retries + 1, self.timeout_us
+            raise err from exc
         except OSError as exc:
             raise LinkError(f"sending a frame failed: {exc}") from exc
         return [Reply(bytes(data), int(wkc)) for data, wkc in raw]
@@ -191,10 +201,10 @@ class DatagramService:
         """FPWR that must reach exactly one slave; ``what``/``who`` name it in the error."""
         wkc = self.fpwr(station, ado, data)
         if wkc != 1:
-            raise BusError(f"{who}: writing {what} (0x{ado:04X}) got no answer (wkc {wkc})")
+            raise WorkingCounterError(f"writing {what} (0x{ado:04X})", 1, wkc, slave=who)
 
     def read_checked(self, station: int, ado: int, length: int, what: str, who: str) -> bytes:
         data, wkc = self.fprd(station, ado, length)
         if wkc != 1:
-            raise BusError(f"{who}: reading {what} (0x{ado:04X}) got no answer (wkc {wkc})")
+            raise WorkingCounterError(f"reading {what} (0x{ado:04X})", 1, wkc, slave=who)
         return data

@@ -19,14 +19,13 @@ from typing import Protocol
 from ether_ros._native.protocol import (
     coe,
     mailbox,
-    mailbox_error_text,
     mailbox_header,
     mailbox_type_name,
     parse_mailbox_header,
     sm,
 )
 from ether_ros._native.protocol import reg as registers
-from ether_ros.errors import MailboxError
+from ether_ros.errors import MailboxError, MailboxErrorReply, MailboxTimeout
 
 MAILBOX_HEADER_LEN = mailbox.HEADER_LEN
 
@@ -77,8 +76,9 @@ class Mailbox:
     ) -> None:
         if rx_size <= MAILBOX_HEADER_LEN or tx_size <= MAILBOX_HEADER_LEN:
             raise MailboxError(
-                f"slave '{slave_name}': mailbox too small (write {rx_size} bytes, read "
-                f"{tx_size} bytes; both must exceed the {MAILBOX_HEADER_LEN}-byte header)"
+                f"mailbox too small (write {rx_size} bytes, read {tx_size} bytes; both must "
+                f"exceed the {MAILBOX_HEADER_LEN}-byte header)",
+                slave=slave_name,
             )
         self.dg = dg
         self.station = station
@@ -123,8 +123,9 @@ class Mailbox:
     def send(self, mbx_type: int, payload: bytes, timeout_s: float) -> None:
         if len(payload) > self.max_send_payload:
             raise MailboxError(
-                f"slave '{self.slave_name}': mailbox message of {len(payload)} bytes exceeds the "
-                f"write mailbox ({self.max_send_payload} bytes of data)"
+                f"mailbox message of {len(payload)} bytes exceeds the write mailbox "
+                f"({self.max_send_payload} bytes of data)",
+                slave=self.slave_name,
             )
         header = mailbox_header(len(payload), mbx_type, self._next_counter())
         message = (header + payload).ljust(self.rx_size, b"\x00")
@@ -137,9 +138,10 @@ class Mailbox:
             if empty and self.dg.fpwr(self.station, self.rx_offset, message) == 1:
                 return
             if time.monotonic() >= deadline:
-                raise MailboxError(
-                    f"slave '{self.slave_name}': timed out after {timeout_s:g} s waiting for the "
-                    "write mailbox to accept a message (it stays full)"
+                raise MailboxTimeout(
+                    self.slave_name,
+                    timeout_s,
+                    "the write mailbox to accept a message (it stays full)",
                 )
             attempt += 1
             self._sleep(attempt)
@@ -157,9 +159,10 @@ class Mailbox:
                 self._dispatch(got_type, payload)
                 attempt = 0
             elif time.monotonic() >= deadline:
-                raise MailboxError(
-                    f"slave '{self.slave_name}': timed out after {timeout_s:g} s waiting for a "
-                    f"{_type_name(mbx_type)} reply in the read mailbox"
+                raise MailboxTimeout(
+                    self.slave_name,
+                    timeout_s,
+                    f"a {_type_name(mbx_type)} reply in the read mailbox",
                 )
             else:
                 attempt += 1
@@ -203,8 +206,9 @@ class Mailbox:
         length, _address, _channel, mbx_type, _counter = header
         if length > len(data) - MAILBOX_HEADER_LEN:
             raise MailboxError(
-                f"slave '{self.slave_name}': read mailbox message says {length} bytes but the "
-                f"mailbox holds only {len(data) - MAILBOX_HEADER_LEN}"
+                f"read mailbox message says {length} bytes but the mailbox holds only "
+                f"{len(data) - MAILBOX_HEADER_LEN}",
+                slave=self.slave_name,
             )
         return mbx_type, data[MAILBOX_HEADER_LEN : MAILBOX_HEADER_LEN + length]
 
@@ -236,9 +240,7 @@ class Mailbox:
     def _dispatch(self, mbx_type: int, payload: bytes) -> None:
         if mbx_type == MailboxType.ERROR:
             code = struct.unpack_from("<H", payload, 2)[0] if len(payload) >= 4 else 0
-            raise MailboxError(
-                f"slave '{self.slave_name}': mailbox error 0x{code:04X} {mailbox_error_text(code)}"
-            )
+            raise MailboxErrorReply(self.slave_name, code)
         if self._is_emergency(mbx_type, payload) and self.emergency_handler is not None:
             self.emergency_handler(payload)
             return

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 from ether_ros._native.protocol import al, features, reg
 from ether_ros.config.sii import SiiInfo, parse_sii
-from ether_ros.errors import BusError, ConfigError
+from ether_ros.errors import BusError, ConfigError, IdentityMismatch
 from ether_ros.master.al import AlState
 from ether_ros.master.datagrams import (
     Cmd,
@@ -85,7 +85,7 @@ class FoundSlave:
 
     @property
     def lrw_supported(self) -> bool:
-        return not self.esc_features & features.NO_LRW
+        return not self.esc_features & features.LRW_NOT_SUPPORTED
 
     def identity(self) -> str:
         return (
@@ -219,10 +219,11 @@ def match_configuration(found: Sequence[FoundSlave], expected: Sequence[Expected
         if exp.revision is not None and slave.revision != exp.revision:
             mismatch = True
         if mismatch:
-            want = f"vendor 0x{exp.vendor_id:08X} product 0x{exp.product_code:08X}"
-            if exp.revision is not None:
-                want += f" revision 0x{exp.revision:08X}"
-            raise BusError(f"{label}: expected {want}, found {slave.identity()}")
+            raise IdentityMismatch(
+                label,
+                (exp.vendor_id, exp.product_code, exp.revision),
+                (slave.vendor_id, slave.product_code, slave.revision),
+            )
         positions.append(slave.position)
     if len(set(positions)) != len(positions):
         raise BusError("two configured slaves resolve to the same slave on the bus")

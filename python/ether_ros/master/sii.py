@@ -21,7 +21,7 @@ import time
 from collections.abc import Sequence
 
 from ether_ros._native.protocol import reg, sii, sii_category, sii_word
-from ether_ros.errors import BusError
+from ether_ros.errors import BusError, SiiReadError
 from ether_ros.master.datagrams import Cmd, Datagram, DatagramService, fixed_address, u16, u32
 
 log = logging.getLogger(__name__)
@@ -111,10 +111,7 @@ def read_sii(
                     still.append(i)
                     continue
                 if control & sii.COMMAND_ERRORS:
-                    raise BusError(
-                        f"{_who(names, i)}: SII read at word 0x{words[i]:04X} failed "
-                        f"(EEPROM control 0x{control:04X})"
-                    )
+                    raise SiiReadError(_who(names, i), words[i], control)
                 size = 8 if control & sii.READ_8_BYTES else 4
                 images[i].extend(reply.data[6 : 6 + size])
             if still and time.monotonic() > deadline:

@@ -26,7 +26,7 @@ from contextlib import AbstractContextManager
 from typing import Any, Protocol
 
 from ether_ros._native.protocol import reg
-from ether_ros.errors import EtherRosError
+from ether_ros.errors import BusError, EtherRosError
 from ether_ros.master.al import AlState, AlStateMachine
 from ether_ros.master.datagrams import DatagramService
 from ether_ros.master.events import BusEvent
@@ -272,7 +272,8 @@ class Supervisor:
             backoff = min(self._backoff.get(s.name, self.retry_s) * 2, self.max_retry_s)
             self._backoff[s.name] = backoff
             self._next_try[s.name] = time.monotonic() + backoff
-            text = str(exc).removeprefix(f"{s}: ")
+            # The reason without the slave's name when the error is about this slave.
+            text = exc.reason if isinstance(exc, BusError) and exc.slave == str(s) else str(exc)
             if self._last_failure.get(s.name) != text:
                 self._last_failure[s.name] = text
                 self._emit("recovery_failed", s, f"{s}: recovery failed: {text}")

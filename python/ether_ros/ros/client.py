@@ -50,6 +50,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from ether_ros.errors import EtherRosError
 from ether_ros.ros.convert import spec_from_msg
+from ether_ros.ros.freshness import Arrivals
 from ether_ros.ros.layout import BusSpec
 from ether_ros.ros.lease import own_publisher_gids
 from ether_ros.ros.node import (
@@ -101,6 +102,9 @@ class Latest:
     diagnostics: DiagnosticArray | None = None
     raw: PdoRaw | None = None
     counts: dict[str, int] = field(default_factory=dict)
+    # When each report arrived ("diagnostics", "inputs/<slave>", "outputs/<slave>",
+    # "commanded/<slave>"): a screen marks a report older than two periods as stale.
+    arrivals: Arrivals = field(default_factory=Arrivals)
 
 
 class EtherRosClient:
@@ -197,9 +201,13 @@ class EtherRosClient:
         if self.lease_token:
             with contextlib.suppress(Exception):  # the node may be gone already
                 self.release_lease(timeout=1.0)
-        self._executor.shutdown(timeout_sec=1.0)
-        self.node.destroy_node()
-        self._thread.join(timeout=2)
+        self._executor.shutdown(timeout_sec=5.0)
+        # The spin thread must be out of the executor's wait before the node's handles go:
+        # destroying the node first crashed rclpy (a segfault in wait_for_ready_callbacks) when
+        # a loaded host made the shutdown slower than its timeout.
+        self._thread.join(timeout=5)
+        if not self._thread.is_alive():
+            self.node.destroy_node()
         if self._own_context and rclpy.ok():
             rclpy.try_shutdown()
 
@@ -234,6 +242,7 @@ class EtherRosClient:
                         target[msg.slave] = {
                             v.name: float(x) for v, x in zip(names, msg.values, strict=True)
                         }
+                        self.latest.arrivals.note(f"{kind}/{msg.slave}")
                 self._bump(kind)
                 self._cond.notify_all()
             if kind == "inputs" and self._on_inputs is not None:
@@ -254,6 +263,7 @@ class EtherRosClient:
     def _on_diag(self, msg: DiagnosticArray) -> None:
         with self._cond:
             self.latest.diagnostics = msg
+            self.latest.arrivals.note("diagnostics")
             self._bump("diagnostics")
             self._cond.notify_all()
 

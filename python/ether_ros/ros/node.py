@@ -1006,7 +1006,7 @@ class EtherRosNode(LifecycleNode):
             return True, "panic latched (no cyclic exchange running)"
         bus.panic()
         self.get_logger().error("PANIC: safe outputs on the wire")
-        return True, "panic: safe outputs on the wire until clear_panic"
+        return True, "safe outputs on the wire until the panic is cleared"
 
     def clear_panic(self) -> tuple[bool, str]:
         bus = self._bus

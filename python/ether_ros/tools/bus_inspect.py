@@ -24,7 +24,7 @@ from ether_ros._native.protocol import esi_type_name, format_address, parse_addr
 from ether_ros.config import types as dt
 from ether_ros.config.esi import EsiDevice
 from ether_ros.config.sii import SiiInfo
-from ether_ros.errors import BusError, EtherRosError, LinkError
+from ether_ros.errors import BusError, EtherRosError, LinkError, MailboxTimeout
 from ether_ros.master.al import AlState, AlStateMachine, AlStatus, SlaveRef, al_code_text
 from ether_ros.master.datagrams import DatagramService
 from ether_ros.master.link import open_engine
@@ -631,9 +631,10 @@ def _sync_mailbox_counter(probe: Any) -> None:
         try:
             probe.upload(coe_facts.DEVICE_TYPE, 0)
             return
-        except EtherRosError as exc:
-            if "timed out" not in str(exc):
-                return  # an abort is an answer: the counter was accepted
+        except MailboxTimeout:
+            continue  # the message may have vanished as a repeat: try with the next counter
+        except EtherRosError:
+            return  # an abort is an answer: the counter was accepted
 
 
 def _check_register(address: int, length: int) -> None:

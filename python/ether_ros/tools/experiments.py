@@ -3,7 +3,9 @@
 Trot (Table 6.1): every leg gets the trajectory, gains and filter of Table 6.1 with a = b = 0;
 recording starts; ``b_ellipse100`` goes to 4 cm, then ``a_ellipse100`` to 5 cm (the firmware
 moves linearly over ``Transition_time``), the robot trots for ``hold_s``, then a and b go back
-to 0 in the reverse order, and the recording stops.
+to 0 in the reverse order, and the recording stops. The recording is then read back into the
+steady-trot report of :mod:`ether_ros.tools.trot_metrics`: per leg and joint the share of time
+at the PWM limit, peak PWM and speed, and the toe's distance from the desired path.
 
 Frequency (Tables 6.3–6.5): the same standing configuration is run for one round per loop time,
 from 400 µs down in steps of 50 µs; each round counts the frames lost (the thesis looked for
@@ -26,6 +28,7 @@ import numpy as np
 from ether_ros.errors import EtherRosError
 from ether_ros.tools.bus_source import BusSampleSource, bus_info, split_samples
 from ether_ros.tools.recording import FLAG_LATE, FLAG_LOST, Recorder, RecordingWriter
+from ether_ros.tools.trot_metrics import LegReport
 from ether_ros.tools.trot_table import TROT_A_CM, TROT_B_CM, leg_outputs
 
 
@@ -71,6 +74,8 @@ class TrotResult:
     # Times the command watchdog put the safe outputs on the wire during the run (this process
     # stalled longer than bus.watchdog_ms between two feeds).
     watchdog_trips: int = 0
+    # The steady-trot report of every leg (from the recording; empty without one).
+    report: list[LegReport] = field(default_factory=list)
 
 
 def _wait(bus: Any, seconds: float, check: Callable[[], None] | None = None) -> None:
@@ -146,6 +151,12 @@ def trot(
     finally:
         if recorder is not None:
             recorder.stop()
+    report: list[LegReport] = []
+    if record is not None:
+        from ether_ros.tools.recording import read_recording
+        from ether_ros.tools.trot_metrics import trot_report
+
+        report = trot_report(read_recording(record))
     return TrotResult(
         legs,
         phases,
@@ -153,6 +164,7 @@ def trot(
         _lost(bus) - lost_before,
         Path(record) if record is not None else None,
         _counter(bus, "watchdog_trips") - trips_before,
+        report,
     )
 
 

@@ -4,22 +4,41 @@ The screen (:class:`TopApp`, textual) draws :class:`LiveSnapshot` objects; where
 is a :class:`LiveSource`: a standalone bus opened by this process (:class:`BusLiveSource`) or
 the running ROS 2 node's diagnostics (:class:`DiagnosticsLiveSource`). Tests feed the screen a
 source of their own.
+
+Ctrl-P and F1 panic, as in the console: the source sends it (the standalone bus at once, the
+node through a :class:`~ether_ros.ros.panic_line.PanicLine` of its own). The node's reports age:
+one older than two of its periods is shown as stale — slave states unknown, never the OP of a
+node that is gone.
 """
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import math
+import os
+import signal
+import threading
 from collections import deque
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Protocol
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 import numpy as np
+from textual import events
 from textual.app import App, ComposeResult
+from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
+from textual.driver import Driver
 from textual.widgets import DataTable, Footer, Header, Static
 
+from ether_ros.ros.freshness import Arrivals, describe_age
+
+if TYPE_CHECKING:
+    from ether_ros.ros.panic_line import PanicLine
+
 HISTOGRAM_BINS = 12
+PANIC_KEYS = ("ctrl+p", "f1")
 
 
 @dataclass
@@ -83,10 +102,15 @@ class LiveSnapshot:
     quantiles_us: dict[str, tuple[float, float, float]] = field(default_factory=dict)
     source: str = ""
     error: str = ""  # the source cannot deliver (node gone, bus closed): shown, not raised
+    stale: str = ""  # the data is older than two report periods: why, shown above everything
 
 
 class LiveSource(Protocol):
     def poll(self) -> LiveSnapshot: ...
+
+    def panic(self, report: Callable[[str], None]) -> None:
+        """Send a panic now (never block); ``report`` gets the outcome, from any thread."""
+        ...
 
     def close(self) -> None: ...
 
@@ -121,7 +145,8 @@ def histogram_text(label: str, values: Sequence[float], bins: int = HISTOGRAM_BI
 def stats_text(s: LiveSnapshot) -> str:
     dc = "n/a" if s.dc_sync_error_ns is None else f"{s.dc_sync_error_ns:.0f} ns"
     freq = f"{1e6 / s.cycle_us:.0f} Hz" if s.cycle_us else "?"
-    lines = [
+    lines = [f"STALE: {s.stale}"] if s.stale else []
+    lines += [
         f"bus {s.bus or '?'}   cycle {s.cycle_us} µs ({freq})   cycles {s.cycles}"
         + ("   PANIC" if s.panic else ""),
         f"lost frames {s.lost_frames}   late frames {s.late_frames}   "
@@ -164,12 +189,23 @@ def timing_text(s: LiveSnapshot) -> str:
 
 
 class TopApp(App[None]):
-    """Slaves, statistics and timing histograms, refreshed every ``interval`` seconds."""
+    """Slaves, statistics and timing histograms, refreshed every ``interval`` seconds.
+
+    Keys: Ctrl-P or F1 panic (the command palette is off: Ctrl-P is the panic key), q quits.
+    On a terminal the panic keys are acted on in the thread that reads the terminal, before the
+    event loop sees them (so a busy loop cannot delay them); the bindings serve the rest (a test's
+    simulated keys). SIGTERM and SIGHUP end it cleanly."""
 
     TITLE = "ether-ros top"
-    BINDINGS: ClassVar = [("q", "quit", "quit")]
+    ENABLE_COMMAND_PALETTE = False
+    BINDINGS: ClassVar = [
+        Binding("ctrl+p", "panic", "PANIC", priority=True),
+        Binding("f1", "panic", "PANIC", show=False, priority=True),
+        Binding("q", "quit", "quit"),
+    ]
     CSS = """
     #stats { height: auto; padding: 0 1; }
+    #message { height: auto; padding: 0 1; color: $error; }
     #slaves { height: auto; max-height: 50%; }
     #axes { height: auto; padding: 0 1; }
     #timing { height: auto; padding: 0 1; }
@@ -180,11 +216,29 @@ class TopApp(App[None]):
         self.source = source
         self.interval = interval
         self.snapshot = LiveSnapshot()
+        self.messages: list[str] = []  # what the panic key reported, newest last
+        self._app_thread = threading.get_ident()
+        self._loop: asyncio.AbstractEventLoop | None = None
+
+    def get_driver_class(self) -> type[Driver]:
+        base: Any = super().get_driver_class()
+        app = self
+
+        class PanicFirstDriver(base):
+            def process_message(self, message: Any) -> None:
+                # The terminal's reading thread: a panic key goes out from here.
+                if isinstance(message, events.Key) and message.key in PANIC_KEYS:
+                    app.action_panic()
+                    return
+                super().process_message(message)
+
+        return PanicFirstDriver
 
     def compose(self) -> ComposeResult:
         yield Header()
         with Vertical():
             yield Static("", id="stats")
+            yield Static("", id="message")
             with Horizontal():
                 yield DataTable(id="slaves", cursor_type="row", zebra_stripes=True)
             yield Static("", id="axes")
@@ -192,10 +246,33 @@ class TopApp(App[None]):
         yield Footer()
 
     def on_mount(self) -> None:
+        self._app_thread = threading.get_ident()
+        self._loop = loop = asyncio.get_running_loop()
+        for sig in (signal.SIGTERM, signal.SIGHUP):
+            # Not in the main thread (the tests' run_test): no signals to take.
+            with contextlib.suppress(ValueError, RuntimeError):
+                loop.add_signal_handler(sig, self.exit)
         table = self.query_one("#slaves", DataTable)
         table.add_columns("pos", "slave", "state", "detail")
         self.refresh_view()
         self.set_interval(self.interval, self.refresh_view)
+
+    def action_panic(self) -> None:
+        """Send the panic (from the terminal's reading thread, or a binding)."""
+        self.source.panic(self._report)
+
+    def _report(self, message: str) -> None:
+        """From any thread, never waiting: show ``message`` on the screen."""
+        if threading.get_ident() == self._app_thread:
+            self.show_message(message)
+        elif self._loop is not None:
+            with contextlib.suppress(RuntimeError):  # the app is ending
+                self._loop.call_soon_threadsafe(self.show_message, message)
+
+    def show_message(self, message: str) -> None:
+        self.messages.append(message)
+        del self.messages[:-3]
+        self.query_one("#message", Static).update("\n".join(self.messages))
 
     def refresh_view(self) -> None:
         try:
@@ -214,6 +291,35 @@ class TopApp(App[None]):
 
     def on_unmount(self) -> None:
         self.source.close()
+
+
+def run_top(app: TopApp, terminal: int = 0) -> None:
+    """Run ``app`` on this terminal. For the node, the native key reader
+    (:meth:`PanicLine.watch_terminal`) sits between the terminal and textual: it sends the panic
+    the moment a panic key arrives, whatever the screen is doing, and passes every byte on to
+    textual through a pipe that takes the terminal's place as stdin (fd 0)."""
+    from prompt_toolkit.input.vt100 import raw_mode
+
+    line: PanicLine | None = getattr(app.source, "panic_line", None)
+    if line is None or not os.isatty(terminal):
+        app.run()
+        return
+    tty = os.dup(terminal)
+    try:
+        with raw_mode(tty):  # textual's own settings fail on the pipe: the same ones here
+            keys = line.watch_terminal(tty)
+            if keys is None:
+                app.run()
+                return
+            os.dup2(keys, terminal)
+            try:
+                app.run()
+            finally:
+                os.dup2(tty, terminal)
+                line.stop_watching()
+                os.close(keys)
+    finally:
+        os.close(tty)
 
 
 # ---- sources ------------------------------------------------------------------------------
@@ -321,6 +427,13 @@ class BusLiveSource:
             period_us=list(self._columns["period_ns"]),
             rtt_us=list(self._columns["rtt_ns"]),
             source=f"standalone bus on {cfg.interface}",
+        )
+
+    def panic(self, report: Callable[[str], None]) -> None:
+        self.bus.panic()
+        report(
+            "PANIC: safe outputs on the wire (the bus top opened); they stay until top ends "
+            "and closes the bus"
         )
 
     def close(self) -> None:
@@ -452,6 +565,16 @@ class DiagnosticsLiveSource:
         if self._owns_context:
             rclpy.init()
         self._node = rclpy.create_node(node_name)
+        # The node's services live beside its diagnostics topic ("/robot/diagnostics":
+        # "/robot/panic").
+        from ether_ros.ros.panic_line import PanicLine
+
+        self._panic_line = PanicLine(
+            topic[: topic.rfind("/") + 1],
+            self._node.context,
+            hint="clear it from the console ('clear')",
+        )
+        self.arrivals = Arrivals()
         self._master: dict[str, str] | None = None
         self._node_name = ""
         self._slaves: dict[str, tuple[str, dict[str, str]]] = {}
@@ -483,6 +606,7 @@ class DiagnosticsLiveSource:
             values = {kv.key: kv.value for kv in status.values}
             if what == "master":
                 self._master, self._node_name = values, node.lstrip("/")
+                self.arrivals.note("diagnostics")
             elif what.startswith("slave "):
                 self._slaves[what[len("slave ") :]] = (status.message, values)
             elif what.startswith("axis "):
@@ -491,6 +615,7 @@ class DiagnosticsLiveSource:
                 self._groups[what[len("group ") :]] = values
 
     def poll(self) -> LiveSnapshot:
+        self._panic_line.claim_keys()  # a key the screen did not see as one is still answered
         self._rclpy.spin_once(self._node, timeout_sec=0.0)
         if self._master is None:
             return LiveSnapshot(
@@ -501,12 +626,41 @@ class DiagnosticsLiveSource:
         )
         snap.cycle_us = self._cycle_us
         snap.source = f"node {self._node_name}, {snap.source}"
+        if not self.arrivals.fresh("diagnostics"):
+            mark_stale(snap, self._node_name, self.arrivals)
         return snap
 
+    @property
+    def panic_line(self) -> PanicLine:
+        return self._panic_line
+
+    def panic(self, report: Callable[[str], None]) -> None:
+        self._panic_line.report = report
+        if self._panic_line.watching:
+            self._panic_line.claim_keys()  # the native key reader has sent it already
+        else:
+            self._panic_line.press()
+
     def close(self) -> None:
+        self._panic_line.close()
         self._node.destroy_node()
         if self._owns_context and self._rclpy.ok():
             self._rclpy.shutdown()
+
+
+def mark_stale(snap: LiveSnapshot, node: str, arrivals: Arrivals) -> None:
+    """The node's last report is older than two periods: say so, and show no slave state
+    (a node that is gone has no slaves in OP, whatever its last report said)."""
+    age = arrivals.age("diagnostics") or 0.0
+    snap.stale = (
+        f"no report from node {node or '?'} for {describe_age(age)} (it reports every "
+        f"{describe_age(arrivals.period('diagnostics'))}): the node is gone or stalled; "
+        "nothing below is current"
+    )
+    for row in snap.slaves:
+        row.state, row.detail = "?", f"unknown: no report for {describe_age(age)}"
+    for axis in snap.axes:
+        axis.state = "?"
 
 
 class StaticSource:
@@ -516,11 +670,16 @@ class StaticSource:
         self._snapshots = list(snapshots)
         self._i = 0
         self.closed = False
+        self.panics = 0
 
     def poll(self) -> LiveSnapshot:
         snap = self._snapshots[min(self._i, len(self._snapshots) - 1)]
         self._i += 1
         return snap
+
+    def panic(self, report: Callable[[str], None]) -> None:
+        self.panics += 1
+        report(f"PANIC (static source, {self.panics})")
 
     def close(self) -> None:
         self.closed = True

@@ -3,17 +3,14 @@
 Every figure is built from a :class:`~ether_ros.tools.recording.Recording` as a matplotlib
 ``Figure`` (Agg, no display), so tests can inspect the lines and the CLI can save PNG and SVG.
 
-Conventions (Laelaps II leg, thesis eq. 4.1 and Table 4.2): ``hip_angle`` is the thigh angle θ1
-and ``knee_angle`` the shank angle θ2, both absolute from the downward vertical, in deg × 100;
-``PWM10000_*`` is % × 100; ``velocity_*1000`` is rad/s × 1000. The toe is at
-x = l1 sin θ1 + l2 sin θ2, y = l1 cos θ1 + l2 cos θ2 with y pointing down from the hip.
+The leg conventions, the limits and the steady-state window are those of
+:mod:`ether_ros.tools.trot_metrics`, which puts the same figures into numbers.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -21,85 +18,31 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
 from ether_ros.tools.recording import Recording, RecordingError
-
-L1_MM = 250.0
-L2_MM = 350.0
+from ether_ros.tools.trot_metrics import (
+    LegLimits,
+    forward_kinematics,
+    leg_slaves,
+    steady_state_mask,
+)
 
 DESIRED_COLOR = "red"
 ACTUAL_COLOR = "black"
 LIMIT_COLOR = "red"
 
-
-@dataclass(frozen=True)
-class LegLimits:
-    """Limits drawn on the figures. PWM: Table 6.1 (the motors' continuous current).
-
-    Speed: the GP 52 C gearhead's maximum input speed, 6000 rpm, through its ratio and the
-    48/26 pulley (hip 343/8, knee 637/12), as joint speed in rad/s.
-    """
-
-    pwm_knee_pct: float = 38.25
-    pwm_hip_pct: float = 41.17
-    speed_knee_rad_s: float = 6000 / (637 / 12 * 48 / 26) * 2 * math.pi / 60
-    speed_hip_rad_s: float = 6000 / (343 / 8 * 48 / 26) * 2 * math.pi / 60
-
-
-LEG_VARIABLES = (
-    "hip_angle",
-    "desired_hip_angle",
-    "knee_angle",
-    "desired_knee_angle",
-    "PWM10000_knee",
-    "PWM10000_hip",
-    "velocity_knee1000",
-    "velocity_hip1000",
-)
-
-
-def forward_kinematics(theta1: np.ndarray, theta2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Eq. 4.1: toe (x, y) in mm from the thigh and shank angles in rad."""
-    x = L1_MM * np.sin(theta1) + L2_MM * np.sin(theta2)
-    y = L1_MM * np.cos(theta1) + L2_MM * np.cos(theta2)
-    return x, y
-
-
-def leg_slaves(rec: Recording) -> list[str]:
-    """Slaves whose inputs carry the Laelaps II leg variables, in bus order."""
-    legs = [
-        s.name
-        for s in sorted(rec.bus.slaves, key=lambda s: s.position)
-        if s.name in rec.inputs and all(v in rec.inputs[s.name].columns for v in LEG_VARIABLES)
-    ]
-    return legs
+__all__ = [
+    "LegLimits",
+    "build_figures",
+    "forward_kinematics",
+    "leg_slaves",
+    "save_figures",
+    "steady_state_mask",
+    "timing_figure",
+    "toe_figure",
+]
 
 
 def _time_axis(rec: Recording, cycles: np.ndarray) -> np.ndarray:
     return rec.wake_times_s(cycles)
-
-
-def steady_state_mask(rec: Recording, slave: str) -> np.ndarray:
-    """Samples of the steady trot: the step length (``a_ellipse100``) commanded at its largest,
-    from one ``Transition_time`` after that command (the firmware ramps over that time) until
-    the command goes down again. Without those outputs in the recording, every sample counts.
-    """
-    inputs = rec.inputs[slave]
-    everything = np.ones(inputs.cycle.size, dtype=bool)
-    outputs = rec.outputs.get(slave)
-    if outputs is None or "a_ellipse100" not in outputs.columns or outputs.cycle.size == 0:
-        return everything
-    a = outputs["a_ellipse100"]
-    top = a.max()
-    if top <= 0:
-        return everything
-    # In time, not in cycles: cycles skipped under load would shift a cycle-count window.
-    at_top = rec.wake_times_s(outputs.cycle[a >= top])
-    lo, hi = float(at_top.min()), float(at_top.max())
-    if "Transition_time" in outputs.columns:
-        ramp_s = float(outputs["Transition_time"][a >= top].max())
-        if lo + ramp_s < hi:
-            lo += ramp_s
-    t = rec.wake_times_s(inputs.cycle)
-    return (t >= lo) & (t <= hi)
 
 
 def _grid(n: int) -> tuple[int, int]:

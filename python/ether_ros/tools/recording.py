@@ -22,7 +22,7 @@ from __future__ import annotations
 import struct
 import threading
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any, Protocol
@@ -253,26 +253,7 @@ class RecordingWriter:
         if len(self._timing) >= TIMING_BATCH:
             self._flush_timing(ns)
         if data.inputs or data.outputs:
-            for slave in self.bus.slaves:
-                for topic, values in (
-                    (inputs_topic(slave.name), data.inputs.get(slave.name)),
-                    (outputs_topic(slave.name), data.outputs.get(slave.name)),
-                ):
-                    if values is None:
-                        continue
-                    self._write(
-                        topic,
-                        "ether_ros_msgs/msg/SlaveValues",
-                        {
-                            "header": _header(ns),
-                            "slave": slave.name,
-                            "position": slave.position,
-                            "cycle": t.cycle,
-                            "values": [float(x) for x in values],
-                            "stale": False,  # the recorder's sources carry no freshness
-                        },
-                        ns,
-                    )
+            self._write_values(t.cycle, data.inputs, data.outputs, ns)
             if self._joint_index:
                 self._write_joints(data, ns)
         if data.raw_in or data.raw_out:
@@ -290,6 +271,50 @@ class RecordingWriter:
                 ns,
             )
         self.cycles += 1
+
+    def write_values(
+        self,
+        cycle: int,
+        inputs: Mapping[str, Sequence[float]],
+        outputs: Mapping[str, Sequence[float]],
+        ns: int | None = None,
+    ) -> None:
+        """Store the decoded values of one cycle without its timing (slave -> values in layout
+        order). For sources that see only decoded values, such as a ROS 2 client of the node:
+        the recording then holds no loop timing rather than invented timing, and its time axis
+        is cycle × period."""
+        ns = time.time_ns() if ns is None else ns
+        self._last_ns = ns
+        self._write_values(cycle, inputs, outputs, ns)
+        self.cycles += 1
+
+    def _write_values(
+        self,
+        cycle: int,
+        inputs: Mapping[str, Sequence[float]],
+        outputs: Mapping[str, Sequence[float]],
+        ns: int,
+    ) -> None:
+        for slave in self.bus.slaves:
+            for topic, values in (
+                (inputs_topic(slave.name), inputs.get(slave.name)),
+                (outputs_topic(slave.name), outputs.get(slave.name)),
+            ):
+                if values is None:
+                    continue
+                self._write(
+                    topic,
+                    "ether_ros_msgs/msg/SlaveValues",
+                    {
+                        "header": _header(ns),
+                        "slave": slave.name,
+                        "position": slave.position,
+                        "cycle": cycle,
+                        "values": [float(x) for x in values],
+                        "stale": False,  # the recorder's sources carry no freshness
+                    },
+                    ns,
+                )
 
     def _write_joints(self, data: CycleData, ns: int) -> None:
         names: list[str] = []
@@ -495,12 +520,19 @@ class Recording:
         """When the given cycles ran, in seconds since the first recorded cycle.
 
         From each cycle's measured wake-up time, so skipped cycles (overruns) do not stretch
-        or squeeze the time axis; cycle × period when the timing is not in the recording."""
+        or squeeze the time axis; cycle × period from the recording's first cycle when the
+        timing is not in the recording (one time origin for every series)."""
         cycles = np.asarray(cycles, dtype=np.int64)
         known = self.timing.get("cycle")
         wake = self.timing.get("t_wake_ns")
         if known is None or wake is None or known.size == 0:
-            first = int(cycles.min()) if cycles.size else 0
+            firsts = [
+                int(s.cycle.min())
+                for series in (self.inputs, self.outputs)
+                for s in series.values()
+                if s.cycle.size
+            ]
+            first = min(firsts) if firsts else (int(cycles.min()) if cycles.size else 0)
             return (cycles - first) * self.cycle_s
         t = (wake.astype(np.int64) - int(wake[0])) * 1e-9
         return np.interp(cycles.astype(float), known.astype(float), t)

@@ -1,11 +1,16 @@
-//! Physics of one Laelaps II leg: current-controlled motor amplifiers, Maxon gearheads and the
-//! 48/26 pulley, the two-link leg with gravity, joint end-stops and a spring-damper floor.
+//! Physics of one Laelaps II leg: current-controlled motor amplifiers limited by the supply
+//! voltage, Maxon gearheads and the 48/26 pulley, the two-link leg with gravity, joint end-stops,
+//! and the ground: a spring-damper treadmill belt under the toe that carries the leg's share of
+//! the body's weight.
 //!
-//! The hip is fixed (the body is held at its standing height by the rest of the robot or a test
-//! rig); generalized coordinates are the absolute link angles of `leg_kinematics` (theta1 thigh,
+//! Generalized coordinates are the absolute link angles of `leg_kinematics` (theta1 thigh,
 //! theta2 shank). The knee actuator sits on the body and drives the shank angle theta2 through
 //! its transmission, the hip actuator drives theta1; so each motor's reflected rotor inertia and
 //! friction act on its own coordinate. Integration is semi-implicit Euler.
+//!
+//! The body is not simulated as a rigid body (each leg is its own slave, in its own firmware
+//! model): the hip moves only vertically relative to the belt, slowly, so that over a stride the
+//! leg carries its share of the weight (`LegParams::body_load`); see docs/laelaps.md.
 
 use super::leg_kinematics::{JointAngles, L1, L2};
 
@@ -31,10 +36,16 @@ pub struct Actuator {
     pub viscous: f64,
     /// Coulomb friction at the joint, N·m.
     pub coulomb: f64,
+    /// Winding resistance, ohm (terminal resistance of the datasheet).
+    pub resistance: f64,
+    /// Supply voltage of the amplifier, V (thesis Table 6.2: 40.34 V).
+    pub supply_voltage: f64,
 }
 
 /// 48/26 pulley after both gearheads.
 pub const PULLEY: f64 = 48.0 / 26.0;
+/// The robot's supply voltage during the trot, V (thesis Table 6.2).
+pub const SUPPLY_VOLTAGE: f64 = 40.34;
 
 impl Actuator {
     /// Hip: Maxon EC 45 250 W (48 V winding) + GP 52 C 343/8 + pulley 48/26.
@@ -48,6 +59,8 @@ impl Actuator {
             rotor_inertia: 209e-7,
             viscous: 0.8,
             coulomb: 0.4,
+            resistance: 0.45,
+            supply_voltage: SUPPLY_VOLTAGE,
         }
     }
 
@@ -62,6 +75,8 @@ impl Actuator {
             rotor_inertia: 536e-7,
             viscous: 1.0,
             coulomb: 0.5,
+            resistance: 0.50,
+            supply_voltage: SUPPLY_VOLTAGE,
         }
     }
 
@@ -75,9 +90,26 @@ impl Actuator {
         pwm_pct / 100.0 * self.full_scale_current()
     }
 
-    /// Torque delivered at the joint for a PWM command (%), N·m.
+    /// Torque delivered at the joint for a PWM command (%) with the joint at rest, N·m.
     pub fn joint_torque(&self, pwm_pct: f64) -> f64 {
-        self.current(pwm_pct) * self.torque_constant * self.ratio * self.efficiency
+        self.joint_torque_at(pwm_pct, 0.0)
+    }
+
+    /// Torque delivered at the joint for a PWM command (%) while the joint turns at `w` rad/s.
+    /// The amplifier's current loop gives the commanded current as long as the supply can drive
+    /// it against the motor's back-EMF (k_e = k_t in SI units) and winding resistance; beyond
+    /// that the current, and the torque, fall off. This is what bounds the joint speeds.
+    pub fn joint_torque_at(&self, pwm_pct: f64, w: f64) -> f64 {
+        let emf = self.torque_constant * w * self.ratio;
+        let most = (self.supply_voltage - emf) / self.resistance;
+        let least = (-self.supply_voltage - emf) / self.resistance;
+        let current = self.current(pwm_pct).clamp(least, most);
+        current * self.torque_constant * self.ratio * self.efficiency
+    }
+
+    /// Joint speed at which the supply cannot drive any current into the motor, rad/s.
+    pub fn no_load_joint_speed(&self) -> f64 {
+        self.supply_voltage / self.torque_constant / self.ratio
     }
 
     /// Rotor inertia seen at the joint, kg·m².
@@ -100,11 +132,19 @@ pub struct LegParams {
     /// Shank (with the spring and foot) mass (kg) and centre of mass from the knee (m).
     pub shank_mass: f64,
     pub shank_com: f64,
-    /// Floor surface, m below the hip (y), stiffness N/m, damping N·s/m, friction coefficient.
+    /// Floor (belt) surface at power-on, m below the hip (y); stiffness N/m, damping N·s/m,
+    /// friction coefficient between foot and belt.
     pub floor_y: f64,
     pub floor_stiffness: f64,
     pub floor_damping: f64,
     pub floor_friction: f64,
+    /// The share of the body's weight this leg carries on average, N (0: the hip is held at a
+    /// fixed height above the floor). The body height follows the load slowly:
+    /// d(floor_y)/dt = (contact force - body_load) / body_damping, within ±body_travel of
+    /// `floor_y` (a harness stops the body there).
+    pub body_load: f64,
+    pub body_damping: f64,
+    pub body_travel: f64,
     /// Knee end-stops: relative angle phi = theta2 - theta1 in [-90°, 0°]; hip stop ±80°.
     pub stop_stiffness: f64,
     pub stop_damping: f64,
@@ -120,7 +160,10 @@ impl Default for LegParams {
             floor_y: 0.5955,
             floor_stiffness: 50_000.0,
             floor_damping: 500.0,
-            floor_friction: 0.1,
+            floor_friction: 0.6,
+            body_load: 110.0,
+            body_damping: 20_000.0,
+            body_travel: 0.020,
             stop_stiffness: 2_000.0,
             stop_damping: 20.0,
         }
@@ -138,6 +181,10 @@ pub struct LegPhysics {
     pub w: [f64; 2],
     /// Last floor reaction (Fx, Fy) on the toe, N (Fy < 0 pushes up).
     pub contact: (f64, f64),
+    /// Where the floor (belt) surface is now, m below the hip: the body's height.
+    pub floor_y: f64,
+    /// Velocity of the belt's surface along x, m/s (negative: it carries the toe backwards).
+    pub belt_vx: f64,
 }
 
 impl LegPhysics {
@@ -149,6 +196,8 @@ impl LegPhysics {
             q,
             w: [0.0; 2],
             contact: (0.0, 0.0),
+            floor_y: params.floor_y,
+            belt_vx: 0.0,
         }
     }
 
@@ -158,10 +207,11 @@ impl LegPhysics {
     }
 
     /// Floor reaction on the toe at height `toe_y` with the Jacobian `jac` (both from the
-    /// current angles, computed once per step by the caller).
+    /// current angles, computed once per step by the caller). Friction opposes the toe's slip
+    /// over the belt.
     fn floor_force(&self, toe_y: f64, jac: &[[f64; 2]; 2]) -> (f64, f64) {
         let p = &self.params;
-        let depth = toe_y - p.floor_y;
+        let depth = toe_y - self.floor_y;
         if depth <= 0.0 {
             return (0.0, 0.0);
         }
@@ -169,7 +219,8 @@ impl LegPhysics {
         let vy = jac[1][0] * self.w[0] + jac[1][1] * self.w[1];
         // Normal force pushes up (-y) and never pulls the toe into the floor.
         let normal = (p.floor_stiffness * depth + p.floor_damping * vy).max(0.0);
-        let tangential = -p.floor_friction * normal * (vx / 0.01).tanh();
+        let slip = vx - self.belt_vx;
+        let tangential = -p.floor_friction * normal * (slip / 0.01).tanh();
         (tangential, -normal)
     }
 
@@ -201,11 +252,11 @@ impl LegPhysics {
     /// Advance by `dt` seconds with the given PWM commands (%), in `substeps` steps.
     pub fn advance(&mut self, dt: f64, pwm_hip: f64, pwm_knee: f64, substeps: u32) {
         let h = dt / f64::from(substeps.max(1));
-        let tau_motor = [
-            self.hip.joint_torque(pwm_hip),
-            self.knee.joint_torque(pwm_knee),
-        ];
         for _ in 0..substeps.max(1) {
+            let tau_motor = [
+                self.hip.joint_torque_at(pwm_hip, self.w[0]),
+                self.knee.joint_torque_at(pwm_knee, self.w[1]),
+            ];
             self.substep(h, tau_motor);
         }
     }
@@ -248,6 +299,13 @@ impl LegPhysics {
         self.w[1] += h * a2;
         self.q.theta1 += h * self.w[0];
         self.q.theta2 += h * self.w[1];
+        if p.body_load > 0.0 {
+            // The body rises while the leg pushes harder than its share of the weight and sinks
+            // while it pushes less (or is in the air, the other legs holding the body).
+            let rate = (-fy - p.body_load) / p.body_damping;
+            self.floor_y = (self.floor_y + h * rate)
+                .clamp(p.floor_y - p.body_travel, p.floor_y + p.body_travel);
+        }
     }
 }
 
@@ -266,6 +324,42 @@ mod tests {
         assert!((hip.current(41.17) - 5.5).abs() < 1e-9);
         assert!((knee.current(-38.25) + 4.58).abs() < 1e-9);
         assert!(hip.joint_torque(41.17) > 10.0 && knee.joint_torque(38.25) > 20.0);
+    }
+
+    #[test]
+    fn the_supply_voltage_bounds_the_joint_speeds() {
+        for a in [Actuator::hip(), Actuator::knee()] {
+            let limit = a.pwm_limit_pct;
+            let top = a.no_load_joint_speed();
+            // Full torque at rest, less while the back-EMF eats the supply, none at the top.
+            assert!((a.joint_torque_at(limit, 0.0) - a.joint_torque(limit)).abs() < 1e-12);
+            assert!(a.joint_torque_at(limit, 0.5 * top) == a.joint_torque(limit));
+            assert!(a.joint_torque_at(limit, 0.97 * top) < 0.6 * a.joint_torque(limit));
+            assert!(a.joint_torque_at(limit, top).abs() < 1e-9);
+            // Braking a joint that runs the other way is not limited.
+            assert!(a.joint_torque_at(limit, -top) >= a.joint_torque(limit) - 1e-9);
+        }
+        // 40.34 V (Table 6.2): the knee cannot exceed ~4.4 rad/s, below its gearhead's 6000 rpm
+        // input limit (6.41 rad/s at the joint); the hip could reach ~9.6 rad/s.
+        let knee = Actuator::knee().no_load_joint_speed();
+        assert!((4.3..4.5).contains(&knee), "{knee}");
+        let hip = Actuator::hip().no_load_joint_speed();
+        assert!((9.4..9.8).contains(&hip), "{hip}");
+    }
+
+    #[test]
+    fn a_moving_belt_carries_a_standing_toe_along() {
+        // Motors off, the toe pressed 3 mm into the belt by the body's weight.
+        let mut leg = LegPhysics::new(LegParams::default(), inverse(0.0, 0.5985).unwrap());
+        leg.belt_vx = -0.2;
+        for _ in 0..1_000 {
+            leg.advance(1e-4, 0.0, 0.0, 1);
+        }
+        let jac = super::super::leg_kinematics::jacobian(leg.q);
+        let vx = jac[0][0] * leg.w[0] + jac[0][1] * leg.w[1];
+        assert!(leg.contact_force() > 20.0, "{}", leg.contact_force());
+        assert!(vx < -0.1, "toe moves back with the belt: {vx} m/s");
+        assert!(forward(leg.q).0 < -0.01, "{:?}", forward(leg.q));
     }
 
     #[test]
