@@ -282,6 +282,44 @@ def test_panic_command_from_stdin_names_the_console_command_to_clear_it(rig: Ros
     assert "panic cleared" in r.stdout
 
 
+def test_the_console_takes_the_lease_over_and_panics_without_it(rig: RosRig) -> None:
+    """The control lease (config/laelaps.yaml has it on) held by another client, here the
+    test's own: the console's writes are refused naming the holder, its panic is accepted all
+    the same (panic is anyone's), and ``lease take`` makes the console the holder."""
+    ok, message = rig.client.acquire_lease(takeover=True)
+    assert ok, message
+    holder = rig.client.node.get_fully_qualified_name()
+    assert rig.client.write("front_right_leg", "Kp100_knee", 2424)[0]
+    wire(rig, "front_right_leg", "Kp100_knee", 2424.0)
+
+    def run(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            [sys.executable, "-m", "ether_ros.cli.main", "console", *args],
+            input="", env=rig.env, capture_output=True, text=True, timeout=120, check=False,
+        )  # fmt: skip
+
+    r = run("-c", "set front_right_leg Kp100_knee=2525")
+    assert r.returncode != 0
+    assert f"held by '{holder}'" in r.stdout + r.stderr
+    assert rig.client.latest.outputs["front_right_leg"]["Kp100_knee"] == 2424.0
+
+    r = run("-c", "panic")  # without the lease
+    assert r.returncode == 0, r.stdout + r.stderr
+    wire(rig, "front_right_leg", "Kp100_knee", 0.0)  # the safe outputs
+    ok, message = rig.client.command("clear_panic")  # the holder clears it
+    assert ok, message
+    wire(rig, "front_right_leg", "Kp100_knee", 2424.0)
+
+    r = run("-c", "lease take", "-c", "set front_right_leg Kp100_knee=2626", "-c", "lease")
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert f"taken over from '{holder}'" in r.stdout
+    assert "(this console)" in r.stdout
+    wire(rig, "front_right_leg", "Kp100_knee", 2626.0)
+    # The console gave the lease back as it ended; the test's client takes it again.
+    ok, message = rig.client.acquire_lease(takeover=True)
+    assert ok, message
+
+
 def test_states_tell_the_truth_after_start_and_when_the_node_is_gone(rig: RosRig) -> None:
     """Right after `start` the slaves are shown in OP (not the INIT of the report before the
     start); with the node dead, its slaves are not shown at all, and it is said to be gone.

@@ -57,6 +57,29 @@ def test_link_up_undoes_every_link_fault() -> None:
     assert brd_wkc(net) == 1
 
 
+def test_the_sim_fault_command_mends_a_cut_inside_the_bus(tmp_path: Path) -> None:
+    """The report of issue 19: ``sim-fault link --at 2 down`` then ``sim-fault link up`` exited 0
+    and left slaves 2 and 3 cut off. Here through the command line and the simulator's control
+    socket, as an operator runs them."""
+    from ether_ros.cli.main import main
+    from ether_ros.sim.control import ControlServer
+    from ether_ros.sim.network import handle_request, slave_names
+
+    cfg = load_bus_config(REPO / "config" / "laelaps.yaml")
+    net = build_network(cfg)
+    path = tmp_path / "sim.sock"
+    server = ControlServer(path, slave_names(cfg), lambda op, k, a: handle_request(net, op, k, a))
+    server.start()
+    try:
+        fault = ["sim-fault", "--control", str(path), "link"]
+        assert main([*fault, "down", "--at", "2"]) == 0
+        assert brd_wkc(net) == 2
+        assert main([*fault, "up"]) == 0
+        assert brd_wkc(net) == 4
+    finally:
+        server.close()
+
+
 def _config() -> Any:
     cfg = load_bus_config(REPO / "config" / "laelaps.yaml")
     cfg.bus.cycle_us = 2000
