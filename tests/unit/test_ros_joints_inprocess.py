@@ -48,6 +48,7 @@ def wait_position(client: EtherRosClient, joint: str, target: float, timeout: fl
                     if s.name.endswith(f"axis {joint}")]  # fmt: skip
             raise AssertionError(
                 f"{joint} at {joint_positions(client)[joint]}, not {target}: {axis}"
+                f" (lease token {client.lease_token}, lost: {client.lease_lost!r})"
             )
         time.sleep(0.05)
 
@@ -210,7 +211,8 @@ def test_joint_commands_refused_when_not_active(arm: Any) -> None:
         assert not ok and "inactive" in message
     finally:
         node.run_command("start")
-        client.axis_command("enable")
+        ok, message, _ = client.axis_command("enable")
+        assert ok, f"enable after start: {message} (lease lost: {client.lease_lost!r})"
 
 
 def test_the_console_operates_the_axes(arm: Any) -> None:
