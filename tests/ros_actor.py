@@ -18,6 +18,10 @@ Requests (``op`` and its arguments) and answers:
 - ``{"op": "command", "command": C}``, ``{"op": "panic"}`` → ``{"ok", "message"}``
 - ``{"op": "change_state", "transition": T}`` (the lifecycle's own service) → ``{"ok"}``
 - ``{"op": "axis", "command": "enable"|"disable", "joints": [...]}`` → ``{"ok", "message"}``
+- ``{"op": "set_mode", "mode": M, "joints": [...]}``,
+  ``{"op": "sdo_write", "slave": S, "index": I, "subindex": SI, "type": T, "value": V}``
+  → ``{"ok", "message"}``; ``{"op": "trajectory", "names": [...], "points": [[t, [...]], ...]}``
+  (topic, answered on joint_results) → ``{"ok": true}``
 - ``{"op": "flood", "topic": "joint_commands"|"pdo_listener", "kind": K}``: publish as fast as
   possible from a thread (K: ``unknown`` joint, ``limit`` value, ``garbage`` bytes, ``text``
   write of an unknown variable) → ``{"ok": true}``; ``{"op": "flood_count"}`` → ``{"sent": n}``
@@ -93,6 +97,17 @@ class Actor:
         if op == "axis":
             ok, message, _ = c.axis_command(req["command"], req.get("joints"))
             return {"ok": ok, "message": message}
+        if op == "set_mode":
+            ok, message, _ = c.set_mode(req["mode"], req.get("joints"))
+            return {"ok": ok, "message": message}
+        if op == "sdo_write":
+            ok, message = c.sdo_write(
+                req["slave"], req["index"], req["subindex"], req["type"], req["value"]
+            )
+            return {"ok": ok, "message": message}
+        if op == "trajectory":
+            c.publish_trajectory(req["names"], [(t, p) for t, p in req["points"]])
+            return {"ok": True}
         if op == "flood":
             self._start_flood(req["topic"], req["kind"])
             return {"ok": True}

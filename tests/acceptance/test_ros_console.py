@@ -138,7 +138,10 @@ def test_sequence_file_runs_step_by_step(rig: RosRig, tmp_path: Path) -> None:
 
 
 def pty_console(rig: RosRig, *args: str) -> Pty:
-    """The console as an operator runs it: its own process, on a terminal."""
+    """The console as an operator runs it: its own process, on a terminal. The test's client
+    hands the control lease over first (config/laelaps.yaml has it on): the console acquires
+    it at its first command that needs it and gives it back when it ends."""
+    rig.client.release_lease()
     env = dict(rig.env, PROMPT_TOOLKIT_NO_CPR="1")  # the test's terminal answers no queries
     term = Pty([sys.executable, "-m", "ether_ros.cli.main", "console", *args], env=env)
     term.expect("ether_ros>", timeout=60)

@@ -7,7 +7,9 @@ in their own processes, and other operators as separate rclpy processes (tests/r
 - the lease can be taken over, and the old holder is refused from then on;
 - a holder that stops renewing (killed) loses the lease, and motion stops: the legs' outputs go
   back to their safe values on the wire;
-- the lifecycle's own change_state is refused while the lease is on.
+- the lifecycle's own change_state is refused while the lease is on;
+- on config/arm6.yaml (CiA 402 axes, lease on): axis services, mode changes, SDO writes, joint
+  commands and trajectories from a non-holder are refused naming the holder and move nothing.
 """
 
 from __future__ import annotations
@@ -200,3 +202,48 @@ def test_the_diagnostics_report_the_lease_and_what_else_protects_the_node(rig: R
     assert values["discovery_range"] == "LOCALHOST"  # the rig's environment
     assert values["dds_security_plugins"] == "absent"  # the PyPI Fast DDS
     assert values["authenticated"] == "false"
+
+
+def test_axes_modes_sdo_joints_and_trajectories_need_the_lease() -> None:
+    if os.geteuid() != 0:
+        pytest.skip("needs root (veth pairs)")
+    joint = "elbow"
+    with RosRig(REPO / "config" / "arm6.yaml", netns=True) as arm:
+        client = arm.client
+        client.wait_for_node()
+        ok, message, _ = client.axis_command("enable", [joint])  # acquires the lease first
+        assert ok, message
+        holder = holder_name(arm)
+        held = f"held by '{holder}'"
+
+        def position(latest: Any) -> float | None:
+            js = latest.joint_state
+            if js is None or joint not in js.name:
+                return None
+            return float(js.position[list(js.name).index(joint)])
+
+        client.publish_joint_command([joint], position=[0.2])
+        client.wait_for(lambda latest: abs((position(latest) or 9.0) - 0.2) < 0.02, 20)
+        other = Actor(arm, "arm_actor")
+        try:
+            for op, args in (
+                ("axis", {"command": "disable", "joints": [joint]}),
+                ("set_mode", {"mode": "csv", "joints": [joint]}),
+                ("sdo_write", {"slave": "base_drive", "index": 0x6065, "subindex": 0,
+                               "type": "UDINT", "value": "1000"}),
+            ):  # fmt: skip
+                answer = other(op, **args)
+                assert not answer["ok"] and held in answer["message"], (op, answer)
+            seen = other("joint_results_seen")["count"]
+            other("joint", names=[joint], position=[-0.3])
+            answer = other("joint_refusal", after=seen)
+            assert not answer["ok"] and held in answer["message"], answer
+            seen = other("joint_results_seen")["count"]
+            other("trajectory", names=[joint], points=[[0.5, [-0.3]]])
+            answer = other("joint_refusal", after=seen)
+            assert not answer["ok"] and held in answer["message"], answer
+            # Nothing of that moved the joint: the holder's last command still stands.
+            assert client.axis_states()[joint]["state"] == "operation_enabled"
+            assert abs((position(client.latest) or 9.0) - 0.2) < 0.02
+        finally:
+            other.close()
