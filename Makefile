@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 export PATH := $(CURDIR)/$(VENV)/bin:$(HOME)/.cargo/bin:$(PATH)
 export CARGO_TERM_COLOR := never
 
-.PHONY: all bootstrap build lint test test-rust test-python demo bench clean
+.PHONY: all bootstrap build lint test test-rust test-python demo bench fuzz clean
 
 all: build
 
@@ -38,6 +38,11 @@ demo: build
 
 bench: build
 	$(PY) bench/run.py
+
+# The long fuzz run: mutant corpora of several seeds, proptest and hypothesis with many cases;
+# the counts go to docs/benchmarks.md ("fuzz"). make test runs the same harnesses briefly.
+fuzz: build
+	$(PY) bench/run.py --only fuzz
 
 clean:
 	cargo clean

@@ -50,6 +50,10 @@ file.
   matches answers by datagram index, prints round-trip percentiles as JSON.
 - `bench/baseline.py`: builds the C tools (`cc -O2` into `bench/.build`), runs cyclictest and
   parses its histogram, runs the echo/probe pair, reads per-thread CPU time from `/proc`.
+- `bench/bench_fuzz.py` (`make fuzz`): the long fuzz run of every input boundary — mutant
+  corpora of the configurations and ESI files, proptest (frames, CDR, the simulated ESC),
+  hypothesis (configuration values, ROS messages); counts, not times. `make test` runs the same
+  harnesses with a fixed seed in seconds (the ESI and config corpora in a few minutes).
 """
 
 

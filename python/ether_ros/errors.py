@@ -9,6 +9,7 @@ decides by the data, never by parsing a message::
 
     EtherRosError
     ├── ConfigError (file, line, field, value)
+    ├── MessageError (topic, field)
     ├── BusError (slave)
     │   ├── AlStateRefused (slave, state, reached, code)
     │   ├── AlStateTimeout (slave, state, reached, timeout_s)
@@ -21,11 +22,16 @@ decides by the data, never by parsing a message::
     │       └── SdoAbort (index, subindex, code)
     └── LinkError (errno)
         └── FrameTimeout (commands, attempts, timeout_us, link)
+
+Where an error comes from is data as well as text: a :class:`ConfigError` carries the file, the
+line and the key path (``field``), a :class:`MessageError` the topic or service and the message
+field, so tests and tools can check them without parsing the message.
 """
 
 from __future__ import annotations
 
 import copy
+from pathlib import Path
 from types import ModuleType
 from typing import Any
 
@@ -55,16 +61,26 @@ class ConfigError(EtherRosError):
         self,
         message: str,
         *,
-        file: str | None = None,
+        file: str | Path | None = None,
         line: int | None = None,
         field: str | None = None,
         value: Any = None,
     ) -> None:
         super().__init__(message)
-        self.file = file
+        self.file = str(file) if file is not None else None
         self.line = line
         self.field = field
         self.value = value
+
+
+class MessageError(EtherRosError):
+    """A ROS message or service request refused before anything was done: names the topic (or
+    service) and the field when they are known."""
+
+    def __init__(self, message: str, *, topic: str | None = None, field: str | None = None) -> None:
+        super().__init__(message)
+        self.topic = topic
+        self.field = field
 
 
 class BusError(EtherRosError):

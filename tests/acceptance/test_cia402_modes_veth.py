@@ -20,6 +20,7 @@ Timing is never asserted: waits have generous deadlines.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 import time
@@ -92,6 +93,19 @@ def _entry(bus: Bus, axis: Axis) -> dict[str, Any]:
     return next(e for e in bus.plan["axes"] if e["name"] == axis.name)  # type: ignore[index]
 
 
+def _speed(velocity: Any, k: int) -> float:
+    """The axis's speed at cycle ``k``. The drive's velocity actual jitters from sample to
+    sample (a frame that misses a SYNC0 on this loaded VM repeats a target): the median of
+    five cycles around k."""
+    return float(np.median(velocity[max(k - 3, 0) : k + 2]))
+
+
+def _first_cycle(images: Any, m: dict[str, int], byte: str, mode: str, after: int = 0) -> int:
+    """The first cycle from ``after`` on whose ``byte`` (mode or mode display) shows ``mode``."""
+    values = _field(images, m[byte], "i1")
+    return after + int(np.flatnonzero(values[after:] == MODES[mode][0])[0])
+
+
 def _ready(axis: Axis, at: float) -> None:
     """Enabled in csp, at rest at ``at``."""
     if axis.state != "operation_enabled":
@@ -109,11 +123,13 @@ def _move(axis: Axis, mode: str) -> None:
     axis.set_mode(mode, timeout=3)
     here = axis.position
     if mode == "csp":
-        axis.follow([(0.0, here, 0.0), (0.4, here + 0.1, SPEED), (3.0, here + 1.4, SPEED)])
+        # Long enough (to 1.8 rad, inside every joint's limits) that a stalled test process
+        # still finds it moving.
+        axis.follow([(0.0, here, 0.0), (0.4, here + 0.1, SPEED), (5.0, here + 2.4, SPEED)])
     elif mode in ("csv", "pv"):
         axis.command(velocity=SPEED)
     elif mode == "pp":
-        axis.command(position=here + 1.0)
+        axis.command(position=here + 2.4)
     else:  # cst: a torque that accelerates the joint against its friction
         axis.command(torque=1.5)
     wait_for(f"{axis.name} moving in {mode}", lambda: axis.velocity > 0.8 * SPEED, timeout=10)
@@ -133,40 +149,40 @@ def test_a_mode_change_at_speed_is_a_quiet_stop(
     assert first in axis.spec.modes and second in axis.spec.modes
     entry = _entry(bus, axis)
     m = entry["map"]
-    _ready(axis, START)
-    faults = axis.status()["faults"]
-    bus.samples()  # what follows is the motion and the switch
-    _move(axis, first)
-    axis.set_mode(second, timeout=3)
-    # No command in the new mode: the axis comes to rest by itself.
-    wait_for(
-        f"{axis.name} at rest in {second}",
-        lambda: abs(axis.velocity) < STANDSTILL and axis.status()["idle"],
-        timeout=10,
-    )
-    time.sleep(0.1)
-    s = bus.samples()
-    st = axis.status()
-    assert st["state"] == "operation_enabled" and st["faults"] == faults, (
-        f"{first} → {second}: {st['state']}, last fault 0x{st['last_fault_code']:04X}"
-    )
-    assert not st["following_error_exceeded"], st
-    position = _field(s.images, m["position"], "<i4") * c.position_scale + c.position_offset
-    velocity = _field(s.images, m["velocity"], "<i4") * c.velocity_scale
+    # The premise is a switch while the axis moves at speed. A host that stalls the test
+    # process for seconds between "moving" and set_mode (a loaded CI machine) lets the motion
+    # end first; such a run proves nothing either way, so it is tried again from the start.
+    for _attempt in range(3):
+        _ready(axis, START)
+        faults = axis.status()["faults"]
+        bus.samples()  # what follows is the motion and the switch
+        _move(axis, first)
+        axis.set_mode(second, timeout=3)
+        # No command in the new mode: the axis comes to rest by itself.
+        wait_for(
+            f"{axis.name} at rest in {second}",
+            lambda: abs(axis.velocity) < STANDSTILL and axis.status()["idle"],
+            timeout=10,
+        )
+        time.sleep(0.1)
+        s = bus.samples()
+        st = axis.status()
+        assert st["state"] == "operation_enabled" and st["faults"] == faults, (
+            f"{first} → {second}: {st['state']}, last fault 0x{st['last_fault_code']:04X}"
+        )
+        assert not st["following_error_exceeded"], st
+        position = _field(s.images, m["position"], "<i4") * c.position_scale + c.position_offset
+        velocity = _field(s.images, m["velocity"], "<i4") * c.velocity_scale
 
-    def speed(k: int) -> float:
-        # The drive's velocity actual jitters from sample to sample (a frame that misses a
-        # SYNC0 on this loaded VM repeats a target): the median of five cycles around k.
-        return float(np.median(velocity[max(k - 3, 0) : k + 2]))
-
-    def first_cycle(byte: str, mode: str, after: int = 0) -> int:
-        values = _field(s.images, m[byte], "i1")
-        return after + int(np.flatnonzero(values[after:] == MODES[mode][0])[0])
-
-    moving = first_cycle("mode_display", first)
-    # The cycle the engine commanded the new mode: the axis was moving.
-    asked = first_cycle("mode", second, moving)
-    assert speed(asked) > 0.5 * SPEED, f"moving at the switch: {speed(asked)}"
+        speed = functools.partial(_speed, velocity)
+        first_cycle = functools.partial(_first_cycle, s.images, m)
+        moving = first_cycle("mode_display", first)
+        # The cycle the engine commanded the new mode: the axis was moving.
+        asked = first_cycle("mode", second, moving)
+        if speed(asked) > 0.5 * SPEED:
+            break
+    else:
+        pytest.fail(f"three tries, never moving at the switch (last {speed(asked):.3f} rad/s)")
     # The cycle the drive showed it: the state the new mode starts from.
     k = first_cycle("mode_display", second, asked)
     p0, v0 = float(position[k]), max(speed(k), 0.0)

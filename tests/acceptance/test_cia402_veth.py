@@ -89,7 +89,10 @@ def test_arm6_enables_every_axis_and_follows_a_trajectory(
     for a, p0 in zip(axes, starts, strict=True):
         wait_for(f"{a.name} back", lambda a=a, p0=p0: abs(a.position - p0) < SETTLED_TOLERANCE)
         st = a.status()
-        assert st["position_clamps"] == 0 and st["faults"] == 0
+        # position_clamps is not asserted: a late wake-up of the RT thread on a loaded host
+        # makes the engine clamp the trajectory's catch-up step to the velocity limit, which
+        # is the behaviour wanted there (tests/unit/test_engine_axes.py checks the clamp).
+        assert st["faults"] == 0, f"{a.name}: last fault 0x{st['last_fault_code']:04X}"
         assert not st["following_error_exceeded"]
     # The simulator's own view of the joints (the load side of each gear) agrees.
     probe = sim.request({"op": "probe", "slave": 1})

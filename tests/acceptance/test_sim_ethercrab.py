@@ -121,14 +121,16 @@ def test_laelaps_with_dc_and_sync0(probe: Path) -> None:
 def test_generic_io_free_run_loops_outputs_back(probe: Path) -> None:
     # Slave 0's first output byte holds DigitalOutput1..8; the model loops it back to the
     # digital inputs one firmware period later.
-    result, cfg = _run_config(
-        probe, REPO / "config" / "generic_io.yaml", "--cycle-us", "1000", "--set", "0:0:a5"
-    )
-    first = bus_order(cfg)[0]
+    config = REPO / "config" / "generic_io.yaml"
+    first = bus_order(load_bus_config(config))[0]
     digital_in = default_layout(first).variable("DigitalInput1")
     assert digital_in.bit_offset % 8 == 0
+    at = digital_in.bit_offset // 8
+    result, _cfg = _run_config(
+        probe, config, "--cycle-us", "1000", "--set", "0:0:a5", "--expect-input", f"0:{at}:a5"
+    )
     inputs = bytes.fromhex(result["inputs"][0])
-    assert inputs[digital_in.bit_offset // 8] == 0xA5
+    assert inputs[at] == 0xA5, result
 
 
 def test_mixed_bus(probe: Path) -> None:

@@ -5,6 +5,9 @@ from __future__ import annotations
 import argparse
 import subprocess
 import sys
+from pathlib import Path
+
+import yaml
 
 
 def test_help_lists_commands_and_version_prints() -> None:
@@ -57,3 +60,28 @@ def test_every_command_that_opens_an_interface_takes_link() -> None:
         link = p._option_string_actions.get("--link")
         assert link is not None, f"ether-ros {name} has --interface but no --link"
         assert tuple(link.choices or ()) == ("packet", "xdp", "auto"), name
+
+
+def test_hostile_configs_end_ether_ros_run_with_one_line_not_a_traceback(tmp_path: Path) -> None:
+    """Issue 19: a ROS period beyond int64 or an invalid namespace got through the config and
+    crashed ``ether-ros run`` with a traceback; a bad --node-name likewise."""
+    repo = Path(__file__).resolve().parents[2]
+    base = yaml.safe_load((repo / "config" / "laelaps.yaml").read_text())
+    base["esi"] = [str(repo / "devices")]
+    cases = [
+        ({"namespace": "/1robot"}, [], "ros.namespace"),
+        ({"namespace": "/ro\0bot"}, [], "ros.namespace"),
+        ({"snapshot_period_ms": 2**62}, [], "ros.snapshot_period_ms"),
+        ({}, ["--node-name", "bad name"], "node name"),
+    ]
+    for n, (ros, extra, field) in enumerate(cases):
+        config = tmp_path / f"bus{n}.yaml"
+        config.write_text(yaml.safe_dump({**base, "ros": {**base["ros"], **ros}}))
+        out = subprocess.run(
+            [sys.executable, "-m", "ether_ros.cli.main", "run", str(config), *extra],
+            capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+        assert out.returncode == 2, (field, out.stdout, out.stderr)
+        assert "Traceback" not in out.stderr, out.stderr
+        lines = out.stderr.strip().splitlines()
+        assert len(lines) == 1 and field in lines[0], out.stderr

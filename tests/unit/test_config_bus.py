@@ -279,7 +279,7 @@ def test_link_and_busy_poll(tmp_path: Path) -> None:
 
 
 def test_interface_override_is_checked(tmp_path: Path) -> None:
-    with pytest.raises(ConfigError, match=r"interface name must be 1\.\.15"):
+    with pytest.raises(ConfigError, match=r"--interface: an interface name has 1\.\.15 characters"):
         load_bus_config(write(tmp_path, GOOD), interface="x" * 16)
 
 

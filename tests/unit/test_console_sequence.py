@@ -3,6 +3,7 @@ before anything runs; a bad step is named with its number and reason."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -11,6 +12,7 @@ from bus_specs import spec_of
 from ether_ros.console.commands import CommandError, ConsoleContext, Control, Wait, Write
 from ether_ros.console.sequence import find_sequence, load_sequence, parse_sequence
 from ether_ros.ros.layout import BusSpec
+from ether_ros.testing import mutants
 
 
 @pytest.fixture(scope="module")
@@ -107,10 +109,19 @@ def test_bad_sequences_name_the_step_and_reason(
 
 
 def test_unreadable_and_invalid_yaml_files(tmp_path: Path, laelaps: BusSpec) -> None:
-    with pytest.raises(CommandError, match="cannot read"):
+    with pytest.raises(CommandError, match="sequence file not found"):
         load_sequence(tmp_path / "missing.yaml", zero_outputs(laelaps))
     bad = tmp_path / "bad.yaml"
     bad.write_text("steps: [unclosed\n")
-    with pytest.raises(CommandError, match="not valid YAML"):
+    with pytest.raises(CommandError, match=r"bad.yaml:2: invalid YAML"):
         load_sequence(bad, zero_outputs(laelaps))
     assert find_sequence(str(bad)) == bad
+    # The configuration's bounded loader: a FIFO is refused at once, an alias bomb too.
+    fifo = tmp_path / "fifo.yaml"
+    os.mkfifo(fifo)
+    with pytest.raises(CommandError, match="not a regular file"):
+        load_sequence(fifo, zero_outputs(laelaps))
+    bomb = tmp_path / "bomb.yaml"
+    bomb.write_bytes(mutants._alias_bomb() + b"steps: [wait 1]\n")
+    with pytest.raises(CommandError, match="aliases expand to more than"):
+        load_sequence(bomb, zero_outputs(laelaps))

@@ -483,8 +483,18 @@ def _fds() -> int:
     return len(os.listdir("/proc/self/fd"))
 
 
-def _threads() -> int:
-    return len(os.listdir("/proc/self/task"))
+def _engine_threads() -> int:
+    """The engine's own threads (named ether_ros-*). Counting every thread of the pytest process
+    would also count threads other tests left winding down (rclpy executors, responders) on a
+    loaded host, which come and go independently of the engine under test."""
+    count = 0
+    for tid in os.listdir("/proc/self/task"):
+        try:
+            if Path(f"/proc/self/task/{tid}/comm").read_text().startswith("ether_ros"):
+                count += 1
+        except FileNotFoundError:
+            continue
+    return count
 
 
 def test_start_stop_and_open_close_leak_nothing(veth: VethPair) -> None:
@@ -494,14 +504,15 @@ def test_start_stop_and_open_close_leak_nothing(veth: VethPair) -> None:
         engine = Engine.open_interface(veth.master)
         engine.start_cyclic(plan(cycle_ns=200_000))
         engine.stop_cyclic()
-        fds, threads = _fds(), _threads()
+        fds = _fds()
+        assert _engine_threads() == 0, "stop_cyclic left the RT thread running"
         for i in range(50):
             engine.start_cyclic(plan(cycle_ns=200_000))
             if i % 10 == 0:
                 engine.transact([("BRD", 0, 2)], timeout_us=500_000)
             engine.stop_cyclic()
             engine.drain_samples()
-        assert (_fds(), _threads()) == (fds, threads)
+        assert (_fds(), _engine_threads()) == (fds, 0)
         engine.close()
         assert _fds() == fds - 1  # the raw socket
         with pytest.raises(LinkError, match="closed"):

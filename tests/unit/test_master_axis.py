@@ -213,3 +213,39 @@ def test_stop_takes_every_axis_out_of_operation_enabled_first(drives: Bus) -> No
     states = [drives.engine.axis_status(i)["state"] for i in range(6)]
     assert "operation_enabled" not in states, states
     assert all(drives.engine.axis_status(i)["controlword"] == 0x0002 for i in range(6))
+
+
+def test_a_trajectory_for_an_axis_out_of_operation_enabled_is_refused() -> None:
+    """Issue 19: a trajectory sent to a faulted axis was answered "accepted", then dropped.
+    Refused with the drive's state (and its error) and what to do; nothing is handed over."""
+    from ether_ros.sim.network import build_network
+
+    cfg = _config()
+    for s in cfg.slaves:
+        s.sim.device = None
+        for a in s.axes:
+            a.fault_reset = "manual"
+    net = build_network(cfg)
+    with Bus.open(cfg, link=net, drift_frames=100) as b:
+        b.start()
+        wrist = b.axis("wrist_1")
+        handed = dict(b.axis_trajectories)
+        track = [(0.5, 0.1, 0.0)]
+        with pytest.raises(AxisCommandError, match=r"axis wrist_1 is \w+, not operation_enabled: "
+                           "a trajectory is refused; enable the axis first"):  # fmt: skip
+            wrist.follow(track)
+        wrist.enable()
+        net.fault("drive_fault", slave=1, error="encoder", axis=2)  # elbow_drive axis 2: wrist_1
+        wait_for("the fault", lambda: wrist.status()["state"] == "fault")
+        with pytest.raises(
+            AxisCommandError,
+            match=r"axis wrist_1 is in fault \(error 0x7305: incremental encoder 1 fault\): "
+            "a trajectory is refused; reset_fault, then enable the axis",
+        ):
+            wrist.follow(track)
+        assert b.axis_trajectories == handed, "nothing was handed to the engine"
+        wrist.reset_fault()
+        wrist.enable()
+        wrist.follow(track)
+        seq = b.axis_trajectories[wrist.index]
+        wait_for("the trajectory taken", lambda: wrist.status()["command_seq"] >= seq)

@@ -31,6 +31,7 @@ from rclpy.serialization import serialize_message
 from ether_ros import _native
 from ether_ros.config import load_bus_config
 from ether_ros.errors import EtherRosError
+from ether_ros.master import workspace
 from ether_ros.master.bus import Bus
 from ether_ros.ros import bridge
 from ether_ros.ros.layout import BusSpec
@@ -129,28 +130,41 @@ def test_the_native_resolver_applies_only_what_python_accepts(
 ) -> None:
     bus, spec = mixed_bus
     table = command_table(bus, spec)
-    applied = refused_by_both = 0
+    # A leg's trajectory record: the master checks it against the workspace, so Python.
+    ruled = {
+        name
+        for s in bus.slaves
+        if s.layout is not None and s.device is not None
+        for name in workspace.ruled_outputs(
+            s.device.type_name, [(v.name, v.index, v.subindex) for v in s.layout.outputs]
+        )
+    }
+    assert "a_ellipse100" in ruled
+    applied = refused_by_both = deferred_ruled = 0
     for r in requests(spec):
         native = table.resolve(serialize_message(r))
         python = python_resolution(bus, spec, r)
         if native is not None:
             assert python is not None, f"native applied what Python refuses: {r}"
             assert (sorted(native[0]), native[1]) == python, r
+            assert r.variable not in ruled, f"native applied a ruled variable: {r}"
             applied += 1
         elif python is None:
             refused_by_both += 1
+        elif r.variable in ruled:
+            deferred_ruled += 1
         elif not r.text and r.variable in {v.name for s in spec.slaves for v in s.outputs}:
             pytest.fail(f"a plain valid write was left to Python: {r}")
-    assert applied > 500 and refused_by_both > 500
+    assert applied > 500 and refused_by_both > 500 and deferred_ruled > 0
 
 
 def test_reals_and_wide_integers_are_encoded_as_python_encodes_them() -> None:
     rows = [
         ("s", 0, [
-            ("f", 0x7000, 1, 0, 32, "real32", -3.4028234663852886e38, 3.4028234663852886e38),
-            ("d", 0x7000, 2, 32, 64, "real64", -math.inf, math.inf),
-            ("u", 0x7000, 3, 96, 64, "uint", 0.0, 2.0**64 - 1),
-            ("i", 0x7000, 4, 160, 12, "int", -2048.0, 2047.0),
+            ("f", 0x7000, 1, 0, 32, "real32", -3.4028234663852886e38, 3.4028234663852886e38, False),
+            ("d", 0x7000, 2, 32, 64, "real64", -math.inf, math.inf, False),
+            ("u", 0x7000, 3, 96, 64, "uint", 0.0, 2.0**64 - 1, False),
+            ("i", 0x7000, 4, 160, 12, "int", -2048.0, 2047.0, False),
         ]),
     ]  # fmt: skip
     table = _native.CommandTable(rows)
@@ -169,9 +183,9 @@ def test_reals_and_wide_integers_are_encoded_as_python_encodes_them() -> None:
 
 def test_bad_tables_and_bytes_are_refused_with_the_reason() -> None:
     with pytest.raises(ValueError, match="unknown kind 'float'"):
-        _native.CommandTable([("s", 0, [("v", 1, 1, 0, 32, "float", 0.0, 1.0)])])
+        _native.CommandTable([("s", 0, [("v", 1, 1, 0, 32, "float", 0.0, 1.0, False)])])
     with pytest.raises(ValueError, match="Real32 with 16 bit"):
-        _native.CommandTable([("s", 0, [("v", 1, 1, 0, 16, "real32", 0.0, 1.0)])])
+        _native.CommandTable([("s", 0, [("v", 1, 1, 0, 16, "real32", 0.0, 1.0, False)])])
     table = _native.CommandTable([])
     data = serialize_message(request("s", "v", 1.0))
     with pytest.raises(ValueError, match="message ends inside field 'value'"):
@@ -288,11 +302,16 @@ def test_a_published_write_reaches_the_engine_without_python(
     wait_until(lambda: 11 in r.answers)
     assert r.answers[11].success
     assert r.answers[11].message == "wrote front_left_leg.Kp100_hip=4321"
-    r.publish(request(variable="b_ellipse100", value=3.0, all_slaves=True, request_id=12))
+    r.publish(request(variable="Kd1000_knee", value=3.0, all_slaves=True, request_id=12))
     wait_until(lambda: 12 in r.answers)
-    assert [r.output(s.name, "b_ellipse100") for s in r.spec.slaves] == [3] * 4
+    assert [r.output(s.name, "Kd1000_knee") for s in r.spec.slaves] == [3] * 4
     counters = r.path.counters()
     assert counters["applied"] == 2 and counters["deferred"] == 0 and not deferred
+    # A leg's trajectory goes to Python, which checks it against the workspace.
+    r.publish(request(variable="b_ellipse100", value=3.0, all_slaves=True, request_id=13))
+    r.publish(request("front_left_leg", "b_ellipse100", 3.0, request_id=14))
+    wait_until(lambda: len(deferred) == 2)
+    assert [m.request_id for m in deferred] == [13, 14]
     assert r.path.last_command_ns() > 0
     # The slave received it: the simulated firmware echoes its gains in the frames it answers.
     wait_until(lambda: r.bus.read("front_left_leg", "Kp100_hip") == 4321)

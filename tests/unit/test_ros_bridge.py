@@ -87,24 +87,45 @@ def test_resolve_write_by_name_position_all_and_text() -> None:
 
 
 @pytest.mark.parametrize(
-    ("args", "reason"),
+    ("args", "reason", "field"),
     [
-        (("", -1, False, "Kp100_knee", 1.0, ""), "no slave given"),
-        (("x", -1, False, "Kp100_knee", 1.0, ""), "no slave named 'x'"),
-        (("", 9, False, "Kp100_knee", 1.0, ""), "no slave at position 9"),
-        (("", -1, True, "hip_angle", 1.0, ""), "no slave has an output variable"),
-        (("front_left_leg", -1, False, "hip_angle", 1.0, ""), "is an input"),
-        (("front_left_leg", -1, False, "", 1.0, ""), "no variable given"),
-        (("front_left_leg", -1, False, "Kp100_knee", 1e9, ""), "outside -32768..32767"),
-        (("front_left_leg", -1, False, "Kp100_knee", float("nan"), ""), "not a finite number"),
-        (("front_left_leg", -1, False, "Kp100_knee", 0.0, "1e3x"), "not an integer"),
-        (("front_left_leg", -1, False, "State_Machine", 0.5, ""), "not an integer"),
+        (("", -1, False, "Kp100_knee", 1.0, ""), "no slave given", "slave"),
+        (("x", -1, False, "Kp100_knee", 1.0, ""), "no slave named 'x'", "slave"),
+        (("", 9, False, "Kp100_knee", 1.0, ""), "no slave at position 9", "position"),
+        (("", -1, True, "hip_angle", 1.0, ""), "no slave has an output variable", "variable"),
+        (("front_left_leg", -1, False, "hip_angle", 1.0, ""), "is an input", "variable"),
+        (("front_left_leg", -1, False, "", 1.0, ""), "no variable given", "variable"),
+        (("front_left_leg", -1, False, "Kp100_knee", 1e9, ""), "outside -32768..32767", "value"),
+        (
+            ("front_left_leg", -1, False, "Kp100_knee", float("nan"), ""),
+            "not a finite number",
+            "value",
+        ),
+        (("front_left_leg", -1, False, "Kp100_knee", 0.0, "1e3x"), "not an integer", "text"),
+        (("front_left_leg", -1, False, "State_Machine", 0.5, ""), "not an integer", "value"),
+        # one slave or all of them, never both (issue 19: both wrote every slave)
+        (
+            ("front_left_leg", -1, True, "Kp100_knee", 1.0, ""),
+            "all_slaves is true and slave",
+            "all_slaves",
+        ),
+        (("", 2, True, "Kp100_knee", 1.0, ""), "all_slaves is true and position 2", "all_slaves"),
+        # names and text: control characters and overlong strings, before any lookup
+        (
+            ("front_left_leg", -1, False, "Kp100_knee\x1b[2J", 1.0, ""),
+            "variable: character 10",
+            "variable",
+        ),
+        (("front\nleft", -1, False, "Kp100_knee", 1.0, ""), "slave: character 5", "slave"),
+        (("front_left_leg", -1, False, "x" * 300, 1.0, ""), "variable: 300 characters", "variable"),
+        (("front_left_leg", -1, False, "Kp100_knee", 0.0, "1\x00"), "text: character 1", "text"),
     ],
 )
-def test_resolve_write_refuses_with_the_reason(args: tuple, reason: str) -> None:  # type: ignore[type-arg]
+def test_resolve_write_refuses_with_the_reason(args: tuple, reason: str, field: str) -> None:  # type: ignore[type-arg]
     with pytest.raises(bridge.WriteRejected) as err:
         bridge.resolve_write(spec_of("laelaps.yaml"), *args)
     assert reason in str(err.value)
+    assert err.value.field == field, "the refusal names the message field as data"
 
 
 def test_flat_stats_and_lookup() -> None:

@@ -12,10 +12,14 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from builtin_interfaces.msg import Duration
+from rclpy.serialization import serialize_message
+from sensor_msgs.msg import JointState
 from test_ros_node_inprocess import running_node
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from ether_ros.ros.client import EtherRosClient
-from ether_ros.ros.node import EtherRosNode
+from ether_ros.ros.node import QOS_COMMANDS, EtherRosNode
 
 pytestmark = [pytest.mark.ros]
 
@@ -39,7 +43,7 @@ def joint_positions(client: EtherRosClient) -> dict[str, float]:
     return dict(zip(msg.name, msg.position, strict=True))
 
 
-def wait_position(client: EtherRosClient, joint: str, target: float, timeout: float = 5.0) -> None:
+def wait_position(client: EtherRosClient, joint: str, target: float, timeout: float = 20.0) -> None:
     deadline = time.monotonic() + timeout
     while abs(joint_positions(client)[joint] - target) > 0.01:
         if time.monotonic() > deadline:
@@ -113,6 +117,41 @@ def test_bad_joint_commands_are_refused_and_write_nothing(
     structural = why.startswith(("unknown joint", "1 value(s)", "named twice"))
     assert after["refused"] == counters["refused"] + structural
     assert after["deferred"] == counters["deferred"] + (not structural)
+
+
+@pytest.mark.parametrize(
+    ("topic", "message", "why"),
+    [
+        (
+            "joint_commands",
+            JointState(name=["wrist_1", "elbow#junk"], position=[0.1, 0.3]),
+            "joint_commands refused: field 'name' holds a NUL at byte 5",
+        ),
+        (
+            "joint_trajectory",
+            JointTrajectory(
+                joint_names=["elbow#junk"],
+                points=[JointTrajectoryPoint(positions=[0.3], time_from_start=Duration(sec=1))],
+            ),
+            "joint_trajectory refused: field 'joint_names' holds a NUL at byte 5",
+        ),
+    ],
+)
+def test_a_joint_name_with_a_nul_is_refused_not_cut(
+    arm: Any, topic: str, message: Any, why: str
+) -> None:
+    """Issue 19: ``elbow\\0junk`` in raw CDR moved the elbow (rclpy cuts the name at the NUL).
+    Refused by the native decoder, on the native path (joint_commands) and before rclpy reads
+    it (joint_trajectory)."""
+    node, client, _net = arm
+    seq = command_seq(node)
+    before = len(client.joint_results)
+    publisher = client.node.create_publisher(type(message), topic, QOS_COMMANDS)
+    client.wait_for(lambda _l: publisher.get_subscription_count() > 0)
+    publisher.publish(serialize_message(message).replace(b"#", b"\0"))
+    assert refusal(client, before) == why
+    assert command_seq(node) == seq
+    client.node.destroy_publisher(publisher)
 
 
 def test_joint_trajectory_runs_in_time(arm: Any) -> None:
@@ -270,3 +309,22 @@ def test_a_slow_enable_holds_up_no_other_callback(arm: Any, monkeypatch: Any) ->
         release.set()
         caller.join(10)
     assert answer and answer[0][0], answer
+
+
+def test_a_trajectory_for_a_disabled_axis_is_refused_with_the_reason(arm: Any) -> None:
+    """Issue 19: a trajectory for an axis out of Operation Enabled was answered "accepted" and
+    never ran; now it is refused naming the state and what to do."""
+    node, client, _net = arm
+    ok, message, _ = client.axis_command("disable", ["wrist_3"])
+    assert ok, message
+    try:
+        seq = command_seq(node)
+        before = len(client.joint_results)
+        client.publish_trajectory(["wrist_3", "elbow"], [(0.5, [0.1, 0.1])])
+        why = refusal(client, before)
+        assert "axis wrist_3 is switch_on_disabled, not operation_enabled" in why, why
+        assert "enable the axis first" in why
+        assert command_seq(node) == seq
+    finally:
+        ok, message, _ = client.axis_command("enable", ["wrist_3"])
+        assert ok, message

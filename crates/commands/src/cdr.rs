@@ -33,6 +33,10 @@ pub enum CdrError {
     Encapsulation(u16),
     /// A string that is not NUL-terminated or not UTF-8.
     BadString { field: &'static str },
+    /// A string with a NUL before its end: C code (rclpy's conversion to Python, any
+    /// `strlen`) would see only the part before it, so `Kp100_knee\0junk` would act on
+    /// `Kp100_knee`. Refused, never truncated.
+    EmbeddedNul { field: &'static str, at: usize },
 }
 
 impl fmt::Display for CdrError {
@@ -44,6 +48,9 @@ impl fmt::Display for CdrError {
             CdrError::Encapsulation(id) => write!(f, "unsupported CDR encapsulation 0x{id:04x}"),
             CdrError::BadString { field } => {
                 write!(f, "field '{field}' is not a NUL-terminated UTF-8 string")
+            }
+            CdrError::EmbeddedNul { field, at } => {
+                write!(f, "field '{field}' holds a NUL at byte {at}")
             }
         }
     }
@@ -108,6 +115,9 @@ impl<'a> Reader<'a> {
         let (nul, text) = bytes.split_last().expect("len > 0");
         if *nul != 0 {
             return Err(CdrError::BadString { field });
+        }
+        if let Some(at) = text.iter().position(|&b| b == 0) {
+            return Err(CdrError::EmbeddedNul { field, at });
         }
         std::str::from_utf8(text).map_err(|_| CdrError::BadString { field })
     }
@@ -235,6 +245,30 @@ pub fn decode_joint_state<'a>(
     })
 }
 
+/// Check a serialized `trajectory_msgs/JointTrajectory` (header, joint_names[], points[] of
+/// positions[], velocities[], accelerations[], effort[], time_from_start) without keeping it:
+/// every string whole (no NUL inside, UTF-8) and every sequence inside the buffer. Python
+/// handles the trajectory itself; this only tells it whether rclpy's copy can be trusted.
+pub fn check_joint_trajectory(data: &[u8]) -> Result<(), CdrError> {
+    let mut r = reader(data)?;
+    r.i32("header.stamp.sec")?;
+    r.u32("header.stamp.nanosec")?;
+    r.string("header.frame_id")?;
+    for _ in 0..r.count("joint_names")? {
+        r.string("joint_names")?;
+    }
+    for _ in 0..r.count("points")? {
+        // Each point takes at least 24 bytes, so a bogus count ends in Truncated.
+        r.f64_seq("points.positions")?;
+        r.f64_seq("points.velocities")?;
+        r.f64_seq("points.accelerations")?;
+        r.f64_seq("points.effort")?;
+        r.i32("points.time_from_start.sec")?;
+        r.u32("points.time_from_start.nanosec")?;
+    }
+    Ok(())
+}
+
 /// Encode a `WriteResult` (request_id, success, message) into `out` (cleared first), little
 /// endian, with its encapsulation header.
 pub fn encode_write_result(out: &mut Vec<u8>, request_id: u32, success: bool, message: &str) {
@@ -312,6 +346,80 @@ mod tests {
         assert_eq!(
             decode_write_variable(&data),
             Err(CdrError::Encapsulation(3))
+        );
+    }
+
+    /// A WriteVariable as rclpy serializes it, with `slave` and `variable` given as raw bytes
+    /// (so they may hold a NUL), little endian.
+    fn write_variable(slave: &[u8], variable: &[u8]) -> Vec<u8> {
+        fn string(b: &mut Vec<u8>, s: &[u8]) {
+            while !(b.len() - HEADER).is_multiple_of(4) {
+                b.push(0);
+            }
+            b.extend_from_slice(&(s.len() as u32 + 1).to_le_bytes());
+            b.extend_from_slice(s);
+            b.push(0);
+        }
+        let mut b = vec![0x00, 0x01, 0x00, 0x00];
+        string(&mut b, slave);
+        while !(b.len() - HEADER).is_multiple_of(4) {
+            b.push(0);
+        }
+        b.extend_from_slice(&(-1i32).to_le_bytes());
+        b.push(0); // all_slaves
+        string(&mut b, variable);
+        while !(b.len() - HEADER).is_multiple_of(8) {
+            b.push(0);
+        }
+        b.extend_from_slice(&1.0f64.to_le_bytes());
+        string(&mut b, b"");
+        while !(b.len() - HEADER).is_multiple_of(4) {
+            b.push(0);
+        }
+        b.extend_from_slice(&5u32.to_le_bytes());
+        b
+    }
+
+    #[test]
+    fn an_embedded_nul_is_refused_not_truncated() {
+        let ok = write_variable(b"leg", b"Kp100_knee");
+        let r = decode_write_variable(&ok).unwrap();
+        assert_eq!(
+            (r.slave, r.variable, r.request_id),
+            ("leg", "Kp100_knee", 5)
+        );
+        let e = decode_write_variable(&write_variable(b"leg", b"Kp100_knee\0junk")).unwrap_err();
+        assert_eq!(
+            e,
+            CdrError::EmbeddedNul {
+                field: "variable",
+                at: 10
+            }
+        );
+        assert_eq!(e.to_string(), "field 'variable' holds a NUL at byte 10");
+        let e = decode_write_variable(&write_variable(b"\0leg", b"x")).unwrap_err();
+        assert_eq!(
+            e,
+            CdrError::EmbeddedNul {
+                field: "slave",
+                at: 0
+            }
+        );
+    }
+
+    #[test]
+    fn a_joint_name_with_a_nul_is_refused() {
+        // JOINTS_FROM_RCLPY with the name "a" made "a\0b" (length 4, then padding).
+        let mut data = hex(JOINTS_FROM_RCLPY)[..24].to_vec();
+        data.extend_from_slice(&4u32.to_le_bytes());
+        data.extend_from_slice(b"a\0b\0");
+        let mut names = Vec::new();
+        assert_eq!(
+            decode_joint_state(&data, &mut names),
+            Err(CdrError::EmbeddedNul {
+                field: "name",
+                at: 1
+            })
         );
     }
 

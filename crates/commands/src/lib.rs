@@ -30,8 +30,8 @@ pub mod receiver;
 pub mod table;
 
 pub use cdr::{
-    decode_joint_state, decode_write_variable, encode_write_result, CdrError, JointCommand,
-    WriteRequest,
+    check_joint_trajectory, decode_joint_state, decode_write_variable, encode_write_result,
+    CdrError, JointCommand, WriteRequest,
 };
 pub use joints::{JointEntry, JointTable, Setpoint};
 pub use lease::{Gid, LeaseGate, LeaseState, Verdict};

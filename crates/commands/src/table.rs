@@ -5,7 +5,9 @@
 //! reference: it accepts or refuses every request and words every error. This table accepts a
 //! request only when it can tell for certain that Python would accept it, and then writes the
 //! same bits; everything else — text values, names it cannot match exactly, out-of-range or
-//! non-integral values, unknown slaves — is `Defer`red to Python, which answers it.
+//! non-integral values, unknown slaves, a slave named together with `all_slaves`, variables
+//! the master checks against more than their type (`VariableEntry::deferred`) — is `Defer`red
+//! to Python, which answers it.
 //! `tests/unit/test_native_commands.py` checks the two against each other.
 
 use std::fmt::Write as _;
@@ -62,6 +64,9 @@ pub struct VariableEntry {
     pub kind: Kind,
     pub minimum: f64,
     pub maximum: f64,
+    /// The master checks more than type and range for this variable (a Laelaps II leg's
+    /// trajectory against its workspace and current outputs): every write of it goes to Python.
+    pub deferred: bool,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -145,11 +150,15 @@ impl CommandTable {
         if !req.variable.is_ascii() {
             return Resolution::Defer;
         }
+        if req.all_slaves && (!req.slave.is_empty() || req.position >= 0) {
+            return Resolution::Defer; // one slave or all of them: Python refuses both at once
+        }
         answer.push_str("wrote ");
         let mut count = 0usize;
         if req.all_slaves {
             for s in &self.slaves {
                 match find(s, req.variable) {
+                    Lookup::Found(v) if v.deferred => return Resolution::Defer,
                     Lookup::Found(v) => {
                         if !self.add(s, v, req.value, fields, answer, &mut count) {
                             return Resolution::Defer;
@@ -169,6 +178,9 @@ impl CommandTable {
             let Lookup::Found(v) = find(s, req.variable) else {
                 return Resolution::Defer;
             };
+            if v.deferred {
+                return Resolution::Defer;
+            }
             if !self.add(s, v, req.value, fields, answer, &mut count) {
                 return Resolution::Defer;
             }
@@ -322,6 +334,7 @@ mod tests {
             kind,
             minimum: lo,
             maximum: hi,
+            deferred: false,
         }
     }
 
@@ -452,6 +465,35 @@ mod tests {
         let mut odd = s.clone();
         odd.outputs[1].name = "Kelvin\u{212a}".into();
         assert!(matches!(find(&odd, "kelvink"), Lookup::Unsure));
+    }
+
+    #[test]
+    fn a_slave_named_with_all_slaves_is_deferred() {
+        let t = table();
+        let mut r = req("left", "Count", 1.0);
+        r.all_slaves = true;
+        assert!(run(&t, &r).is_none(), "slave name + all_slaves");
+        let mut r = req("", "Count", 1.0);
+        r.all_slaves = true;
+        r.position = 0;
+        assert!(run(&t, &r).is_none(), "position + all_slaves");
+        r.position = -1;
+        assert_eq!(run(&t, &r).unwrap().0.len(), 2, "all_slaves alone");
+    }
+
+    #[test]
+    fn deferred_variables_always_go_to_python() {
+        let mut slaves = table().slaves;
+        slaves[1].outputs[3].deferred = true; // right.Count
+        let t = CommandTable::new(slaves).unwrap();
+        assert!(run(&t, &req("right", "Count", 1.0)).is_none());
+        assert!(run(&t, &req("left", "Count", 1.0)).is_some());
+        let mut all = req("", "Count", 1.0);
+        all.all_slaves = true;
+        assert!(
+            run(&t, &all).is_none(),
+            "one deferred slave defers the whole write"
+        );
     }
 
     #[test]

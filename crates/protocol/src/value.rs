@@ -109,12 +109,12 @@ pub fn encode_int(kind: Kind, bits: u32, value: i128) -> Result<u64, ValueError>
 }
 
 /// The value of raw bits read from the wire for an integral type (sign extended for `Int`; a
-/// BOOL is its bit 0).
+/// BOOL is its bit 0). A bit length beyond 64 reads as unsigned 64 bits, never a panic.
 pub const fn decode_int(kind: Kind, bits: u32, raw: u64) -> i128 {
     let raw = raw & mask(bits);
     match kind {
         Kind::Bool => (raw & 1) as i128,
-        Kind::Int if bits > 0 && bits < 128 && raw & (1u64 << (bits - 1)) != 0 => {
+        Kind::Int if bits > 0 && bits <= 64 && raw & (1u64 << (bits - 1)) != 0 => {
             raw as i128 - (1i128 << bits)
         }
         _ => raw as i128,

@@ -12,9 +12,9 @@ use ether_ros_commands::receiver::{
     MessageKind, Resolver, ANSWER_BUDGETS, PUBLISHER_LIMIT, REFUSAL_ANSWERS_PER_S,
 };
 use ether_ros_commands::{
-    decode_joint_state, decode_write_variable, CommandReceiver, CommandTable, Gid, JointEntry,
-    JointTable, Kind, LeaseGate, PanicKeyHandles, PanicKeys, ReceiverHandles, Resolution, Sent,
-    SlaveEntry, VariableEntry, Verdict, PANIC_KEYS,
+    check_joint_trajectory, decode_joint_state, decode_write_variable, CommandReceiver,
+    CommandTable, Gid, JointEntry, JointTable, Kind, LeaseGate, PanicKeyHandles, PanicKeys,
+    ReceiverHandles, Resolution, Sent, SlaveEntry, VariableEntry, Verdict, PANIC_KEYS,
 };
 use ether_ros_engine::SetpointKind;
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
@@ -23,8 +23,8 @@ use pyo3::types::{PyBytes, PyDict};
 
 use crate::engine_bindings::PyEngine;
 
-/// (name, index, subindex, image bit offset, bit length, kind, minimum, maximum)
-type VariableRow = (String, u16, u8, usize, u32, String, f64, f64);
+/// (name, index, subindex, image bit offset, bit length, kind, minimum, maximum, deferred)
+type VariableRow = (String, u16, u8, usize, u32, String, f64, f64, bool);
 /// (name, position, output variables)
 type SlaveRow = (String, i64, Vec<VariableRow>);
 /// ([(bit offset, bit length, raw)], answer): what the native path writes and answers.
@@ -39,13 +39,16 @@ pub struct PyCommandTable {
 #[pymethods]
 impl PyCommandTable {
     /// `slaves`: (name, position, [(name, index, subindex, bit offset in the image, bit length,
-    /// kind, minimum, maximum)]) with kind one of bool, int, uint, real32, real64.
+    /// kind, minimum, maximum, deferred)]) with kind one of bool, int, uint, real32, real64;
+    /// `deferred`: every write of the variable goes to Python (it checks more than the range).
     #[new]
     fn new(slaves: Vec<SlaveRow>) -> PyResult<Self> {
         let mut entries = Vec::with_capacity(slaves.len());
         for (name, position, rows) in slaves {
             let mut outputs = Vec::with_capacity(rows.len());
-            for (var, index, subindex, bit_offset, bit_length, kind, minimum, maximum) in rows {
+            for (var, index, subindex, bit_offset, bit_length, kind, minimum, maximum, deferred) in
+                rows
+            {
                 let kind = Kind::parse(&kind).ok_or_else(|| {
                     PyValueError::new_err(format!(
                         "slave '{name}': variable '{var}' has the unknown kind '{kind}'"
@@ -60,6 +63,7 @@ impl PyCommandTable {
                     kind,
                     minimum,
                     maximum,
+                    deferred,
                 });
             }
             entries.push(SlaveEntry {
@@ -447,6 +451,25 @@ impl PyCommandReceiver {
     }
 }
 
+/// Check a serialized command message with the native decoder (`message`: "write_variable",
+/// "joint_state" or "joint_trajectory"): ValueError naming the field when it is not one it
+/// accepts — truncated, not UTF-8, or a string with a NUL inside, which rclpy would hand to
+/// Python cut short.
+#[pyfunction]
+fn check_command_message(message: &str, data: &[u8]) -> PyResult<()> {
+    let result = match message {
+        "write_variable" => decode_write_variable(data).map(|_| ()),
+        "joint_state" => decode_joint_state(data, &mut Vec::new()).map(|_| ()),
+        "joint_trajectory" => check_joint_trajectory(data),
+        other => {
+            return Err(PyValueError::new_err(format!(
+                "unknown message '{other}' (write_variable, joint_state or joint_trajectory)"
+            )))
+        }
+    };
+    result.map_err(|e| PyValueError::new_err(e.to_string()))
+}
+
 /// The console's terminal reader that sends the panic request itself (see
 /// `ether_ros_commands::panic_keys`); it runs from construction until `stop`.
 #[pyclass(name = "PanicKeys", module = "ether_ros._native", frozen)]
@@ -534,6 +557,7 @@ impl PyPanicKeys {
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(check_command_message, m)?)?;
     m.add_class::<PyCommandTable>()?;
     m.add_class::<PyJointTable>()?;
     m.add_class::<PyCommandReceiver>()?;

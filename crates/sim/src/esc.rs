@@ -884,19 +884,23 @@ impl Esc {
             incoming.extend_from_slice(data);
         }
         let (mut read_ok, mut write_ok) = (false, false);
+        // The FMMUs as they were when the datagram arrived: a logical write that lands on the
+        // FMMU registers themselves reconfigures them for the next datagram, not this one
+        // (and never shortens the list being walked). A copy on the stack: no allocation.
+        let mut fmmus = [Fmmu::default(); N_FMMU];
+        let n = self.fmmus.len().min(N_FMMU);
+        fmmus[..n].copy_from_slice(&self.fmmus[..n]);
         // Reads first, then writes from the incoming data: a byte read and written through
         // the same logical address is exchanged, as the ESC does on the fly.
-        for i in 0..self.fmmus.len() {
-            let f = self.fmmus[i];
+        for f in &fmmus[..n] {
             if f.read && reads {
-                read_ok |= self.fmmu_read(&f, d0, d1, data);
+                read_ok |= self.fmmu_read(f, d0, d1, data);
             }
         }
-        for i in 0..self.fmmus.len() {
-            let f = self.fmmus[i];
+        for f in &fmmus[..n] {
             if f.write && writes {
                 let src: &[u8] = if rw { incoming } else { data };
-                write_ok |= self.fmmu_write(&f, d0, d1, src);
+                write_ok |= self.fmmu_write(f, d0, d1, src);
             }
         }
         // ESC datasheet, "Working counter": LRW counts +1 for a read and +2 for a write; LRD

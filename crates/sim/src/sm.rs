@@ -18,6 +18,15 @@ pub use ether_ros_protocol::reg::sm::{
     MODE_MAILBOX, MODE_MASK, REPEAT as ACT_REPEAT, WATCHDOG as WATCHDOG_TRIGGER,
 };
 
+/// Where a SyncManager may lie: the process RAM (0x1000 on) or the digital output registers
+/// 0x0F00..0x0F03 (ET1100/ET1200 digital I/O: an SM there makes the outputs count for the
+/// process-data watchdog). An SM over the rest of the register space guards nothing: the
+/// registers stay registers, so no SM write can make a slave unaddressable.
+pub fn window_allowed(start: u16, len: u16) -> bool {
+    let (start, end) = (start as usize, start as usize + len as usize);
+    start >= 0x1000 || (start >= 0x0F00 && end <= 0x0F04)
+}
+
 #[derive(Clone, Debug, Default)]
 pub struct SyncManager {
     pub start: u16,
@@ -49,9 +58,10 @@ impl SyncManager {
         self.control & DIR_MASK == DIR_ECAT_WRITES
     }
 
-    /// Enabled by the master with a non-zero length: the area is guarded by this SM.
+    /// Enabled by the master with a non-zero length over memory an SM may guard: the area is
+    /// guarded by this SM.
     pub fn configured(&self) -> bool {
-        self.activate & ACT_ENABLE != 0 && self.len > 0
+        self.activate & ACT_ENABLE != 0 && self.len > 0 && window_allowed(self.start, self.len)
     }
 
     /// Guarding the area and accepting accesses.
@@ -205,6 +215,18 @@ mod tests {
         };
         s.reset_buffers();
         s
+    }
+
+    #[test]
+    fn an_sm_guards_process_ram_and_digital_outputs_only() {
+        assert!(window_allowed(0x1000, 8));
+        assert!(window_allowed(0x0F00, 4) && window_allowed(0x0F03, 1));
+        assert!(!window_allowed(0x0F02, 4));
+        assert!(!window_allowed(0x0000, 0x1000));
+        assert!(!window_allowed(0x0981, 1));
+        let mut s = buffered(4, true);
+        s.start = 0x0000;
+        assert!(!s.configured());
     }
 
     #[test]

@@ -101,8 +101,13 @@ class Engine:
         tb: TracebackType | None,
     ) -> None: ...
 
-# (name, index, subindex, image bit offset, bit length, kind, minimum, maximum)
-VariableRow = tuple[str, int, int, int, int, str, float, float]
+# (name, index, subindex, image bit offset, bit length, kind, minimum, maximum, deferred)
+VariableRow = tuple[str, int, int, int, int, str, float, float, bool]
+
+def check_command_message(message: str, data: bytes) -> None:
+    """The native decoder's check of a serialized ``write_variable``, ``joint_state`` or
+    ``joint_trajectory``: ValueError naming the field when it refuses it (a NUL inside a
+    string, not UTF-8, truncated)."""
 
 class CommandTable:
     """The bus's output variables for the native command path (crates/commands)."""

@@ -10,16 +10,20 @@ name things the device has and that the values fit their types. Every error is a
 from __future__ import annotations
 
 import math
+import re
+import unicodedata
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal, cast
 
 from pydantic import (
+    AfterValidator,
     BaseModel,
     BeforeValidator,
     ConfigDict,
     Field,
     PrivateAttr,
+    TypeAdapter,
     ValidationError,
     model_validator,
 )
@@ -28,8 +32,9 @@ from ether_ros._native.protocol import format_address
 from ether_ros.config import cia402
 from ether_ros.config import types as dt
 from ether_ros.config.esi import EsiDevice, esi_files, load_esi
+from ether_ros.config.files import MAX_PATH_CHARS
 from ether_ros.config.process import ProcessLayout, ProcessValueError
-from ether_ros.config.yamlsrc import KeyPath, SourceMap, load_yaml
+from ether_ros.config.yamlsrc import KeyPath, SourceMap, load_yaml, shown
 from ether_ros.errors import ConfigError
 from ether_ros.topology import Link, visit_order
 
@@ -63,42 +68,126 @@ def _parse_int(value: Any) -> Any:
         raise ValueError("expected an integer, not true/false")
     if isinstance(value, str):
         text = value.strip().replace("_", "")
+        if len(text) > 20:  # 64 bits in decimal; longer text is not a number we take
+            raise ValueError(f"not an integer: {shown(value)}")
         try:
             if text[:2].lower() in ("0x", "#x"):
                 return int(text[2:], 16)
             return int(text, 10)
         except ValueError:
-            raise ValueError(f"not an integer: {value!r}") from None
+            raise ValueError(f"not an integer: {shown(value)}") from None
     return value
 
 
+# --------------------------------------------------------------------------------------------
+# Text fields. Every string of the configuration is checked where it enters: no control or
+# format characters (NUL, escapes, bidirectional overrides, zero-width marks), bounded length,
+# and the grammar of what it names.
+
+#: Longest name or other text value (ESI type names, variable names, SDO text values).
+MAX_TEXT_CHARS = 255
+#: ROS 2 namespaces (rmw_validate_namespace: 255 with the node name; kept well below).
+MAX_NAMESPACE_CHARS = 200
+#: Linux interface names: IFNAMSIZ - 1.
+MAX_IFNAME_CHARS = 15
+#: ``[a-z_][a-z0-9_]*``: slave, joint, group, bus and node names.
+IDENTIFIER_PATTERN = r"^[a-z_][a-z0-9_]*$"
+MAX_IDENTIFIER_CHARS = 63
+_NAMESPACE_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+
+def _plain_text(value: str) -> str:
+    """No control, format, separator-line or surrogate characters."""
+    for i, ch in enumerate(value):
+        if unicodedata.category(ch) in ("Cc", "Cf", "Cs", "Zl", "Zp"):
+            raise ValueError(f"character {i} is a control or format character ({ch!r})")
+    return value
+
+
+def ros_namespace(value: str) -> str:
+    """A ROS 2 node namespace as rcl takes it (rmw_validate_namespace): empty, ``/``, or
+    ``/``-separated tokens ``[A-Za-z_][A-Za-z0-9_]*`` (a relative one gets its leading ``/``)."""
+    if value in ("", "/"):
+        return value
+    if len(value) > MAX_NAMESPACE_CHARS:
+        raise ValueError(f"longer than {MAX_NAMESPACE_CHARS} characters")
+    tokens = (value[1:] if value.startswith("/") else value).split("/")
+    for token in tokens:
+        if not _NAMESPACE_TOKEN.fullmatch(token):
+            why = "an empty part (// or a trailing /)" if not token else f"the part {token!r}"
+            raise ValueError(
+                f"{why} is not a ROS name: letters, digits and _, not starting with a digit"
+            )
+    return "/" + "/".join(tokens)
+
+
+def interface_name(value: str) -> str:
+    """A Linux network interface name (dev_valid_name): 1..15 characters, none of them ``/``,
+    ``:``, blank or control, and not ``.`` or ``..``."""
+    if not 1 <= len(value) <= MAX_IFNAME_CHARS:
+        raise ValueError(f"an interface name has 1..{MAX_IFNAME_CHARS} characters")
+    if value in (".", "..") or any(c in "/:" or c.isspace() or not c.isprintable() for c in value):
+        raise ValueError("not a network interface name (no '/', ':', blanks or control characters)")
+    return value
+
+
+def _nonzero(value: float) -> float:
+    if value == 0:
+        raise ValueError("must not be 0 (a scale of 0 makes every value 0)")
+    return value
+
+
+def _not_nan(value: float) -> float:
+    if math.isnan(value):
+        raise ValueError("must be a number, not NaN")
+    return value
+
+
+def _pair(value: Any) -> Any:
+    """A YAML list of two items as the tuple the model holds (strict mode takes no list)."""
+    return tuple(value) if isinstance(value, list) else value
+
+
 HexInt = Annotated[int, BeforeValidator(_parse_int)]
+PdoIndex = Annotated[HexInt, Field(ge=0x0001, le=0xFFFF)]
 LinkName = Literal["packet", "xdp", "auto"]
-Identifier = Annotated[str, Field(pattern=r"^[a-z_][a-z0-9_]*$", max_length=63)]
+Identifier = Annotated[str, Field(pattern=IDENTIFIER_PATTERN, max_length=MAX_IDENTIFIER_CHARS)]
+Text = Annotated[str, Field(min_length=1, max_length=MAX_TEXT_CHARS), AfterValidator(_plain_text)]
+PathText = Annotated[
+    str, Field(min_length=1, max_length=MAX_PATH_CHARS), AfterValidator(_plain_text)
+]
+InterfaceName = Annotated[str, AfterValidator(interface_name)]
+RosNamespace = Annotated[str, AfterValidator(ros_namespace)]
+#: A finite scale other than 0 (finiteness: the models' allow_inf_nan=False).
+Scale = Annotated[float, AfterValidator(_nonzero)]
+#: A limit that may be infinite (no limit) but never NaN.
+Limit = Annotated[float, Field(allow_inf_nan=True), AfterValidator(_not_nan)]
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=False)
+    # strict: true/false is never taken for a number, nor a number for text; NaN and ±inf are
+    # refused wherever a number is expected unless a field allows them (Limit).
+    model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False)
 
 
 class DcConfig(_Model):
     enabled: bool = True
     mode: Literal["ref_follows_master", "master_follows_ref"] = "ref_follows_master"
     reference: int | None = Field(default=None, ge=0, le=65535)
-    sync0_shift_us: float = Field(default=0.0, ge=0)
+    sync0_shift_us: float = Field(default=0.0, ge=0, le=1_000_000)
 
 
 class RealtimeConfig(_Model):
     policy: Literal["fifo", "deadline", "other"] = "fifo"
     priority: int = Field(default=80, ge=1, le=99)
     cpu: int | None = Field(default=None, ge=0, le=1023)
-    deadline_runtime_us: int = Field(default=100, ge=1)
+    deadline_runtime_us: int = Field(default=100, ge=1, le=1_000_000)
     lock_memory: bool = True
 
 
 class BusSection(_Model):
     name: Identifier = "ethercat"
-    interface: str | None = Field(default=None, min_length=1, max_length=15)
+    interface: InterfaceName | None = None
     cycle_us: int = Field(default=1000, ge=20, le=1_000_000)
     cycle_order: Literal["send_at_wake", "send_then_wait"] = "send_at_wake"
     watchdog_ms: int = Field(default=100, ge=0, le=60_000)
@@ -133,6 +222,12 @@ class BusSection(_Model):
         return self
 
 
+#: Longest ROS period (snapshot_period_ms) and largest decimation: a period in ns must fit the
+#: int64 rcl keeps it in, and a publisher that speaks less than once an hour is a mistake.
+MAX_ROS_PERIOD_MS = 3_600_000
+MAX_DECIMATION = 1_000_000
+
+
 class LeaseConfig(_Model):
     """The control lease (docs/security.md): off by default, on in the shipped robot configs."""
 
@@ -150,10 +245,10 @@ class LeaseConfig(_Model):
 
 class RosConfig(_Model):
     node_name: Identifier = "ether_comm"
-    namespace: str = ""
-    raw_decimation: int = Field(default=1, ge=1)
-    decoded_decimation: int = Field(default=10, ge=1)
-    snapshot_period_ms: int = Field(default=100, ge=0)
+    namespace: RosNamespace = ""
+    raw_decimation: int = Field(default=1, ge=1, le=MAX_DECIMATION)
+    decoded_decimation: int = Field(default=10, ge=1, le=MAX_DECIMATION)
+    snapshot_period_ms: int = Field(default=100, ge=0, le=MAX_ROS_PERIOD_MS)
     # SCHED_FIFO priority of the native thread that serves pdo_listener (0: normal scheduling);
     # capped below rt.priority so commands never delay a cycle.
     command_priority: int = Field(default=50, ge=0, le=98)
@@ -161,15 +256,16 @@ class RosConfig(_Model):
 
 
 class PdoAssign(_Model):
-    rx: list[HexInt] | None = None
-    tx: list[HexInt] | None = None
+    # A SyncManager's assignment object (0x1C1n) has at most 254 entries.
+    rx: list[PdoIndex] | None = Field(default=None, max_length=254)
+    tx: list[PdoIndex] | None = Field(default=None, max_length=254)
 
 
 class SdoInit(_Model):
     index: HexInt = Field(ge=0x0001, le=0xFFFF)
     subindex: HexInt = Field(default=0, ge=0, le=255)
-    value: int | float | bool | str
-    type: str | None = None  # uint8, int16, ... (default: the dictionary's type)
+    value: int | float | bool | PathText
+    type: Text | None = None  # uint8, int16, ... (default: the dictionary's type)
     _data: bytes = PrivateAttr(default=b"")
 
     @property
@@ -182,18 +278,22 @@ class Joint(_Model):
     """One joint of ROS ``joint_states``: SI value = raw * scale + offset."""
 
     name: Identifier
-    position: str
-    position_scale: float = 1.0
+    position: Text
+    position_scale: Scale = 1.0
     position_offset: float = 0.0
-    velocity: str | None = None
-    velocity_scale: float = 1.0
-    effort: str | None = None
-    effort_scale: float = 1.0
+    velocity: Text | None = None
+    velocity_scale: Scale = 1.0
+    effort: Text | None = None
+    effort_scale: Scale = 1.0
 
 
 class AxisConfig(_Model):
     """One axis (joint) of a CiA 402 drive: position = raw × position_scale + position_offset
     (rad or m), velocity = raw × velocity_scale, torque = raw × torque_scale."""
+
+    # Limits may be infinite (no limit); the numbers are checked together in
+    # cia402.check_axis (positive finite scales, min <= max, no NaN).
+    model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=True)
 
     name: Identifier
     mode: Literal["csp", "csv", "cst", "pp", "pv", "hm"] = "csp"
@@ -202,7 +302,10 @@ class AxisConfig(_Model):
     velocity_scale: float = 1.0
     torque_scale: float = 1.0
     # [min, max] in SI; velocity_limit and torque_limit are |max| in SI.
-    position_limits: tuple[float, float] = (-math.inf, math.inf)
+    position_limits: Annotated[tuple[float, float], BeforeValidator(_pair)] = (
+        -math.inf,
+        math.inf,
+    )
     velocity_limit: float = math.inf
     torque_limit: float = math.inf
     following_error_window: float = 0.0
@@ -229,7 +332,7 @@ class SimConfig(_Model):
     device: Literal["laelaps_leg", "generic_io", "cia402", "loopback", "none"] | None = None
     # The slave controller chip whose registers the virtual slave presents (docs/simulator.md).
     esc: Literal["et1100", "et1200", "lan9252"] = "et1100"
-    params: dict[str, float] = Field(default_factory=dict)
+    params: dict[Text, float] = Field(default_factory=dict)
     drift_ppm: float = Field(default=0.0, ge=-1000.0, le=1000.0)
     delay_ns: int = Field(default=0, ge=0, le=1_000_000)
     serial: HexInt | None = Field(default=None, ge=0, le=0xFFFFFFFF)
@@ -265,10 +368,10 @@ class SlaveConfig(_Model):
     vendor_id: HexInt | None = Field(default=None, ge=0, le=0xFFFFFFFF)
     product_code: HexInt | None = Field(default=None, ge=0, le=0xFFFFFFFF)
     revision: HexInt | None = Field(default=None, ge=0, le=0xFFFFFFFF)
-    device: str | None = None
+    device: Text | None = None
     pdo_assign: PdoAssign | None = None
     sdo_init: list[SdoInit] = Field(default_factory=list)
-    safe_outputs: dict[str, int | float | bool] = Field(default_factory=dict)
+    safe_outputs: dict[Text, int | float | bool] = Field(default_factory=dict)
     joints: list[Joint] = Field(default_factory=list)
     # False: LRD + LWR instead of LRW (also chosen when the ESC reports LRW unsupported).
     lrw: bool = True
@@ -324,11 +427,12 @@ class SlaveConfig(_Model):
 
 class BusConfig(_Model):
     bus: BusSection = Field(default_factory=BusSection)
-    esi: Annotated[list[str], BeforeValidator(lambda v: [v] if isinstance(v, str) else v)] = Field(
-        default_factory=list
+    esi: Annotated[list[PathText], BeforeValidator(lambda v: [v] if isinstance(v, str) else v)] = (
+        Field(default_factory=list)
     )
     ros: RosConfig = Field(default_factory=RosConfig)
-    slaves: list[SlaveConfig] = Field(min_length=1)
+    # Positions 0..65534: the auto-increment address space.
+    slaves: list[SlaveConfig] = Field(min_length=1, max_length=65535)
     groups: list[GroupConfig] = Field(default_factory=list)
     _source: Path | None = PrivateAttr(default=None)
     _devices: list[EsiDevice] = PrivateAttr(default_factory=list)
@@ -438,16 +542,41 @@ def load_bus_config(
     except ValidationError as exc:
         raise _schema_error(exc, data, smap) from None
     if interface is not None:
-        if not 1 <= len(interface) <= 15:
-            raise ConfigError(f"interface name must be 1..15 characters, got {interface!r}")
-        cfg.bus.interface = interface
+        try:
+            cfg.bus.interface = interface_name(interface)
+        except ValueError as exc:
+            raise ConfigError(
+                f"--interface: {exc} (got {shown(interface)})", field="interface"
+            ) from None
     if link is not None:
         if link not in ("packet", "xdp", "auto"):
-            raise ConfigError(f"link must be packet, xdp or auto, got {link!r}")
+            raise ConfigError(f"link must be packet, xdp or auto, got {shown(link)}", field="link")
         cfg.bus.link = cast(LinkName, link)
     cfg._source = file.resolve()
     _resolve(cfg, file, smap)
     return cfg
+
+
+_NODE_NAME: TypeAdapter[str] = TypeAdapter(Identifier)
+
+
+def check_node_name(name: str) -> str:
+    """A node name given outside the file (``--node-name``), checked as ``ros.node_name``."""
+    try:
+        return _NODE_NAME.validate_python(name, strict=True)
+    except ValidationError as exc:
+        msg = exc.errors()[0]["msg"]
+        raise ConfigError(f"node name: {msg} (got {shown(name)})", field="ros.node_name") from None
+
+
+# pydantic's words for a wrong type, said the way a configuration's reader needs them.
+_TYPE_MESSAGES = {
+    "int_type": "an integer is expected here",
+    "float_type": "a number is expected here",
+    "bool_type": "true or false is expected here",
+    "string_type": "text is expected here",
+    "finite_number": "must be a finite number (not nan or inf)",
+}
 
 
 def _schema_error(exc: ValidationError, data: Any, smap: SourceMap) -> ConfigError:
@@ -470,6 +599,10 @@ def _schema_error(exc: ValidationError, data: Any, smap: SourceMap) -> ConfigErr
         msg = "unknown key"
     elif msg.startswith("Value error, "):
         msg = msg[len("Value error, ") :]
+    elif first["type"] in _TYPE_MESSAGES:
+        msg = _TYPE_MESSAGES[first["type"]]
+        if isinstance(first.get("input"), bool) and first["type"] != "bool_type":
+            msg += ", not true/false"
     show = first["type"] != "missing"
     err = smap.error(tuple(path), msg, first.get("input"), show_value=show)
     if len(errors) > 1:
@@ -487,12 +620,16 @@ def _resolve(cfg: BusConfig, file: Path, smap: SourceMap) -> None:
     base = file.parent
     devices: list[EsiDevice] = []
     for i, item in enumerate(cfg.esi):
-        p = (base / item).resolve() if not Path(item).is_absolute() else Path(item)
-        if p.is_dir():
+        try:
+            p = (base / item).resolve() if not Path(item).is_absolute() else Path(item)
+            is_dir, is_file = p.is_dir(), p.is_file()
+        except (OSError, RuntimeError) as exc:  # a name too long, a symlink loop
+            raise smap.error(("esi", i), f"not a usable path: {exc}", item) from None
+        if is_dir:
             files = esi_files(p)
             if not files:
                 raise smap.error(("esi", i), "directory holds no *.xml ESI files", item)
-        elif p.is_file():
+        elif is_file:
             files = [p]
         else:
             raise smap.error(("esi", i), f"ESI file or directory not found ({p})", item)

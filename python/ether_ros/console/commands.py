@@ -34,16 +34,11 @@ from dataclasses import dataclass, field, replace
 
 from ether_ros._native.protocol import format_address
 from ether_ros.config.cia402 import MODES
-from ether_ros.console.workspace import (
-    TRAJECTORY_FIELDS,
-    TRAJECTORY_INDEX,
-    Ellipse,
-    invalid_reason,
-)
 from ether_ros.errors import EtherRosError
+from ether_ros.master import workspace
 from ether_ros.master.axis import SETPOINT_KIND
 from ether_ros.ros.layout import BusSpec, LayoutError, SlaveSpec, VariableSpec, parse_address
-from ether_ros.ros.values import InvalidValue, format_value, parse_text, type_range
+from ether_ros.ros.values import InvalidValue, parse_text, type_range
 
 
 class CommandError(EtherRosError):
@@ -395,43 +390,35 @@ def _is_input(slave: SlaveSpec, ref: str) -> bool:
     return True
 
 
+def _outputs(slave: SlaveSpec) -> list[tuple[str, int, int]]:
+    return [(v.name, v.index, v.subindex) for v in slave.outputs]
+
+
 def is_laelaps_leg(slave: SlaveSpec) -> bool:
     """A Laelaps II leg: its device says so and it maps the trajectory record 0x7030."""
-    return "laelaps" in slave.device.lower() and any(
-        v.index == TRAJECTORY_INDEX for v in slave.outputs
-    )
+    return workspace.is_laelaps_leg(slave.device, _outputs(slave))
 
 
 def _check_leg_workspace(
     slave: SlaveSpec, assigned: Mapping[str, float], ctx: ConsoleContext
 ) -> None:
-    if not is_laelaps_leg(slave):
-        return
-    trajectory = {
-        v.name: TRAJECTORY_FIELDS[v.subindex]
-        for v in slave.outputs
-        if v.index == TRAJECTORY_INDEX and v.subindex in TRAJECTORY_FIELDS
-    }
-    if not any(name in trajectory for name in assigned):
+    """The master's rule (:func:`ether_ros.master.workspace.leg_write_problem`) on the
+    console's view of the outputs, so a sequence file is checked step by step before its first
+    step is sent; the master checks every write again against the outputs it holds."""
+    outputs = _outputs(slave)
+    names = workspace.ruled_outputs(slave.device, outputs)
+    if not any(name in names for name in assigned):
         return
     current = ctx.outputs.get(slave.name, {})
-    raw: dict[str, float] = {}
-    for name, field_name in trajectory.items():
-        if name in assigned:
-            raw[field_name] = assigned[name]
-        elif name in current:
-            raw[field_name] = current[name]
-        else:
-            raise CommandError(
-                f"slave '{slave.name}': cannot check the leg workspace, the current value of "
-                f"{name} is not known yet (no outputs received from the node)"
-            )
-    reason = invalid_reason(Ellipse.from_raw(raw))
-    if reason is not None:
-        shown = ", ".join(
-            f"{name}={format_value(value, slave.output(name))}" for name, value in assigned.items()
+    unknown = next((name for name in names if name not in assigned and name not in current), None)
+    if unknown is not None:
+        raise CommandError(
+            f"slave '{slave.name}': cannot check the leg workspace, the current value of "
+            f"{unknown} is not known yet (no outputs received from the node)"
         )
-        raise CommandError(f"slave '{slave.name}': {shown} makes an invalid ellipse: {reason}")
+    problem = workspace.leg_write_problem(slave.device, outputs, current, assigned)
+    if problem is not None:
+        raise CommandError(f"slave '{slave.name}': {problem}")
 
 
 def _known_joints(ctx: ConsoleContext) -> dict[str, JointLimits]:

@@ -22,8 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
+from ether_ros.config.yamlsrc import load_yaml
 from ether_ros.console.commands import (
     Command,
     CommandError,
@@ -70,15 +69,14 @@ def find_sequence(name: str | Path) -> Path:
 
 def load_sequence(path: str | Path, ctx: ConsoleContext) -> Sequence:
     """Read and check a sequence file. Raises :class:`CommandError` naming the file and step."""
+    from ether_ros.errors import ConfigError
+
     p = find_sequence(path)
     try:
-        text = p.read_text()
-    except OSError as exc:
-        raise CommandError(f"{p}: cannot read the sequence file: {exc.strerror}") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise CommandError(f"{p}: not valid YAML: {exc}") from None
+        # The bounded loader of the configuration (a regular file, no alias bombs, no NUL).
+        data, _lines = load_yaml(p, "sequence file")
+    except ConfigError as exc:
+        raise CommandError(str(exc)) from None
     return parse_sequence(data, str(p), ctx)
 
 

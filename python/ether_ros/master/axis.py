@@ -14,6 +14,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from ether_ros._native.protocol import emergency_text
 from ether_ros.config.cia402 import MODES, AxisSpec
 from ether_ros.errors import BusError
 
@@ -112,6 +113,7 @@ def follow_together(
         raise AxisCommandError("start_in must be >= 0 s")
     for axis, _ in checked:
         axis._require_running()
+        axis._require_enabled("a trajectory")
     engine = bus.engine
     start_ns = int(engine.now_ns() + start_in * 1e9)
     try:
@@ -406,6 +408,26 @@ class Axis:
     def _require_running(self) -> None:
         if not self._bus.running:
             raise AxisCommandError(f"axis {self.name}: the bus is not in OP (call start())")
+
+    def _require_enabled(self, what: str) -> None:
+        """Refuse ``what`` while the drive is not in Operation Enabled: the engine would take
+        it and never run it (the targets follow the actual state until the drive runs), so
+        the caller gets the reason and what to do instead of an 'accepted' that moves
+        nothing (issue 19)."""
+        st = self.status()
+        state = str(st["state"])
+        if state == "operation_enabled":
+            return
+        if state in ("fault", "fault_reaction_active"):
+            code = int(st["error_code"]) or int(st["last_fault_code"])
+            raise AxisCommandError(
+                f"axis {self.name} is in {state} (error 0x{code:04X}: {emergency_text(code)}): "
+                f"{what} is refused; reset_fault, then enable the axis"
+            )
+        raise AxisCommandError(
+            f"axis {self.name} is {state}, not operation_enabled: {what} is refused; "
+            "enable the axis first"
+        )
 
     def _wait(
         self,

@@ -38,7 +38,7 @@ from ether_ros.config.process import (
 )
 from ether_ros.errors import BusError, ConfigError, EtherRosError, LinkError
 from ether_ros.master import axis as axis_mod
-from ether_ros.master import bringup
+from ether_ros.master import bringup, workspace
 from ether_ros.master.al import AlState, AlStateMachine, AlStatus, al_code_text
 from ether_ros.master.datagrams import DatagramService
 from ether_ros.master.dc import EPOCH_2000_S, DcSlave, DistributedClocks
@@ -559,7 +559,35 @@ class Bus:
 
         Only the bits of these variables change: the engine merges them into its output buffer
         (``write_output_fields``), so a write never undoes another writer's variables."""
-        s = self.slave(slave)
+        self.write_slaves({slave: values})
+
+    def write_slaves(self, values: Mapping[str | int, Mapping[str, object]]) -> None:
+        """Set outputs of several slaves (slave -> {variable: value}) at once: every value is
+        checked — variable, type, range, and the device's own rule (a Laelaps II leg's
+        trajectory must stay in its workspace, :mod:`ether_ros.master.workspace`) — before any
+        is written, and all reach the wire in the same cycle. A bad value changes nothing."""
+        fields: list[tuple[int, int, int]] = []
+        for slave, slave_values in values.items():
+            fields.extend(self._checked_fields(self.slave(slave), slave_values))
+        self._write_fields(fields)
+
+    def write_all(self, variable: str, value: object) -> int:
+        """Set ``variable`` on every slave that has it as an output; returns how many. All of
+        them reach the wire in the same cycle, and a bad value changes nothing."""
+        targets = [
+            s
+            for s in self.slaves
+            if s.layout is not None
+            and s.layout.has(variable)
+            and s.layout.variable(variable).direction == "output"
+        ]
+        if not targets:
+            raise ProcessValueError(f"no slave has an output variable {variable!r}")
+        self.write_slaves({s.name: {variable: value} for s in targets})
+        return len(targets)
+
+    def _checked_fields(self, s: Slave, values: Mapping[str, object]) -> list[tuple[int, int, int]]:
+        """The output fields of ``values`` for slave ``s``, every one checked."""
         area = s.area
         if s.layout is None or area is None or not area.output_bytes:
             raise BusError(f"{s}: has no outputs")
@@ -576,27 +604,24 @@ class Bus:
                 fields.append(_output_field(s, var, var.encode(value)))
             except ProcessValueError as exc:
                 raise ProcessValueError(f"{s}: {exc}") from None
-        self._write_fields(fields)
+        assigned = dict(zip((v.name for v in variables), values.values(), strict=True))
+        self._check_device_rule(s, assigned)
+        return fields
 
-    def write_all(self, variable: str, value: object) -> int:
-        """Set ``variable`` on every slave that has it as an output; returns how many. All of
-        them reach the wire in the same cycle, and a bad value changes nothing."""
-        targets = [
-            s
-            for s in self.slaves
-            if s.layout is not None
-            and s.layout.has(variable)
-            and s.layout.variable(variable).direction == "output"
-        ]
-        if not targets:
-            raise ProcessValueError(f"no slave has an output variable {variable!r}")
-        # Encode everything first so a bad value changes nothing.
-        fields: list[tuple[int, int, int]] = []
-        for s in targets:
-            var = s.layout.variable(variable)  # type: ignore[union-attr]
-            fields.append(_output_field(s, var, var.encode(value)))
-        self._write_fields(fields)
-        return len(targets)
+    def _check_device_rule(self, s: Slave, assigned: Mapping[str, object]) -> None:
+        """What the device itself would refuse or disregard, refused here with the reason."""
+        if s.device is None or s.layout is None:
+            return
+        outputs = [(v.name, v.index, v.subindex) for v in s.layout.outputs]
+        if not workspace.is_laelaps_leg(s.device.type_name, outputs):
+            return
+        current = {
+            k: float(v) for k, v in self.outputs(s.name).items() if isinstance(v, int | float)
+        }
+        numbers = {k: float(v) for k, v in assigned.items() if isinstance(v, int | float)}
+        problem = workspace.leg_write_problem(s.device.type_name, outputs, current, numbers)
+        if problem is not None:
+            raise ProcessValueError(f"{s}: {problem}")
 
     def _refuse_axis_owned(self, s: Slave, var: ProcessVariable) -> None:
         """The engine's axis stage writes its drives' controlwords, modes and targets every

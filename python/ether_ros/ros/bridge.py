@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ether_ros._native import protocol
-from ether_ros.errors import EtherRosError
+from ether_ros.errors import EtherRosError, MessageError
 from ether_ros.master.samples import (  # noqa: F401  (re-exported for the ROS side)
     FLAG_LOST,
     FLAG_OVERRUN,
@@ -26,7 +26,7 @@ from ether_ros.ros.layout import BusSpec, LayoutError, SlaveSpec, VariableSpec
 from ether_ros.ros.values import InvalidValue, check_value, to_python
 
 
-class WriteRejected(EtherRosError):
+class WriteRejected(MessageError):
     """A write that names nothing on the bus or does not fit its variable."""
 
 
@@ -199,12 +199,22 @@ def resolve_write(
     """A WriteVariable request -> the checked (slave, variable, value) writes it stands for."""
     from ether_ros.ros.values import parse_text
 
+    for field, text_value in (("slave", slave), ("variable", variable), ("text", text)):
+        problem = message_text_problem(text_value)
+        if problem is not None:
+            raise WriteRejected(f"{field}: {problem}", field=field)
     if not variable:
-        raise WriteRejected("no variable given")
+        raise WriteRejected("no variable given", field="variable")
+    if all_slaves and (slave or position >= 0):
+        target = f"slave {slave!r}" if slave else f"position {position}"
+        raise WriteRejected(
+            f"all_slaves is true and {target} is given: name one slave or all of them",
+            field="all_slaves",
+        )
     if all_slaves:
         targets = [s for s in spec.slaves if s.has_output(variable)]
         if not targets:
-            raise WriteRejected(f"no slave has an output variable '{variable}'")
+            raise WriteRejected(f"no slave has an output variable '{variable}'", field="variable")
     else:
         try:
             if slave:
@@ -212,9 +222,9 @@ def resolve_write(
             elif position >= 0:
                 targets = [spec.slave(position)]
             else:
-                raise WriteRejected("no slave given (name, position or all_slaves)")
+                raise WriteRejected("no slave given (name, position or all_slaves)", field="slave")
         except LayoutError as exc:
-            raise WriteRejected(str(exc)) from None
+            raise WriteRejected(str(exc), field="slave" if slave else "position") from None
     out = []
     for s in targets:
         try:
@@ -222,14 +232,41 @@ def resolve_write(
         except LayoutError:
             kind = "an input" if _has_input(s, variable) else "not a variable"
             raise WriteRejected(
-                f"slave '{s.name}': '{variable}' is {kind} (outputs only)"
+                f"slave '{s.name}': '{variable}' is {kind} (outputs only)", field="variable"
             ) from None
         try:
             checked = parse_text(text, var) if text else check_value(value, var)
         except InvalidValue as exc:
-            raise WriteRejected(f"slave '{s.name}': {exc}") from None
+            raise WriteRejected(
+                f"slave '{s.name}': {exc}", field="text" if text else "value"
+            ) from None
         out.append((s, var, checked))
     return out
+
+
+#: Longest name or text a message may carry (slave, variable and joint names, text values).
+MAX_MESSAGE_TEXT = 255
+
+
+def message_text_problem(text: str) -> str | None:
+    """Why a name or text of a ROS message is refused before it is looked up: too long, or a
+    NUL or other control character (a NUL would cut the name short in C code: rclpy hands
+    ``Kp100_knee\\0junk`` to Python as ``Kp100_knee``; see ``ros/native_commands.py``)."""
+    if len(text) > MAX_MESSAGE_TEXT:
+        return f"{len(text)} characters (at most {MAX_MESSAGE_TEXT})"
+    for i, ch in enumerate(text):
+        if ord(ch) < 0x20 or 0x7F <= ord(ch) < 0xA0:
+            return f"character {i} is a control character ({ch!r})"
+    return None
+
+
+def check_joint_names(names: list[str]) -> None:
+    """Joint names of a message, refused before any lookup when one is too long or holds a
+    control character (:func:`message_text_problem`)."""
+    for i, name in enumerate(names):
+        problem = message_text_problem(name)
+        if problem is not None:
+            raise AxisRejected(f"joint name {i}: {problem}", field="name")
 
 
 def _has_input(slave: SlaveSpec, ref: str) -> bool:
@@ -250,14 +287,13 @@ def describe_writes(writes: list[tuple[SlaveSpec, VariableSpec, float]]) -> str:
 
 
 def apply_writes(bus: Any, writes: list[tuple[SlaveSpec, VariableSpec, float]]) -> None:
-    """Put checked writes into the output image, one ``write_many`` per slave so a slave's
-    values reach the wire in the same cycle."""
-    by_slave: dict[str, dict[str, object]] = {}
+    """Put checked writes into the output image with one ``write_slaves``: the master checks
+    them all (also what only it can check, such as a leg's workspace against its current
+    outputs) before it writes any, and they reach the wire in the same cycle."""
+    by_slave: dict[str | int, dict[str, object]] = {}
     for s, var, value in writes:
-        name = var.name
-        by_slave.setdefault(s.name, {})[name] = to_python(value, var.type)
-    for slave, values in by_slave.items():
-        bus.write_many(slave, values)
+        by_slave.setdefault(s.name, {})[var.name] = to_python(value, var.type)
+    bus.write_slaves(by_slave)
 
 
 # ---------------------------------------------------------------------------- CiA 402 axes
@@ -293,6 +329,7 @@ def select_axes(axes: Mapping[str, Any], joints: list[str]) -> list[Any]:
         raise AxisRejected("this bus has no CiA 402 axes")
     if not joints:
         return list(axes.values())
+    check_joint_names(joints)
     unknown = [j for j in joints if j not in axes]
     if unknown:
         raise AxisRejected(
@@ -356,26 +393,30 @@ def resolve_joint_command(
     if not axes:
         raise AxisRejected("this bus has no CiA 402 axes")
     if not names:
-        raise AxisRejected("no joint names")
+        raise AxisRejected("no joint names", field="name")
+    check_joint_names(names)
     arrays = {"position": position, "velocity": velocity, "effort": effort}
     for label, values in arrays.items():
         if len(values) not in (0, len(names)):
             raise AxisRejected(
                 f"{label} has {len(values)} value(s) for {len(names)} joint name(s) "
-                "(give one per name, or none)"
+                "(give one per name, or none)",
+                field=label,
             )
     out = []
     seen: set[str] = set()
     for i, name in enumerate(names):
         if name in seen:
-            raise AxisRejected(f"joint {name!r} is named twice")
+            raise AxisRejected(f"joint {name!r} is named twice", field="name")
         seen.add(name)
         axis = axes.get(name)
         if axis is None:
-            raise AxisRejected(f"unknown joint {name!r} (joints: {', '.join(axes)})")
+            raise AxisRejected(f"unknown joint {name!r} (joints: {', '.join(axes)})", field="name")
         kind = setpoint_kind(axis)
         if kind is None:
-            raise AxisRejected(f"joint {name!r} is in mode {axis.mode}: it takes no setpoint")
+            raise AxisRejected(
+                f"joint {name!r} is in mode {axis.mode}: it takes no setpoint", field="name"
+            )
         values = arrays[JOINT_ARRAY[kind]]
         value = float(values[i]) if values else math.nan
         if not math.isfinite(value):
@@ -383,17 +424,19 @@ def resolve_joint_command(
             if others and not values:
                 raise AxisRejected(
                     f"joint {name!r} is in mode {axis.mode}: it takes a {JOINT_ARRAY[kind]}, "
-                    f"got {' and '.join(others)}"
+                    f"got {' and '.join(others)}",
+                    field=JOINT_ARRAY[kind],
                 )
             raise AxisRejected(
                 f"joint {name!r}: {JOINT_ARRAY[kind]} {value!r} is not a finite number"
                 if values
-                else f"joint {name!r}: no {JOINT_ARRAY[kind]} given (mode {axis.mode})"
+                else f"joint {name!r}: no {JOINT_ARRAY[kind]} given (mode {axis.mode})",
+                field=JOINT_ARRAY[kind],
             )
         try:
             axis.check_command(kind, value)
         except EtherRosError as exc:
-            raise AxisRejected(str(exc)) from None
+            raise AxisRejected(str(exc), field=JOINT_ARRAY[kind]) from None
         out.append((axis, kind, value))
     return out
 

@@ -7,7 +7,10 @@ through ROS 2 only.
 3. This process is a plain rclpy client: it publishes the writes of the trot sequence on
    ``pdo_listener`` (``python/ether_ros/console/sequences/trot.yaml``: standing, b to 4 cm, a to
    5 cm over the 3 s transition time, phases FL 180 / FR 0 / HL 0 / HR 180, hold, a and b back
-   to 0) and subscribes to ``pdo_in``, ``joint_states`` and ``diagnostics``.
+   to 0) and subscribes to ``pdo_in``, ``joint_states`` and ``diagnostics``. A step that sets
+   several variables of a slave goes through ``write_variables`` instead, as the console sends
+   it: the master checks a leg's trajectory record as a whole (its workspace), and the values
+   of one step are only valid together (the first leg step sets the centre with the rest).
 4. A summary: per leg the RMS tracking error of hip and knee (desired vs measured angle, as the
    slaves report them) while trotting, whether diagonal legs move together, lost frames, loop
    timing and DC sync error from the node's diagnostics.
@@ -36,7 +39,7 @@ from ether_ros_msgs.msg import SlaveValues
 from ether_ros.console.commands import ConsoleContext, Control, Wait, Write
 from ether_ros.console.sequence import Sequence, load_sequence
 from ether_ros.errors import EtherRosError
-from ether_ros.ros.client import EtherRosClient
+from ether_ros.ros.client import EtherRosClient, make_write
 from ether_ros.ros.layout import BusSpec, VariableSpec
 from ether_ros.ros.rig import RosRig
 from ether_ros.tools.recording import BusInfo, Recording, SlaveInfo, VariableInfo
@@ -126,17 +129,25 @@ def correlation(x: dict[int, float], y: dict[int, float]) -> float:
 
 
 def run_sequence(client: EtherRosClient, sequence: Sequence, recorder: TrotRecorder) -> None:
-    """Publish every write of the sequence on ``pdo_listener`` and check its result; record
-    while the full ellipse (a = 5 cm) is held."""
+    """Publish every write of the sequence on ``pdo_listener`` (a step setting several
+    variables of one slave through ``write_variables``) and check its result; record while the
+    full ellipse (a = 5 cm) is held."""
     for step in sequence.steps:
         command = step.command
         print(f"  [{step.number:2}/{len(sequence.steps)}] {step.text}", flush=True)
         if isinstance(command, Write):
-            ids = [client.publish_write(op.slave, op.variable, op.value) for op in command.ops]
-            for request_id in ids:
-                result = client.wait_result(request_id, timeout=5.0)
-                if not result.success:
-                    raise EtherRosError(f"step {step.number} refused: {result.message}")
+            if len({op.slave for op in command.ops}) < len(command.ops):
+                # Several variables of one slave: checked together, all or nothing.
+                writes = [make_write(op.slave, op.variable, op.value) for op in command.ops]
+                ok, message = client.write_many(writes)
+                if not ok:
+                    raise EtherRosError(f"step {step.number} refused: {message}")
+            else:
+                ids = [client.publish_write(op.slave, op.variable, op.value) for op in command.ops]
+                for request_id in ids:
+                    result = client.wait_result(request_id, timeout=5.0)
+                    if not result.success:
+                        raise EtherRosError(f"step {step.number} refused: {result.message}")
             variables = {(op.variable, op.value) for op in command.ops}
             if ("a_ellipse100", 5.0) in variables:
                 recorder.recording.set()

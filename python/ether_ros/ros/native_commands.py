@@ -45,6 +45,7 @@ from rclpy.type_support import check_is_valid_msg_type
 
 from ether_ros import _native
 from ether_ros.errors import EtherRosError
+from ether_ros.master import workspace
 from ether_ros.master.bus import output_bit_offset
 from ether_ros.ros import bridge
 from ether_ros.ros.layout import BusSpec
@@ -70,6 +71,41 @@ def loaded_library(stem: str, maps: str | Path = "/proc/self/maps") -> str:
     raise CommandPathError(f"{name} is not loaded in this process (is rclpy imported?)")
 
 
+#: The native decoder's name of each message type it checks (``_native.check_command_message``).
+_CHECKED_MESSAGES = {
+    "WriteVariable": "write_variable",
+    "JointState": "joint_state",
+    "JointTrajectory": "joint_trajectory",
+}
+
+
+def message_problem(data: bytes, message_type: Any) -> str | None:
+    """Why a serialized command message is refused before rclpy turns it into Python, or None.
+
+    rclpy cuts every string at its first NUL (``strlen``) and replaces bytes that are not UTF-8,
+    so ``Kp100_knee\\0junk`` would reach Python as ``Kp100_knee`` and be applied. The native
+    decoder (``crates/commands/src/cdr.rs``) reads the bytes as they are and names the field."""
+    kind = _CHECKED_MESSAGES.get(message_type.__name__)
+    if kind is None:
+        return None
+    try:
+        _native.check_command_message(kind, data)
+    except ValueError as exc:
+        return str(exc)
+    return None
+
+
+def checked_message(data: bytes, message_type: Any) -> tuple[Any, str | None]:
+    """(message, problem): the deserialized message (None if even rclpy cannot read it) and
+    why it is refused (None: it may be handled)."""
+    problem = message_problem(data, message_type)
+    try:
+        message = deserialize_message(data, message_type)
+    except Exception as exc:  # rclpy's deserializer raises its own errors for garbage
+        return None, problem or f"not a {message_type.__name__}: {exc}"
+    return message, problem
+
+
 def _kind(variable: Any) -> str | None:
     """The native encoding of a bus ``ProcessVariable``, None if it is not a number."""
     t = variable.dtype
@@ -93,6 +129,10 @@ def command_table(bus: Any, spec: BusSpec) -> Any:
             rows.append((s.name, s.position, []))
             continue
         variables = []
+        ruled = workspace.ruled_outputs(
+            slave.device.type_name if slave.device is not None else "",
+            [(v.name, v.index, v.subindex) for v in layout.outputs],
+        )
         for v, pv in zip(s.outputs, layout.outputs, strict=True):
             kind = _kind(pv)
             if kind is None:
@@ -107,6 +147,7 @@ def command_table(bus: Any, spec: BusSpec) -> Any:
                     kind,
                     float(v.minimum),
                     float(v.maximum),
+                    pv.name in ruled,
                 )
             )
         rows.append((s.name, s.position, variables))
@@ -196,7 +237,8 @@ def housekeeping_cpus(rt_cpu: int | None) -> set[int]:
 class NativeCommandPath:
     """``pdo_listener`` (or, with ``message_type=JointState``, ``joint_commands``) for one node:
     the native receiver plus the Python thread that handles what it defers
-    (``handle_deferred`` gets the deserialized message)."""
+    (``handle_deferred`` gets the deserialized message; ``handle_refused`` gets the message, or
+    None when it cannot be read at all, and the reason, for one the native decoder refuses)."""
 
     def __init__(
         self,
@@ -210,8 +252,10 @@ class NativeCommandPath:
         message_type: Any = WriteVariable,
         kind: str | None = None,
         lease: Any = None,
+        handle_refused: Callable[..., None] | None = None,
     ) -> None:
         self._handle_deferred = handle_deferred
+        self._handle_refused = handle_refused
         self._message_type = message_type
         if kind is None:
             kind = "write_variable" if message_type is WriteVariable else "joint_state"
@@ -316,8 +360,13 @@ class NativeCommandPath:
                 continue
             data, publisher = taken
             try:
-                message = deserialize_message(data, self._message_type)
-                self._handle_deferred(message, publisher)
+                message, problem = checked_message(data, self._message_type)
+                if problem is None:
+                    self._handle_deferred(message, publisher)
+                elif self._handle_refused is not None:
+                    self._handle_refused(message, problem, publisher=publisher)
+                else:
+                    log.warning("%s refused: %s", self._message_type.__name__, problem)
             except Exception:  # one bad request must not end the command path
                 log.exception("handling a deferred request failed")
             finally:

@@ -66,6 +66,7 @@ from trajectory_msgs.msg import JointTrajectory
 
 from ether_ros._native.protocol import format_address
 from ether_ros.config import types as dt
+from ether_ros.config.bus import check_node_name
 from ether_ros.errors import EtherRosError
 from ether_ros.ros import bridge, diagnostics, joints, security
 from ether_ros.ros.convert import layout_msg
@@ -75,6 +76,7 @@ from ether_ros.ros.native_commands import (
     CommandPathError,
     NativeCommandPath,
     RefusalBudget,
+    checked_message,
     housekeeping_cpus,
 )
 from ether_ros.ros.sample_publisher import Rates, SamplePublisher
@@ -160,7 +162,8 @@ class EtherRosNode(LifecycleNode):
         # ``link_kind`` overrides bus.link (packet, xdp, auto) each time the bus opens.
         self._link_kind = link_kind
         cfg = load_config(str(config_path), interface, link_kind)
-        name = node_name or cfg.ros.node_name
+        # A name given outside the file is checked as ros.node_name is (rclpy would raise).
+        name = check_node_name(node_name) if node_name is not None else cfg.ros.node_name
         super().__init__(name, namespace=cfg.ros.namespace or None, context=context)
         # The command path (``pdo_listener``, ``write_variables``, ``panic``) optionally lives on
         # a second, plain node ``<name>_commands`` in the same namespace, so the topic and
@@ -263,21 +266,25 @@ class EtherRosNode(LifecycleNode):
                 self._on_joint_trajectory,
                 kind="passthrough",
             )
+        # The Python subscriptions take the serialized message and check it before rclpy
+        # turns it into Python (which would cut a name at a NUL): see _checked.
         if self._native is None:
             commands.create_subscription(
                 WriteVariable,
                 "pdo_listener",
-                self._on_write_topic,
+                self._checked(WriteVariable, "pdo_listener", self._on_write_topic),
                 QOS_COMMANDS,
                 callback_group=None if self.command_node else self._writes_group,
+                raw=True,
             )
         if self._native_joints is None:
             commands.create_subscription(
                 JointState,
                 "joint_commands",
-                self._on_joint_commands,
+                self._checked(JointState, "joint_commands", self._on_joint_commands),
                 QOS_COMMANDS,
                 callback_group=None if self.command_node else self._writes_group,
+                raw=True,
             )
         commands.create_service(
             WriteVariables,
@@ -295,9 +302,10 @@ class EtherRosNode(LifecycleNode):
             commands.create_subscription(
                 JointTrajectory,
                 "joint_trajectory",
-                self._on_joint_trajectory,
+                self._checked(JointTrajectory, "joint_trajectory", self._on_joint_trajectory),
                 QOS_COMMANDS,
                 callback_group=None if self.command_node else self._writes_group,
+                raw=True,
             )
         # The lease service answers beside panic: it never waits for the bus.
         commands.create_service(
@@ -738,10 +746,45 @@ class EtherRosNode(LifecycleNode):
                 message_type=message_type,
                 kind=kind,
                 lease=self._lease.gate,
+                handle_refused=functools.partial(self._refuse_message, topic),
             )
         except CommandPathError as exc:
             self.get_logger().warning(f"{exc}; {topic} is served by Python instead")
             return None
+
+    def _checked(
+        self, message_type: Any, topic: str, handler: Callable[[Any], None]
+    ) -> Callable[[bytes], None]:
+        """A raw subscription's callback: the serialized message checked by the native decoder
+        (``native_commands.checked_message``), then handed to ``handler`` or refused."""
+
+        def callback(data: bytes) -> None:
+            message, problem = checked_message(data, message_type)
+            if problem is None:
+                handler(message)
+            else:
+                self._refuse_message(topic, message, problem)
+
+        return callback
+
+    def _refuse_message(
+        self, topic: str, message: Any, problem: str, publisher: bytes | None = None
+    ) -> None:
+        """Answer a command message refused before it was read (``message`` may be None when
+        nothing of it could be read): on ``write_results`` for ``pdo_listener`` (with its
+        request_id), else on ``joint_results`` — within the publisher's answer budget, as every
+        refusal (a flood of bad messages must not become a flood of answers)."""
+        text = f"{topic} refused: {problem}"
+        self.get_logger().warning(text, throttle_duration_sec=1.0)
+        if not self._refusal_budget.spend(publisher):
+            return
+        if topic == "pdo_listener":
+            request_id = int(message.request_id) if message is not None else 0
+            self._result_pub.publish(
+                WriteResult(request_id=request_id, success=False, message=text)
+            )
+        else:
+            self._joint_result_pub.publish(WriteResult(success=False, message=text))
 
     def command_path_counters(self) -> dict[str, int]:
         """The native command path's counters (empty when Python serves pdo_listener)."""

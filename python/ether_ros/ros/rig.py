@@ -5,6 +5,7 @@ this process — with a ROS domain of its own so parallel rigs never hear each o
 Used by the demo, the acceptance tests and the benchmarks::
 
     with RosRig("config/laelaps.yaml") as rig:
+        rig.client.write("all", "y_cntr_traj1000", 599)
         rig.client.write("all", "b_ellipse100", 4)
         rig.sim("probe", slave=0)
 

@@ -4,8 +4,13 @@
 //!
 //! Usage: ethercrab-probe --interface IF [--cycles N] [--cycle-us N] [--dc --shift-us N]
 //!        [--expect-slaves N] [--expect-wkc N] [--set SLAVE:BYTE:HEX]...
+//!        [--expect-input SLAVE:BYTE:HEX]
 //!
 //! `--set 1:0:ff00` writes the bytes ff 00 at byte 0 of slave 1's outputs in every cycle.
+//! `--expect-input 0:0:a5` keeps exchanging after the N cycles, for at most 5 s more, until slave
+//! 0's inputs hold a5 at byte 0 (a loaded host may have starved the run long enough for the
+//! slave's watchdog to take its outputs to the safe state near the end); the report's inputs are
+//! those of the last exchange either way.
 //! Exit status: 0 when every expectation held, 1 otherwise (the JSON line says why), 2 for bad
 //! arguments.
 
@@ -33,6 +38,7 @@ struct Args {
     expect_slaves: Option<usize>,
     expect_wkc: Option<u16>,
     sets: Vec<(usize, usize, Vec<u8>)>,
+    expect_input: Option<(usize, usize, Vec<u8>)>,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -45,6 +51,7 @@ fn parse_args() -> Result<Args, String> {
         expect_slaves: None,
         expect_wkc: None,
         sets: Vec::new(),
+        expect_input: None,
     };
     let mut it = std::env::args().skip(1);
     while let Some(flag) = it.next() {
@@ -65,6 +72,7 @@ fn parse_args() -> Result<Args, String> {
             "--expect-slaves" => a.expect_slaves = Some(num(&value)? as usize),
             "--expect-wkc" => a.expect_wkc = Some(num(&value)? as u16),
             "--set" => a.sets.push(parse_set(&value)?),
+            "--expect-input" => a.expect_input = Some(parse_set(&value)?),
             other => return Err(format!("unknown argument {other}")),
         }
     }
@@ -180,7 +188,23 @@ macro_rules! cycle_loop {
     ($group:expr, $maindevice:expr, $args:expr, $report:expr, $tx_rx:ident) => {{
         let (group, maindevice, args, report) = ($group, $maindevice, $args, $report);
         let mut next = Instant::now();
-        for n in 0..args.cycles {
+        let mut n: u32 = 0;
+        loop {
+            if n >= args.cycles {
+                let seen = match &args.expect_input {
+                    None => true,
+                    Some((slave, byte, bytes)) => match group.subdevice(maindevice, *slave) {
+                        Ok(sd) => {
+                            let io = sd.io_raw();
+                            io.inputs().get(*byte..*byte + bytes.len()) == Some(&bytes[..])
+                        }
+                        Err(e) => return Err(format!("--expect-input: slave {slave}: {e}")),
+                    },
+                };
+                if seen || n >= args.cycles + 5000 {
+                    break;
+                }
+            }
             for (slave, byte, bytes) in &args.sets {
                 let sd = group
                     .subdevice(maindevice, *slave)
@@ -208,6 +232,7 @@ macro_rules! cycle_loop {
                 Err(_) => report.tx_rx_errors += 1,
             }
             report.cycles = n + 1;
+            n += 1;
             next += args.cycle;
             let now = Instant::now();
             if next > now {

@@ -1,8 +1,11 @@
 """Is a Laelaps II trajectory valid? The leg workspace check of thesis eqs. 4.1–4.5.
 
 The firmware disregards trajectory parameters (object 0x7030) whose semi-ellipse leaves the leg's
-workspace and keeps serving its last valid point. The console checks the same rule first, so an
-operator gets the reason instead of a leg that silently ignores the command.
+workspace and keeps serving its last valid point. The master refuses such a write instead
+(``Bus.write_many``/``write_all``/``write_slaves`` call :func:`leg_write_problem`), so every path
+to the outputs — ``pdo_listener``, ``write_variables``, the console, the Python API — gets the
+reason rather than a leg that silently ignores the command. The console runs the same function
+on its own view of the outputs to check sequence files before the first step is sent.
 
 The rule is the one the simulated firmware applies (``crates/sim/src/devices/trajectory.rs``):
 the toe follows ``x = x_c + a·cos s``, ``y = y_c + b·sin s`` in the swing half (sin s < 0) and
@@ -15,7 +18,7 @@ line) and within 45° of the vertical; a, b >= 0, frequency 0..10 Hz, flatness 0
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
 L1_M = 0.250
@@ -26,6 +29,9 @@ REACH_TOLERANCE_M = 0.002
 MAX_FREQ_HZ = 10.0
 MAX_TOE_ANGLE_DEG = 45.0
 CHECK_SAMPLES = 256
+#: A centre height inside the workspace: Table 6.1's front legs (mm), for the hint when the
+#: centre was never set.
+STANDING_Y_MM = 599
 
 # Trajectory record 0x7030: subindex -> (what it is, scale from the raw integer to SI)
 TRAJECTORY_INDEX = 0x7030
@@ -96,3 +102,54 @@ def invalid_reason(e: Ellipse) -> str | None:
                 f"{MAX_TOE_ANGLE_DEG:g}° from the vertical"
             )
     return None
+
+
+def is_laelaps_leg(device: str, outputs: Iterable[tuple[str, int, int]]) -> bool:
+    """A Laelaps II leg: its ESI device says so and it maps the trajectory record 0x7030
+    (``outputs``: (name, index, subindex) of its output variables)."""
+    return "laelaps" in device.lower() and any(i == TRAJECTORY_INDEX for _, i, _ in outputs)
+
+
+def trajectory_names(outputs: Iterable[tuple[str, int, int]]) -> dict[str, str]:
+    """Output variable name -> trajectory field (``x_c``, ``a`` ...) of the 0x7030 record."""
+    return {
+        name: TRAJECTORY_FIELDS[sub]
+        for name, index, sub in outputs
+        if index == TRAJECTORY_INDEX and sub in TRAJECTORY_FIELDS
+    }
+
+
+def ruled_outputs(device: str, outputs: Iterable[tuple[str, int, int]]) -> set[str]:
+    """The output variables whose writes the master checks against the device's rule (and so
+    never leaves to the native command path): a Laelaps II leg's trajectory record."""
+    outputs = list(outputs)
+    return set(trajectory_names(outputs)) if is_laelaps_leg(device, outputs) else set()
+
+
+def leg_write_problem(
+    device: str,
+    outputs: Iterable[tuple[str, int, int]],
+    current: Mapping[str, float],
+    assigned: Mapping[str, float],
+) -> str | None:
+    """Why writing ``assigned`` (variable name -> value) to a leg whose outputs are ``current``
+    makes a trajectory the firmware would disregard; None when it is fine or not a leg's
+    trajectory. A variable missing from ``current`` counts as 0 (the master's output image
+    starts zeroed)."""
+    outputs = list(outputs)
+    if not is_laelaps_leg(device, outputs):
+        return None
+    names = trajectory_names(outputs)
+    if not any(name in names for name in assigned):
+        return None
+    raw = {
+        field: float(assigned.get(name, current.get(name, 0.0))) for name, field in names.items()
+    }
+    reason = invalid_reason(Ellipse.from_raw(raw))
+    if reason is None:
+        return None
+    shown = ", ".join(f"{name}={value:g}" for name, value in assigned.items())
+    centre = next((name for name, field in names.items() if field == "y_c"), None)
+    if centre is not None and centre not in assigned and raw["y_c"] == 0:
+        reason = f"{centre} is 0: set the centre first, e.g. {centre}={STANDING_Y_MM}"
+    return f"{shown} makes an invalid ellipse: {reason}"
