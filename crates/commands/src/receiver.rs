@@ -598,7 +598,9 @@ impl Worker {
             Err(e) => {
                 self.failed(&c.undecodable, format!("decoding a JointState: {e}"));
                 scratch.why.clear();
-                let _ = write!(scratch.why, "not a sensor_msgs/JointState: {e}");
+                // The decoder's words, as Python answers a message it refuses before reading
+                // it (native_commands.checked_message): "field 'name' holds a NUL at byte 5".
+                let _ = write!(scratch.why, "{e}");
                 Resolution::Refuse
             }
             Ok(_) if self.pending_of(publisher) > 0 => Resolution::Defer,
