@@ -25,7 +25,7 @@ from typing import Any
 
 import pytest
 
-from ether_ros.ros.rig import RosRig
+from ether_ros.ros.rig import RosRig, domain_for
 
 pytestmark = [pytest.mark.netns, pytest.mark.ros]
 
@@ -208,7 +208,10 @@ def test_axes_modes_sdo_joints_and_trajectories_need_the_lease() -> None:
     if os.geteuid() != 0:
         pytest.skip("needs root (veth pairs)")
     joint = "elbow"
-    with RosRig(REPO / "config" / "arm6.yaml", netns=True) as arm:
+    # A ROS domain apart from the module's laelaps rig (same process): two nodes named
+    # /ether_comm on one domain would answer for each other.
+    domain = domain_for(os.getpid(), offset=1)
+    with RosRig(REPO / "config" / "arm6.yaml", netns=True, domain_id=domain) as arm:
         client = arm.client
         client.wait_for_node()
         ok, message, _ = client.axis_command("enable", [joint])  # acquires the lease first
