@@ -27,6 +27,9 @@ MAX_MOTOR_SPEED_RPM = 6000  # 0x6080
 SUPPORTED_MODES = (
     (1 << 0) | (1 << 2) | (1 << 5) | (1 << 7) | (1 << 8) | (1 << 9)
 )  # PP PV HM CSP..CST
+# 0x60E3: homing on the index pulse (33 negative, 34 positive direction), on the home switch
+# (19: switch on the positive side, home at its edge), on the current position (35, 37).
+HOMING_METHODS = (19, 33, 34, 35, 37)
 
 BASIC_BITS = {"BOOL": 1, "SINT": 8, "USINT": 8, "INT": 16, "UINT": 16, "DINT": 32, "UDINT": 32}
 SIGNED = {"SINT", "INT", "DINT"}
@@ -51,6 +54,7 @@ class Sub:
     access: str = "rw"
     default: int = 0
     subindex: int | None = None  # None: the next one
+    pdo: str = ""  # PDO mapping flag of the subindex: "", "R" or "T"
 
 
 @dataclass(frozen=True)
@@ -95,7 +99,19 @@ AXIS_VARS = (
     Var(0x6085, "Quick stop deceleration", "UDINT", "rw", "", 100 * COUNTS_PER_REV),
     Var(0x6098, "Homing method", "SINT", "rw", "", 37),
     Var(0x609A, "Homing acceleration", "UDINT", "rw", "", 10 * COUNTS_PER_REV),
+    # Offsets added to the velocity (CSP, CSV) and torque (CSP, CSV, CST) commands: feed-forward.
+    Var(0x60B1, "Velocity offset", "DINT", "rw", "R"),
+    Var(0x60B2, "Torque offset", "INT", "rw", "R"),
+    # Touch probe 1: function (enable, single/continuous, source: home switch or index pulse,
+    # edges), status, and the positions latched at its edges.
+    Var(0x60B8, "Touch probe function", "UINT", "rw", "R"),
+    Var(0x60B9, "Touch probe status", "UINT", "ro", "T"),
+    Var(0x60BA, "Touch probe 1 positive edge", "DINT", "ro", "T"),
+    Var(0x60BB, "Touch probe 1 negative edge", "DINT", "ro", "T"),
     Var(0x60F4, "Following error actual value", "DINT", "ro", "T"),
+    # Bit 0 negative limit switch, 1 positive limit switch, 2 home switch; 16-31 the
+    # manufacturer's inputs (wired to outputs 16-31 of 0x60FE in the simulated drive).
+    Var(0x60FD, "Digital inputs", "UDINT", "ro", "T"),
     Var(0x60FF, "Target velocity", "DINT", "rw", "R"),
     Var(0x6502, "Supported drive modes", "UDINT", "ro", "", SUPPORTED_MODES),
 )
@@ -135,6 +151,21 @@ AXIS_RECORDS = (
         (
             Sub("Speed during search for switch", "UDINT", default=COUNTS_PER_REV),
             Sub("Speed during search for zero", "UDINT", default=COUNTS_PER_REV // 4),
+        ),
+    ),
+    Record(
+        0x60E3,
+        "Supported homing methods",
+        "DT60E3",
+        tuple(Sub(f"Homing method {k + 1}", "SINT", "ro", m) for k, m in enumerate(HOMING_METHODS)),
+    ),
+    Record(
+        0x60FE,
+        "Digital outputs",
+        "DT60FE",
+        (
+            Sub("Physical outputs", "UDINT", pdo="R"),
+            Sub("Bit mask", "UDINT", default=0xFFFF0000, pdo="R"),
         ),
     ),
     Record(
@@ -178,7 +209,7 @@ RX_ENTRIES = ((0x6040, "UINT"), (0x6060, "SINT"), (0, "pad8"), (0x607A, "DINT"))
 RX_ENTRIES += ((0x60FF, "DINT"), (0x6071, "INT"))
 TX_ENTRIES = ((0x6041, "UINT"), (0x6061, "SINT"), (0, "pad8"), (0x6064, "DINT"))
 TX_ENTRIES += ((0x606C, "DINT"), (0x6077, "INT"), (0x603F, "UINT"), (0x60F4, "DINT"))
-MAPPING_CAPACITY = 10  # entries a remapped PDO may hold
+MAPPING_CAPACITY = 16  # entries a remapped PDO may hold
 
 
 def _hex(value: int, bits: int) -> str:
@@ -210,13 +241,16 @@ def _subitem_type(w: Writer, name: str, subs: list[tuple[int, str, str, int, str
     """A record DataType; ``subs`` = (subindex, name, type, bits, access), subindex 0 first."""
     offset = 0
     items = []
-    for sub, sname, tname, bits, access in subs:
+    for sub, sname, tname, bits, access_pdo in subs:
         if bits >= 16 and offset % 16:
             offset += 16 - offset % 16
+        # "rw/R": access rw, mappable into RxPDOs.
+        access, _, pdo = access_pdo.partition("/")
+        mapping = f"<PdoMapping>{pdo}</PdoMapping>" if pdo else ""
         items.append(
             f"<SubItem><SubIdx>{sub}</SubIdx><Name>{escape(sname)}</Name><Type>{tname}</Type>"
             f"<BitSize>{bits}</BitSize><BitOffs>{offset}</BitOffs>"
-            f"<Flags><Access>{access}</Access></Flags></SubItem>"
+            f"<Flags><Access>{access}</Access>{mapping}</Flags></SubItem>"
         )
         offset += bits
         if sub == 0:
@@ -233,7 +267,8 @@ def _record_subs(rec: Record) -> list[tuple[int, str, str, int, str]]:
     nxt = 1
     for s in rec.subs:
         sub = s.subindex if s.subindex is not None else nxt
-        rows.append((sub, s.name, s.type_name, BASIC_BITS[s.type_name], s.access))
+        access = f"{s.access}/{s.pdo}" if s.pdo else s.access
+        rows.append((sub, s.name, s.type_name, BASIC_BITS[s.type_name], access))
         nxt = sub + 1
     return rows
 

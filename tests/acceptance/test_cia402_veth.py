@@ -204,3 +204,33 @@ def test_bad_commands_are_refused_on_the_live_bus(arm: tuple[Bus, SimProcess]) -
     # A valid command does move it.
     elbow.command(position=here + 0.05)
     wait_for("the move", lambda: abs(elbow.position - (here + 0.05)) < SETTLED_TOLERANCE)
+
+
+def test_the_python_api_example_of_the_docs_runs_on_arm6(veth_ns: VethPair) -> None:
+    """docs/cia402.md's Python API example, as written, on config/arm6.yaml as shipped (its
+    1 s command watchdog, real-time settings and restart: manual): the 1.05 s trajectory is
+    longer than the watchdog, yet no axis is stopped by it (a running trajectory counts as a
+    command, and the waits feed the watchdog). Only the interface and the path are this test's;
+    a check is appended inside the example's block."""
+    text = (REPO / "docs" / "cia402.md").read_text()
+    section = text[text.index("## Python API") :]
+    code = section[section.index("```python\n") + len("```python\n") :]
+    code = code[: code.index("```")]
+    assert 'Bus.open("config/arm6.yaml", interface="veth0")' in code
+    code = code.replace('"config/arm6.yaml"', repr(str(ARM6)))
+    code = code.replace('interface="veth0"', f"interface={veth_ns.master!r}")
+    code += "    check(bus)\n"
+    seen: dict[str, Any] = {}
+
+    def check(bus: Bus) -> None:
+        seen.update({a.name: a.status() for a in bus.axes()})
+
+    with SimProcess(ARM6, veth_ns.slave, veth_ns.netns):
+        exec(compile(code, "docs/cia402.md", "exec"), {"check": check})
+    # The example disables the elbow at its end; the others are still enabled: the watchdog
+    # never stopped the arm while the example waited.
+    others = {n: st for n, st in seen.items() if n != "elbow"}
+    assert len(others) == 5
+    assert all(st["state"] == "operation_enabled" for st in others.values()), others
+    assert not any(st["restart_blocked"] for st in others.values()), others
+    assert seen["elbow"]["state"] != "operation_enabled"

@@ -200,3 +200,61 @@ def test_a_mode_object_outside_the_pdos_is_set_in_preop(tmp_path: Path) -> None:
     inits = [(i.index, i.subindex, i.data) for i in drive.sdo_init]
     assert (0x6060, 0, bytes([8])) in inits  # j1: csp
     assert "mode" not in cfg.axis_specs()[0].variables
+
+
+def test_axis_extras_resolve_to_process_variables_with_si_scales(tmp_path: Path) -> None:
+    from ether_ros.config.cia402 import extra_address
+
+    assert extra_address("0x60FE:01", 1) == (0x68FE, 1)  # the second axis's own object
+    assert extra_address(0x2000, 1) == (0x2000, 0)  # a vendor object as given
+    assert extra_address("sixty", 0) is None
+    text = ONE_DRIVE.replace(
+        "{name: j2, mode: csv}",
+        "{name: j2, mode: csv, velocity_scale: 0.5, extras: [{name: din, object: '0x60FD'},"
+        " {name: ff, object: '0x60B1', scale: velocity}]}",
+    )
+    cfg = load_bus_config(write(tmp_path, text))
+    j2 = cfg.axis_specs()[1]
+    din, ff = j2.extras["din"], j2.extras["ff"]
+    assert (din.variable.index, din.variable.direction, din.writable) == (0x68FD, "input", False)
+    assert (ff.variable.index, ff.writable, ff.factor) == (0x68B1, True, 0.5)
+    # Mapped into the PDOs by the master (the ESI's PDOs do not carry them).
+    entries = {(v.index, v.subindex) for v in cfg.slave("drive").layout.variables}
+    assert {(0x68FD, 0), (0x68B1, 0)} <= entries
+
+
+@pytest.mark.parametrize(
+    ("extra", "why"),
+    [
+        ("{name: x, object: '0x6FFF'}", "0x6FFF:00 is not in the ServoDrive2 dictionary"),
+        ("{name: x, object: banana}", "is not an object address"),
+        ("{name: x, object: '0x60E3:01'}", "does not mark it PDO-mappable"),
+        ("{name: x, object: '0x60FD', scale: 0.0}", "must be a finite number other than 0"),
+        ("{name: x, object: '0x60FD'}, {name: x, object: '0x60FE:01'}", "has this name already"),
+    ],
+)
+def test_axis_extras_that_cannot_be_had_are_named(tmp_path: Path, extra: str, why: str) -> None:
+    text = ONE_DRIVE.replace("{name: j2, mode: csv}", f"{{name: j2, mode: csv, extras: [{extra}]}}")
+    msg = load_error(tmp_path, text)
+    assert why.lower() in msg.lower() and "extras" in msg, msg
+
+
+def test_homing_config_is_checked_against_the_drive_and_written_in_preop(tmp_path: Path) -> None:
+    homing = "homing: {method: 34, speed_switch: 0.5, speed_zero: 0.1, acceleration: 2.0}"
+    j1 = "torque_limit: 5.0}"
+    cfg = load_bus_config(write(tmp_path, ONE_DRIVE.replace(j1, f"torque_limit: 5.0, {homing}}}")))
+    inits = {(i.index, i.subindex): i.value for i in cfg.slave("drive").sdo_init}
+    assert inits[(0x6098, 0)] == 34
+    assert inits[(0x6099, 1)] == round(0.5 / 0.001) and inits[(0x6099, 2)] == round(0.1 / 0.001)
+    assert inits[(0x609A, 0)] == round(2.0 / 0.001)
+    # A speed the drive's units cannot carry is named.
+    msg = load_error(
+        tmp_path,
+        ONE_DRIVE.replace(j1, "torque_limit: 5.0, homing: {method: 34, speed_zero: 1.0e-9}}"),
+    )
+    assert "homing.speed_zero" in msg, msg
+    msg = load_error(
+        tmp_path,
+        ONE_DRIVE.replace("{name: j2, mode: csv}", "{name: j2, mode: csv, homing: {method: 1}}"),
+    )
+    assert "does not offer this homing method" in msg and "19, 33, 34, 35, 37" in msg, msg

@@ -23,8 +23,8 @@ from ether_ros.testing.wait import wait_for
 REPO = Path(__file__).resolve().parents[2]
 
 
-def _config() -> BusConfig:
-    cfg = load_bus_config(REPO / "config" / "arm6.yaml")
+def _config(path: Path = REPO / "config" / "arm6.yaml") -> BusConfig:
+    cfg = load_bus_config(path)
     # The in-process link takes the GIL per frame: a relaxed cycle, no RT policy needed.
     cfg.bus.cycle_us = 2000
     cfg.bus.realtime.policy = "other"
@@ -158,16 +158,115 @@ def test_every_mode_runs_on_the_drive_model(drives: Bus) -> None:
     j.set_mode("pv")
     j.command(velocity=-0.1)
     wait_for("pv velocity", lambda: abs(j.velocity + 0.1) < 0.01)
-    j.command(velocity=0.0)
-    with pytest.raises(AxisCommandError, match="switch from pv to hm only while disabled"):
+    # Homing only at standstill: the axis still moves at -0.1 rad/s.
+    with pytest.raises(AxisCommandError, match="switch from pv to hm only at standstill"):
         j.set_mode("hm")
-    j.disable()
-    # Homing starts when enabled (controlword bit 4): statusword bit 12, homing attained.
+    j.command(velocity=0.0)
+    wait_for("pv standstill", lambda: j.status()["idle"])
+    # Homing (method 37: the current position is the home) starts only when asked, ends on the
+    # drive's "homing attained" and gives the axis back in pv, holding.
+    runs = j.status()["homing_runs"]
+    j.home(method=37, timeout=10)
+    st = j.status()
+    assert st["homing_runs"] == runs + 1
+    assert st["mode_display"] == "pv" and st["state"] == "operation_enabled"
+    # The home offset (0x607C, 0) is the position now.
+    assert abs(j.position - j.spec.config.position_offset) < 0.01
     j.set_mode("hm")
-    j.enable(timeout=3)
-    wait_for("homing attained", lambda: j.status()["statusword"] & 0x1000 != 0)
     with pytest.raises(AxisCommandError, match="takes no setpoint"):
         j.command(position=0.0)
+
+
+def test_homing_refuses_a_method_the_drive_lacks_or_a_disabled_axis(drives: Bus) -> None:
+    j = drives.axis("elbow")
+    j.enable(timeout=3)
+    # 0x60E3 of the ESI: 19, 33, 34, 35, 37.
+    assert j.spec.homing_methods is not None and 37 in j.spec.homing_methods
+    with pytest.raises(AxisCommandError, match="does not offer homing method 1 "):
+        j.home(method=1)
+    assert j.status()["homing_runs"] == 0 and j.mode == "csp"
+    # Homing needs the axis enabled.
+    j.disable()
+    with pytest.raises(AxisCommandError, match="needs the axis enabled"):
+        j.home(method=37)
+
+
+def test_homing_on_the_index_pulse_ends_attained_and_holds(drives: Bus) -> None:
+    j = drives.axis("wrist_1")
+    j.enable(timeout=3)
+    j.home(method=34, timeout=20)
+    st = j.status()
+    assert st["homing_runs"] == 1 and st["mode_display"] == "csp"
+    # Held where homing left it: the target follows the actual position.
+    assert abs(st["target_position"] - st["position"]) < 0.01
+
+
+def test_profile_velocity_and_acceleration_per_command_in_si(drives: Bus) -> None:
+    j = drives.axis("elbow")
+    j.enable(timeout=3)
+    with pytest.raises(AxisCommandError, match="for modes pp and pv"):
+        j.command(position=0.1, profile_velocity=0.5)
+    j.set_mode("pp")
+    with pytest.raises(AxisCommandError, match="must be a positive number"):
+        j.command(position=0.1, profile_velocity=-1.0)
+    with pytest.raises(AxisCommandError, match="must be a positive number"):
+        j.command(position=0.1, profile_acceleration=math.nan)
+    start = j.position
+    j.command(position=start + 0.05, profile_velocity=0.5, profile_acceleration=5.0)
+    scale = j.spec.config.velocity_scale
+    assert drives.sdo_read("elbow_drive", 0x6081, 0) == round(0.5 / scale)
+    assert drives.sdo_read("elbow_drive", 0x6083, 0) == round(5.0 / scale)
+    wait_for("pp target reached", lambda: abs(j.position - (start + 0.05)) < 0.002)
+
+
+def _extras_config(tmp_path: Path) -> BusConfig:
+    """arm6 on the drive model, the elbow with extras: inputs, outputs, velocity offset."""
+    text = (REPO / "config" / "arm6.yaml").read_text()
+    text = text.replace("../devices/servo_drive.xml", str(REPO / "devices" / "servo_drive.xml"))
+    text = text.replace(
+        "- {name: elbow, mode: csp,",
+        "- {name: elbow, mode: csp, extras: [{name: inputs, object: '0x60FD'},"
+        " {name: outputs, object: '0x60FE:01'},"
+        " {name: velocity_offset, object: 0x60B1, scale: velocity}],",
+    )
+    path = tmp_path / "arm6.yaml"
+    path.write_text(text)
+    cfg = _config(path)
+    for s in cfg.slaves:
+        s.sim.device = None
+    return cfg
+
+
+def test_extras_read_and_command_in_si_on_the_drive_model(tmp_path: Path) -> None:
+    from ether_ros.sim.network import build_network
+
+    cfg = _extras_config(tmp_path)
+    with Bus.open(cfg, link=build_network(cfg), drift_frames=100) as b:
+        b.start()
+        j = b.axis("elbow")
+        assert set(j.extras) == {"inputs", "outputs", "velocity_offset"}
+        assert j.spec.extras["outputs"].writable and not j.spec.extras["inputs"].writable
+        # Refused, nothing written: an input, an unknown extra, NaN, too big for its object.
+        with pytest.raises(AxisCommandError, match="is an input"):
+            j.set_extras({"inputs": 1.0})
+        with pytest.raises(AxisCommandError, match="no extra 'nope'"):
+            j.set_extras({"outputs": 1.0, "nope": 1.0})
+        with pytest.raises(AxisCommandError, match="not a finite number"):
+            j.set_extras({"outputs": math.nan})
+        with pytest.raises(AxisCommandError, match="extra 'outputs'"):
+            j.set_extras({"outputs": 2.0**33})
+        assert j.extras["outputs"] == 0.0
+        # The model wires outputs 16-31 back to inputs 16-31.
+        j.set_extras({"outputs": float(0x0005_0000)})
+        wait_for("outputs read back", lambda: int(j.extras["inputs"]) & 0xFFFF_0000 == 0x0005_0000)
+        # The velocity offset is feed-forward: added to the csv velocity command.
+        j.set_mode("csv")
+        j.enable(timeout=3)
+        j.command(velocity=0.0)
+        j.set_extras({"velocity_offset": 0.1})
+        wait_for("velocity offset", lambda: abs(j.velocity - 0.1) < 0.01)
+        j.set_extras({"velocity_offset": 0.0})
+        wait_for("offset removed", lambda: abs(j.velocity) < 0.01)
 
 
 def test_an_object_mapped_by_the_master_reaches_the_drive(tmp_path: Path) -> None:

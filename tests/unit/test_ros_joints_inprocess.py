@@ -223,6 +223,26 @@ def test_set_mode_disable_enable(arm: Any) -> None:
     assert ok and states == {"wrist_3": "operation_enabled"}, message
 
 
+def test_home_service_homes_and_gives_the_joint_back_in_its_mode(arm: Any) -> None:
+    """The home service: the drive's configured method (the ESI's 0x6098 default, 37: the home
+    is the current position, 0x607C = 0), the joint back in csp and enabled, homing_runs
+    counted; a joint not enabled is refused with the reason."""
+    node, client, _net = arm
+    axis = node._axes["wrist_2"]
+    ok, message, _ = client.axis_command("disable", ["wrist_2"])
+    assert ok, message
+    ok, message, _ = client.axis_command("home", ["wrist_2"])
+    assert not ok and "homing needs the axis enabled" in message, message
+    ok, message, _ = client.axis_command("enable", ["wrist_2"])
+    assert ok, message
+    runs = int(axis.status()["homing_runs"])
+    ok, message, states = client.axis_command("home", ["wrist_2"], timeout=40)
+    assert ok and states == {"wrist_2": "operation_enabled"}, message
+    st = axis.status()
+    assert int(st["homing_runs"]) == runs + 1 and st["mode_display"] == "csp"
+    assert abs(axis.position - axis.spec.config.position_offset) < 0.01
+
+
 def test_injected_fault_shows_in_diagnostics_with_its_text(arm: Any) -> None:
     node, client, net = arm
     faults = int(node._axes["wrist_1"].status()["faults"])

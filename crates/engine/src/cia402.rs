@@ -196,6 +196,11 @@ pub struct AxisPlan {
     pub interpolation_max_ns: i64,
 }
 
+/// `AxisCommand::setpoint_kind` of a trajectory (its points are in the axis's slot).
+pub const TRAJECTORY_COMMAND: u8 = 0;
+/// `AxisCommand::setpoint_kind` of a quiet stop (`Engine::axis_stop`).
+pub const STOP_COMMAND: u8 = 4;
+
 /// Points per axis trajectory unless the plan says otherwise.
 pub const DEFAULT_TRAJECTORY_CAPACITY: usize = 1024;
 /// Largest trajectory capacity accepted.
@@ -311,6 +316,9 @@ fn read_i16(io: &[u8], off: usize) -> i16 {
 /// target at its next SYNC0 and, in csp, interpolates over one more period): position targets
 /// that follow a moving axis, and the braking envelope, look that far ahead.
 const COMMAND_LATENCY_CYCLES: f64 = 3.0;
+/// Cycles after a homing start before the drive's homing bits count: the statuswords of the
+/// frames in flight were latched before the drive saw the start.
+const HOMING_ACK_CYCLES: u32 = 5;
 /// Operation Enabled this long without a fault gives the automatic reset its retries back.
 const FAULT_RETRY_RESET_NS: i64 = 2_000_000_000;
 
@@ -380,6 +388,10 @@ pub struct AxisController {
     enable_wanted_before: bool,
     /// pp: a new set-point waits for the drive's acknowledge.
     pp_new_setpoint: bool,
+    /// hm: the last homing start taken over, a run under way and its cycles so far.
+    homing_seen: u32,
+    homing_active: bool,
+    homing_cycles: u32,
     pub status: AxisStatus,
 }
 
@@ -421,6 +433,9 @@ impl AxisController {
             enable_count_seen: 0,
             enable_wanted_before: false,
             pp_new_setpoint: false,
+            homing_seen: 0,
+            homing_active: false,
+            homing_cycles: 0,
             status: AxisStatus::default(),
             plan,
         }
@@ -429,7 +444,8 @@ impl AxisController {
     /// The trajectory command waiting to start (its seq), if any.
     fn pending_trajectory(&self) -> Option<u64> {
         let c = &self.command;
-        (c.setpoint_kind == 0 && c.seq != self.seq_seen && c.seq != 0).then_some(c.seq)
+        (c.setpoint_kind == TRAJECTORY_COMMAND && c.seq != self.seq_seen && c.seq != 0)
+            .then_some(c.seq)
     }
 
     /// Load the points of a pending trajectory from the axis's slot (a write in progress or
@@ -679,6 +695,34 @@ impl AxisController {
         }
     }
 
+    /// A quiet stop asked for: from the state the axis is commanded to have, decelerate to rest
+    /// at `deceleration` (csp, csv, pv: a ramp; pp: a set-point where that ramp ends; cst: zero
+    /// torque), then hold. Ends a trajectory or a setpoint stream.
+    fn quiet_stop(&mut self) {
+        let ramp = StopRamp {
+            position: self.target_position,
+            velocity: self.desired_velocity,
+        };
+        self.trajectory_running = false;
+        self.trajectory_done = false;
+        self.setpoint_value = 0.0;
+        self.interpolator.reset(self.target_position);
+        self.ramp = None;
+        match self.command.mode {
+            Mode::CyclicPosition | Mode::CyclicVelocity | Mode::ProfileVelocity => {
+                self.ramp = (ramp.velocity != 0.0).then_some(ramp);
+            }
+            Mode::ProfilePosition => {
+                let rest = ramp
+                    .rest_position(self.plan.deceleration)
+                    .clamp(self.plan.limits.position_min, self.plan.limits.position_max);
+                self.interpolator.reset(rest);
+                self.pp_new_setpoint = true;
+            }
+            Mode::CyclicTorque | Mode::Homing => {}
+        }
+    }
+
     /// One cycle: read the drive from `io` (inputs last received), write controlword, mode and
     /// targets into `io`'s outputs. `halt`: panic or watchdog, the stop is forced. `start_ok`:
     /// a pending trajectory may start (its points, and those of every axis that shares it,
@@ -793,11 +837,18 @@ impl AxisController {
                 match SetpointKind::from_code(cmd.setpoint_kind) {
                     // A trajectory starts once its points (and those of every axis it was
                     // given together with) are loaded.
-                    None if start_ok && self.staged_seq == Some(cmd.seq) => {
+                    None if cmd.setpoint_kind == TRAJECTORY_COMMAND
+                        && start_ok
+                        && self.staged_seq == Some(cmd.seq) =>
+                    {
                         self.seq_seen = cmd.seq;
                         if matches!(cmd.mode, Mode::CyclicPosition | Mode::CyclicVelocity) {
                             self.start_trajectory(now, cycle_ns, &fb);
                         }
+                    }
+                    None if cmd.setpoint_kind == STOP_COMMAND => {
+                        self.seq_seen = cmd.seq;
+                        self.quiet_stop();
                     }
                     None => {}
                     Some(kind) => {
@@ -850,8 +901,13 @@ impl AxisController {
                         st.position_clamps += 1;
                         limit_active = true;
                     }
+                    // Clamped, the target moves as the clamp lets it: that is its velocity.
+                    self.desired_velocity = if clamped {
+                        (p - self.target_position) / dt
+                    } else {
+                        velocity
+                    };
                     self.target_position = p;
-                    self.desired_velocity = if clamped { 0.0 } else { velocity };
                     idle = !self.trajectory_running
                         && self.ramp.is_none()
                         && !self.pp_new_setpoint
@@ -951,9 +1007,33 @@ impl AxisController {
                         cw |= cw::NEW_SETPOINT | cw::CHANGE_SET_IMMEDIATELY;
                     }
                 }
-                Mode::Homing => cw |= cw::NEW_SETPOINT,
+                Mode::Homing => {
+                    if cmd.homing_count != self.homing_seen {
+                        self.homing_seen = cmd.homing_count;
+                        self.homing_active = true;
+                        self.homing_cycles = 0;
+                    }
+                    if self.homing_active {
+                        // Homing operation start (bit 4) until the drive reports the end; the
+                        // statuswords of the first cycles predate the start.
+                        cw |= cw::NEW_SETPOINT;
+                        self.homing_cycles = self.homing_cycles.saturating_add(1);
+                        let attained = fb.statusword & sw::MODE_12 != 0
+                            && fb.statusword & sw::TARGET_REACHED != 0;
+                        let error = fb.statusword & sw::MODE_13 != 0;
+                        if self.homing_cycles > HOMING_ACK_CYCLES && (attained || error) {
+                            self.homing_active = false;
+                            self.status.homing_runs = self.status.homing_runs.wrapping_add(1);
+                        }
+                    }
+                }
                 _ => {}
             }
+        }
+        if !running {
+            // A homing start asked for while the axis cannot run is dropped.
+            self.homing_seen = cmd.homing_count;
+            self.homing_active = false;
         }
 
         // Into the image.
@@ -1003,6 +1083,7 @@ impl AxisController {
         st.target_torque = torque_target;
         st.command_seq = self.seq_seen;
         let window = self.plan.following_error_window;
+        let in_homing = fb.mode_display == Mode::Homing as i8;
         let mut f = 0;
         let pairs = [
             (self.trajectory_running, status_flags::TRAJECTORY_ACTIVE),
@@ -1029,7 +1110,16 @@ impl AxisController {
             ),
             (blocked, status_flags::RESTART_BLOCKED),
             (limit_active, status_flags::LIMIT_ACTIVE),
-            (!running || idle, status_flags::IDLE),
+            (!running || idle && !self.homing_active, status_flags::IDLE),
+            (self.homing_active, status_flags::HOMING_ACTIVE),
+            (
+                in_homing && !self.homing_active && fb.statusword & sw::MODE_12 != 0,
+                status_flags::HOMING_ATTAINED,
+            ),
+            (
+                in_homing && !self.homing_active && fb.statusword & sw::MODE_13 != 0,
+                status_flags::HOMING_ERROR,
+            ),
         ];
         for (on, bit) in pairs {
             if on {
@@ -1256,6 +1346,8 @@ mod tests {
         /// at `TORQUE_GAIN` raw/s² per raw torque in cst; disabled it stands.
         position: f64,
         velocity: f64,
+        /// Mode-specific statusword bits the drive shows besides its state (homing, pp).
+        extra_sw: u16,
     }
 
     const CYCLE: i64 = 1_000_000;
@@ -1277,6 +1369,7 @@ mod tests {
                 targets: Vec::new(),
                 position: position_raw as f64,
                 velocity: 0.0,
+                extra_sw: 0,
             }
         }
 
@@ -1287,7 +1380,8 @@ mod tests {
         }
 
         fn cycle(&mut self, halt: bool) {
-            self.io[SW..SW + 2].copy_from_slice(&statusword(self.state).to_le_bytes());
+            let word = statusword(self.state) | self.extra_sw;
+            self.io[SW..SW + 2].copy_from_slice(&word.to_le_bytes());
             self.io[POS..POS + 4].copy_from_slice(&self.position_raw.to_le_bytes());
             self.io[VEL..VEL + 4].copy_from_slice(&(self.velocity.round() as i32).to_le_bytes());
             self.io[ERR..ERR + 2].copy_from_slice(&self.error.to_le_bytes());
@@ -1806,6 +1900,90 @@ mod tests {
     }
 
     #[test]
+    fn a_quiet_stop_decelerates_from_the_commanded_motion() {
+        // csv at 1 rad/s, then a stop: the velocity target ramps to 0 at 10 rad/s² (0.1 s).
+        let mut p = plan();
+        p.deceleration = 10.0;
+        let mut b = enabled(p, 0);
+        set_mode(&mut b, Mode::CyclicVelocity);
+        command(&mut b, SetpointKind::Velocity, 1.0);
+        b.run(50);
+        b.command.seq += 1;
+        b.command.setpoint_kind = STOP_COMMAND;
+        b.send();
+        b.cycle(false);
+        let first = read_i32(&b.io, TVEL);
+        assert!((985..1000).contains(&first), "{first}");
+        b.run(120);
+        assert_eq!(read_i32(&b.io, TVEL), 0);
+        assert_ne!(b.status().flags & status_flags::IDLE, 0);
+        // csp on a trajectory at speed: the targets decelerate, no step back, then hold.
+        set_mode(&mut b, Mode::CyclicPosition);
+        b.run(5);
+        command(&mut b, SetpointKind::Position, 3.0);
+        b.run(200);
+        let n = b.targets.len();
+        b.command.seq += 1;
+        b.command.setpoint_kind = STOP_COMMAND;
+        b.send();
+        b.run(2000);
+        // It moved at the velocity limit (5 raw per cycle), then 0.5 s of ramp at 10 rad/s².
+        let steps: Vec<i32> = b.targets[n..].windows(2).map(|w| w[1] - w[0]).collect();
+        assert_eq!(steps[0], 5, "{steps:?}");
+        assert!(steps.iter().all(|&d| d >= 0), "{steps:?}");
+        assert!(
+            steps.windows(2).all(|w| w[1] <= w[0] + 1),
+            "decelerating: {steps:?}"
+        );
+        let travelled = b.targets[b.targets.len() - 1] - b.targets[n];
+        assert!(
+            (1230..1270).contains(&travelled),
+            "5 rad/s to rest at 10 rad/s²: {travelled}"
+        );
+    }
+
+    #[test]
+    fn homing_starts_only_when_asked_and_ends_on_the_drives_report() {
+        let mut p = plan();
+        p.mode = Mode::Homing;
+        let mut b = enabled(p, 0);
+        assert_eq!(
+            read_u16(&b.io, CW) & cw::NEW_SETPOINT,
+            0,
+            "no homing by itself"
+        );
+        // The drive still shows an old "homing attained": it does not end the new run.
+        b.extra_sw = sw::MODE_12 | sw::TARGET_REACHED;
+        b.command.homing_count += 1;
+        b.send();
+        for _ in 0..HOMING_ACK_CYCLES {
+            b.cycle(false);
+            assert_ne!(read_u16(&b.io, CW) & cw::NEW_SETPOINT, 0);
+            assert_ne!(b.status().flags & status_flags::HOMING_ACTIVE, 0);
+        }
+        b.extra_sw = 0; // homing in progress
+        b.run(20);
+        assert_ne!(read_u16(&b.io, CW) & cw::NEW_SETPOINT, 0);
+        b.extra_sw = sw::MODE_12 | sw::TARGET_REACHED; // attained
+        b.run(2);
+        assert_eq!(read_u16(&b.io, CW) & cw::NEW_SETPOINT, 0);
+        let st = b.status();
+        assert_eq!(st.flags & status_flags::HOMING_ACTIVE, 0);
+        assert_ne!(st.flags & status_flags::HOMING_ATTAINED, 0);
+        assert_eq!(st.homing_runs, 1);
+        // An error ends a run too.
+        b.extra_sw = 0;
+        b.command.homing_count += 1;
+        b.send();
+        b.run(10);
+        b.extra_sw = sw::MODE_13;
+        b.run(2);
+        let st = b.status();
+        assert_eq!(st.flags & status_flags::HOMING_ACTIVE, 0);
+        assert_ne!(st.flags & status_flags::HOMING_ERROR, 0);
+    }
+
+    #[test]
     fn csp_steps_are_limited_per_cycle_of_the_engine_clock() {
         let mut b = enabled(plan(), 0);
         command(&mut b, SetpointKind::Position, 5.0);
@@ -2087,6 +2265,7 @@ mod tests {
             torque_clamps: 3,
             faults: 4,
             fault_resets: 5,
+            homing_runs: 7,
             command_seq: 6,
             desired_velocity: -0.5,
             target_velocity: 0.75,

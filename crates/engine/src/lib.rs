@@ -661,6 +661,17 @@ impl Engine {
         self.update_axis(axis, |c| c.mode = mode)
     }
 
+    /// A quiet stop on the axes named, all in the same cycle: each decelerates from the state
+    /// it is commanded to have to rest at its `deceleration`, then holds (docs/cia402.md,
+    /// "Quiet stop"). Ends trajectories and setpoint streams.
+    pub fn axis_stop(&self, axes: &[usize]) -> Result<()> {
+        self.update_axes(axes, |_, c, seq| {
+            c.seq = seq;
+            c.setpoint_kind = cia402::STOP_COMMAND;
+        })
+        .map(|_| ())
+    }
+
     /// Start homing (mode hm; controlword bit 4 until the drive reports attained or error).
     pub fn axis_home(&self, axis: usize) -> Result<()> {
         self.update_axis(axis, |c| c.homing_count = c.homing_count.wrapping_add(1))
@@ -750,7 +761,7 @@ impl Engine {
             }
             ex.axes.trajectories[axis].write(0, &bytes);
             c.seq = seq;
-            c.setpoint_kind = 0;
+            c.setpoint_kind = cia402::TRAJECTORY_COMMAND;
             c.t_ns = start_ns;
             c.trajectory_len = points.len() as u32;
         })

@@ -384,6 +384,8 @@ pub mod object {
         pub const TOUCH_PROBE_1_POSITIVE: u16 = 0x60BA;
         /// Touch probe 1 position, negative edge (i32).
         pub const TOUCH_PROBE_1_NEGATIVE: u16 = 0x60BB;
+        /// Supported homing methods (array of i8).
+        pub const SUPPORTED_HOMING_METHODS: u16 = 0x60E3;
         /// Digital inputs (u32).
         pub const DIGITAL_INPUTS: u16 = 0x60FD;
         /// Digital outputs (record: 1 physical outputs u32, 2 bit mask u32).

@@ -529,6 +529,7 @@ fn axis_status_dict<'py>(py: Python<'py>, s: &AxisStatus) -> PyResult<Bound<'py,
     d.set_item("torque_clamps", s.torque_clamps)?;
     d.set_item("faults", s.faults)?;
     d.set_item("fault_resets", s.fault_resets)?;
+    d.set_item("homing_runs", s.homing_runs)?;
     d.set_item("command_seq", s.command_seq)?;
     Ok(d)
 }
@@ -858,6 +859,11 @@ impl PyEngine {
             list.push((axis, setpoint_kind(&kind)?, value));
         }
         self.inner.axis_setpoints(&list).map_err(|e| to_py(py, e))
+    }
+
+    /// A quiet stop on the axes named (engine indices), all in the same cycle.
+    fn axis_stop(&self, py: Python<'_>, axes: Vec<usize>) -> PyResult<()> {
+        self.inner.axis_stop(&axes).map_err(|e| to_py(py, e))
     }
 
     /// Start homing on axis `axis` (in mode hm).

@@ -578,6 +578,7 @@ class cia402:
     TOUCH_PROBE_STATUS: Final[int]
     TOUCH_PROBE_1_POSITIVE: Final[int]
     TOUCH_PROBE_1_NEGATIVE: Final[int]
+    SUPPORTED_HOMING_METHODS: Final[int]
     DIGITAL_INPUTS: Final[int]
     DIGITAL_OUTPUTS: Final[int]
     VELOCITY_ACTUAL: Final[int]

@@ -253,6 +253,18 @@ class RosConfig(_Model):
     # capped below rt.priority so commands never delay a cycle.
     command_priority: int = Field(default=50, ge=0, le=98)
     lease: LeaseConfig = Field(default_factory=LeaseConfig)
+    # The FollowJointTrajectory action server of the CiA 402 axes, relative to the namespace
+    # (MoveIt's simple controller manager: <controller name>/<action_ns>); empty: none.
+    trajectory_action: str = Field(
+        default="follow_joint_trajectory",
+        pattern=r"^([A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*)?$",
+    )
+    # A goal's goal_time_tolerance of 0 takes this (s): how long after the trajectory's end the
+    # joints may take to get within their goal tolerances.
+    goal_time_tolerance_s: float = Field(default=1.0, ge=0.0, le=600.0)
+    # Tolerances a goal leaves at 0 take these (SI; 0: not checked).
+    path_tolerance: float = Field(default=0.0, ge=0.0)
+    goal_tolerance: float = Field(default=0.0, ge=0.0)
 
 
 class PdoAssign(_Model):
@@ -285,6 +297,31 @@ class Joint(_Model):
     velocity_scale: Scale = 1.0
     effort: Text | None = None
     effort_scale: Scale = 1.0
+
+
+class AxisExtra(_Model):
+    """One more object of a CiA 402 axis as a joint interface (docs/cia402.md, "Drive extras"):
+    read from the process image and, when it is an output, commanded. ``object`` is an
+    address (``0x60FD``, ``0x60FE:01``); a standard object of the profile area (0x6000-0x67FF)
+    is taken at the axis's own index (+ n x 0x800), any other (a vendor object) as given.
+    SI value = raw x ``scale``: ``position`` (and the position offset), ``velocity``,
+    ``torque`` take the axis's scales, a number is its own."""
+
+    name: Identifier
+    object: int | str
+    scale: Literal["position", "velocity", "torque"] | float = 1.0
+
+
+class HomingConfig(_Model):
+    """Homing of a CiA 402 axis (mode hm), written to the drive in PREOP: the method (0x6098),
+    the search speeds for the switch and for the zero/index (0x6099:1/:2, SI/s), the
+    acceleration (0x609A, SI/s²) and the position the home gets (0x607C, SI)."""
+
+    method: int = Field(ge=-128, le=127)
+    speed_switch: float | None = Field(default=None, gt=0)
+    speed_zero: float | None = Field(default=None, gt=0)
+    acceleration: float | None = Field(default=None, gt=0)
+    offset: float = 0.0
 
 
 class AxisConfig(_Model):
@@ -322,6 +359,10 @@ class AxisConfig(_Model):
     profile_velocity: float | None = None
     profile_acceleration: float | None = None
     profile_deceleration: float | None = None
+    # More of the drive's objects as joint interfaces (0x60FD inputs, 0x60FE outputs, touch
+    # probe, offsets, vendor objects) and the homing set-up.
+    extras: list[AxisExtra] = Field(default_factory=list)
+    homing: HomingConfig | None = None
     on_stop: Literal["quick_stop", "disable"] = "quick_stop"
     fault_reset: Literal["auto", "manual"] = "auto"
     fault_retries: int = Field(default=3, ge=0, le=100)

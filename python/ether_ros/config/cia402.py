@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 from ether_ros._native import protocol
@@ -79,6 +79,20 @@ REQUIRED = ("controlword", "statusword")
 
 
 @dataclass(frozen=True)
+class ExtraSpec:
+    """A resolved axis extra: its process variable and SI value = raw x factor + offset."""
+
+    name: str
+    variable: ProcessVariable
+    factor: float
+    offset: float
+
+    @property
+    def writable(self) -> bool:
+        return self.variable.direction == "output"
+
+
+@dataclass(frozen=True)
 class AxisSpec:
     """A resolved axis: its configuration, its index on the drive and where its objects are
     in the slave's process areas (variables by role; roles the PDOs do not map are absent)."""
@@ -89,6 +103,10 @@ class AxisSpec:
     variables: dict[str, ProcessVariable]
     # Modes the ESI offers (names), from 0x6502's default when it has one.
     modes: tuple[str, ...]
+    # The axis's extras by name, in configuration order.
+    extras: dict[str, ExtraSpec] = field(default_factory=dict)
+    # Homing methods the drive announces (0x60E3), when its ESI says.
+    homing_methods: tuple[int, ...] | None = None
 
     @property
     def name(self) -> str:
@@ -155,6 +173,21 @@ def extend_mapping(
             new = PdoEntry(idx, 0, entry.bit_length, entry.name, entry.data_type, entry.type_name)
             pdos[target.index] = replace(target, entries=(*target.entries, new))
             changed = True
+        for extra in cfg.extras:
+            address = extra_address(extra.object, n)
+            direction = extra_direction(dev, *address) if address is not None else None
+            if address is None or direction is None:
+                continue  # resolve_axes names what is wrong
+            kind = "rx" if direction == "output" else "tx"
+            if any(_maps(pdos[i], address) for i in chosen[kind]):
+                continue
+            target = _pdo_for_axis([pdos[i] for i in chosen[kind]], n)
+            entry = dev.od_entry(*address)
+            if target is None or entry is None:
+                continue
+            new = PdoEntry(*address, entry.bit_length, entry.name, entry.data_type, entry.type_name)
+            pdos[target.index] = replace(target, entries=(*target.entries, new))
+            changed = True
     if not changed:
         return dev
     return replace(
@@ -173,6 +206,43 @@ def _pdo_for_axis(candidates: Sequence[Pdo], axis: int) -> Pdo | None:
         if any(lo <= e.index < hi for e in p.entries):
             return p
     return free[0] if free else None
+
+
+# The profile area of axis 0's standard objects: an extra there is taken at the axis's own
+# index (ETG.6010: + n x 0x800); outside it (a vendor object) as given.
+PROFILE_AREA = range(0x6000, 0x6000 + AXIS_STRIDE)
+
+
+def extra_address(obj: int | str, axis: int) -> tuple[int, int] | None:
+    """The (index, subindex) of an extra's ``object`` on axis ``axis``; None when it is no
+    address."""
+    if isinstance(obj, int):
+        index, subindex = obj, 0
+    else:
+        try:
+            parsed = protocol.parse_address(obj)
+        except ValueError:
+            return None
+        if parsed is None:
+            try:
+                parsed = (int(obj, 0), 0)
+            except ValueError:
+                return None
+        index, subindex = parsed
+    if not 0 <= index <= 0xFFFF:
+        return None
+    if index in PROFILE_AREA:
+        index += axis * AXIS_STRIDE
+    return index, subindex
+
+
+def extra_direction(dev: EsiDevice, index: int, subindex: int) -> str | None:
+    """``output`` for an object the dictionary maps into RxPDOs only, ``input`` for one it maps
+    into TxPDOs; None when it maps it neither way."""
+    entry = dev.od_entry(index, subindex)
+    if entry is None or not entry.pdo_mapping:
+        return None
+    return "output" if entry.pdo_mapping == "R" else "input"
 
 
 def wanted_roles() -> tuple[str, ...]:
@@ -227,6 +297,18 @@ PROFILE_OBJECTS = {
 }
 
 
+SUPPORTED_HOMING_METHODS = cia402_facts.SUPPORTED_HOMING_METHODS
+# The homing set-up (config key → object of axis 0): 0x6098, 0x6099 (:1 switch, :2 zero),
+# 0x609A, 0x607C.
+HOMING_OBJECTS = {
+    "method": cia402_facts.HOMING_METHOD,
+    "speed_switch": cia402_facts.HOMING_SPEEDS,
+    "speed_zero": cia402_facts.HOMING_SPEEDS,
+    "acceleration": cia402_facts.HOMING_ACCELERATION,
+    "offset": cia402_facts.HOME_OFFSET,
+}
+
+
 def profile_raw(cfg: AxisConfig, key: str, value: float) -> int:
     """A profile value in SI as the drive's raw UDINT (velocity units, /s for accelerations);
     ValueError when it does not fit."""
@@ -272,6 +354,27 @@ def axis_sdo_inits(specs: Sequence[AxisSpec], dev: EsiDevice) -> list[tuple[int,
             if value is not None:
                 raw = profile_raw(a.config, key, value)
                 out.append((base + n * AXIS_STRIDE, 0, raw, "uint32"))
+        out.extend(homing_sdo_inits(a.config, n))
+    return out
+
+
+def homing_sdo_inits(cfg: AxisConfig, n: int) -> list[tuple[int, int, int, str]]:
+    """The homing set-up of one axis in the drive's units: method, speeds, acceleration (raw =
+    SI / velocity_scale) and home offset (raw position of the home)."""
+    h = cfg.homing
+    if h is None:
+        return []
+    at = n * AXIS_STRIDE
+    out = [(HOMING_OBJECTS["method"] + at, 0, h.method, "int8")]
+    for key, sub in (("speed_switch", 1), ("speed_zero", 2)):
+        value = getattr(h, key)
+        if value is not None:
+            out.append((HOMING_OBJECTS[key] + at, sub, profile_raw(cfg, key, value), "uint32"))
+    if h.acceleration is not None:
+        raw = profile_raw(cfg, "acceleration", h.acceleration)
+        out.append((HOMING_OBJECTS["acceleration"] + at, 0, raw, "uint32"))
+    offset = round((h.offset - cfg.position_offset) / cfg.position_scale)
+    out.append((HOMING_OBJECTS["offset"] + at, 0, max(INT32_MIN, min(INT32_MAX, offset)), "int32"))
     return out
 
 
@@ -295,6 +398,15 @@ def check_axis(cfg: AxisConfig, path: tuple[Any, ...], err: ErrorFn) -> None:
         raise err((*path, "following_error_window"), "must be a finite number >= 0", w)
     if math.isnan(cfg.deceleration) or cfg.deceleration <= 0:
         raise err((*path, "deceleration"), "must be positive (inf: at once)", cfg.deceleration)
+    if cfg.homing is not None:
+        for key in ("speed_switch", "speed_zero", "acceleration"):
+            v = getattr(cfg.homing, key)
+            if v is None:
+                continue
+            try:
+                profile_raw(cfg, key, v)
+            except ValueError as exc:
+                raise err((*path, "homing", key), str(exc), v) from None
     for key in PROFILE_OBJECTS:
         v = getattr(cfg, key)
         if v is None:
@@ -361,5 +473,84 @@ def resolve_axes(
             raise err(path, f"axis {cfg.name}: object 0x{mode_index:04X} (modes of operation) is "
                       f"neither in the PDOs nor in the {dev.type_name} dictionary: the mode "
                       "cannot be set", None, False)  # fmt: skip
-        specs.append(AxisSpec(cfg, slave, n, variables, modes))
+        extras = resolve_extras(dev, layout, cfg, n, path, err)
+        methods = supported_homing_methods(dev, n)
+        if cfg.homing is not None:
+            hpath = (*path, "homing")
+            if "hm" not in modes:
+                raise err(hpath, f"{dev.type_name} axis {n + 1} does not offer homing (mode hm "
+                          "is not in 0x6502)", None, False)  # fmt: skip
+            if methods is not None and cfg.homing.method not in methods:
+                raise err((*hpath, "method"), f"{dev.type_name} does not offer this homing method "
+                          f"(0x60E3 supported homing methods: "
+                          f"{', '.join(map(str, methods))})", cfg.homing.method)  # fmt: skip
+            for key, base in HOMING_OBJECTS.items():
+                idx = base + n * AXIS_STRIDE
+                given = key == "method" or getattr(cfg.homing, key) is not None
+                if given and dev.objects and dev.od_object(idx) is None:
+                    raise err((*hpath, key), f"the {dev.type_name} dictionary has no object "
+                              f"0x{idx:04X} to write it to", getattr(cfg.homing, key))  # fmt: skip
+        specs.append(AxisSpec(cfg, slave, n, variables, modes, extras, methods))
     return specs
+
+
+def resolve_extras(
+    dev: EsiDevice,
+    layout: ProcessLayout,
+    cfg: AxisConfig,
+    n: int,
+    path: tuple[Any, ...],
+    err: ErrorFn,
+) -> dict[str, ExtraSpec]:
+    """Each extra of the axis as the process variable it is mapped to, with its SI scale; the
+    error names the extra and why (no address, not in the dictionary, not mappable, not in any
+    PDO, a name given twice)."""
+    by_key = {(v.index, v.subindex): v for v in layout.variables}
+    factors = {
+        "position": (cfg.position_scale, cfg.position_offset),
+        "velocity": (cfg.velocity_scale, 0.0),
+        "torque": (cfg.torque_scale, 0.0),
+    }
+    out: dict[str, ExtraSpec] = {}
+    for k, extra in enumerate(cfg.extras):
+        epath = (*path, "extras", k)
+        if extra.name in out:
+            raise err((*epath, "name"), "an extra of this axis has this name already", extra.name)
+        address = extra_address(extra.object, n)
+        if address is None:
+            raise err((*epath, "object"), "is not an object address (0x60FD, 0x60FE:01)",
+                      extra.object)  # fmt: skip
+        shown = protocol.format_address(*address)
+        if dev.objects and dev.od_entry(*address) is None:
+            raise err((*epath, "object"), f"{shown} is not in the {dev.type_name} dictionary",
+                      extra.object)  # fmt: skip
+        var = by_key.get(address)
+        if var is None:
+            why = ("the dictionary does not mark it PDO-mappable"
+                   if extra_direction(dev, *address) is None
+                   else "no assigned PDO maps it and the PDOs cannot take it")  # fmt: skip
+            raise err((*epath, "object"), f"{shown} is not in the process data: {why}",
+                      extra.object)  # fmt: skip
+        if isinstance(extra.scale, str):
+            factor, offset = factors[extra.scale]
+        else:
+            if not math.isfinite(extra.scale) or extra.scale == 0:
+                raise err((*epath, "scale"), "must be a finite number other than 0", extra.scale)
+            factor, offset = float(extra.scale), 0.0
+        out[extra.name] = ExtraSpec(extra.name, var, factor, offset)
+    return out
+
+
+def supported_homing_methods(dev: EsiDevice, axis: int) -> tuple[int, ...] | None:
+    """The homing methods 0x60E3 (supported homing methods) announces in the ESI's defaults, or
+    None when the ESI does not say."""
+    obj = dev.od_object(SUPPORTED_HOMING_METHODS + axis * AXIS_STRIDE)
+    if obj is None:
+        return None
+    methods = []
+    for entry in obj.entries:
+        default = getattr(entry, "default", None)
+        if entry.subindex == 0 or not isinstance(default, bytes | bytearray) or not default:
+            continue
+        methods.append(int.from_bytes(default[:1], "little", signed=True))
+    return tuple(methods) or None

@@ -15,7 +15,16 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from ether_ros._native.protocol import emergency_text
-from ether_ros.config.cia402 import MODES, AxisSpec
+from ether_ros.config.cia402 import (
+    AXIS_STRIDE,
+    HOMING_OBJECTS,
+    MODES,
+    PROFILE_OBJECTS,
+    SUPPORTED_HOMING_METHODS,
+    AxisSpec,
+    profile_raw,
+)
+from ether_ros.config.process import ProcessValueError
 from ether_ros.errors import BusError
 
 if TYPE_CHECKING:
@@ -26,8 +35,6 @@ if TYPE_CHECKING:
 SETPOINT_KIND = {"csp": "position", "pp": "position", "csv": "velocity", "pv": "velocity",
                  "cst": "torque", "hm": None}  # fmt: skip
 POLL_S = 0.002
-# An axis still halted this long after an enable (which fed the watchdog) is held by a panic.
-HALT_SETTLE_S = 0.05
 
 
 class AxisError(BusError):
@@ -108,28 +115,37 @@ def follow_together(
     Returns the start time (engine clock, s)."""
     if not tracks:
         raise AxisCommandError("a trajectory names no axis")
-    checked = [(axis, axis.check_trajectory(points)) for axis, points in tracks.items()]
+    checked = {axis: axis.check_trajectory(points) for axis, points in tracks.items()}
     if not math.isfinite(start_in) or start_in < 0:
         raise AxisCommandError("start_in must be >= 0 s")
-    for axis, _ in checked:
+    start_ns = int(bus.engine.now_ns() + start_in * 1e9)
+    hand_over(bus, checked, start_ns)
+    return start_ns / 1e9
+
+
+def hand_over(bus: Bus, checked: Mapping[Axis, Sequence[TrajectoryPoint]], start_ns: int) -> int:
+    """Give checked trajectories (``Axis.check_trajectory``) to the engine in one hand-over,
+    times from ``start_ns`` on its clock (a start in the past: the engine trims the points
+    already past). Returns the command's number (``status()['command_seq']`` once taken)."""
+    for axis in checked:
         axis._require_running()
         axis._require_enabled("a trajectory")
-    engine = bus.engine
-    start_ns = int(engine.now_ns() + start_in * 1e9)
     try:
-        seq = engine.axis_follow_many(
-            start_ns,
-            [
-                (axis.index, [(round(p.t * 1e9), p.position, p.velocity) for p in points])
-                for axis, points in checked
-            ],
+        seq = int(
+            bus.engine.axis_follow_many(
+                start_ns,
+                [
+                    (axis.index, [(round(p.t * 1e9), p.position, p.velocity) for p in points])
+                    for axis, points in checked.items()
+                ],
+            )
         )
     except ValueError as exc:
-        names = ", ".join(a.name for a, _ in checked)
+        names = ", ".join(a.name for a in checked)
         raise AxisCommandError(f"axes {names}: {exc}") from None
-    for axis, _ in checked:
+    for axis in checked:
         bus.axis_trajectories[axis.index] = seq
-    return start_ns / 1e9
+    return seq
 
 
 class Axis:
@@ -219,7 +235,6 @@ class Axis:
             engine.axis_reset_fault(self._index)
         engine.axis_enable(self._index, True)
         deadline = time.monotonic() + timeout
-        halted_since: float | None = None
         while True:
             st = self.status()
             if st["state"] == "operation_enabled" and st["mode_reached"]:
@@ -227,10 +242,7 @@ class Axis:
             # The automatic reset gave up: waiting longer changes nothing.
             if st["retries_exhausted"] or time.monotonic() > deadline:
                 break
-            # Halted after the enable (which fed the watchdog): the bus is in panic.
-            now = time.monotonic()
-            halted_since = (halted_since or now) if st["halted"] else None
-            if halted_since is not None and now - halted_since > HALT_SETTLE_S:
+            if engine.is_panicked:
                 raise AxisError(f"axis {self.name}: the bus is in panic (clear_panic first, "
                                 "then enable)")  # fmt: skip
             self._bus.feed_watchdog()
@@ -282,9 +294,10 @@ class Axis:
             raise AxisCommandError(f"axis {self.name}: 0x6060 is not in the PDOs; the mode "
                                    f"({self.mode}) is set once in PREOP")  # fmt: skip
         homing_change = "hm" in (mode, self.mode) and mode != self.mode
-        if homing_change and self.state == "operation_enabled":
+        st = self.status()
+        if homing_change and st["state"] == "operation_enabled" and not st["idle"]:
             raise AxisCommandError(f"axis {self.name}: switch from {self.mode} to {mode} only "
-                                   "while disabled (homing)")  # fmt: skip
+                                   "at standstill or while disabled (homing)")  # fmt: skip
         self._bus.engine.axis_set_mode(self._index, mode)
         self._bus.axis_modes[self._index] = mode
         lo, hi = self.spec.config.position_limits
@@ -307,10 +320,16 @@ class Axis:
         position: float | None = None,
         velocity: float | None = None,
         torque: float | None = None,
+        *,
+        profile_velocity: float | None = None,
+        profile_acceleration: float | None = None,
+        profile_deceleration: float | None = None,
     ) -> None:
         """One setpoint in SI units, of the kind the mode takes (position for csp/pp, velocity
-        for csv/pv, torque for cst). Refused, with nothing written: NaN, beyond the limits, the
-        wrong kind for the mode, or the bus not running."""
+        for csv/pv, torque for cst). In pp and pv the profile (SI /s, /s²) may come with it:
+        written to 0x6081/0x6083/0x6084 before the setpoint (SDO). Refused, with nothing
+        written: NaN, beyond the limits, the wrong kind for the mode, a profile outside pp/pv
+        or not positive, or the bus not running."""
         given = {k: v for k, v in (("position", position), ("velocity", velocity),
                                    ("torque", torque)) if v is not None}  # fmt: skip
         if len(given) != 1:
@@ -318,8 +337,37 @@ class Axis:
                                    f"torque (got {', '.join(given) or 'none'})")  # fmt: skip
         ((kind, value),) = given.items()
         self.check_command(kind, value)
+        profile = {k: v for k, v in (("profile_velocity", profile_velocity),
+                                     ("profile_acceleration", profile_acceleration),
+                                     ("profile_deceleration", profile_deceleration))
+                   if v is not None}  # fmt: skip
+        raws = self._profile_raws(profile)
         self._require_running()
+        for key, raw in raws.items():
+            index = PROFILE_OBJECTS[key] + self.spec.axis_index * AXIS_STRIDE
+            self._bus.sdo_write(self.spec.slave, index, 0, raw, "uint32")
         self._bus.engine.axis_setpoint(self._index, kind, float(value))
+
+    def _profile_raws(self, profile: Mapping[str, float]) -> dict[str, int]:
+        """A pp/pv profile in the drive's units, or AxisCommandError saying why not."""
+        if profile and self.mode not in ("pp", "pv"):
+            raise AxisCommandError(f"axis {self.name}: a profile ({', '.join(profile)}) is for "
+                                   f"modes pp and pv (the axis is in {self.mode})")  # fmt: skip
+        raws = {}
+        for key, v in profile.items():
+            if (
+                isinstance(v, bool)
+                or not isinstance(v, int | float)
+                or not math.isfinite(v)
+                or (v <= 0)
+            ):
+                raise AxisCommandError(f"axis {self.name}: {key} {v!r} must be a positive "
+                                       "number")  # fmt: skip
+            try:
+                raws[key] = profile_raw(self.spec.config, key, float(v))
+            except ValueError as exc:
+                raise AxisCommandError(f"axis {self.name}: {exc}") from None
+        return raws
 
     def check_command(self, kind: str, value: float) -> None:
         """Raise :class:`AxisCommandError` if ``command(**{kind: value})`` would be refused for
@@ -365,7 +413,23 @@ class Axis:
             if self.mode == "csp":
                 self._check_value("position", p.position, f"trajectory point {i}: ")
             self._check_value("velocity", p.velocity, f"trajectory point {i}: ")
+            if i and self.mode == "csp":
+                # A segment that needs more than the velocity limit on average cannot be
+                # followed (the engine would only clamp it).
+                limit = self.spec.config.velocity_limit
+                speed = abs(p.position - points[i - 1].position) / (p.t - points[i - 1].t)
+                if speed > limit * (1 + 1e-9):
+                    raise AxisCommandError(f"axis {self.name}: trajectory points {i - 1}..{i} "
+                                           f"need {speed:g} on average, beyond the velocity "
+                                           f"limit ±{limit:g}")  # fmt: skip
         return points
+
+    def quiet_stop(self) -> None:
+        """Decelerate from the motion the axis is commanded to have to rest at its
+        ``deceleration`` and hold (ends a trajectory or a setpoint stream; pp: a set-point where
+        that stop ends; cst: zero torque). Several axes in the same cycle: ``bus.quiet_stop``."""
+        self._require_running()
+        self._bus.engine.axis_stop([self._index])
 
     def wait_trajectory(self, timeout: float) -> None:
         """Until the trajectory last started on this axis has run to its end (or a later
@@ -383,6 +447,102 @@ class Axis:
             timeout,
             "finish its trajectory",
         )
+
+    # ------------------------------------------------------------------------ extras
+    @property
+    def extras(self) -> dict[str, float]:
+        """The axis's extras (``extras:`` in the configuration) in SI units: inputs as last
+        received, outputs as commanded."""
+        self._require_running()
+        out = {}
+        for name, e in self.spec.extras.items():
+            raw = self._bus.read(self.spec.slave, e.variable.key)
+            out[name] = float(raw) * e.factor + e.offset
+        return out
+
+    def set_extras(self, values: Mapping[str, float]) -> None:
+        """Command writable extras (outputs: digital outputs, offsets as feed-forward, ...) in
+        SI units, all in the same cycle. Refused, with nothing written: an unknown extra, an
+        input, NaN, a value its object cannot hold."""
+        raws = {}
+        for name, value in values.items():
+            e = self.spec.extras.get(name)
+            if e is None:
+                known = ", ".join(self.spec.extras) or "none"
+                raise AxisCommandError(f"axis {self.name}: no extra {name!r} (extras: {known})")
+            if not e.writable:
+                raise AxisCommandError(f"axis {self.name}: extra {name!r} "
+                                       f"({e.variable.key}) is an input")  # fmt: skip
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, int | float)
+                or not math.isfinite(value)
+            ):
+                raise AxisCommandError(f"axis {self.name}: extra {name!r}: {value!r} is not a "
+                                       "finite number")  # fmt: skip
+            raw: float | int = (float(value) - e.offset) / e.factor
+            if e.variable.dtype.kind in ("int", "uint", "bool"):
+                raw = round(raw)
+            try:
+                e.variable.encode(raw)
+            except ProcessValueError as exc:
+                raise AxisCommandError(f"axis {self.name}: extra {name!r}: {exc}") from None
+            raws[e.variable.key] = raw
+        self._require_running()
+        self._bus.write_many(self.spec.slave, raws)
+
+    # ------------------------------------------------------------------------ homing
+    def home(self, method: int | None = None, timeout: float = 30.0) -> None:
+        """Home the axis (mode hm) at standstill: the method given (written to 0x6098 first;
+        refused when the drive does not offer it), else the configured one (``homing:``, set
+        in PREOP with its speeds, acceleration and offset). Returns once the drive reports
+        homing attained, the axis back in its previous mode, holding where homing left it;
+        :class:`AxisError` for a homing error or no end within ``timeout``."""
+        self._require_running()
+        if "hm" not in self.spec.modes:
+            raise AxisCommandError(f"axis {self.name}: the drive does not offer homing (mode hm; "
+                                   f"it offers {', '.join(self.spec.modes)})")  # fmt: skip
+        if method is not None:
+            methods = self.spec.homing_methods or self._read_homing_methods()
+            if methods is not None and method not in methods:
+                raise AxisCommandError(f"axis {self.name}: the drive does not offer homing "
+                                       f"method {method} (0x60E3: "
+                                       f"{', '.join(map(str, methods))})")  # fmt: skip
+        st = self.status()
+        if st["state"] != "operation_enabled":
+            raise AxisCommandError(f"axis {self.name}: homing needs the axis enabled (it is in "
+                                   f"{st['state']})")  # fmt: skip
+        if not st["idle"]:
+            raise AxisCommandError(f"axis {self.name}: homing only at standstill")
+        if method is not None:
+            index = HOMING_OBJECTS["method"] + self.spec.axis_index * AXIS_STRIDE
+            self._bus.sdo_write(self.spec.slave, index, 0, method, "int8")
+        previous = self.mode
+        if previous != "hm":
+            self.set_mode("hm", timeout=2.0)
+        try:
+            runs = int(self.status()["homing_runs"])
+            self._bus.engine.axis_home(self._index)
+            self._wait(lambda s: int(s["homing_runs"]) > runs, timeout, "finish homing")
+            st = self.status()
+            if st["homing_error"] or not st["homing_attained"]:
+                raise AxisError(f"axis {self.name}: homing error (statusword "
+                                f"0x{st['statusword']:04X})")  # fmt: skip
+        finally:
+            if previous != "hm":
+                self.set_mode(previous, timeout=2.0)
+
+    def _read_homing_methods(self) -> tuple[int, ...] | None:
+        """0x60E3 (supported homing methods) as the drive answers, or None when it has none."""
+        index = SUPPORTED_HOMING_METHODS + self.spec.axis_index * AXIS_STRIDE
+        try:
+            count = int(self._bus.sdo_read(self.spec.slave, index, 0, "uint8"))  # type: ignore[call-overload]
+            return tuple(
+                int(self._bus.sdo_read(self.spec.slave, index, k, "int8"))  # type: ignore[call-overload]
+                for k in range(1, count + 1)
+            )
+        except BusError:
+            return None
 
     # ------------------------------------------------------------------------ helpers
     def _check_value(self, kind: str, value: float, what: str = "") -> None:

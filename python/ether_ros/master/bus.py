@@ -450,6 +450,15 @@ class Bus:
             self, {by_name[n]: points for n, points in tracks.items()}, start_in
         )
 
+    def quiet_stop(self, names: Iterable[str] | None = None) -> None:
+        """A quiet stop (``Axis.quiet_stop``) on the axes named (every axis by default), all in
+        the same cycle."""
+        chosen = [self.axis(n) for n in names] if names is not None else self.axes()
+        if chosen:
+            if not self.running:
+                raise axis_mod.AxisCommandError("the bus is not in OP (call start())")
+            self.engine.axis_stop([a.index for a in chosen])
+
     def wait_trajectories(self, names: Iterable[str] | None = None, timeout: float = 10.0) -> None:
         """Until the trajectory last started on each axis named (every axis by default) has run
         to its end; feeds the command watchdog while it waits."""

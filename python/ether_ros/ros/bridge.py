@@ -360,8 +360,15 @@ def setpoint_kind(axis: Any) -> str | None:
     return SETPOINT_KIND.get(axis.mode)
 
 
+# The node's AxisCommand services (joint names → one command each), by service name.
+AXIS_SERVICES = ("enable", "disable", "reset_fault", "home")
+# Those that change an axis's mode while they run (the native joint table holds the joints).
+MODE_CHANGING = ("set_mode", "home")
+
+
 def run_axis_command(axis: Any, command: str, mode: str = "") -> None:
-    """``enable``, ``disable``, ``reset_fault`` or ``set_mode`` on one axis; blocks until the
+    """``enable``, ``disable``, ``reset_fault``, ``home`` (the drive's configured homing, back
+    in the axis's mode afterwards, ``Axis.home``) or ``set_mode`` on one axis; blocks until the
     drive has done it (or raises ``EtherRosError`` saying where it stuck)."""
     if command == "enable":
         axis.enable()
@@ -371,6 +378,8 @@ def run_axis_command(axis: Any, command: str, mode: str = "") -> None:
         axis.reset_fault()
     elif command == "set_mode":
         axis.set_mode(mode)
+    elif command == "home":
+        axis.home()
     else:
         raise AxisRejected(f"unknown axis command {command!r}")
 
@@ -453,16 +462,30 @@ def describe_joint_commands(commands: list[tuple[Any, str, float]]) -> str:
     return f"commanded {shown}{more}"
 
 
-def follow_trajectories(
-    plans: list[tuple[Any, list[tuple[float, float, float]]]], start_in: float
-) -> None:
-    """Start checked trajectories (axis, [(t, position, velocity)]) together, ``start_in``
-    seconds from now (on the engine's clock): one hand-over, every axis starts in the same
-    cycle."""
-    from ether_ros.master.axis import follow_together
+def follow_plan(plan: Any) -> int:
+    """Start a checked ``joints.TrajectoryPlan``: one hand-over to the engine, every axis starts
+    in the same cycle, times from ``plan.start_ns``. Returns the command's number."""
+    from ether_ros.master.axis import TrajectoryPoint, hand_over
 
-    if plans:
-        follow_together(plans[0][0].bus, dict(plans), start_in)
+    if not plan.tracks:
+        return 0
+    bus = plan.tracks[0][0].bus
+    return hand_over(
+        bus, {axis: [TrajectoryPoint(*p) for p in track] for axis, track in plan.tracks},
+        plan.start_ns,
+    )  # fmt: skip
+
+
+def engine_now_ns(axes: Mapping[str, Any]) -> int:
+    """The engine clock (CLOCK_MONOTONIC ns) of the bus the axes are on."""
+    axis = next(iter(axes.values()))
+    return int(axis.bus.engine.now_ns())
+
+
+def quiet_stop(axes: list[Any]) -> None:
+    """A quiet stop (``Axis.quiet_stop``) on every axis given, in the same cycle."""
+    if axes:
+        axes[0].bus.quiet_stop([a.name for a in axes])
 
 
 def check_mode(axes: list[Any], mode: str) -> None:

@@ -49,6 +49,7 @@ from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from ether_ros.errors import EtherRosError
+from ether_ros.ros.bridge import AXIS_SERVICES
 from ether_ros.ros.convert import spec_from_msg
 from ether_ros.ros.freshness import Arrivals
 from ether_ros.ros.layout import BusSpec
@@ -150,9 +151,7 @@ class EtherRosClient:
         self._change_state = n.create_client(ChangeState, f"{self.target}/change_state")
         self._get_state = n.create_client(GetState, f"{self.target}/get_state")
         self._write_pub = n.create_publisher(WriteVariable, f"{p}pdo_listener", QOS_COMMANDS)
-        self._axis = {
-            c: n.create_client(AxisCommand, f"{p}{c}") for c in ("enable", "disable", "reset_fault")
-        }
+        self._axis = {c: n.create_client(AxisCommand, f"{p}{c}") for c in AXIS_SERVICES}
         self._set_mode = n.create_client(SetMode, f"{p}set_mode")
         self._joint_pub = n.create_publisher(JointState, f"{p}joint_commands", QOS_COMMANDS)
         self._trajectory_pub = n.create_publisher(
@@ -383,7 +382,7 @@ class EtherRosClient:
     def axis_command(
         self, command: str, joints: list[str] | None = None, timeout: float = 10.0
     ) -> tuple[bool, str, dict[str, str]]:
-        """``enable``, ``disable`` or ``reset_fault`` for the joints (None/empty: all):
+        """``enable``, ``disable``, ``reset_fault`` or ``home`` for the joints (None/empty: all):
         (success, message, {joint: CiA 402 state})."""
         if command not in self._axis:
             raise ClientError(f"unknown axis command {command!r} ({', '.join(self._axis)})")

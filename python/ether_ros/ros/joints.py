@@ -7,19 +7,41 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 from ether_ros.errors import EtherRosError
 from ether_ros.ros import bridge
 from ether_ros.ros.bridge import AxisRejected
 
-# A header.stamp this far in the past still starts the trajectory (now); older ones are
-# refused, since the engine would have to jump into the middle of it.
-STAMP_PAST_TOLERANCE_S = 0.1
 # A start further ahead than this is taken for a clock mix-up and refused.
 STAMP_FUTURE_LIMIT_S = 60.0
 
 Point = tuple[float, float, float]  # (t s, position, velocity)
+
+
+class InvalidJoints(AxisRejected):
+    """The joints of a trajectory do not fit the bus's axes (unknown, repeated, none, or joints
+    with several degrees of freedom): FollowJointTrajectory's INVALID_JOINTS."""
+
+
+class OldTimestamp(AxisRejected):
+    """The whole trajectory lies in the past: FollowJointTrajectory's OLD_HEADER_TIMESTAMP."""
+
+
+@dataclass(frozen=True)
+class TrajectoryPlan:
+    """A checked trajectory for the engine: (axis, points) per joint, with times from
+    ``start_ns`` on the engine's clock (which may lie in the past: the engine trims the points
+    already past), and when it ends."""
+
+    tracks: list[tuple[Any, list[Point]]]
+    start_ns: int
+    end_ns: int
+
+    @property
+    def names(self) -> list[str]:
+        return [axis.name for axis, _ in self.tracks]
 
 
 def duration_s(d: Any) -> float:
@@ -30,18 +52,17 @@ def stamp_ns(t: Any) -> int:
     return int(t.sec) * 1_000_000_000 + int(t.nanosec)
 
 
-def start_delay(stamp: int, now_ns: int) -> float:
-    """Seconds from now until ``header.stamp`` (a zero stamp: now)."""
+def start_on_engine_clock(stamp: int, wall_now_ns: int, engine_now_ns: int) -> int:
+    """``header.stamp`` (wall clock; zero: now) as a time on the engine's clock. A stamp in the
+    past stays in the past: the points whose time has passed are trimmed (docs/ros.md)."""
     if stamp == 0:
-        return 0.0
-    delay = (stamp - now_ns) * 1e-9
-    if delay < -STAMP_PAST_TOLERANCE_S:
-        raise AxisRejected(f"header.stamp lies {-delay:.3f} s in the past (zero stamp: start now)")
-    if delay > STAMP_FUTURE_LIMIT_S:
+        return engine_now_ns
+    delay = stamp - wall_now_ns
+    if delay > STAMP_FUTURE_LIMIT_S * 1e9:
         raise AxisRejected(
-            f"header.stamp lies {delay:.1f} s ahead (more than {STAMP_FUTURE_LIMIT_S:g} s)"
+            f"header.stamp lies {delay * 1e-9:.1f} s ahead (more than {STAMP_FUTURE_LIMIT_S:g} s)"
         )
-    return max(delay, 0.0)
+    return engine_now_ns + delay
 
 
 def estimated_velocities(times: list[float], positions: list[float]) -> list[float]:
@@ -56,31 +77,43 @@ def estimated_velocities(times: list[float], positions: list[float]) -> list[flo
     return v
 
 
-def trajectory_plans(
-    axes: Mapping[str, Any], msg: Any, capacity: int
-) -> list[tuple[Any, list[Point]]]:
-    """A JointTrajectory → (axis, points) per joint named, every one checked, all or nothing.
+def trajectory_plan(
+    axes: Mapping[str, Any],
+    msg: Any,
+    capacity: int,
+    wall_now_ns: int,
+    engine_now_ns: int,
+) -> TrajectoryPlan:
+    """A JointTrajectory → the checked engine trajectory of every joint named, all or nothing
+    (raises ``InvalidJoints``, ``OldTimestamp`` or ``AxisRejected`` naming what is wrong).
 
-    time_from_start counts from ``header.stamp``; each joint starts from where it is commanded
-    now (a point at t = 0 is added when the first point comes later), so it never jumps.
-    Positions are required for joints in csp, velocities for csv; velocities missing in csp are
-    estimated (``estimated_velocities``)."""
+    time_from_start counts from ``header.stamp``. From the cycle the engine takes it over,
+    every joint continues from the state it is commanded to have (the engine splices it in), so
+    nothing jumps and a trajectory replaces the rest of a running one smoothly; a stamp in the
+    past trims the points already past. Positions are required for joints in csp, velocities
+    for csv; velocities missing in csp are estimated (``estimated_velocities``)."""
     names = list(msg.joint_names)
     if not names:
-        raise AxisRejected("the trajectory names no joint")
+        raise InvalidJoints("the trajectory names no joint")
     if len(set(names)) != len(names):
-        raise AxisRejected("the trajectory names a joint twice")
-    chosen = bridge.select_axes(axes, names)
+        twice = sorted({n for n in names if names.count(n) > 1})
+        raise InvalidJoints(f"the trajectory names joint(s) {', '.join(twice)} twice")
+    if not axes:
+        raise InvalidJoints("this bus has no CiA 402 axes")
+    unknown = [n for n in names if n not in axes]
+    if unknown:
+        raise InvalidJoints(
+            f"unknown joint(s) {', '.join(map(repr, unknown))} (joints: {', '.join(axes)})"
+        )
+    chosen = [axes[n] for n in names]
     points = list(msg.points)
     if not points:
         raise AxisRejected("the trajectory has no points")
-    if capacity and len(points) > capacity - 1:
-        raise AxisRejected(
-            f"the trajectory has {len(points)} points; at most {capacity - 1} are taken"
-        )
+    if capacity and len(points) > capacity:
+        raise AxisRejected(f"the trajectory has {len(points)} points; at most {capacity} are taken")
     times = [duration_s(p.time_from_start) for p in points]
     for i, t in enumerate(times):
-        if t < 0 or (i and t <= times[i - 1]):
+        if not math.isfinite(t) or t < 0 or (i and t <= times[i - 1]):
             raise AxisRejected(
                 f"point {i}: time_from_start {t:g} s is not after the previous point's"
                 if i
@@ -97,7 +130,14 @@ def trajectory_plans(
             bad = [names[j] for j, x in enumerate(values) if not math.isfinite(x)]
             if bad:
                 raise AxisRejected(f"point {i}: {label} of {', '.join(bad)} not finite")
-    plans = []
+    start_ns = start_on_engine_clock(stamp_ns(msg.header.stamp), wall_now_ns, engine_now_ns)
+    end_ns = start_ns + round(times[-1] * 1e9)
+    if end_ns < engine_now_ns:
+        raise OldTimestamp(
+            f"the trajectory ended {(engine_now_ns - end_ns) * 1e-9:.3f} s ago (header.stamp "
+            "plus the last point's time_from_start lies in the past)"
+        )
+    tracks = []
     for j, axis in enumerate(chosen):
         kind = bridge.setpoint_kind(axis)
         needed = "positions" if kind == "position" else "velocities"
@@ -109,30 +149,35 @@ def trajectory_plans(
             )
         positions = [float(p.positions[j]) if len(p.positions) else 0.0 for p in points]
         velocities = [float(p.velocities[j]) if len(p.velocities) else math.nan for p in points]
-        start = _current(axis, kind)
-        ts = list(times)
-        if ts[0] > 0:
-            ts.insert(0, 0.0)
-            positions.insert(0, start[0])
-            velocities.insert(0, start[1])
         if kind == "position" and any(math.isnan(v) for v in velocities):
-            velocities = estimated_velocities(ts, positions)
-        track = list(zip(ts, positions, velocities, strict=True))
+            velocities = estimated_velocities(times, positions)
+        velocities = [0.0 if math.isnan(v) else v for v in velocities]
+        track = list(zip(times, positions, velocities, strict=True))
         try:
             axis.check_trajectory(track)
         except EtherRosError as exc:
             raise AxisRejected(str(exc)) from None
-        plans.append((axis, track))
-    return plans
+        if kind == "position":
+            _check_approach(axis, positions[0], (start_ns - engine_now_ns) * 1e-9 + times[0])
+        tracks.append((axis, track))
+    return TrajectoryPlan(tracks, start_ns, end_ns)
 
 
-def _current(axis: Any, kind: str | None) -> tuple[float, float]:
-    """(position, velocity) the axis is commanded to now: where a trajectory starts."""
+def _check_approach(axis: Any, first: float, within: float) -> None:
+    """The way from where the axis is commanded to be now to the trajectory's first point,
+    ``within`` seconds: refused when it needs more than the velocity limit (a first point at
+    time 0, or already past, is the start: the engine continues from the axis's state)."""
+    if within <= 0:
+        return
     st = bridge.axis_status(axis)
-    if kind == "velocity":
-        return float(st["position"]), float(st["velocity"])
-    enabled = st["state"] == "operation_enabled"
-    return float(st["target_position"] if enabled else st["position"]), 0.0
+    here = float(st["target_position"] if st["state"] == "operation_enabled" else st["position"])
+    limit = float(axis.spec.config.velocity_limit)
+    speed = abs(first - here) / within
+    if speed > limit * (1 + 1e-9):
+        raise AxisRejected(
+            f"joint {axis.name!r}: from {here:.4g} to the first point {first:g} in {within:.3f} s "
+            f"needs {speed:.3g} on average, beyond the velocity limit ±{limit:g}"
+        )
 
 
 def axis_joint_values(axes: Mapping[str, Any]) -> list[tuple[str, float, float, float]]:

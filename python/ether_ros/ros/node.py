@@ -68,8 +68,9 @@ from ether_ros._native.protocol import format_address
 from ether_ros.config import types as dt
 from ether_ros.config.bus import check_node_name
 from ether_ros.errors import EtherRosError
-from ether_ros.ros import bridge, diagnostics, joints, security
+from ether_ros.ros import bridge, command_watchdog, diagnostics, joints, security
 from ether_ros.ros.convert import layout_msg
+from ether_ros.ros.follow_joint_trajectory import FollowJointTrajectoryServer
 from ether_ros.ros.layout import BusSpec, LayoutError
 from ether_ros.ros.lease import ControlLease, LeaseRefused, graph_writer_gids
 from ether_ros.ros.native_commands import (
@@ -189,6 +190,10 @@ class EtherRosNode(LifecycleNode):
         self._bus_lock = threading.RLock()
         self._panic = False
         self._last_command = time.monotonic()
+        # An output variable was written since the node went active (command_watchdog).
+        self._variables_written = False
+        # The last command before the node stopped feeding the watchdog (None: feeding).
+        self._starved_since: float | None = None
         self._last_error = ""
         self._mirroring = False
 
@@ -314,7 +319,7 @@ class EtherRosNode(LifecycleNode):
             self._on_lease,
             callback_group=None if self.command_node else self._panic_group,
         )
-        for service in ("enable", "disable", "reset_fault"):
+        for service in bridge.AXIS_SERVICES:
             self.create_service(
                 AxisCommand,
                 service,
@@ -322,6 +327,7 @@ class EtherRosNode(LifecycleNode):
                 callback_group=self._axis_group,
             )
         self.create_service(SetMode, "set_mode", self._on_set_mode, callback_group=self._axis_group)
+        self._trajectory_action = self._serve_trajectory_action(cfg)
         self.create_service(Command, "ethercat_communicator", self._on_command)
         self.create_service(SdoRead, "sdo_read", self._on_sdo_read)
         self.create_service(SdoWrite, "sdo_write", self._on_sdo_write)
@@ -466,6 +472,7 @@ class EtherRosNode(LifecycleNode):
         self._panic = False
         self._last_command = time.monotonic()
         self._windows = diagnostics.Windows(self._param_ms("diagnostics_window_ms") / 1000.0)
+        self._variables_written = False
         # Half a second of samples at most per batch: beyond that ROS has fallen behind and
         # the oldest samples are skipped (and counted) rather than published late.
         backlog = max(100, int(0.5e6 / max(spec.cycle_us, 1)))
@@ -479,6 +486,7 @@ class EtherRosNode(LifecycleNode):
             max_backlog=backlog,
             axis_joints=(lambda: joints.axis_joint_values(self._axes)) if self._axes else None,
             axis_slaves={name: axis.spec.slave for name, axis in self._axes.items()},
+            feeder_priority=command_priority(self._cfg),
         )
         self._samples.start()
         self._restart_snapshot_timer(self._param_ms("ros.snapshot_period_ms"))
@@ -550,6 +558,9 @@ class EtherRosNode(LifecycleNode):
     def destroy_node(self) -> None:
         self._lease.close()
         self._release()
+        if self._trajectory_action is not None:
+            self._trajectory_action.destroy()
+            self._trajectory_action = None
         for native in self._native_paths():
             native.close()
         self._native = self._native_joints = self._native_trajectory = None
@@ -707,12 +718,31 @@ class EtherRosNode(LifecycleNode):
         commands are fresh (or always, when ``command_timeout_ms`` is 0). If this process stalls
         or the commands stop, the engine puts the safe outputs on the wire by itself."""
         timeout_ms = self._param_ms("command_timeout_ms")
-        if timeout_ms and (time.monotonic() - self._last_command_time()) * 1000.0 > timeout_ms:
-            return False
+        last = self._last_command_time()
+        if timeout_ms and (time.monotonic() - last) * 1000.0 > timeout_ms:
+            # Once starved, the watchdog stays tripped until the next command.
+            if self._starved_since is not None and last <= self._starved_since:
+                return False
+            if not self._quiet_is_safe():
+                self._starved_since = last
+                return False
+        self._starved_since = None
         bus = self._bus
         if bus is not None:
             bus.feed_watchdog()
         return True
+
+    def _quiet_is_safe(self) -> bool:
+        """Nothing needs a live commander (``command_watchdog.quiet_is_safe``): the CiA 402 axes
+        run trajectories or hold still, and no output variable was written."""
+        native = self._native.counters().get("applied", 0) if self._native is not None else 0
+        statuses = []
+        for axis in list(self._axes.values()):
+            try:
+                statuses.append(bridge.axis_status(axis))
+            except EtherRosError:
+                return False
+        return command_watchdog.quiet_is_safe(statuses, self._variables_written or native > 0)
 
     def _last_command_time(self) -> float:
         """time.monotonic() of the last write, through Python or the native path."""
@@ -820,6 +850,7 @@ class EtherRosNode(LifecycleNode):
                         )
                     )
                 self._last_command = time.monotonic()
+                self._variables_written = True
                 bridge.apply_writes(bus, writes)
             except EtherRosError as exc:
                 return False, str(exc)
@@ -893,23 +924,26 @@ class EtherRosNode(LifecycleNode):
             )
 
     def joint_trajectory(self, msg: JointTrajectory) -> tuple[bool, str]:
-        """Check every joint's trajectory, then start them all at ``header.stamp``."""
+        """Check every joint's trajectory, then hand them to the engine at once, timed from
+        ``header.stamp`` (docs/ros.md, "Joints")."""
         try:
-            self._axes_if_active()
+            axes = self._axes_if_active()
             with self._bus_lock:
-                plans = joints.trajectory_plans(
-                    self._axes_if_active(), msg, bridge.trajectory_capacity(self._bus)
+                plan = joints.trajectory_plan(
+                    axes,
+                    msg,
+                    bridge.trajectory_capacity(self._bus),
+                    time.time_ns(),
+                    bridge.engine_now_ns(axes),
                 )
-                start_in = joints.start_delay(joints.stamp_ns(msg.header.stamp), time.time_ns())
                 self._last_command = time.monotonic()
-                bridge.follow_trajectories(plans, start_in)
+                bridge.follow_plan(plan)
         except EtherRosError as exc:
             return False, str(exc)
-        duration = max(track[-1][0] for _, track in plans)
-        names = ", ".join(axis.name for axis, _ in plans)
+        starts = (plan.start_ns - bridge.engine_now_ns(axes)) * 1e-9
         return True, (
-            f"trajectory of {len(msg.points)} point(s) over {duration:g} s for {names}, "
-            f"starting in {start_in:.3f} s"
+            f"trajectory of {len(msg.points)} point(s) over {plan.tracks[0][1][-1][0]:g} s for "
+            f"{', '.join(plan.names)}, starting in {starts:.3f} s"
         )
 
     def _on_joint_trajectory(self, msg: JointTrajectory, publisher: bytes | None = None) -> None:
@@ -925,19 +959,38 @@ class EtherRosNode(LifecycleNode):
         text = f"joint_trajectory: {message}" if ok else f"joint_trajectory refused: {message}"
         self._joint_result_pub.publish(WriteResult(success=ok, message=text))
 
+    def _serve_trajectory_action(self, cfg: Any) -> FollowJointTrajectoryServer | None:
+        """The FollowJointTrajectory action server (``ros.trajectory_action``; empty: none), on
+        the axes while the node is active (docs/ros.md, "FollowJointTrajectory")."""
+        if not cfg.ros.trajectory_action:
+            return None
+        return FollowJointTrajectoryServer(
+            self,
+            cfg.ros.trajectory_action,
+            cfg.ros,
+            axes=self._axes_if_active,
+            capacity=lambda: bridge.trajectory_capacity(self._bus),
+            note_command=self._note_command,
+        )
+
+    def _note_command(self) -> None:
+        """A command came (it feeds the command watchdog, see ``_feed_watchdog``)."""
+        self._last_command = time.monotonic()
+
     def axis_command(
         self, command: str, names: list[str], mode: str = ""
     ) -> tuple[bool, str, list[str], list[str]]:
-        """enable / disable / reset_fault / set_mode on the joints named (empty: all): (success,
-        message, joints, their CiA 402 states afterwards). Waits for the drives without the bus
-        lock, so writes and other commands go on meanwhile."""
+        """enable / disable / reset_fault / home / set_mode on the joints named (empty: all):
+        (success, message, joints, their CiA 402 states afterwards). Waits for the drives without
+        the bus lock, so writes and other commands go on meanwhile."""
+        self._note_command()
         try:
             chosen = bridge.select_axes(self._axes_if_active(), names)
             if command == "set_mode":
                 bridge.check_mode(chosen, mode)
         except EtherRosError as exc:
             return False, str(exc), [], []
-        native = self._native_joints if command == "set_mode" else None
+        native = self._native_joints if command in bridge.MODE_CHANGING else None
         if native is not None:  # while the mode changes, Python checks every joint command
             native.hold_joints(self._axes, chosen)
         errors = []

@@ -24,7 +24,9 @@ diagnostics report.
 from __future__ import annotations
 
 import array
+import contextlib
 import logging
+import os
 import threading
 import time
 from collections.abc import Callable
@@ -80,6 +82,7 @@ class SamplePublisher:
         poll_s: float = 0.002,
         axis_joints: Callable[[], list[tuple[str, float, float, float]]] | None = None,
         axis_slaves: dict[str, str] | None = None,
+        feeder_priority: int = 0,
     ) -> None:
         self._bus = bus
         self._spec = spec
@@ -95,6 +98,8 @@ class SamplePublisher:
         self._axis_slaves = dict(axis_slaves or {})
         self.rates = rates
         self._feed_watchdog = feed_watchdog
+        # SCHED_FIFO priority of the watchdog feeder (0: normal scheduling).
+        self._feeder_priority = feeder_priority
         self._max_backlog = max_backlog
         self._poll_s = poll_s
         self._slices = bridge.image_slices(bus)
@@ -140,7 +145,18 @@ class SamplePublisher:
     def _feed(self) -> None:
         """Feed the engine's command watchdog every 10 ms, in its own thread so a long batch of
         messages never starves it: only a stalled process (or stale commands, see the node's
-        ``command_timeout_ms``) lets the watchdog expire."""
+        ``command_timeout_ms``) lets the watchdog expire. At ``feeder_priority`` (SCHED_FIFO,
+        the native command thread's) a loaded machine's normal processes cannot hold it off
+        either: a watchdog stop keeps CiA 402 axes out until an explicit enable, so it must
+        mean a stalled node, not a busy machine. Without CAP_SYS_NICE it keeps normal
+        scheduling."""
+        if self._feeder_priority:
+            with contextlib.suppress(OSError, AttributeError):
+                os.sched_setscheduler(
+                    threading.get_native_id(),
+                    os.SCHED_FIFO,
+                    os.sched_param(self._feeder_priority),
+                )
         while not self._stop.wait(0.01):
             try:
                 self._feed_watchdog()

@@ -173,6 +173,8 @@ pub struct AxisStatus {
     pub torque_clamps: u32,
     pub faults: u32,
     pub fault_resets: u32,
+    /// Homing runs ended (attained or error) so far.
+    pub homing_runs: u32,
     /// `seq` of the last command taken over.
     pub command_seq: u64,
     /// The velocity the axis is commanded to have this cycle (SI): the trajectory's or the
@@ -212,7 +214,7 @@ impl AxisStatus {
         b[88..92].copy_from_slice(&self.torque_clamps.to_le_bytes());
         b[92..96].copy_from_slice(&self.faults.to_le_bytes());
         b[96..100].copy_from_slice(&self.fault_resets.to_le_bytes());
-        b[100..104].fill(0);
+        b[100..104].copy_from_slice(&self.homing_runs.to_le_bytes());
         b[104..112].copy_from_slice(&self.command_seq.to_le_bytes());
         b[112..120].copy_from_slice(&self.desired_velocity.to_le_bytes());
         b[120..128].copy_from_slice(&self.target_velocity.to_le_bytes());
@@ -249,6 +251,7 @@ impl AxisStatus {
             torque_clamps: u32_at(88),
             faults: u32_at(92),
             fault_resets: u32_at(96),
+            homing_runs: u32_at(100),
             command_seq: u64_at(104),
             desired_velocity: f64_at(112),
             target_velocity: f64_at(120),

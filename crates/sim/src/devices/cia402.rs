@@ -38,7 +38,7 @@ const DEFAULT_INTERPOLATION_S: f64 = 1e-3;
 /// The objects of one axis (index at axis 1), resolved once into `OdSlots` (slot = position),
 /// with the value the drive uses when the dictionary lacks the object (a vendor ESI without it):
 /// the defaults of devices/servo_drive.xml.
-const AXIS_KEYS: [(u16, u8, i64); 35] = [
+const AXIS_KEYS: [(u16, u8, i64); 47] = [
     (object::CONTROLWORD, 0, 0),                           // 0
     (object::MODES_OF_OPERATION, 0, 0),                    // 1
     (object::TARGET_POSITION, 0, 0),                       // 2
@@ -74,9 +74,21 @@ const AXIS_KEYS: [(u16, u8, i64); 35] = [
     (object::POSITION_ENCODER_RESOLUTION, 2, 1),           // 32 motor revolutions
     (object::GEAR_RATIO, 1, 50),                           // 33 motor revolutions
     (object::GEAR_RATIO, 2, 1),                            // 34 shaft revolutions
+    (object::VELOCITY_OFFSET, 0, 0),                       // 35
+    (object::TORQUE_OFFSET, 0, 0),                         // 36 (per mille)
+    (object::TOUCH_PROBE_FUNCTION, 0, 0),                  // 37
+    (object::TOUCH_PROBE_STATUS, 0, 0),                    // 38
+    (object::TOUCH_PROBE_1_POSITIVE, 0, 0),                // 39
+    (object::TOUCH_PROBE_1_NEGATIVE, 0, 0),                // 40
+    (object::DIGITAL_INPUTS, 0, 0),                        // 41
+    (object::DIGITAL_OUTPUTS, 1, 0),                       // 42 physical outputs
+    (object::DIGITAL_OUTPUTS, 2, 0xFFFF_0000),             // 43 bit mask
+    (object::HOMING_SPEEDS, 1, 16_384),                    // 44 search for the switch
+    (object::HOMING_SPEEDS, 2, 4_096),                     // 45 search for zero
+    (object::HOMING_ACCELERATION, 0, 163_840),             // 46
 ];
 /// Data type and bit length of each `AXIS_KEYS` object (as in devices/servo_drive.xml).
-const AXIS_TYPES: [(u16, u16); 35] = [
+const AXIS_TYPES: [(u16, u16); 47] = [
     (dtype::UINT16, 16), // 0x6040:0
     (dtype::INT8, 8),    // 0x6060:0
     (dtype::INT32, 32),  // 0x607A:0
@@ -112,6 +124,18 @@ const AXIS_TYPES: [(u16, u16); 35] = [
     (dtype::UINT32, 32), // 0x608F:2
     (dtype::UINT32, 32), // 0x6091:1
     (dtype::UINT32, 32), // 0x6091:2
+    (dtype::INT32, 32),  // 0x60B1:0
+    (dtype::INT16, 16),  // 0x60B2:0
+    (dtype::UINT16, 16), // 0x60B8:0
+    (dtype::UINT16, 16), // 0x60B9:0
+    (dtype::INT32, 32),  // 0x60BA:0
+    (dtype::INT32, 32),  // 0x60BB:0
+    (dtype::UINT32, 32), // 0x60FD:0
+    (dtype::UINT32, 32), // 0x60FE:1
+    (dtype::UINT32, 32), // 0x60FE:2
+    (dtype::UINT32, 32), // 0x6099:1
+    (dtype::UINT32, 32), // 0x6099:2
+    (dtype::UINT32, 32), // 0x609A:0
 ];
 
 /// The dictionary of a drive with `axes` axes as devices/servo_drive.xml describes it (the axis
@@ -175,6 +199,18 @@ mod slot {
     pub const ENCODER_REVOLUTIONS: usize = 32;
     pub const GEAR_MOTOR: usize = 33;
     pub const GEAR_SHAFT: usize = 34;
+    pub const VELOCITY_OFFSET: usize = 35;
+    pub const TORQUE_OFFSET: usize = 36;
+    pub const PROBE_FUNCTION: usize = 37;
+    pub const PROBE_STATUS: usize = 38;
+    pub const PROBE_POSITIVE: usize = 39;
+    pub const PROBE_NEGATIVE: usize = 40;
+    pub const DIGITAL_INPUTS: usize = 41;
+    pub const DIGITAL_OUTPUTS: usize = 42;
+    pub const DIGITAL_OUTPUTS_MASK: usize = 43;
+    pub const HOMING_SPEED_SWITCH: usize = 44;
+    pub const HOMING_SPEED_ZERO: usize = 45;
+    pub const HOMING_ACCEL: usize = 46;
 }
 /// The device's error register (CiA 301), shared by the axes.
 const ERROR_REGISTER: [(u16, u8); 1] = [(ether_ros_protocol::coe::ERROR_REGISTER, 0)];
@@ -322,6 +358,24 @@ impl DriveFault {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Cia402Config {
     pub motor: MotorParams,
+    pub switches: Switches,
+}
+
+/// Where the drive's switches sit, as joint angles (rad): the home switch is active from
+/// `home` upwards; the limit switches at ±`limit` (0: none).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Switches {
+    pub home: f64,
+    pub limit: f64,
+}
+
+impl Default for Switches {
+    fn default() -> Self {
+        Switches {
+            home: 0.05,
+            limit: 0.0,
+        }
+    }
 }
 
 impl Cia402Config {
@@ -336,12 +390,36 @@ impl Cia402Config {
         "rated_torque_nm",
         "velocity_loop_hz",
         "position_loop_hz",
+        "home_switch_rad",
+        "limit_switch_rad",
     ];
 
     pub fn from_params(params: &[(String, f64)]) -> Result<Self, String> {
         let mut m = MotorParams::default();
+        let mut switches = Switches::default();
         for (name, value) in params {
             let v = *value;
+            match name.as_str() {
+                "home_switch_rad" if v.is_finite() => {
+                    switches.home = v;
+                    continue;
+                }
+                "limit_switch_rad" if v.is_finite() && v >= 0.0 => {
+                    switches.limit = v;
+                    continue;
+                }
+                "home_switch_rad" | "limit_switch_rad" => {
+                    return Err(format!(
+                        "cia402: parameter '{name}' must be a finite number{}, got {v}",
+                        if name == "limit_switch_rad" {
+                            " >= 0"
+                        } else {
+                            ""
+                        }
+                    ))
+                }
+                _ => {}
+            }
             let positive = matches!(
                 name.as_str(),
                 "motor_inertia_kg_m2"
@@ -392,7 +470,7 @@ impl Cia402Config {
                 m.position_loop_hz, m.velocity_loop_hz
             ));
         }
-        Ok(Self { motor: m })
+        Ok(Self { motor: m, switches })
     }
 }
 
@@ -421,6 +499,16 @@ struct Inputs {
     home_offset: i64,
     position_window: f64,
     velocity_window: f64,
+    /// 0x60B1 (motor rad/s) and 0x60B2 (per mille): feed-forward added to the commands.
+    velocity_offset: f64,
+    torque_offset_permille: f64,
+    probe_function: u16,
+    /// 0x60FE:1 masked by 0x60FE:2.
+    digital_outputs: u32,
+    /// 0x6099:1, :2 (motor rad/s) and 0x609A (motor rad/s²).
+    homing_speed_switch: f64,
+    homing_speed_zero: f64,
+    homing_accel: f64,
 }
 
 impl Inputs {
@@ -464,6 +552,14 @@ impl Inputs {
             home_offset: s.get(od, slot::HOME_OFFSET),
             position_window: s.get(od, slot::POSITION_WINDOW) as f64 / per_rad,
             velocity_window: s.get(od, slot::VELOCITY_WINDOW) as f64 / per_rad,
+            velocity_offset: s.get(od, slot::VELOCITY_OFFSET) as f64 / per_rad,
+            torque_offset_permille: s.get(od, slot::TORQUE_OFFSET) as f64,
+            probe_function: s.get(od, slot::PROBE_FUNCTION) as u16,
+            digital_outputs: (s.get(od, slot::DIGITAL_OUTPUTS)
+                & s.get(od, slot::DIGITAL_OUTPUTS_MASK)) as u32,
+            homing_speed_switch: s.get(od, slot::HOMING_SPEED_SWITCH) as f64 / per_rad,
+            homing_speed_zero: s.get(od, slot::HOMING_SPEED_ZERO) as f64 / per_rad,
+            homing_accel: s.get(od, slot::HOMING_ACCEL) as f64 / per_rad,
         }
     }
 
@@ -610,6 +706,58 @@ struct Stop {
     done: bool,
 }
 
+/// Touch probe 1 (0x60B8 function, 0x60B9 status, 0x60BA/0x60BB positions at its edges).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct TouchProbe {
+    /// The function word of the previous period (edges of its enable bits re-arm).
+    function: u16,
+    positive_stored: bool,
+    negative_stored: bool,
+    positive: i64,
+    negative: i64,
+}
+
+/// Touch probe function bits (CiA 402 0x60B8).
+mod probe_fn {
+    pub const ENABLE: u16 = 1 << 0;
+    pub const CONTINUOUS: u16 = 1 << 1;
+    /// Bits 2-3 = 01: the zero impulse (index pulse) of the encoder; 00: touch probe input 1
+    /// (here: the home switch).
+    pub const SOURCE_INDEX: u16 = 1 << 2;
+    pub const POSITIVE_EDGE: u16 = 1 << 4;
+    pub const NEGATIVE_EDGE: u16 = 1 << 5;
+}
+
+/// Touch probe status bits (0x60B9).
+mod probe_status {
+    pub const ENABLED: u16 = 1 << 0;
+    pub const POSITIVE_STORED: u16 = 1 << 1;
+    pub const NEGATIVE_STORED: u16 = 1 << 2;
+}
+
+/// Digital input bits (0x60FD); bits 16-31 are the manufacturer's (outputs 16-31 of 0x60FE,
+/// wired back).
+mod din {
+    pub const NEGATIVE_LIMIT: u32 = 1 << 0;
+    pub const POSITIVE_LIMIT: u32 = 1 << 1;
+    pub const HOME_SWITCH: u32 = 1 << 2;
+    pub const MANUFACTURER: u32 = 0xFFFF_0000;
+}
+
+/// A homing run on the index pulse (33, 34) or the home switch (19) under way.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Homing {
+    /// +1 or -1: the direction of the search.
+    direction: f64,
+    speed: f64,
+    /// Looking for the event (true), or stopping after it.
+    searching: bool,
+    /// The home switch's level at the start (method 19).
+    switch_at_start: bool,
+    /// Bit 4 dropped before the end: the run stops without homing attained.
+    interrupted: bool,
+}
+
 /// One axis: its state machine, mode, reference generators and mechanics.
 #[derive(Clone, Debug)]
 struct Axis {
@@ -649,10 +797,17 @@ struct Axis {
     target_limited: bool,
     target_reached: bool,
     remote: bool,
+    switches: Switches,
+    probe: TouchProbe,
+    homing: Option<Homing>,
+    /// The encoder's index (zero impulse) count at the previous period: floor(count / CPR).
+    index_revolution: i64,
+    home_switch: bool,
+    digital_inputs: u32,
 }
 
 impl Axis {
-    fn new(number: u8, params: MotorParams) -> Self {
+    fn new(number: u8, params: MotorParams, switches: Switches) -> Self {
         Axis {
             number,
             state: State::NotReadyToSwitchOn,
@@ -681,6 +836,12 @@ impl Axis {
             target_limited: false,
             target_reached: false,
             remote: false,
+            switches,
+            probe: TouchProbe::default(),
+            homing: None,
+            index_revolution: 0,
+            home_switch: false,
+            digital_inputs: 0,
         }
     }
 
@@ -823,6 +984,7 @@ impl Axis {
             // speed.
             self.mode = inp.mode;
             self.continue_here();
+            self.homing = None;
             self.homing_attained = false;
             self.homing_error = false;
             self.setpoint_acknowledge = false;
@@ -846,6 +1008,13 @@ impl Axis {
             }
             mode::PP => self.pp_command(inp, new_setpoint),
             mode::HM if new_setpoint => self.home(inp),
+            // Bit 4 dropped while homing: interrupted (stops, not attained).
+            mode::HM if cw_now & cw::NEW_SETPOINT == 0 => {
+                if let Some(run) = self.homing.as_mut() {
+                    run.searching = false;
+                    run.interrupted = true;
+                }
+            }
             _ => {}
         }
     }
@@ -881,19 +1050,164 @@ impl Axis {
         self.target_reached = false;
     }
 
-    /// HM: methods 35 and 37 home on the current position (it becomes the home offset
-    /// 0x607C); other methods are a homing error.
+    /// HM, homing operation start (bit 4 rising): methods 35 and 37 home on the current position
+    /// (it becomes the home offset 0x607C) at once; 33 and 34 search the index pulse (the
+    /// encoder's zero impulse, once per motor revolution) at 0x6099:2 in the negative or
+    /// positive direction; 19 searches the edge of the home switch at 0x6099:1, upwards while
+    /// it is off and downwards while it is on; the position at the event becomes the home
+    /// offset, then the axis stops at 0x609A and holds. Other methods are a homing error.
     fn home(&mut self, inp: &Inputs) {
-        if matches!(inp.homing_method, 35 | 37) {
-            let raw = self.position_actual() - self.position_offset;
-            self.position_offset = inp.home_offset - raw;
-            self.homing_attained = true;
-            self.homing_error = false;
-        } else {
-            self.homing_attained = false;
+        self.homing_attained = false;
+        self.homing_error = false;
+        self.homing = None;
+        self.hold_here();
+        match inp.homing_method {
+            35 | 37 => {
+                let raw = self.position_actual() - self.position_offset;
+                self.position_offset = inp.home_offset - raw;
+                self.homing_attained = true;
+            }
+            33 | 34 | 19 => {
+                let on = self.home_switch;
+                let (direction, speed) = match inp.homing_method {
+                    33 => (-1.0, inp.homing_speed_zero),
+                    34 => (1.0, inp.homing_speed_zero),
+                    _ => (if on { -1.0 } else { 1.0 }, inp.homing_speed_switch),
+                };
+                self.homing = Some(Homing {
+                    direction,
+                    speed,
+                    searching: true,
+                    switch_at_start: on,
+                    interrupted: false,
+                });
+            }
+            _ => self.homing_error = true,
+        }
+    }
+
+    /// One period of a homing run: the search ramps up to its speed, the event (index pulse
+    /// or switch edge, found by `sense`) sets the home position, then the axis ramps to rest
+    /// and holds (homing attained). A limit switch on the way is a homing error.
+    fn run_homing(&mut self, inp: &Inputs, dt: f64) -> f64 {
+        let Some(mut run) = self.homing else {
+            self.demand_speed = 0.0;
+            return self.position_control(inp, 0.0, dt);
+        };
+        if self.digital_inputs & (din::NEGATIVE_LIMIT | din::POSITIVE_LIMIT) != 0 && run.searching {
+            run.searching = false;
             self.homing_error = true;
         }
-        self.hold_here();
+        let target = if run.searching {
+            run.direction * run.speed
+        } else {
+            0.0
+        };
+        self.demand_speed = ramp(
+            self.demand_speed,
+            target,
+            inp.homing_accel,
+            inp.homing_accel,
+            dt,
+        );
+        self.demand += self.demand_speed * dt;
+        let torque = self.position_control(inp, self.demand_speed, dt);
+        if !run.searching
+            && self.demand_speed == 0.0
+            && self.mechanics.speed.abs() < STANDSTILL_SPEED
+        {
+            self.homing = None;
+            self.homing_attained = !self.homing_error && !run.interrupted;
+            self.hold_here();
+        } else {
+            self.homing = Some(run);
+        }
+        torque
+    }
+
+    /// The encoder's index pulse and the switches this period, after the mechanics moved:
+    /// homing events, the touch probe, the digital inputs.
+    fn sense(&mut self, inp: &Inputs, method: i64) {
+        let cpr = self.params().counts_per_rev as i64;
+        let count = self.encoder_count();
+        let revolution = count.div_euclid(cpr.max(1));
+        // The count where the index pulse was crossed this period (the revolution boundary).
+        let index_at = (revolution != self.index_revolution)
+            .then(|| revolution.max(self.index_revolution) * cpr);
+        self.index_revolution = revolution;
+        let joint = self.mechanics.angle / self.params().gear_ratio;
+        let switch = joint >= self.switches.home;
+        let switch_edge = switch != self.home_switch;
+        self.home_switch = switch;
+        let limit = self.switches.limit;
+        let mut inputs = inp.digital_outputs & din::MANUFACTURER;
+        if switch {
+            inputs |= din::HOME_SWITCH;
+        }
+        if limit > 0.0 && joint <= -limit {
+            inputs |= din::NEGATIVE_LIMIT;
+        }
+        if limit > 0.0 && joint >= limit {
+            inputs |= din::POSITIVE_LIMIT;
+        }
+        self.digital_inputs = inputs;
+        // Homing: the event sets the home position there.
+        if let Some(run) = self.homing.as_mut().filter(|r| r.searching) {
+            let event = match method {
+                33 | 34 => index_at,
+                19 if switch_edge && switch != run.switch_at_start => Some(count),
+                _ => None,
+            };
+            if let Some(at) = event {
+                self.position_offset = inp.home_offset - at;
+                run.searching = false;
+            }
+        }
+        // Touch probe 1 on the home switch (input 1) or the index pulse.
+        let f = inp.probe_function;
+        let p = &mut self.probe;
+        let rising = |bit: u16| f & bit != 0 && p.function & bit == 0;
+        if f & probe_fn::ENABLE == 0 {
+            *p = TouchProbe::default();
+        } else {
+            if rising(probe_fn::ENABLE) || rising(probe_fn::POSITIVE_EDGE) {
+                p.positive_stored = false;
+            }
+            if rising(probe_fn::ENABLE) || rising(probe_fn::NEGATIVE_EDGE) {
+                p.negative_stored = false;
+            }
+            let continuous = f & probe_fn::CONTINUOUS != 0;
+            let (positive, negative) = if f & probe_fn::SOURCE_INDEX != 0 {
+                (index_at.is_some(), false)
+            } else {
+                (switch_edge && switch, switch_edge && !switch)
+            };
+            let position = count.wrapping_add(self.position_offset);
+            if positive && f & probe_fn::POSITIVE_EDGE != 0 && (continuous || !p.positive_stored) {
+                p.positive = index_at.map_or(position, |at| at.wrapping_add(self.position_offset));
+                p.positive_stored = true;
+            }
+            if negative && f & probe_fn::NEGATIVE_EDGE != 0 && (continuous || !p.negative_stored) {
+                p.negative = position;
+                p.negative_stored = true;
+            }
+        }
+        p.function = f;
+    }
+
+    fn probe_status(&self) -> u16 {
+        let p = &self.probe;
+        let mut status = 0;
+        if p.function & probe_fn::ENABLE != 0 {
+            status |= probe_status::ENABLED;
+        }
+        if p.positive_stored {
+            status |= probe_status::POSITIVE_STORED;
+        }
+        if p.negative_stored {
+            status |= probe_status::NEGATIVE_STORED;
+        }
+        status
     }
 
     /// Enter `next` by the controlword transition `number`.
@@ -963,6 +1277,7 @@ impl Axis {
         for _ in 0..SUBSTEPS {
             self.mechanics.advance(sub, torque);
         }
+        self.sense(inp, inp.homing_method);
     }
 
     /// Torque of the position loop on `demand` (+ `feed_forward`) through the velocity loop.
@@ -972,6 +1287,19 @@ impl Axis {
             Cascade::position_loop(self.params(), error, feed_forward, inp.max_speed);
         self.limit_active |= cut;
         self.velocity_control(inp, speed, dt)
+    }
+
+    /// `torque` plus the torque offset 0x60B2, within the torque limit.
+    fn with_torque_offset(&mut self, inp: &Inputs, torque: f64) -> f64 {
+        if inp.torque_offset_permille == 0.0 {
+            return torque;
+        }
+        let (torque, cut) = limit(
+            torque + inp.torque_offset_permille * 1e-3 * inp.rated_torque_nm,
+            inp.max_torque(),
+        );
+        self.limit_active |= cut;
+        torque
     }
 
     fn velocity_control(&mut self, inp: &Inputs, speed: f64, dt: f64) -> f64 {
@@ -991,9 +1319,10 @@ impl Axis {
                 let (demand, speed) = self.interpolator.advance(dt);
                 self.demand = demand;
                 self.demand_speed = speed;
-                let torque = self.position_control(inp, speed, dt);
+                // 0x60B1 and 0x60B2 add to the velocity and torque commands (feed-forward).
+                let torque = self.position_control(inp, speed + inp.velocity_offset, dt);
                 self.supervise_following_error(inp, dt, out);
-                torque
+                self.with_torque_offset(inp, torque)
             }
             mode::CSV => {
                 let mut speed = inp.target_velocity as f64 / self.params().counts_per_rad();
@@ -1002,11 +1331,14 @@ impl Axis {
                     speed = 0.0;
                 }
                 self.demand_speed = speed;
-                self.velocity_control(inp, speed, dt)
+                let torque = self.velocity_control(inp, speed + inp.velocity_offset, dt);
+                self.with_torque_offset(inp, torque)
             }
             mode::CST => {
                 let (mut torque, cut) = limit(
-                    inp.target_torque as f64 * 1e-3 * inp.rated_torque_nm,
+                    (inp.target_torque as f64 + inp.torque_offset_permille)
+                        * 1e-3
+                        * inp.rated_torque_nm,
                     inp.max_torque(),
                 );
                 self.limit_active |= cut;
@@ -1082,9 +1414,14 @@ impl Axis {
                 self.target_reached = (self.mechanics.speed - target).abs() <= inp.velocity_window;
                 self.velocity_control(inp, self.demand_speed, dt)
             }
-            // HM (homing on the current position is instantaneous) and no mode: hold.
+            // HM: a homing run moves the axis; otherwise (and with no mode) it holds. Target
+            // reached: no run under way (attained, interrupted or not started).
+            mode::HM => {
+                self.target_reached = self.homing.is_none();
+                self.run_homing(inp, dt)
+            }
             _ => {
-                self.target_reached = self.mode == mode::HM && self.homing_attained;
+                self.target_reached = false;
                 self.demand_speed = 0.0;
                 self.position_control(inp, 0.0, dt)
             }
@@ -1192,6 +1529,10 @@ impl Axis {
         s.set(od, slot::STATUSWORD, i64::from(self.statusword(voltage)));
         s.set(od, slot::MODE_DISPLAY, i64::from(self.mode));
         s.set(od, slot::POSITION_ACTUAL, self.position_actual());
+        s.set(od, slot::DIGITAL_INPUTS, i64::from(self.digital_inputs));
+        s.set(od, slot::PROBE_STATUS, i64::from(self.probe_status()));
+        s.set(od, slot::PROBE_POSITIVE, self.probe.positive);
+        s.set(od, slot::PROBE_NEGATIVE, self.probe.negative);
         s.set(
             od,
             slot::VELOCITY_ACTUAL,
@@ -1273,7 +1614,7 @@ impl Cia402Drive {
         Self {
             config,
             axes: (0..MAX_AXES)
-                .map(|n| Axis::new(n as u8 + 1, config.motor))
+                .map(|n| Axis::new(n as u8 + 1, config.motor, config.switches))
                 .collect(),
             axis_count: 0,
             slots: vec![OdSlots::default(); MAX_AXES],
@@ -2110,6 +2451,152 @@ mod tests {
         let p1 = b.position(0);
         assert!((p1 - p0 - 819).abs() < 200, "{}", p1 - p0);
         assert!(b.get(0, 0x606C, 0).abs() < 200);
+    }
+
+    /// Enable in HM with `method`, start homing (bit 4) and wait for the run to end.
+    fn home_with(b: &mut Bench, method: i64, home_offset: i64) {
+        b.set(0, 0x6098, 0, method);
+        b.set(0, 0x607C, 0, home_offset);
+        // One motor revolution per second to the index or the switch.
+        b.set(0, 0x6099, 1, CPR);
+        b.set(0, 0x6099, 2, CPR);
+        b.enable(0, mode::HM);
+        b.cw(0, 0x1F);
+        for _ in 0..2000 {
+            b.run_ms(5.0);
+            if b.statusword(0) & sw::TARGET_REACHED != 0 {
+                break;
+            }
+        }
+    }
+
+    #[test]
+    fn homing_on_the_index_pulse_in_either_direction() {
+        for (method, direction) in [(34, 1), (33, -1)] {
+            let mut b = Bench::new(1);
+            // Somewhere inside a motor revolution (the index is at multiples of 16384).
+            b.enable(0, mode::CSV);
+            b.set(0, 0x60FF, 0, 30_000);
+            b.run_ms(200.0);
+            b.set(0, 0x60FF, 0, 0);
+            b.run_ms(300.0);
+            b.cw(0, 0x06);
+            let before = b.drive.motor(0).0 * CPR as f64 / TAU;
+            home_with(&mut b, method, 1000);
+            let word = b.statusword(0);
+            assert_ne!(word & sw::MODE_12, 0, "{method}: homing attained");
+            assert_eq!(word & sw::MODE_13, 0, "{method}: no homing error");
+            // The index the run stopped at: the next multiple of the counts per revolution.
+            let count = (b.drive.motor(0).0 * CPR as f64 / TAU).floor() as i64;
+            let index = if direction > 0 {
+                (before / CPR as f64).ceil() as i64 * CPR
+            } else {
+                (before / CPR as f64).floor() as i64 * CPR
+            };
+            assert!(
+                (count - index).abs() < CPR / 2,
+                "{method}: {count} vs index {index}"
+            );
+            assert_eq!(b.position(0), 1000 + count - index, "{method}");
+            // Holding there.
+            let here = b.position(0);
+            b.run_ms(100.0);
+            assert!((b.position(0) - here).abs() <= 2);
+        }
+    }
+
+    #[test]
+    fn homing_on_the_home_switch_edge() {
+        // The home switch is on from 0.05 rad at the joint (2.5 rad at the motor) upwards.
+        let mut b = Bench::new(1);
+        home_with(&mut b, 19, 0);
+        assert_ne!(b.statusword(0) & sw::MODE_12, 0);
+        // Home is the switch's edge: the position there is 0, the axis a little beyond it.
+        let edge = (0.05 * 50.0 * CPR as f64 / TAU) as i64;
+        let count = (b.drive.motor(0).0 * CPR as f64 / TAU).floor() as i64;
+        assert!(
+            (b.position(0) - (count - edge)).abs() <= 20,
+            "{} {count}",
+            b.position(0)
+        );
+        assert_ne!(b.get(0, 0x60FD, 0) & 0b100, 0, "the home switch is on");
+        // A method the drive lacks: homing error, nothing moves.
+        let mut b = Bench::new(1);
+        home_with(&mut b, 1, 0);
+        assert_ne!(b.statusword(0) & sw::MODE_13, 0);
+        assert_eq!(b.position(0), 0);
+    }
+
+    #[test]
+    fn touch_probe_latches_the_index_pulse_and_the_home_switch() {
+        let mut b = Bench::new(1);
+        // Probe 1 on the index pulse, positive edge, first event only.
+        b.set(0, 0x60B8, 0, 0x0001 | 0x0004 | 0x0010);
+        b.enable(0, mode::CSV);
+        b.set(0, 0x60FF, 0, 30_000);
+        b.run_ms(1000.0);
+        assert_eq!(
+            b.get(0, 0x60B9, 0) & 0b11,
+            0b11,
+            "enabled, positive edge stored"
+        );
+        let latched = b.get(0, 0x60BA, 0);
+        assert_eq!(latched % CPR, 0, "at the index: {latched}");
+        b.run_ms(1000.0);
+        assert_eq!(b.get(0, 0x60BA, 0), latched, "first event only");
+        // Re-armed on the home switch (input 1), both edges, continuous.
+        b.set(0, 0x60B8, 0, 0x0001 | 0x0002 | 0x0010 | 0x0020);
+        b.set(0, 0x60FF, 0, 0);
+        b.run_ms(10.0);
+        b.set(0, 0x60B8, 0, 0);
+        b.run_ms(1.0);
+        b.set(0, 0x60B8, 0, 0x0001 | 0x0002 | 0x0010 | 0x0020);
+        b.set(0, 0x60FF, 0, -60_000);
+        b.run_ms(3000.0);
+        assert_ne!(
+            b.get(0, 0x60B9, 0) & 0b100,
+            0,
+            "the switch went off (negative edge)"
+        );
+        let edge = (0.05 * 50.0 * CPR as f64 / TAU) as i64;
+        assert!(
+            (b.get(0, 0x60BB, 0) - edge).abs() < 200,
+            "{}",
+            b.get(0, 0x60BB, 0)
+        );
+    }
+
+    #[test]
+    fn digital_outputs_are_wired_to_the_inputs_and_offsets_feed_forward() {
+        let mut b = Bench::new(1);
+        b.set(0, 0x60FE, 1, 0x0005_0001);
+        b.run_ms(1.0);
+        // Outputs 16-31 come back as inputs 16-31 (bit 0 is masked off by 0x60FE:2).
+        assert_eq!(b.get(0, 0x60FD, 0) & 0xFFFF_0000, 0x0005_0000);
+        // 0x60B1 adds to the velocity command (CSV at target 0 moves at the offset).
+        b.enable(0, mode::CSV);
+        b.set(0, 0x60B1, 0, 16_384);
+        b.run_ms(300.0);
+        assert!((b.get(0, 0x606C, 0) - 16_384).abs() < 400);
+        // 0x60B2 adds to the torque (CST at target 0 accelerates).
+        b.set(0, 0x60B1, 0, 0);
+        b.set(0, 0x6060, 0, i64::from(mode::CST));
+        b.set(0, 0x60B2, 0, 200);
+        let v0 = b.get(0, 0x606C, 0);
+        b.run_ms(50.0);
+        assert!(b.get(0, 0x606C, 0) > v0 + 1000);
+    }
+
+    #[test]
+    fn limit_switches_show_in_the_inputs() {
+        let params = [("limit_switch_rad".to_string(), 0.02)];
+        let config = Cia402Config::from_params(&params).unwrap();
+        let mut b = Bench::with(1, config);
+        b.enable(0, mode::CSV);
+        b.set(0, 0x60FF, 0, 60_000);
+        b.run_ms(1000.0);
+        assert_ne!(b.get(0, 0x60FD, 0) & 0b010, 0, "positive limit switch");
+        assert_eq!(b.get(0, 0x60FD, 0) & 0b001, 0);
     }
 
     #[test]
