@@ -21,7 +21,8 @@ Requests (``op`` and its arguments) and answers:
 - ``{"op": "set_mode", "mode": M, "joints": [...]}``,
   ``{"op": "sdo_write", "slave": S, "index": I, "subindex": SI, "type": T, "value": V}``
   → ``{"ok", "message"}``; ``{"op": "trajectory", "names": [...], "points": [[t, [...]], ...]}``
-  (topic, answered on joint_results) → ``{"ok": true}``
+  (topic, answered on joint_results) → ``{"ok": true}``; ``{"op": "fjt", ...}`` the same as a
+  FollowJointTrajectory goal, waited for → ``{"ok", "code", "message"}``
 - ``{"op": "flood", "topic": "joint_commands"|"pdo_listener", "kind": K}``: publish as fast as
   possible from a thread (K: ``unknown`` joint, ``limit`` value, ``garbage`` bytes, ``text``
   write of an unknown variable) → ``{"ok": true}``; ``{"op": "flood_count"}`` → ``{"sent": n}``
@@ -49,6 +50,7 @@ class Actor:
         rclpy.init()
         self.client = EtherRosClient(client_name=name, lease="manual")
         self.flood_sent = 0
+        self._fjt: Any = None
         self._flooding = threading.Event()
 
     def handle(self, req: dict[str, Any]) -> dict[str, Any]:
@@ -108,6 +110,14 @@ class Actor:
         if op == "trajectory":
             c.publish_trajectory(req["names"], [(t, p) for t, p in req["points"]])
             return {"ok": True}
+        if op == "fjt":  # a FollowJointTrajectory goal, waited for
+            from ether_ros.ros.trajectory_client import TrajectoryActionClient
+
+            if self._fjt is None:
+                self._fjt = TrajectoryActionClient(c.node)
+            outcome = self._fjt.run(req["names"], [(t, p) for t, p in req["points"]])
+            return {"ok": outcome.error_code == 0, "code": outcome.error_code,
+                    "message": outcome.error_string}  # fmt: skip
         if op == "flood":
             self._start_flood(req["topic"], req["kind"])
             return {"ok": True}

@@ -8,8 +8,9 @@ in their own processes, and other operators as separate rclpy processes (tests/r
 - a holder that stops renewing (killed) loses the lease, and motion stops: the legs' outputs go
   back to their safe values on the wire;
 - the lifecycle's own change_state is refused while the lease is on;
-- on config/arm6.yaml (CiA 402 axes, lease on): axis services, mode changes, SDO writes, joint
-  commands and trajectories from a non-holder are refused naming the holder and move nothing.
+- on config/arm6.yaml (CiA 402 axes, lease on): axis services (home too), mode changes, SDO
+  writes, joint commands, trajectories and FollowJointTrajectory goals from a non-holder are
+  refused naming the holder and move nothing; the holder's own goal moves the joint.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from typing import Any
 import pytest
 
 from ether_ros.ros.rig import RosRig, domain_for
+from ether_ros.ros.trajectory_client import TrajectoryActionClient
 
 pytestmark = [pytest.mark.netns, pytest.mark.ros]
 
@@ -231,6 +233,8 @@ def test_axes_modes_sdo_joints_and_trajectories_need_the_lease() -> None:
         try:
             for op, args in (
                 ("axis", {"command": "disable", "joints": [joint]}),
+                ("axis", {"command": "home", "joints": [joint]}),
+                ("fjt", {"names": [joint], "points": [[0.5, [-0.3]]]}),
                 ("set_mode", {"mode": "csv", "joints": [joint]}),
                 ("sdo_write", {"slave": "base_drive", "index": 0x6065, "subindex": 0,
                                "type": "UDINT", "value": "1000"}),
@@ -248,5 +252,14 @@ def test_axes_modes_sdo_joints_and_trajectories_need_the_lease() -> None:
             # Nothing of that moved the joint: the holder's last command still stands.
             assert client.axis_states()[joint]["state"] == "operation_enabled"
             assert abs((position(client.latest) or 9.0) - 0.2) < 0.02
+            # The holder's own action goal (its action client made after the lease was granted)
+            # is taken and moves the joint.
+            fjt = TrajectoryActionClient(client.node)
+            try:
+                outcome = fjt.run([joint], [(0.5, [0.1])], timeout=60.0)
+            finally:
+                fjt.destroy()
+            assert outcome.error_code == 0, outcome.error_string
+            client.wait_for(lambda latest: abs((position(latest) or 9.0) - 0.1) < 0.02, 20)
         finally:
             other.close()

@@ -152,6 +152,22 @@ def test_writer_nodes_are_looked_up_and_refreshed(clock: Clock) -> None:
     lease_.check_publisher(GID_C)
 
 
+def test_an_action_goal_is_the_holders_when_its_client_is(clock: Clock) -> None:
+    writers: dict[str, list[bytes]] = {"/move_group": []}
+    lease_ = lease(clock, writers=writers)
+    answer = lease_.request("acquire", "/rig", 0.0, 0, GID_A, ["/move_group"])
+    assert answer.success
+    lease_.check_goal_sender(GID_A)  # a registered client
+    with pytest.raises(LeaseRefused, match="held by '/rig'"):
+        lease_.check_goal_sender(GID_B)
+    # A client the holder's node made since the last look is looked up before a refusal.
+    writers["/move_group"] = [GID_C]
+    lease_.check_goal_sender(GID_C)
+    with pytest.raises(LeaseRefused, match="cannot tell who sent this goal"):
+        lease_.check_goal_sender(None)
+    lease(clock, enabled=False).check_goal_sender(None)  # lease off: anyone
+
+
 @pytest.mark.parametrize(
     ("operation", "holder", "ttl", "gids", "nodes", "reason"),
     [

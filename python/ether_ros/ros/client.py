@@ -53,7 +53,7 @@ from ether_ros.ros.bridge import AXIS_SERVICES
 from ether_ros.ros.convert import spec_from_msg
 from ether_ros.ros.freshness import Arrivals
 from ether_ros.ros.layout import BusSpec
-from ether_ros.ros.lease import own_publisher_gids
+from ether_ros.ros.lease import own_goal_reply_gids, own_publisher_gids
 from ether_ros.ros.node import (
     COMMAND_TOPICS,
     QOS_COMMANDS,
@@ -596,8 +596,15 @@ class EtherRosClient:
         )
         if operation in ("acquire", "takeover", "renew"):
             topics = [f"{self.prefix}{t}" for t in COMMAND_TOPICS]
-            req.gids = list(own_publisher_gids(self.node, topics))
-            req.writer_nodes = list(self.lease_writers)
+            # Its command publishers, and its action clients (a FollowJointTrajectory goal is
+            # known by the client's goal-reply reader; the keeper's renewals pick up clients
+            # made after the lease was granted).
+            gids = own_publisher_gids(self.node, topics) + own_goal_reply_gids(self.node)
+            req.gids = list(gids)
+            # Its own node too: a publisher or action client it makes later is found in the
+            # graph (the node looks again before refusing one).
+            own = self.node.get_fully_qualified_name()
+            req.writer_nodes = list(dict.fromkeys([own, *self.lease_writers]))
         return self._call(self._lease_client, req, timeout)
 
     def _start_keeper(self) -> None:

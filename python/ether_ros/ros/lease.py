@@ -29,6 +29,7 @@ without DDS security any participant can claim a holder's name or GIDs (docs/sec
 
 from __future__ import annotations
 
+import ctypes
 import logging
 import math
 import secrets
@@ -156,6 +157,25 @@ class ControlLease:
                 "and it is not running for this topic"
             )
         self._verdict(*self.gate.check_gid(bytes(publisher), self._now_ns()))
+
+    def check_goal_sender(self, sender: bytes | None) -> None:
+        """LeaseRefused unless the action client that sent a goal (the GID of its goal-reply
+        reader, see :func:`request_sender`; None: unknown) is the holder's. Before refusing,
+        the holder's ``writer_nodes`` are looked up again: the holder may have made its action
+        client since the last look."""
+        if not self.enabled:
+            return
+        if sender is None:
+            self._verdict(
+                "refused",
+                "the control lease cannot tell who sent this goal (this rclpy does not show "
+                "the request's sender): goals are refused while the lease is on",
+            )
+            return
+        verdict, _ = self.gate.check_gid(bytes(sender), self._now_ns())
+        if verdict != "allowed":
+            self.refresh_writers()
+        self._verdict(*self.gate.check_gid(bytes(sender), self._now_ns()))
 
     def _verdict(self, verdict: str, text: str) -> None:
         if verdict != "allowed":
@@ -316,6 +336,20 @@ class ControlLease:
                 if self._expires_ns and self._writer_nodes == nodes:
                     self._publish_locked(found)
 
+    def refresh_writers(self) -> None:
+        """Look the holder's ``writer_nodes`` up in the graph now (an entry point about to
+        refuse a sender calls it once: the holder may have made the sender since the last
+        look)."""
+        with self._lock:
+            nodes = list(self._writer_nodes) if self._expires_ns else []
+        if not nodes:
+            return
+        found = self._lookup(nodes)
+        with self._lock:
+            if self._expires_ns and self._writer_nodes == nodes:
+                self._last_refresh_ns = self._now_ns()
+                self._publish_locked(found)
+
     # ------------------------------------------------------------------------ helpers
     def _lookup(self, nodes: Sequence[str]) -> list[bytes]:
         if not nodes:
@@ -421,17 +455,70 @@ def own_publisher_gids(node: Any, topics: Iterable[str]) -> bytes:
     return out
 
 
-def graph_writer_gids(node: Any, topics: Sequence[str]) -> WriterLookup:
-    """A lookup of the publishers of named nodes on ``topics`` in ``node``'s view of the graph."""
+def graph_writer_gids(
+    node: Any, topics: Sequence[str], goal_reply_topics: Sequence[str] = ()
+) -> WriterLookup:
+    """A lookup of the publishers of named nodes on ``topics`` in ``node``'s view of the graph,
+    and of their action clients' goal-reply readers on ``goal_reply_topics`` (DDS names, see
+    :func:`goal_reply_topic`): what identifies the sender of an action goal (request_sender)."""
 
     def lookup(nodes: Sequence[str]) -> list[bytes]:
         wanted = set(nodes)
         gids = []
-        for topic in topics:
-            for info in node.get_publishers_info_by_topic(topic):
-                ns = info.node_namespace.rstrip("/")
-                if f"{ns}/{info.node_name}" in wanted:
-                    gids.append(bytes(info.endpoint_gid)[:GID_LEN])
+        endpoints = [info for t in topics for info in node.get_publishers_info_by_topic(t)]
+        for topic in goal_reply_topics:
+            endpoints += node.get_subscriptions_info_by_topic(topic, no_mangle=True)
+        for info in endpoints:
+            ns = info.node_namespace.rstrip("/")
+            if f"{ns}/{info.node_name}" in wanted:
+                gids.append(bytes(info.endpoint_gid)[:GID_LEN])
         return gids
 
     return lookup
+
+
+#: How a DDS topic of an action's goal replies ends (``rr<action>/_action/send_goalReply``).
+GOAL_REPLY_SUFFIX = "/_action/send_goalReply"
+
+
+def goal_reply_topic(action: str) -> str:
+    """The DDS topic on which the clients of ``action`` (its full name) read goal replies."""
+    return f"rr{action}{GOAL_REPLY_SUFFIX}"
+
+
+def own_goal_reply_gids(node: Any) -> bytes:
+    """The GIDs of ``node``'s action clients' goal-reply readers (every action): registered with
+    a lease so that the node's action goals count as the holder's."""
+    name, namespace = node.get_name(), node.get_namespace()
+    out = b""
+    for topic, _types in node.get_subscriber_names_and_types_by_node(
+        name, namespace, no_demangle=True
+    ):
+        if topic.endswith(GOAL_REPLY_SUFFIX):
+            for info in node.get_subscriptions_info_by_topic(topic, no_mangle=True):
+                if info.node_name == name and info.node_namespace == namespace:
+                    out += bytes(info.endpoint_gid)[:GID_LEN]
+    return out
+
+
+# Where pybind11 keeps the pointer to a wrapped C++ value: right after the object's header.
+_PYBIND_VALUE_OFFSET = 16
+
+
+def request_sender(header: Any) -> bytes | None:
+    """Who sent a service or action-goal request: ``rmw_request_id_t.writer_guid`` of its
+    header, which Fast DDS fills in with the client's reply reader's GID (the one the graph
+    lists on the reply topic). rclpy (Jazzy) wraps the struct but shows only its
+    ``sequence_number``, so the 16 bytes are read from the wrapped struct; the sequence number
+    stored right after them checks the read. None when it does not match (an rclpy that wraps
+    it otherwise): the lease then refuses, saying it cannot tell who sent the goal."""
+    try:
+        pointer = ctypes.c_void_p.from_address(id(header) + _PYBIND_VALUE_OFFSET).value
+        if not pointer:
+            return None
+        seq = ctypes.c_int64.from_address(pointer + GID_LEN).value
+        if seq != int(header.sequence_number):
+            return None
+        return ctypes.string_at(pointer, GID_LEN)
+    except (AttributeError, TypeError, ValueError, OverflowError):
+        return None

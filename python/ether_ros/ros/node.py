@@ -72,7 +72,12 @@ from ether_ros.ros import bridge, command_watchdog, diagnostics, joints, securit
 from ether_ros.ros.convert import layout_msg
 from ether_ros.ros.follow_joint_trajectory import FollowJointTrajectoryServer
 from ether_ros.ros.layout import BusSpec, LayoutError
-from ether_ros.ros.lease import ControlLease, LeaseRefused, graph_writer_gids
+from ether_ros.ros.lease import (
+    ControlLease,
+    LeaseRefused,
+    goal_reply_topic,
+    graph_writer_gids,
+)
 from ether_ros.ros.native_commands import (
     CommandPathError,
     NativeCommandPath,
@@ -207,7 +212,9 @@ class EtherRosNode(LifecycleNode):
             lease_cfg.ttl_s,
             lease_cfg.max_ttl_s,
             stop_motion=self._stop_motion,
-            lookup_writers=graph_writer_gids(self, COMMAND_TOPICS),
+            lookup_writers=graph_writer_gids(
+                self, COMMAND_TOPICS, self._goal_reply_topics(cfg.ros.trajectory_action)
+            ),
         )
         # Refusals of topic requests Python answers, budgeted per publisher as the native
         # threads budget theirs.
@@ -971,7 +978,15 @@ class EtherRosNode(LifecycleNode):
             axes=self._axes_if_active,
             capacity=lambda: bridge.trajectory_capacity(self._bus),
             note_command=self._note_command,
+            gate=self._lease.check_goal_sender,
         )
+
+    def _goal_reply_topics(self, action: str) -> list[str]:
+        """The DDS topic on which the action server's clients read goal replies (none without
+        a server): a lease holder's action clients are looked up there."""
+        if not action:
+            return []
+        return [goal_reply_topic(f"{self.get_namespace().rstrip('/')}/{action}")]
 
     def _note_command(self) -> None:
         """A command came (it feeds the command watchdog, see ``_feed_watchdog``)."""
