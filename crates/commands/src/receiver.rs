@@ -85,6 +85,11 @@ pub const PUBLISHER_LIMIT: usize = 64;
 /// that a publisher's refused requests are only counted (`refusals_unanswered`): answering
 /// every message of a flood would cost the node more than the flood itself.
 pub const REFUSAL_ANSWERS_PER_S: u32 = 20;
+/// Requests per publisher handed to Python: a burst of this many, then this many per second.
+/// Beyond that they are refused here (`throttled`): a flood of requests only Python can answer
+/// (values beyond the limits, text) would otherwise keep the node's Python busy, and with it the
+/// thread that feeds the engine's command watchdog, which then trips and stops the robot.
+pub const DEFERRALS_PER_S: u32 = 200;
 /// Publishers the refusal answer budget is kept for (the least recently refused is forgotten).
 pub const ANSWER_BUDGETS: usize = 64;
 /// Initial size of the buffer serialized messages are taken into (rcl grows it if needed).
@@ -119,6 +124,8 @@ pub struct ReceiverCounters {
     pub refused: u64,
     /// Refused because the publisher does not hold the control lease.
     pub refused_lease: u64,
+    /// Refused because their publisher sent more than `DEFERRALS_PER_S` requests for Python.
+    pub throttled: u64,
     /// Refusals not answered because their publisher's answer budget was spent (a flood).
     pub refusals_unanswered: u64,
     /// Serialized data this decoder did not understand (handed to Python too).
@@ -136,7 +143,7 @@ pub struct ReceiverCounters {
 
 impl ReceiverCounters {
     /// (name, value) of every counter, named as the fields.
-    pub fn pairs(&self) -> [(&'static str, u64); 14] {
+    pub fn pairs(&self) -> [(&'static str, u64); 15] {
         [
             ("received", self.received),
             ("applied", self.applied),
@@ -144,6 +151,7 @@ impl ReceiverCounters {
             ("overflowed", self.overflowed),
             ("refused", self.refused),
             ("refused_lease", self.refused_lease),
+            ("throttled", self.throttled),
             ("refusals_unanswered", self.refusals_unanswered),
             ("undecodable", self.undecodable),
             ("rcl_errors", self.rcl_errors),
@@ -164,6 +172,7 @@ struct Counters {
     overflowed: AtomicU64,
     refused: AtomicU64,
     refused_lease: AtomicU64,
+    throttled: AtomicU64,
     refusals_unanswered: AtomicU64,
     undecodable: AtomicU64,
     rcl_errors: AtomicU64,
@@ -299,6 +308,7 @@ impl CommandReceiver {
             overflowed: get(&c.overflowed),
             refused: get(&c.refused),
             refused_lease: get(&c.refused_lease),
+            throttled: get(&c.throttled),
             refusals_unanswered: get(&c.refusals_unanswered),
             undecodable: get(&c.undecodable),
             rcl_errors: get(&c.rcl_errors),
@@ -720,6 +730,25 @@ impl Worker {
     /// Queue the request for Python behind its publisher's earlier ones, or refuse it when
     /// the queue or the publisher's share of it is full.
     fn defer(&self, data: &[u8], publisher: &Gid, request_id: u32, scratch: &mut Scratch) {
+        // First the publisher's rate (no lock taken: a flood refused here never contends with
+        // the Python thread for the queue).
+        if !scratch.deferrals.spend(publisher, now_ns()) {
+            self.shared
+                .counters
+                .throttled
+                .fetch_add(1, Ordering::Relaxed);
+            scratch.why.clear();
+            if self.message == MessageKind::WriteVariable {
+                scratch.why.push_str("refused: ");
+            }
+            let _ = write!(
+                scratch.why,
+                "more than {DEFERRALS_PER_S} requests per second of this publisher need the \
+                 node's Python checks"
+            );
+            self.refuse(publisher, request_id, scratch);
+            return;
+        }
         let mut queue = lock(&self.shared.queue);
         let full = if queue.total >= DEFERRED_LIMIT {
             Some("the node's queue of requests for Python is full")
@@ -781,26 +810,32 @@ struct Scratch {
     setpoints: Vec<Setpoint>,
     /// Refusal answers left per publisher.
     budgets: AnswerBudgets,
+    /// Requests for Python left per publisher.
+    deferrals: DeferralBudgets,
     /// The joint names of the message being handled borrow from it; between messages the
     /// (empty) vector is kept with a 'static element type so its allocation is reused.
     names: Vec<&'static str>,
 }
 
-/// Per publisher, a token bucket of refusal answers (`REFUSAL_ANSWERS_PER_S`), for the
-/// `ANSWER_BUDGETS` publishers refused most recently; fixed size, never allocates after the first
-/// use.
+/// Per publisher, a token bucket of `PER_S` per second (a burst of `PER_S`), for the
+/// `ANSWER_BUDGETS` publishers seen most recently; at most that many slots.
 #[derive(Default)]
-struct AnswerBudgets {
+struct Budgets<const PER_S: u64> {
     /// (publisher, tokens × 1e9 — token-nanoseconds, so refilling needs no division —, last
     /// refill ns)
     slots: Vec<(Gid, u64, i64)>,
 }
 
-impl AnswerBudgets {
-    const FULL: u64 = REFUSAL_ANSWERS_PER_S as u64 * 1_000_000_000;
+/// Refusal answers (`REFUSAL_ANSWERS_PER_S`).
+type AnswerBudgets = Budgets<{ REFUSAL_ANSWERS_PER_S as u64 }>;
+/// Requests handed to Python (`DEFERRALS_PER_S`).
+type DeferralBudgets = Budgets<{ DEFERRALS_PER_S as u64 }>;
+
+impl<const PER_S: u64> Budgets<PER_S> {
+    const FULL: u64 = PER_S * 1_000_000_000;
     const ONE: u64 = 1_000_000_000;
 
-    /// Take one answer from `publisher`'s budget: false when it is spent.
+    /// Take one token from `publisher`'s budget: false when it is spent.
     fn spend(&mut self, publisher: &Gid, now: i64) -> bool {
         let k = match self.slots.iter().position(|(g, _, _)| g == publisher) {
             Some(k) => k,
@@ -820,7 +855,7 @@ impl AnswerBudgets {
         let (_, tokens, last) = &mut self.slots[k];
         let elapsed = (now - *last).max(0) as u64;
         *tokens = tokens
-            .saturating_add(elapsed.saturating_mul(REFUSAL_ANSWERS_PER_S as u64))
+            .saturating_add(elapsed.saturating_mul(PER_S))
             .min(Self::FULL);
         *last = now;
         if *tokens >= Self::ONE {
@@ -938,6 +973,20 @@ mod tests {
             b.spend(&gid(n), 10);
         }
         assert!(b.slots.len() <= ANSWER_BUDGETS);
+    }
+
+    #[test]
+    fn requests_for_python_are_budgeted_per_publisher() {
+        let mut b = DeferralBudgets::default();
+        let burst = DEFERRALS_PER_S as usize;
+        let taken = (0..10_000).filter(|_| b.spend(&gid(1), 0)).count();
+        assert_eq!(taken, burst, "a flood gets its burst, then nothing");
+        assert!(b.spend(&gid(2), 0), "another publisher has its own budget");
+        // A second later the flooding publisher has its rate again.
+        let later = (0..10_000)
+            .filter(|_| b.spend(&gid(1), 1_000_000_000))
+            .count();
+        assert_eq!(later, burst);
     }
 
     #[test]

@@ -658,6 +658,7 @@ class EtherRosNode(LifecycleNode):
                 ros_numbers["commands_refused_queue_full"] = commands["overflowed"]
                 ros_numbers["commands_refused"] = commands["refused"]
                 ros_numbers["commands_refused_lease"] = commands["refused_lease"]
+                ros_numbers["commands_refused_throttled"] = commands["throttled"]
                 ros_numbers["commands_rcl_errors"] = commands["rcl_errors"]
                 if commands["delivery_count"]:
                     ros_numbers["command_delivery_mean_ns"] = (
@@ -670,6 +671,7 @@ class EtherRosNode(LifecycleNode):
                 ros_numbers["joint_commands_deferred"] = joint_commands["deferred"]
                 ros_numbers["joint_commands_refused"] = joint_commands["refused"]
                 ros_numbers["joint_commands_refused_lease"] = joint_commands["refused_lease"]
+                ros_numbers["joint_commands_refused_throttled"] = joint_commands["throttled"]
         supervisor = getattr(bus, "supervisor", None)
         problems = supervisor.branch_problems() if supervisor is not None else []
         groups: list[Any] = []
