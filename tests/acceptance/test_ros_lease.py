@@ -94,10 +94,12 @@ def actor(rig: RosRig, request: pytest.FixtureRequest) -> Iterator[Actor]:
     a.close()
 
 
-def on_wire(rig: RosRig, variable: str, value: float, slave: str = LEG) -> None:
+def on_wire(
+    rig: RosRig, variable: str, value: float, slave: str = LEG, timeout: float = 15.0
+) -> None:
     """Wait until ``pdo_out`` (the outputs as they went on the wire) shows the value."""
     rig.client.wait_for(
-        lambda latest: latest.outputs.get(slave, {}).get(variable) == value, timeout=15.0
+        lambda latest: latest.outputs.get(slave, {}).get(variable) == value, timeout=timeout
     )
 
 
