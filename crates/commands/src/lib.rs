@@ -31,7 +31,7 @@ pub mod table;
 
 pub use cdr::{
     check_joint_trajectory, decode_joint_state, decode_write_variable, encode_write_result,
-    CdrError, JointCommand, WriteRequest,
+    write_variable_request_id, CdrError, JointCommand, WriteRequest,
 };
 pub use joints::{JointEntry, JointTable, Setpoint};
 pub use lease::{Gid, LeaseGate, LeaseState, Verdict};

@@ -38,7 +38,9 @@ use std::time::Duration;
 
 use ether_ros_engine::{now_ns, Engine};
 
-use crate::cdr::{decode_joint_state, decode_write_variable, encode_write_result};
+use crate::cdr::{
+    decode_joint_state, decode_write_variable, encode_write_result, write_variable_request_id,
+};
 use crate::joints::{JointTable, Setpoint};
 use crate::lease::{refusal_text, Gid, LeaseGate, Verdict};
 use crate::rcl::{publish_serialized, Rcl, SubscriptionWaiter};
@@ -680,12 +682,12 @@ impl Worker {
             Err(e) => {
                 self.failed(&c.undecodable, format!("decoding a WriteVariable: {e}"));
                 c.refused.fetch_add(1, Ordering::Relaxed);
+                // The decoder's words and the request's id, as Python answers a message it
+                // refuses before reading it (native_commands.checked_message).
                 scratch.why.clear();
-                let _ = write!(
-                    scratch.why,
-                    "refused: not an ether_ros_msgs/WriteVariable: {e}"
-                );
-                return self.refuse(publisher, 0, scratch);
+                let _ = write!(scratch.why, "pdo_listener refused: {e}");
+                let request_id = write_variable_request_id(data).unwrap_or(0);
+                return self.refuse(publisher, request_id, scratch);
             }
         };
         if !self.may_command(publisher, request.request_id, scratch) {
