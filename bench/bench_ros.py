@@ -238,7 +238,8 @@ class WireSniffer:
         self.min_read_delay_ns: int | None = None
         # The master's socket bypasses the qdisc (and with it the taps on its own end), so the
         # frames are taken where they arrive: the simulator's end of the pair.
-        self._sock = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, socket.htons(ETH_P_ALL))
+        # Protocol 0 until bound: nothing from other interfaces is queued before bind().
+        self._sock = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, 0)
         self._sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
         self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
         self._sock.bind((interface, ETH_P_ALL))

@@ -10,7 +10,7 @@ PYTHON=${PYTHON:-$(command -v python3.11 || command -v python3)}
 VENV=.venv
 STAMPS=$VENV/.stamps
 
-APT_PACKAGES=(iproute2 rt-tests tshark cmake tmux ethtool procps kmod strace util-linux)
+APT_PACKAGES=(iproute2 rt-tests tshark cmake tmux ethtool procps kmod strace util-linux graphviz)
 
 log() { printf '[bootstrap] %s\n' "$*"; }
 

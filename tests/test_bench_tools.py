@@ -73,7 +73,8 @@ def _lrw_frame(index: int, data: bytes) -> bytes:
 
 def test_c_echo_bumps_the_working_counter_and_marks_the_source(veth_ns: VethPair) -> None:
     with echo_responder(veth_ns.slave, netns=veth_ns.netns):
-        s = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, socket.htons(0x88A4))
+        # Protocol 0 until bound: nothing from other interfaces is queued before bind().
+        s = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, 0)
         s.bind((veth_ns.master, 0x88A4))
         s.settimeout(2.0)
         sent = _lrw_frame(0x5A, bytes(range(20)))

@@ -176,4 +176,5 @@ def test_branched_bus_to_op_and_its_delays(probe: Path) -> None:
     result, cfg = _run_config(probe, REPO / "config" / "branched.yaml", *_dc_args(cfg))
     delays = [s["propagation_delay"] for s in result["slaves"]]
     print(f"\nbranched bus delays (ns), ethercrab: {delays}")
-    assert all(abs(d - e) <= 5 for d, e in zip(delays[:6], BRANCHED_DELAYS[:6], strict=True))
+    # Within two steps of the ESCs' 10 ns clock (their time stamps have that jitter).
+    assert all(abs(d - e) <= 20 for d, e in zip(delays[:6], BRANCHED_DELAYS[:6], strict=True))

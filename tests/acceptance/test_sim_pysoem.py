@@ -371,7 +371,8 @@ def test_branched_bus_delays_agree_with_soem(veth_ns: VethPair) -> None:
     ours = tree_delays(tree, times)
     print(f"\nbranched bus delays (ns): SOEM {soem}, ether_ros {[ours[k] for k in range(7)]}")
     assert [ours[k] for k in range(7)] == soem, (ours, soem)
-    assert all(abs(d - want) <= 5 for d, want in zip(soem, BRANCHED_DELAYS, strict=True)), soem
+    # Within two steps of the ESCs' 10 ns clock (their time stamps have that jitter).
+    assert all(abs(d - want) <= 20 for d, want in zip(soem, BRANCHED_DELAYS, strict=True)), soem
 
 
 def _raw(slave: Any, address: int, size: int) -> bytes:

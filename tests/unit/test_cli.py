@@ -78,7 +78,9 @@ def test_hostile_configs_end_ether_ros_run_with_one_line_not_a_traceback(tmp_pat
         config = tmp_path / f"bus{n}.yaml"
         config.write_text(yaml.safe_dump({**base, "ros": {**base["ros"], **ros}}))
         out = subprocess.run(
-            [sys.executable, "-m", "ether_ros.cli.main", "run", str(config), *extra],
+            # An interface that does not exist: the config and the node name fail before it.
+            [sys.executable, "-m", "ether_ros.cli.main", "run", str(config), "-i", "nosuchif0",
+             *extra],
             capture_output=True, text=True, timeout=120,
         )  # fmt: skip
         assert out.returncode == 2, (field, out.stdout, out.stderr)

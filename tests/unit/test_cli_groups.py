@@ -12,7 +12,7 @@ def test_slaves_line_names_the_group_and_lrw_support() -> None:
         "position": 3, "station": 0x1004, "state": "OP", "error": False, "vendor_id": 0xA12,
         "product_code": 0x20002, "name": "ServoDrive2", "configured_name": "drive_00",
         "group": "fast", "alias": 0, "revision": 1, "serial": 2, "esc_type": 0x11, "dc": True,
-        "lrw": False, "al_code": 0,
+        "lrw": False, "al_status_code": 0,
         "mailbox": {"rx": [0x1000, 128], "tx": [0x1080, 128], "protocols": 4},
         "rx_pdos": [], "tx_pdos": [],
     }  # fmt: skip

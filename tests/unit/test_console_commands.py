@@ -200,3 +200,14 @@ def test_without_a_layout_writes_are_refused_but_control_works() -> None:
     assert parse_command("start", ctx) == Control("start")
     with pytest.raises(CommandError, match="layout is not known"):
         parse_command("set all b_ellipse100=4", ctx)
+
+
+def test_a_fresh_leg_is_told_to_set_the_centre_first(laelaps: BusSpec) -> None:
+    """On a freshly started node every trajectory variable is 0: the centre sits at the hip,
+    and the refusal says what to set (the docs' examples set y_cntr_traj1000 first)."""
+    fresh = {s.name: {**STANDING, "y_cntr_traj1000": 0.0} for s in laelaps.slaves}
+    with pytest.raises(CommandError, match=r"set the centre first, e.g. y_cntr_traj1000=599"):
+        parse_command("set all b_ellipse100=4", ConsoleContext(laelaps, fresh))
+    assert parse_command(
+        "set all y_cntr_traj1000=599 b_ellipse100=4", ConsoleContext(laelaps, fresh)
+    )

@@ -10,6 +10,7 @@ import pytest
 
 from ether_ros.config import ProcessLayout, load_esi
 from ether_ros.config import types as dt
+from ether_ros.config.esi import load_esi_file
 from ether_ros.errors import ConfigError
 
 REPO = Path(__file__).resolve().parents[2]
@@ -184,21 +185,29 @@ def _line_of(text: str, needle: str) -> int:
     return text[: text.index(needle)].count("\n") + 1
 
 
-BAD_ESI = [
+# A fault of the file itself: one-line error naming file, line and element.
+BAD_FILES = [
     ("<Id>#x00000002</Id>", "<Id>#xZZ</Id>", r"<Id>: not a number: '#xZZ'", "<Id>"),
-    ('ProductCode="#x00010001" ', "", r"<Type>: missing attribute ProductCode", "<Type"),
-    (">Inputs</Sm>", ">Sideways</Sm>", r"<Sm>: unknown SyncManager role: 'Sideways'", "<Sm "),
-    ("<DataType>UDINT</DataType></Entry>", "<DataType>UDINTX</DataType></Entry>", r"<DataType>: unknown data type: 'UDINTX'", "UDINT</DataType></Entry>"),
-    ("<BitLen>32</BitLen><Name>Counter", "<BitLen>16</BitLen><Name>Counter", r"<Entry>: BitLen 16 does not match data type UDINT", "<BitLen>32</BitLen><Name>Counter"),
-    ("<DefaultData>0016", "<DefaultData>0Q16", r"<DefaultData>: DefaultData is not hex bytes: '0Q16'", "<DefaultData>0016"),
-    ("<Type>UDINT</Type><BitSize>32", "<Type>DT9999</Type><BitSize>32", r"<Type>: unknown data type: 'DT9999'", "<Type>UDINT</Type><BitSize>32"),
-    ('<TxPdo Sm="0">', '<TxPdo Sm="5">', r"<TxPdo>: PDO names a SyncManager the device does not have: 5", "<TxPdo"),
     ("</Devices>", "</Device>", r"not well-formed XML", None),
 ]  # fmt: skip
 
+# A fault of one element: that element (or its device) is disabled with one warning line
+# naming file, line and element; the rest of the file loads.
+BAD_ELEMENTS = [
+    ("<DataType>UDINT</DataType></Entry>", "<DataType>UDINTX</DataType></Entry>", r"<DataType>: unknown data type: 'UDINTX' \(PDO #x1A00 skipped\)", "UDINT</DataType></Entry>"),
+    ("<BitLen>32</BitLen><Name>Counter", "<BitLen>16</BitLen><Name>Counter", r"<Entry>: BitLen 16 does not match data type UDINT: 16 \(PDO #x1A00 skipped\)", "<BitLen>32</BitLen><Name>Counter"),
+    ("<DefaultData>0016", "<DefaultData>0Q16", r"<DefaultData>: DefaultData is not hex bytes: '0Q16' \(default value skipped\)", "<DefaultData>0016"),
+    ("<Type>UDINT</Type><BitSize>32", "<Type>DT9999</Type><BitSize>32", r"<Type>: unknown data type: 'DT9999' \(object #x6000 skipped\)", "<Type>UDINT</Type><BitSize>32"),
+    ('<TxPdo Sm="0">', '<TxPdo Sm="5">', r"<TxPdo>: PDO names a SyncManager the device does not have: 5 \(PDO #x1A00 skipped\)", "<TxPdo"),
+    ("<DefaultValue>1000", "<DefaultValue>1_000", r"<DefaultValue>: DefaultValue is not a number \(default 0 used\): '1_000'", "<DefaultValue>1000"),
+    ("<DefaultValue>1000", "<DefaultValue>-5", r"<DefaultValue>: -5 is out of range for uint32 .* \(default 0 used\)", "<DefaultValue>1000"),
+    ('<TxPdo Sm="0"><Index>#x1A00', '<TxPdo Sm="0"><Index>#x11A00', r"<Index>: out of range \(0..65535\): '#x11A00' \(PDO #x11A00 skipped\)", '<TxPdo Sm="0">'),
+    ('RevisionNo="2"', 'RevisionNo="x2"', r"<Type>: attribute RevisionNo is not a number: 'x2' \(device Dev at line \d+ skipped\)", "<Type Product"),
+]  # fmt: skip
 
-@pytest.mark.parametrize(("old", "new", "pattern", "at"), BAD_ESI)
-def test_bad_esi_names_file_line_element_value(
+
+@pytest.mark.parametrize(("old", "new", "pattern", "at"), BAD_FILES)
+def test_a_broken_file_is_one_line_naming_file_line_element_value(
     tmp_path: Path, old: str, new: str, pattern: str, at: str | None
 ) -> None:
     assert old in MINIMAL
@@ -208,11 +217,81 @@ def test_bad_esi_names_file_line_element_value(
     with pytest.raises(ConfigError) as info:
         load_esi(p)
     msg = str(info.value)
-    assert msg.startswith(f"{p}:"), msg
+    assert msg.startswith(f"{p}:") and "\n" not in msg, msg
     assert re.search(pattern, msg), msg
     if at is not None:
         line = _line_of(MINIMAL, at)
         assert msg.startswith(f"{p}:{line}:"), msg
+
+
+@pytest.mark.parametrize(("old", "new", "pattern", "at"), BAD_ELEMENTS)
+def test_a_broken_element_is_disabled_with_one_warning_line(
+    tmp_path: Path, old: str, new: str, pattern: str, at: str
+) -> None:
+    assert old in MINIMAL
+    text = MINIMAL.replace(old, new, 1)
+    p = tmp_path / "bad.xml"
+    p.write_text(text)
+    esi = load_esi_file(p)
+    line = _line_of(MINIMAL, at)
+    lines = [str(w) for w in esi.warnings]
+    assert any(w.startswith(f"{p}:{line}:") and re.search(pattern, w) for w in lines), lines
+    assert all("\n" not in w for w in lines)
+
+
+def test_vendor_constructs_load(tmp_path: Path) -> None:
+    """What ETG.2000 allows loads: a vendor's SyncManager name (the direction is in the
+    ControlByte), a device without ProductCode (a passive terminal), a bit pattern as the
+    default of a signed object, a C-style type alias, a Virtual PDO reusing an index, an array
+    with LBound 0 used as an object."""
+    text = (
+        MINIMAL.replace(">Inputs</Sm>", ">DynamicInputs</Sm>", 1)
+        .replace("<DefaultValue>1000</DefaultValue>", "<DefaultValue>#x80000000</DefaultValue>", 1)
+        .replace("<Type>UDINT</Type><BitSize>32", "<Type>DINT</Type><BitSize>32", 1)
+        .replace("<DataType>UDINT</DataType></Entry>", "<DataType>UINT32</DataType></Entry>", 1)
+        .replace(
+            "</TxPdo>",
+            '</TxPdo><TxPdo Virtual="true"><Index>#x1A00</Index><Name>V</Name>'
+            "<Entry><Index>#x1D09</Index><SubIndex>#x10</SubIndex><BitLen>8</BitLen>"
+            "<Name>Reg</Name><DataType>USINT</DataType></Entry></TxPdo>",
+            1,
+        )
+        .replace(
+            "</Devices>",
+            "<Device><Type>EndCap</Type><Name>End cap</Name></Device></Devices>",
+            1,
+        )
+        .replace(
+            "<DataTypes>",
+            "<DataTypes><DataType><Name>ARR0</Name><BaseType>USINT</BaseType><BitSize>16</BitSize>"
+            "<ArrayInfo><LBound>0</LBound><Elements>2</Elements></ArrayInfo></DataType>",
+            1,
+        )
+        .replace(
+            "<Objects>",
+            "<Objects><Object><Index>#x2000</Index><Name>Bytes</Name><Type>ARR0</Type>"
+            "<BitSize>16</BitSize></Object>",
+            1,
+        )
+    )
+    p = tmp_path / "vendor.xml"
+    p.write_text(text)
+    esi = load_esi_file(p)
+    assert esi.warnings == ()
+    dev, cap = esi.devices
+    assert dev.sync_managers[0].role == "Inputs" and dev.sync_managers[0].label == "DynamicInputs"
+    counter = dev.od_entry(0x6000, 0)
+    assert counter is not None and counter.default == b"\x00\x00\x00\x80"
+    assert [p.virtual for p in dev.tx_pdos] == [False, True]
+    pdo = dev.pdo(0x1A00)
+    assert pdo is not None and not pdo.virtual and pdo.entries[0].data_type == dt.UINT32.code
+    arr = dev.od_object(0x2000)
+    assert arr is not None and [(e.subindex, e.bit_length) for e in arr.entries] == [
+        (0, 8),
+        (1, 8),
+        (2, 8),
+    ]
+    assert cap.passive and cap.type_name == "EndCap" and cap.product_code == 0
 
 
 def test_missing_esi_file_and_wrong_root(tmp_path: Path) -> None:
@@ -242,3 +321,35 @@ def test_profile_numbers_and_state_machine_timeouts(tmp_path: Path) -> None:
     assert dev.profile_numbers == (402, 402)
     assert (dev.timeouts.preop_ms, dev.timeouts.safeop_op_ms) == (2000, 9000)
     assert dev.timeouts.back_to_safeop_ms == 200
+
+
+def test_oversampling_vendor_categories_and_array_elements_are_honoured(tmp_path: Path) -> None:
+    """Issue 17: ``OSFac`` and ``<Eeprom><Category>`` were ignored without a word, and array
+    elements took the array's size (IS620N's 0x1C12:01 became 32 bits)."""
+    from ether_ros.config.sii import build_sii, parse_sii
+
+    text = MINIMAL.replace('<TxPdo Sm="0">', '<TxPdo Sm="0" OSFac="4">', 1).replace(
+        "</TxPdo>",
+        "</TxPdo><Eeprom><ByteSize>2048</ByteSize><ConfigData>080C</ConfigData>"
+        "<Category><CatNo>2000</CatNo><Data>A1B2C3D4</Data></Category></Eeprom>",
+        1,
+    )
+    p = tmp_path / "osfac.xml"
+    p.write_text(text)
+    esi = load_esi_file(p)
+    (dev,) = esi.devices
+    # Oversampling is run at factor 1, and the listing says so (one line naming the PDO).
+    assert dev.pdo(0x1A00) is not None and dev.pdo(0x1A00).os_factor == 4  # type: ignore[union-attr]
+    assert [n.message for n in esi.notes if "OSFac" in n.message] == [
+        "oversampling (OSFac) of 0x1a00: exchanged at factor 1 (one sample per cycle)"
+    ]
+    # A vendor category goes into the SII as the vendor's tool writes it.
+    assert dev.eeprom.categories == ((2000, bytes.fromhex("A1B2C3D4")),)
+    image = build_sii(dev)
+    assert 2000 in parse_sii(image).categories
+    at = image.index(bytes.fromhex("D007") + (2).to_bytes(2, "little") + bytes.fromhex("A1B2C3D4"))
+    assert at >= 0x80 and at % 2 == 0
+    # An array of UINT has UINT elements, whatever the array's total BitSize.
+    assign = dev.od_object(0x1C12)
+    assert assign is not None
+    assert [(e.subindex, e.bit_length) for e in assign.entries] == [(0, 8), (1, 16), (2, 16)]

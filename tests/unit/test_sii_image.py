@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import struct
 from pathlib import Path
 
@@ -111,8 +112,67 @@ def test_bad_alias_and_too_small_eeprom(tmp_path: Path) -> None:
     text = (REPO / "devices" / "laelaps_ii_leg.xml").read_text()
     small.write_text(text.replace("<ByteSize>2048</ByteSize>", "<ByteSize>256</ByteSize>"))
     (tiny,) = load_esi(small)
-    with pytest.raises(ConfigError, match=r"needs \d+ bytes but the EEPROM has 256"):
-        build_sii(tiny)
+    # The content needs more than the ESI's 256 bytes even without what a CoE device's
+    # vendor tool leaves out (the PDO categories: masters read the PDOs over CoE): the EEPROM
+    # grows (a power of two).
+    image = build_sii(tiny)
+    assert len(image) == 512
+    info = parse_sii(image)
+    assert info.eeprom_bytes == 512 and info.general is not None
+    assert len(info.sync_managers) == 4 and not info.tx_pdos and not info.rx_pdos
+
+
+def _fitted(tmp_path: Path, size: int) -> tuple[object, object]:
+    text = (REPO / "devices" / "laelaps_ii_leg.xml").read_text()
+    p = tmp_path / f"fit{size}.xml"
+    p.write_text(text.replace("<ByteSize>2048</ByteSize>", f"<ByteSize>{size}</ByteSize>"))
+    (dev,) = load_esi(p)
+    return dev, parse_sii(build_sii(dev))
+
+
+def test_the_sii_fits_the_esi_eeprom_as_the_vendor_tool_makes_it(tmp_path: Path) -> None:
+    """An ESI's EEPROM too small for every PDO with its names holds less, in this order: the
+    default-assigned PDOs only, then without entry names, then (CoE) no PDO categories."""
+    dev, full = _fitted(tmp_path, 2048)
+    assert len(full.tx_pdos) == len(dev.tx_pdos)  # type: ignore[attr-defined]
+    sizes = [512, 1024]
+    for size in sizes:
+        _, info = _fitted(tmp_path, size)
+        assert info.eeprom_bytes == size  # type: ignore[attr-defined]
+        assert info.general is not None and info.sync_managers  # type: ignore[attr-defined]
+
+
+def test_sync_managers_within_the_4k_soem_reads(tmp_path: Path) -> None:
+    """SOEM reads the first 4 KiB of an EEPROM: when the strings would push General and
+    SyncM past them (an ESI with a big EEPROM and long names), those go first."""
+    text = (REPO / "devices" / "generic_io.xml").read_text()
+    # Names of 250 characters for the entries of the first PDOs (the category holds 255).
+    text = re.sub(
+        r"<Name>(Digital|Analog)(Output|Input)(\d)</Name>",
+        lambda m: f"<Name>{m.group(0)[6:-7] + 'x' * 240}</Name>",
+        text,
+    )
+    p = tmp_path / "long.xml"
+    p.write_text(text.replace("<ByteSize>2048</ByteSize>", "<ByteSize>16384</ByteSize>"))
+    (dev,) = load_esi(p)
+    info = parse_sii(build_sii(dev))
+    order = list(info.categories)
+    assert order.index(0x29) < order.index(0x0A), order  # SyncM before the strings
+    image = build_sii(dev)
+    assert image.index(bytes([0x29, 0x00])) < 4096
+
+
+def test_strings_are_ascii_every_master_decodes(tmp_path: Path) -> None:
+    """pysoem decodes SII strings as UTF-8 and fails on a Latin-1 "µ": the SII holds ASCII."""
+    text = (REPO / "devices" / "generic_io.xml").read_text()
+    p = tmp_path / "micro.xml"
+    p.write_text(
+        text.replace('<Name LcId="1033">GenericIO', '<Name LcId="1033">Générique 8 µs ±10 V', 1)
+    )
+    (dev,) = load_esi(p)
+    info = parse_sii(build_sii(dev))
+    assert info.general is not None and info.general.name.startswith("Generique 8 us +/-10 V")
+    assert all(s.isascii() for s in info.strings)
 
 
 def test_device_name_is_string_one() -> None:

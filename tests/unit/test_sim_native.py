@@ -234,9 +234,11 @@ def test_delayed_answers_keep_their_order_over_veth(veth: VethPair) -> None:
     net = SimNetwork()
     net.add_slave(spec())
     net.run_on_interface(veth.slave)
-    sock = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, socket.htons(0x88A4))
+    # Protocol 0 until bound: opened with the EtherType, the socket would queue EtherCAT frames
+    # of every interface (other tests' buses on a busy host) until bind() narrows it.
+    sock = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, 0)
     try:
-        sock.bind((veth.master, 0))
+        sock.bind((veth.master, 0x88A4))
         sock.settimeout(2.0)
         net.fault("delay", us=3000)
         sent = time.monotonic()

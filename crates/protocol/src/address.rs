@@ -19,6 +19,14 @@
 //! digits around it) is no address: where a name is allowed too (process variables, ESI object
 //! names), it is looked up as a name. Text with the shape but out of range is an error that
 //! says so. The canonical form, used for keys and messages, is `0x7000:01` (`format`).
+//!
+//! A process-data entry that one slave maps more than once (EtherBerry maps 0x0005:01 in an
+//! RxPDO and in a TxPDO) is named with the PDO in front:
+//!
+//! ```text
+//! pdo_address = pdo "/" address         (0x1600/0x0005:01)
+//! pdo         = ["0x" | "0X"] hexdigit+ value 0x0000..=0xFFFF
+//! ```
 
 /// Why text that looks like an address is not a valid one.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -81,6 +89,28 @@ pub fn parse(text: &str) -> Result<(u16, u8), AddressError> {
     Ok((index, subindex))
 }
 
+/// Parse an address with an optional PDO in front (`0x1600/0x0005:01`): `(pdo, index,
+/// subindex)`, the PDO `None` when there is none.
+pub fn parse_in_pdo(text: &str) -> Result<(Option<u16>, u16, u8), AddressError> {
+    let text = text.trim();
+    let Some((pdo, address)) = text.split_once('/') else {
+        let (index, subindex) = parse(text)?;
+        return Ok((None, index, subindex));
+    };
+    let pdo = hex_part(pdo).ok_or(AddressError::NotAnAddress)?;
+    if address.starts_with(char::is_whitespace) {
+        return Err(AddressError::NotAnAddress);
+    }
+    let (index, subindex) = parse(address)?;
+    let pdo = u16::try_from(pdo).map_err(|_| AddressError::IndexTooLarge)?;
+    Ok((Some(pdo), index, subindex))
+}
+
+/// The canonical form of an address in a PDO: `0x1600/0x0005:01`.
+pub fn format_in_pdo(pdo: u16, index: u16, subindex: u8) -> String {
+    format!("0x{pdo:04x}/{}", format(index, subindex))
+}
+
 /// Write an address in the canonical form `0x7000:01` into `out` (no allocation).
 pub fn write(index: u16, subindex: u8, out: &mut impl core::fmt::Write) -> core::fmt::Result {
     write!(out, "0x{index:04x}:{subindex:02x}")
@@ -135,6 +165,17 @@ mod tests {
         assert_eq!(parse("17000:3"), Err(AddressError::IndexTooLarge));
         assert_eq!(parse("7000:103"), Err(AddressError::SubindexTooLarge));
         assert_eq!(parse("ffffffffffff:1"), Err(AddressError::IndexTooLarge));
+    }
+
+    #[test]
+    fn an_address_in_a_pdo() {
+        assert_eq!(parse_in_pdo("0x1600/0x0005:01"), Ok((Some(0x1600), 5, 1)));
+        assert_eq!(parse_in_pdo("1a00/5:1"), Ok((Some(0x1a00), 5, 1)));
+        assert_eq!(parse_in_pdo("0x7000:01"), Ok((None, 0x7000, 1)));
+        assert_eq!(parse_in_pdo("x/5:1"), Err(AddressError::NotAnAddress));
+        assert_eq!(parse_in_pdo("1600/ 5:1"), Err(AddressError::NotAnAddress));
+        assert_eq!(parse_in_pdo("10000/5:1"), Err(AddressError::IndexTooLarge));
+        assert_eq!(format_in_pdo(0x1a00, 5, 1), "0x1a00/0x0005:01");
     }
 
     #[test]

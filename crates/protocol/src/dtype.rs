@@ -211,6 +211,17 @@ const ESI_NAMES: &[(&str, u16)] = &[
     ("BITARR8", BITARR8),
     ("BITARR16", BITARR16),
     ("BITARR32", BITARR32),
+    // C-style widths vendors write (SMC's EX250 types its entries UINT8).
+    ("UINT8", UINT8),
+    ("UINT16", UINT16),
+    ("UINT32", UINT32),
+    ("UINT64", UINT64),
+    ("INT8", INT8),
+    ("INT16", INT16),
+    ("INT32", INT32),
+    ("INT64", INT64),
+    ("FLOAT32", REAL32),
+    ("FLOAT64", REAL64),
 ];
 
 /// The ESI name a type is usually written with (`UINT` for uint16), for messages and listings.

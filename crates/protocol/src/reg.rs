@@ -107,6 +107,8 @@ crate::named_constants! {
     pub const DC_SYSTEM_TIME_DIFF: u16 = 0x092C;
     /// DC: speed counter start (u16).
     pub const DC_SPEED_COUNTER_START: u16 = 0x0930;
+    /// DC: speed counter difference (u16); a write to 0x0930 resets it.
+    pub const DC_SPEED_COUNTER_DIFF: u16 = 0x0932;
     /// DC: time difference filter depth (u8).
     pub const DC_FILTER_DEPTH: u16 = 0x0934;
     /// DC: cyclic unit control (u8).
@@ -121,8 +123,24 @@ crate::named_constants! {
     pub const DC_SYNC0_CYCLE: u16 = 0x09A0;
     /// DC: SYNC1 cycle time (u32, ns).
     pub const DC_SYNC1_CYCLE: u16 = 0x09A4;
+    /// Digital I/O output data (4 bytes, ET1100/ET1200 with digital I/O PDI); a SyncManager
+    /// may guard it (outputs then count for the process-data watchdog).
+    pub const DIGITAL_OUTPUTS: u16 = 0x0F00;
+    /// Bytes of digital I/O output data.
+    pub const DIGITAL_OUTPUTS_LEN: u16 = 4;
     /// Start of process-data RAM; below it are the registers.
     pub const PDRAM: u16 = 0x1000;
+}
+
+/// ESC configuration (0x0141, loaded from the EEPROM).
+pub mod esc_config {
+    crate::named_constants! {
+        /// Every bit, by name.
+        pub const TABLE;
+        /// Bit 0: device emulation: the ESC copies AL control to AL status (a slave without
+        /// application processor, e.g. a digital I/O terminal).
+        pub const DEVICE_EMULATION: u8 = 0x01;
+    }
 }
 
 /// Address of register `offset` (`sm::STATUS`, ...) of SyncManager `n`.

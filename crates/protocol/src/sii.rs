@@ -139,6 +139,33 @@ pub mod category {
     }
 }
 
+/// The SyncM category (ETG.2010): one 8-byte record per SyncManager — start (u16), length
+/// (u16), control (u8), status (u8), enable (u8), type (u8).
+pub mod syncm {
+    crate::named_constants! {
+        /// Every type and enable bit, by name.
+        pub const TABLE;
+        /// Type: unused or unknown.
+        pub const TYPE_UNUSED: u8 = 0;
+        /// Type: mailbox out (master to slave).
+        pub const TYPE_MBOX_OUT: u8 = 1;
+        /// Type: mailbox in (slave to master).
+        pub const TYPE_MBOX_IN: u8 = 2;
+        /// Type: process data outputs.
+        pub const TYPE_OUTPUTS: u8 = 3;
+        /// Type: process data inputs.
+        pub const TYPE_INPUTS: u8 = 4;
+        /// Enable bit 0: the SyncManager is enabled.
+        pub const ENABLE: u8 = 0x01;
+        /// Enable bit 1: fixed content (information for a configuration tool).
+        pub const FIXED_CONTENT: u8 = 0x02;
+        /// Enable bit 2: virtual SyncManager, no hardware resource (an FMMU maps its memory).
+        pub const VIRTUAL: u8 = 0x04;
+        /// Enable bit 3: enabled only in OP.
+        pub const OP_ONLY: u8 = 0x08;
+    }
+}
+
 /// CRC-8 of the SII configuration area (words 0..=6): polynomial x⁸+x²+x+1 (0x07), initial
 /// value 0xFF, no reflection, no final XOR. The result goes into the low byte of word 7.
 pub const fn checksum(bytes: &[u8]) -> u8 {

@@ -156,6 +156,24 @@ fn format_address(index: u16, subindex: u8) -> String {
     p::address::format(index, subindex)
 }
 
+/// Parse an object address with an optional PDO in front (`0x1600/0x0005:01`): `(pdo or None,
+/// index, subindex)`, or None when the text is not of that shape; `ValueError` when out of
+/// range.
+#[pyfunction]
+fn parse_pdo_address(text: &str) -> PyResult<Option<(Option<u16>, u16, u8)>> {
+    match p::address::parse_in_pdo(text) {
+        Ok(a) => Ok(Some(a)),
+        Err(p::address::AddressError::NotAnAddress) => Ok(None),
+        Err(e) => Err(PyValueError::new_err(format!("{text:?}: {e}"))),
+    }
+}
+
+/// The canonical form of an address in a PDO: `0x1600/0x0005:01`.
+#[pyfunction]
+fn format_pdo_address(pdo: u16, index: u16, subindex: u8) -> String {
+    p::address::format_in_pdo(pdo, index, subindex)
+}
+
 /// Every basic data type: `(code, name, bit_length, kind)`.
 #[pyfunction]
 fn data_types() -> Vec<(u16, &'static str, u16, &'static str)> {
@@ -394,7 +412,7 @@ pub fn register(parent: &Bound<'_, PyModule>) -> PyResult<()> {
         .iter()
         .map(|c| (c.name(), *c as u64))
         .collect();
-    let namespaces: [(&str, &str, Vec<Table<'_>>); 23] = [
+    let namespaces: [(&str, &str, Vec<Table<'_>>); 25] = [
         ("frame", "Frame and datagram layout.", vec![p::frame::TABLE]),
         ("cmd", "Datagram command codes.", vec![&commands]),
         ("reg", "ESC register addresses.", vec![p::reg::TABLE]),
@@ -421,6 +439,11 @@ pub fn register(parent: &Bound<'_, PyModule>) -> PyResult<()> {
         ),
         ("dc", "Distributed clock bits.", vec![p::reg::dc::TABLE]),
         (
+            "esc_config",
+            "ESC configuration (0x0141) bits.",
+            vec![p::reg::esc_config::TABLE],
+        ),
+        (
             "al",
             "AL states and control/status bits.",
             vec![p::al::TABLE],
@@ -440,6 +463,11 @@ pub fn register(parent: &Bound<'_, PyModule>) -> PyResult<()> {
             "sii_category",
             "SII category types.",
             vec![p::sii::category::TABLE],
+        ),
+        (
+            "sii_syncm",
+            "SII SyncM category: SyncManager types and enable bits.",
+            vec![p::sii::syncm::TABLE],
         ),
         (
             "mailbox",
@@ -515,6 +543,8 @@ pub fn register(parent: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(sii_checksum, &m)?)?;
     m.add_function(wrap_pyfunction!(parse_address, &m)?)?;
     m.add_function(wrap_pyfunction!(format_address, &m)?)?;
+    m.add_function(wrap_pyfunction!(parse_pdo_address, &m)?)?;
+    m.add_function(wrap_pyfunction!(format_pdo_address, &m)?)?;
     m.add_function(wrap_pyfunction!(data_types, &m)?)?;
     m.add_function(wrap_pyfunction!(esi_type, &m)?)?;
     m.add_function(wrap_pyfunction!(config_type, &m)?)?;

@@ -28,6 +28,7 @@
 //! | `lrw` | bool | False: the ESC reports "LRW not supported" (0x0008 bit 9) and ignores LRW datagrams (no data, no working counter); default True |
 //! | `safeop_op_timeout_ms` | int | how long a SAFEOP->OP request waits for valid outputs before it is refused (ESI `<SafeopOpTimeout>`, default 10000) |
 
+use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
@@ -40,9 +41,14 @@ use ether_ros_protocol::{reg, Command};
 use ether_ros_sim::chip::EscChip;
 use ether_ros_sim::esc::Esc;
 use ether_ros_sim::faults::Rng;
+use ether_ros_sim::network::lock;
 use ether_ros_sim::od::{Access, Entry, Object};
-use ether_ros_sim::runner::Runner;
+use ether_ros_sim::pi_mutex::PiGuard;
+use ether_ros_sim::runner::{Runner, RunnerOptions, Timing};
 use ether_ros_sim::{MailboxSpec, Network, SlaveSpec};
+
+/// Most firmware worker threads `run_on_interface` starts.
+const MAX_FIRMWARE_THREADS: usize = 64;
 
 fn bad_key(key: &str, expected: &str) -> PyErr {
     PyValueError::new_err(format!("slave spec key '{key}': expected {expected}"))
@@ -266,9 +272,9 @@ impl SimNetwork {
     }
 }
 
-fn slave(net: &mut Network, pos: usize) -> PyResult<&mut Esc> {
-    let n = net.slaves.len();
-    net.slaves.get_mut(pos).ok_or_else(|| {
+fn slave(net: &Network, pos: usize) -> PyResult<PiGuard<'_, Esc>> {
+    let n = net.len();
+    net.try_slave(pos).ok_or_else(|| {
         PyIndexError::new_err(format!("no slave at position {pos} (the network has {n})"))
     })
 }
@@ -321,7 +327,7 @@ impl SimNetwork {
     }
 
     fn __len__(&self) -> PyResult<usize> {
-        Ok(self.lock()?.slaves.len())
+        Ok(self.lock()?.len())
     }
 
     /// Process one frame; returns the answer, or None when it is dropped or not EtherCAT.
@@ -366,16 +372,41 @@ impl SimNetwork {
     }
 
     /// Serve frames on a network interface from a background thread, through `link`:
-    /// "packet" (AF_PACKET) or "xdp" (AF_XDP with its XDP program).
-    #[pyo3(signature = (ifname, link = "packet"))]
-    fn run_on_interface(&mut self, ifname: &str, link: &str) -> PyResult<()> {
+    /// "packet" (AF_PACKET) or "xdp" (AF_XDP with its XDP program). The device firmware runs
+    /// on `threads` worker threads (None: one per CPU the process may use; 0: in the frame
+    /// thread, the older model). `timing`: "fast" (answer when processed) or "wire" (when the
+    /// modelled 100 Mbit/s wire would have brought the answer back).
+    #[pyo3(signature = (ifname, link = "packet", threads = None, timing = "fast"))]
+    fn run_on_interface(
+        &mut self,
+        py: Python<'_>,
+        ifname: &str,
+        link: &str,
+        threads: Option<usize>,
+        timing: &str,
+    ) -> PyResult<()> {
         let kind: LinkKind = link.parse().map_err(PyValueError::new_err)?;
+        let timing: Timing = timing.parse().map_err(PyValueError::new_err)?;
+        if threads.is_some_and(|n| n > MAX_FIRMWARE_THREADS) {
+            return Err(PyValueError::new_err(format!(
+                "threads = {}: at most {MAX_FIRMWARE_THREADS} firmware threads",
+                threads.unwrap_or(0)
+            )));
+        }
         if self.runner.as_ref().is_some_and(|r| r.is_running()) {
             return Err(PyRuntimeError::new_err(
                 "the simulator already runs on an interface; call stop() first",
             ));
         }
-        let r = Runner::start_on(self.net.clone(), ifname, kind)
+        let options = RunnerOptions {
+            link: kind,
+            threads,
+            timing,
+        };
+        let net = self.net.clone();
+        let name = ifname.to_string();
+        let r = py
+            .detach(move || Runner::start_with(net, &name, options))
             .map_err(|e| PyOSError::new_err(format!("cannot serve EtherCAT on '{ifname}': {e}")))?;
         self.runner = Some(r);
         Ok(())
@@ -475,13 +506,13 @@ impl SimNetwork {
             "delay" => net.faults.delay_us = need(kw(kwargs, "us", kind)?, kind, "us")?,
             "reset" => {
                 let pos: usize = need(kw(kwargs, "slave", kind)?, kind, "slave")?;
-                slave(&mut net, pos)?;
+                drop(slave(&net, pos)?);
                 net.reset_slave(pos);
             }
             "refuse_op" | "stall_mailbox" => {
                 let pos: usize = need(kw(kwargs, "slave", kind)?, kind, "slave")?;
                 let enable = kw::<bool>(kwargs, "on", kind)?.unwrap_or(true);
-                let s = slave(&mut net, pos)?;
+                let mut s = slave(&net, pos)?;
                 if kind == "refuse_op" {
                     s.refuse_op = enable;
                 } else {
@@ -504,7 +535,7 @@ impl SimNetwork {
                     None if up => net.mend_all_links(),
                     None => net.faults.link_down = true,
                     Some(pos) => {
-                        let name = slave(&mut net, pos)?.spec.name.clone();
+                        let name = slave(&net, pos)?.spec.name.clone();
                         let target = match port {
                             None | Some(0) => pos,
                             Some(p) => net.slave_on_port(pos, p).ok_or_else(|| {
@@ -522,7 +553,7 @@ impl SimNetwork {
                 let pos: usize = need(kw(kwargs, "slave", kind)?, kind, "slave")?;
                 let ppm: f64 = need(kw(kwargs, "ppm", kind)?, kind, "ppm")?;
                 let now = net.now();
-                let s = slave(&mut net, pos)?;
+                let mut s = slave(&net, pos)?;
                 let d = s.dc.drift_ppm();
                 s.dc.set_drift(now, d + ppm);
             }
@@ -536,7 +567,8 @@ impl SimNetwork {
             "seed" => net.rng = Rng::new(need(kw(kwargs, "seed", kind)?, kind, "seed")?),
             "clear" => {
                 net.faults = Default::default();
-                for s in net.slaves.iter_mut() {
+                for cell in net.cells() {
+                    let mut s = lock(cell);
                     s.refuse_op = false;
                     s.mailbox_stalled = false;
                 }
@@ -549,9 +581,10 @@ impl SimNetwork {
 
     /// State of one slave: AL state/code, addresses, DC, watchdog, counters.
     fn slave_info<'py>(&self, py: Python<'py>, pos: usize) -> PyResult<Bound<'py, PyDict>> {
-        let mut net = self.lock()?;
+        let net = self.lock()?;
         let now = net.now();
-        let s = slave(&mut net, pos)?;
+        let frames = net.slave_frames(pos);
+        let s = slave(&net, pos)?;
         let d = PyDict::new(py);
         let offset = s.get64(reg::DC_SYSTEM_TIME_OFFSET);
         let local = s.dc.local(now);
@@ -587,10 +620,28 @@ impl SimNetwork {
         d.set_item("refuse_op", s.refuse_op)?;
         d.set_item("mailbox_stalled", s.mailbox_stalled)?;
         d.set_item("mailbox_queue", s.mailbox_queue_len())?;
-        d.set_item("outputs_bytes", s.out_map.bytes())?;
-        d.set_item("inputs_bytes", s.in_map.bytes())?;
+        d.set_item("outputs_bytes", s.output_bytes())?;
+        d.set_item("inputs_bytes", s.input_bytes())?;
+        // The SyncManagers as the master configured them, and what the PDOs of each
+        // process-data SM need: (number, start, length, control, activate, needed bytes).
+        let sms: Vec<(usize, u16, u16, u8, u8, Option<usize>)> =
+            s.sm.iter()
+                .enumerate()
+                .map(|(k, sm)| {
+                    let need = s
+                        .pd_sms
+                        .iter()
+                        .find(|p| p.number == k)
+                        .map(|p| p.map.bytes());
+                    (k, sm.start, sm.len, sm.control, sm.activate, need)
+                })
+                .filter(|t| t.2 > 0 || t.5.is_some())
+                .collect();
+        d.set_item("sync_managers", sms)?;
+        d.set_item("eeprom_at_pdi", s.eeprom_at_pdi())?;
         let c = &s.counters;
-        d.set_item("frames", c.frames)?;
+        d.set_item("sync0_frame_latches", c.sync0_frame_latches)?;
+        d.set_item("frames", frames)?;
         d.set_item("process_data_frames", c.process_data_frames)?;
         d.set_item("device_steps", c.device_steps)?;
         d.set_item("device_steps_skipped", c.device_steps_skipped)?;
@@ -606,8 +657,8 @@ impl SimNetwork {
 
     /// Device physics of one slave (SI units), empty without a device model.
     fn probe<'py>(&self, py: Python<'py>, pos: usize) -> PyResult<Bound<'py, PyDict>> {
-        let mut net = self.lock()?;
-        let s = slave(&mut net, pos)?;
+        let net = self.lock()?;
+        let s = slave(&net, pos)?;
         let d = PyDict::new(py);
         for (k, v) in s.probe() {
             d.set_item(k, v)?;
@@ -623,8 +674,8 @@ impl SimNetwork {
         index: u16,
         subindex: u8,
     ) -> PyResult<Bound<'py, PyBytes>> {
-        let mut net = self.lock()?;
-        let s = slave(&mut net, pos)?;
+        let net = self.lock()?;
+        let s = slave(&net, pos)?;
         match s.od.get_bytes(index, subindex) {
             Some(b) => Ok(PyBytes::new(py, b)),
             None => Err(PyValueError::new_err(format!(
@@ -635,8 +686,8 @@ impl SimNetwork {
 
     /// Set an object-dictionary entry from raw bytes (padded/truncated to its size).
     fn od_write(&self, pos: usize, index: u16, subindex: u8, data: &[u8]) -> PyResult<()> {
-        let mut net = self.lock()?;
-        let s = slave(&mut net, pos)?;
+        let net = self.lock()?;
+        let mut s = slave(&net, pos)?;
         if s.od.set_bytes(index, subindex, data) {
             Ok(())
         } else {
@@ -654,8 +705,8 @@ impl SimNetwork {
         address: usize,
         length: usize,
     ) -> PyResult<Bound<'py, PyBytes>> {
-        let mut net = self.lock()?;
-        let s = slave(&mut net, pos)?;
+        let net = self.lock()?;
+        let s = slave(&net, pos)?;
         let m = s.memory();
         let end = address.saturating_add(length).min(m.len());
         let start = address.min(end);
@@ -667,7 +718,7 @@ impl SimNetwork {
         let net = self.lock()?;
         let st = &net.stats;
         let d = PyDict::new(py);
-        d.set_item("slaves", net.slaves.len())?;
+        d.set_item("slaves", net.len())?;
         d.set_item("frames_seen", st.frames_seen)?;
         d.set_item("frames_answered", st.frames_answered)?;
         d.set_item("frames_dropped", st.frames_dropped)?;
@@ -678,6 +729,8 @@ impl SimNetwork {
         d.set_item("unknown_commands", st.unknown_commands)?;
         d.set_item("polls", st.polls)?;
         d.set_item("send_errors", st.send_errors)?;
+        d.set_item("max_frame_gap_ns", st.max_frame_gap_ns)?;
+        d.set_item("max_frame_ns", st.max_frame_ns)?;
         let cmds = PyDict::new(py);
         for c in 0..15u8 {
             if let Some(cmd) = Command::from_u8(c) {
@@ -689,6 +742,32 @@ impl SimNetwork {
             "running",
             self.runner.as_ref().is_some_and(|r| r.is_running()),
         )?;
+        let fw = PyDict::new(py);
+        let runner = self.runner.as_ref();
+        fw.set_item("threads", runner.map_or(0, Runner::firmware_threads))?;
+        fw.set_item("cpus", ether_ros_sim::firmware::available_cpus())?;
+        fw.set_item(
+            "timing",
+            match runner.map_or(Timing::Fast, |r| r.timing) {
+                Timing::Fast => "fast",
+                Timing::Wire => "wire",
+            },
+        )?;
+        let workers = PyList::empty(py);
+        for w in runner.map_or_else(Vec::new, Runner::worker_stats) {
+            let wd = PyDict::new(py);
+            wd.set_item("slaves", w.slaves.load(Ordering::Relaxed))?;
+            wd.set_item("wakeups", w.wakeups.load(Ordering::Relaxed))?;
+            wd.set_item("advances", w.advances.load(Ordering::Relaxed))?;
+            wd.set_item("max_late_ns", w.max_late_ns.load(Ordering::Relaxed))?;
+            wd.set_item("late_1ms", w.late_1ms.load(Ordering::Relaxed))?;
+            wd.set_item("busy_ns", w.busy_ns.load(Ordering::Relaxed))?;
+            wd.set_item("demoted", w.demoted.load(Ordering::Relaxed))?;
+            wd.set_item("realtime", w.realtime.load(Ordering::Relaxed) != 0)?;
+            workers.append(wd)?;
+        }
+        fw.set_item("workers", workers)?;
+        d.set_item("firmware", fw)?;
         let faults = PyList::empty(py);
         let f = &net.faults;
         if f.drop_rate > 0.0 {

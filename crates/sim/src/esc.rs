@@ -9,7 +9,7 @@
 use std::collections::VecDeque;
 
 use ether_ros_protocol::reg::{self, dc, dl, sm as smr};
-use ether_ros_protocol::sii::{category as sii_category, word as sii_word};
+use ether_ros_protocol::sii::{category as sii_category, syncm, word as sii_word};
 use ether_ros_protocol::{al, coe as coe_facts, mailbox};
 
 use crate::coe::CoeServer;
@@ -29,6 +29,8 @@ pub const N_SM: usize = 8;
 /// Default watchdog divider (100 µs units) and process-data watchdog time (100 ms).
 const DEFAULT_WD_DIVIDER: u16 = 0x09C2;
 const DEFAULT_WD_TIME: u16 = 0x03E8;
+/// DC time stamps and the system time advance in steps of the ESC's 100 MHz clock.
+pub const DC_GRANULARITY_NS: u64 = 10;
 /// Catch-up bound for device steps: beyond this the device skips ahead.
 pub const MAX_CATCH_UP_NS: u64 = 100_000_000;
 /// CoE emergency error codes of refused AL state transitions (ETG.1000.6).
@@ -42,6 +44,8 @@ const MAILBOX_QUEUE_LIMIT: usize = 32;
 /// Per-slave counters for `slave_info`.
 #[derive(Clone, Debug, Default)]
 pub struct SlaveCounters {
+    /// Frames that reached this slave before its last reset or topology change (the network
+    /// adds those since: `Network::slave_frames`).
     pub frames: u64,
     /// Frames in which a logical datagram reached this slave's FMMUs (its process data went
     /// by): with groups at their own cycles, this is the slave's own exchange rate.
@@ -50,6 +54,8 @@ pub struct SlaveCounters {
     pub device_steps_skipped: u64,
     pub sync0_events: u64,
     pub sync0_late_starts: u64,
+    /// SYNC0 events a frame latched because the firmware's worker had not got to them yet.
+    pub sync0_frame_latches: u64,
     pub watchdog_expirations: u64,
     pub mailbox_received: u64,
     pub mailbox_sent: u64,
@@ -72,7 +78,8 @@ const WRITABLE: [(u16, u16); 16] = [
     (reg::WATCHDOG_DIVIDER, 2),
     (reg::WATCHDOG_TIME_PDI, 2),
     (reg::WATCHDOG_TIME_PD, 2),
-    (reg::SII_CONFIG, 2),
+    // 0x0501 (PDI access state) belongs to the PDI: EtherCAT writes only 0x0500.
+    (reg::SII_CONFIG, 1),
     (reg::SII_ADDRESS, 12),
     (reg::MII_MANAGEMENT, 8),
     (reg::DC_SYSTEM_TIME_OFFSET, 12),
@@ -137,10 +144,18 @@ pub struct Esc {
     mbx_tx_counter: u8,
     mbx_last_sent: Vec<u8>,
     mbx_rx_pending: bool,
-    pub out_sm: usize,
-    pub in_sm: usize,
-    pub out_map: PdoMap,
-    pub in_map: PdoMap,
+    /// The process-data SyncManagers (SII SyncM types 3 and 4, not virtual), each with the
+    /// map of the PDOs it carries.
+    pub pd_sms: Vec<PdSm>,
+    /// The mailbox SyncManagers (SII SyncM types 1 and 2; 0 and 1 when the SII has none).
+    mbx_sms: Vec<usize>,
+    /// (index, subindex, bits) the device's own default mapping takes of a longer object:
+    /// the one partial mapping it accepts (e.g. 16 bits of a 32-bit counter).
+    partial_mappings: Vec<(u16, u8, u16)>,
+    /// EEPROM access handed to the PDI (0x0501 bit 0): the master's SII commands are ignored.
+    eeprom_at_pdi: bool,
+    /// Deterministic jitter of the DC time stamps (xorshift state).
+    dc_noise: u64,
     pub al_state: u8,
     pub al_error: bool,
     pub al_code: u16,
@@ -165,6 +180,8 @@ pub struct Esc {
     pub counters: SlaveCounters,
     /// A logical datagram of the current frame hit an FMMU.
     process_data_seen: bool,
+    /// The firmware latches free-run process data around its steps (`set_firmware_latches`).
+    firmware_latches: bool,
 }
 
 impl Esc {
@@ -200,12 +217,8 @@ impl Esc {
             } else {
                 None
             };
-        // Process-data SyncManagers: from the SII SyncM category, else the usual layout.
-        let sms = sii::sync_managers(&sii.image);
-        let find = |kind: u8| sms.iter().position(|s| s.kind == kind);
-        let (def_out, def_in) = if mailbox.is_some() { (2, 3) } else { (0, 1) };
-        let out_sm = find(3).unwrap_or(def_out).min(N_SM - 1);
-        let in_sm = find(4).unwrap_or(def_in).min(N_SM - 1);
+        let (pd_sms, mbx_sms) = process_sync_managers(&sii.image, mailbox.is_some());
+        let partial_mappings = default_partial_mappings(&od, &sii.image);
         let chip = spec.esc.profile();
         let pdram_kib = if spec.pdram_kib == 0 {
             chip.ram_kib
@@ -231,10 +244,11 @@ impl Esc {
             mbx_tx_counter: 0,
             mbx_last_sent: Vec::new(),
             mbx_rx_pending: false,
-            out_sm,
-            in_sm,
-            out_map: PdoMap::default(),
-            in_map: PdoMap::default(),
+            pd_sms,
+            mbx_sms,
+            partial_mappings,
+            eeprom_at_pdi: false,
+            dc_noise: 0x9E37_79B9_7F4A_7C15 ^ ((position as u64 + 1) << 17),
             al_state: ether_ros_protocol::al::INIT,
             al_error: false,
             al_code: 0,
@@ -253,6 +267,7 @@ impl Esc {
             mailbox_stalled: false,
             counters: SlaveCounters::default(),
             process_data_seen: false,
+            firmware_latches: false,
             spec,
         };
         esc.power_on_registers();
@@ -422,6 +437,11 @@ impl Esc {
             .wrapping_add(self.get64(reg::DC_SYSTEM_TIME_OFFSET))
     }
 
+    /// The active FMMUs (the network's logical address map is built from them).
+    pub fn fmmus(&self) -> &[Fmmu] {
+        &self.fmmus
+    }
+
     /// Raw memory, for diagnostics and tests (no side effects).
     pub fn memory(&self) -> &[u8] {
         &self.mem
@@ -555,21 +575,26 @@ impl Esc {
             return false;
         }
         let off = a - s.start as usize;
-        if s.is_mailbox() {
+        let process_data = self.pd_sms.iter().any(|p| p.number == k && p.output);
+        let completed = if s.is_mailbox() {
             if s.full {
                 return false;
             }
             self.mem[a..a + seg.len()].copy_from_slice(seg);
-            if off + seg.len() >= s.len as usize {
+            let last = off + seg.len() >= s.len as usize;
+            if last {
                 s.full = true;
-                self.mbx_rx_pending = true;
+                // A mailbox-mode SM carrying process data (one buffer) is no mailbox.
+                self.mbx_rx_pending |= !process_data;
             }
-        } else if s.buffered_write(off, seg) {
+            last
+        } else {
+            s.buffered_write(off, seg)
+        };
+        if completed && process_data {
             let wd = s.control & WATCHDOG_TRIGGER != 0;
-            if k == self.out_sm {
-                self.outputs_since_safeop = true;
-                self.outputs_received = true;
-            }
+            self.outputs_since_safeop = true;
+            self.outputs_received = true;
             if wd {
                 self.wd_last_trigger = self.now;
                 self.watchdog_expired = false;
@@ -588,7 +613,7 @@ impl Esc {
             }
         }
         if overlaps(a, len, at(reg::DC_SYSTEM_TIME), at(reg::DC_SYSTEM_TIME) + 8) {
-            let t = self.system_time();
+            let t = self.system_time() / DC_GRANULARITY_NS * DC_GRANULARITY_NS;
             self.put64(reg::DC_SYSTEM_TIME, t);
         }
         if overlaps(a, len, at(reg::SII_CONTROL), at(reg::SII_CONTROL) + 2)
@@ -708,7 +733,19 @@ impl Esc {
             self.system_time_compare(a, seg);
         }
         if dc_register(reg::DC_SPEED_COUNTER_START, 2) {
+            // ESC datasheet, 0x0930 "speed counter start": a write resets the speed counter
+            // difference (0x0932) and the filtered system time difference (0x092C).
             self.dc.reset_loop(self.now);
+            self.put32(reg::DC_SYSTEM_TIME_DIFF, 0);
+            self.put16(reg::DC_SPEED_COUNTER_DIFF, 0);
+        }
+        if overlaps(
+            a,
+            len,
+            reg::SII_CONFIG as usize,
+            reg::SII_CONFIG as usize + 1,
+        ) {
+            self.eeprom_access();
         }
         if dc_register(reg::DC_ACTIVATION, 1) {
             self.dc_activation();
@@ -717,7 +754,8 @@ impl Esc {
 
     fn sii_command(&mut self, ctl: u16) {
         let cur = self.get16(reg::SII_CONTROL);
-        if self.sii.busy(self.now) {
+        if self.sii.busy(self.now) || self.eeprom_at_pdi {
+            // While the PDI has the EEPROM (0x0501 bit 0), EtherCAT's commands do nothing.
             return;
         }
         if ctl & sii::CMD_MASK == 0 {
@@ -740,6 +778,24 @@ impl Esc {
             status |= sii::BUSY | (ctl & sii::CMD_MASK);
         }
         self.put16(reg::SII_CONTROL, status);
+    }
+
+    /// The master wrote 0x0500: the slave application (PDI) takes the EEPROM as soon as it is
+    /// offered and gives it back when the offer is withdrawn; "force ECAT access" takes it
+    /// from the PDI at once (ESC datasheet, 0x0500/0x0501).
+    fn eeprom_access(&mut self) {
+        let cfg = self.mem[reg::SII_CONFIG as usize];
+        let to_pdi = cfg & ether_ros_protocol::sii::CONFIG_PDI != 0
+            && cfg & ether_ros_protocol::sii::CONFIG_RESET_PDI_ACCESS == 0;
+        self.eeprom_at_pdi = to_pdi;
+        self.mem[reg::SII_PDI_ACCESS as usize] = to_pdi as u8;
+        // Bit 1 is a command, not a state.
+        self.mem[reg::SII_CONFIG as usize] =
+            cfg & !ether_ros_protocol::sii::CONFIG_RESET_PDI_ACCESS;
+    }
+
+    pub fn eeprom_at_pdi(&self) -> bool {
+        self.eeprom_at_pdi
     }
 
     fn sm_configured(&mut self, k: usize) {
@@ -777,15 +833,28 @@ impl Esc {
         }
         // Port 0 latches at the processing unit's entry; every other open port when the
         // frame comes back into it from its branch. Closed ports keep their old value.
-        let t0 = self.dc.local(self.now);
+        let t0 = self.stamp(self.dc.local(self.now));
         self.put32(reg::DC_RECEIVE_TIME_PORT0, t0 as u32);
         for p in 1..4u16 {
             if let Some(back) = self.port_return_ns[p as usize] {
-                let t = self.dc.local(self.now + back);
+                let t = self.stamp(self.dc.local(self.now + back));
                 self.put32(reg::DC_RECEIVE_TIME_PORT0 + 4 * p, t as u32);
             }
         }
         self.put64(reg::DC_RECEIVE_TIME_PU, t0);
+    }
+
+    /// A time stamp as the ESC takes it: on its 10 ns clock, at a phase of that clock the
+    /// frame's arrival does not control (the PHY's and the clock domain crossing's jitter),
+    /// so two stamps of one instant differ by 0 or 10 ns.
+    fn stamp(&mut self, t: u64) -> u64 {
+        let mut x = self.dc_noise;
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        self.dc_noise = x;
+        let phase = (x >> 33) % DC_GRANULARITY_NS;
+        (t + phase) / DC_GRANULARITY_NS * DC_GRANULARITY_NS
     }
 
     fn system_time_compare(&mut self, a: usize, seg: &[u8]) {
@@ -805,7 +874,7 @@ impl Esc {
         }
         let received = u64::from_le_bytes(v);
         let delay = self.get32(reg::DC_SYSTEM_TIME_DELAY) as u64;
-        let local_sys = self.system_time();
+        let local_sys = self.stamp(self.system_time());
         let diff: i64 = if n <= 4 {
             (local_sys as u32).wrapping_sub((received.wrapping_add(delay)) as u32) as i32 as i64
         } else {
@@ -991,6 +1060,22 @@ impl Esc {
             self.fail(UNKNOWN_REQUESTED_STATE);
             return;
         }
+        if self.device_emulation() {
+            // ESC datasheet, 0x0141 bit 0 "device emulation": a slave without application
+            // processor (digital I/O terminals: PDI 0x04) has the ESC copy AL control to AL
+            // status; nothing is checked.
+            self.op_pending_since = None;
+            if requested != self.al_state {
+                if requested == SAFEOP && self.al_state == PREOP {
+                    // The process data still flows by the SII's PDOs (digital I/O).
+                    let _ = self.build_maps();
+                }
+                self.enter_state(requested);
+            } else {
+                self.update_al_registers();
+            }
+            return;
+        }
         let cur = self.al_state;
         // Any new request replaces a SAFEOP->OP request still waiting for outputs.
         let was_pending = self.op_pending_since.take();
@@ -1029,6 +1114,12 @@ impl Esc {
                 self.fail_with_emergency(code, emergency);
             }
         }
+    }
+
+    /// ESC configuration 0x0141 bit 0 (from the EEPROM's ConfigData): the ESC itself
+    /// answers AL control, there is no slave application to check anything.
+    pub fn device_emulation(&self) -> bool {
+        self.mem[reg::ESC_CONFIG as usize] & reg::esc_config::DEVICE_EMULATION != 0
     }
 
     /// Set the error indication with `code`, staying in the current state.
@@ -1087,17 +1178,15 @@ impl Esc {
         let state = self.al_state;
         let mbx_on = state != INIT;
         let pd_on = matches!(state, SAFEOP | OP);
-        let mbx_sms: &[usize] = if self.mailbox.is_some() || self.boot_mailbox.is_some() {
-            &[0, 1]
-        } else {
-            &[]
-        };
-        for &k in mbx_sms {
-            self.sm[k].pdi_disabled = !mbx_on;
+        let has_mailbox = self.mailbox.is_some() || self.boot_mailbox.is_some();
+        if has_mailbox {
+            for &k in &self.mbx_sms {
+                self.sm[k].pdi_disabled = !mbx_on;
+            }
         }
-        for k in [self.out_sm, self.in_sm] {
-            if !mbx_sms.contains(&k) {
-                self.sm[k].pdi_disabled = !pd_on;
+        for p in &self.pd_sms {
+            if !(has_mailbox && self.mbx_sms.contains(&p.number)) {
+                self.sm[p.number].pdi_disabled = !pd_on;
             }
         }
     }
@@ -1127,21 +1216,28 @@ impl Esc {
         }
     }
 
-    /// Recompute the process-data maps from the dictionary (or the SII).
+    /// Recompute the process-data maps from the dictionary: the PDO assignment of SM n is
+    /// object 0x1C10 + n (ETG.1000.6); without it, the SII's PDOs of that SM.
     fn build_maps(&mut self) -> Result<(), u16> {
         use ether_ros_protocol::al::*;
-        let out = match crate::pdo::from_od(&self.od, coe_facts::RXPDO_ASSIGN) {
-            Some(Ok(m)) => m,
-            Some(Err(_)) => return Err(INVALID_OUTPUT_MAPPING),
-            None => self.sii_map(sii_category::RXPDO, self.out_sm),
-        };
-        let inp = match crate::pdo::from_od(&self.od, coe_facts::TXPDO_ASSIGN) {
-            Some(Ok(m)) => m,
-            Some(Err(_)) => return Err(INVALID_INPUT_MAPPING),
-            None => self.sii_map(sii_category::TXPDO, self.in_sm),
-        };
-        self.out_map = out;
-        self.in_map = inp;
+        for i in 0..self.pd_sms.len() {
+            let (n, output) = (self.pd_sms[i].number, self.pd_sms[i].output);
+            let assign = coe_facts::SM_PDO_ASSIGN + n as u16;
+            let map = match crate::pdo::from_od(&self.od, assign, &self.partial_mappings) {
+                Some(Ok(m)) => m,
+                Some(Err(_)) if output => return Err(INVALID_OUTPUT_MAPPING),
+                Some(Err(_)) => return Err(INVALID_INPUT_MAPPING),
+                None => self.sii_map(
+                    if output {
+                        sii_category::RXPDO
+                    } else {
+                        sii_category::TXPDO
+                    },
+                    n,
+                ),
+            };
+            self.pd_sms[i].map = map;
+        }
         Ok(())
     }
 
@@ -1155,31 +1251,35 @@ impl Esc {
         crate::pdo::from_entries(&self.od, &entries)
     }
 
+    /// Does SM `p` hold what its PDOs need: enabled with their length, mode and direction.
+    /// An SM without data is not checked (as SOES does: a master may leave it enabled with
+    /// the SII's length, as SOEM does); an OpOnly SM may still be disabled before OP.
+    fn pd_sm_ok(&self, p: &PdSm, op: bool) -> bool {
+        let s = &self.sm[p.number];
+        let bytes = p.map.bytes();
+        let control = p.control & (smr::MODE_MASK | smr::DIR_MASK);
+        if bytes == 0 {
+            return true;
+        }
+        if p.op_only && !op && !s.configured() {
+            return true;
+        }
+        s.configured()
+            && s.len as usize == bytes
+            && s.control & (smr::MODE_MASK | smr::DIR_MASK) == control
+    }
+
     fn check_process_data(&mut self) -> Result<(), u16> {
         use ether_ros_protocol::al::*;
         self.build_maps()?;
-        let check = |s: &SyncManager, bytes: usize, control: u8| {
-            if bytes == 0 {
-                !s.configured()
-            } else {
-                s.configured()
-                    && s.len as usize == bytes
-                    && s.control & (smr::MODE_MASK | smr::DIR_MASK) == control
+        for p in &self.pd_sms {
+            if !self.pd_sm_ok(p, false) {
+                return Err(if p.output {
+                    INVALID_OUTPUT_CONFIG
+                } else {
+                    INVALID_INPUT_CONFIG
+                });
             }
-        };
-        if !check(
-            &self.sm[self.out_sm],
-            self.out_map.bytes(),
-            smr::MODE_BUFFERED | smr::DIR_WRITE,
-        ) {
-            return Err(INVALID_OUTPUT_CONFIG);
-        }
-        if !check(
-            &self.sm[self.in_sm],
-            self.in_map.bytes(),
-            smr::MODE_BUFFERED | smr::DIR_READ,
-        ) {
-            return Err(INVALID_INPUT_CONFIG);
         }
         if self.spec.dc_required && !self.sync0_active() {
             return Err(INVALID_DC_SYNC_CONFIG);
@@ -1187,10 +1287,36 @@ impl Esc {
         Ok(())
     }
 
+    /// Output bytes of all process-data SMs (their maps as of the last PREOP -> SAFEOP).
+    pub fn output_bytes(&self) -> usize {
+        self.pd_sms
+            .iter()
+            .filter(|p| p.output)
+            .map(|p| p.map.bytes())
+            .sum()
+    }
+
+    pub fn input_bytes(&self) -> usize {
+        self.pd_sms
+            .iter()
+            .filter(|p| !p.output)
+            .map(|p| p.map.bytes())
+            .sum()
+    }
+
     fn check_op(&self) -> Result<(), u16> {
         use ether_ros_protocol::al::*;
         if self.refuse_op {
             return Err(SYNCHRONIZATION_ERROR);
+        }
+        for p in &self.pd_sms {
+            if !self.pd_sm_ok(p, true) {
+                return Err(if p.output {
+                    INVALID_OUTPUT_CONFIG
+                } else {
+                    INVALID_INPUT_CONFIG
+                });
+            }
         }
         if self.waits_for_outputs() {
             return Err(NO_VALID_OUTPUTS);
@@ -1198,9 +1324,13 @@ impl Esc {
         Ok(())
     }
 
-    /// The slave has outputs but none arrived since SAFEOP.
+    /// The slave has outputs (in SMs enabled before OP) but none arrived since SAFEOP.
     fn waits_for_outputs(&self) -> bool {
-        self.out_map.bytes() > 0 && !self.outputs_since_safeop
+        let outputs = self
+            .pd_sms
+            .iter()
+            .any(|p| p.output && !p.op_only && p.map.bytes() > 0);
+        outputs && !self.outputs_since_safeop
     }
 
     /// Is a SAFEOP->OP request waiting for outputs? (for tests and `slave_info`)
@@ -1350,18 +1480,46 @@ impl Esc {
             && self.outputs_received
     }
 
-    /// SM buffer of outputs → dictionary (only in OP: SAFEOP keeps outputs safe).
+    /// SM buffers of outputs → dictionary (only in OP: SAFEOP keeps outputs safe). An SM on
+    /// the ESC's digital output registers (0x0F00..0x0F03) drives them too; a one-buffer SM is
+    /// emptied in SAFEOP as well.
     pub fn latch_outputs(&mut self) {
-        if self.al_state != ether_ros_protocol::al::OP {
+        let op = self.al_state == ether_ros_protocol::al::OP;
+        if !op && self.al_state != ether_ros_protocol::al::SAFEOP {
             return;
         }
-        let k = self.out_sm;
-        if let Some(buf) = self.sm[k].pdi_take() {
-            crate::pdo::buffer_to_od(&self.out_map, buf, &mut self.od);
+        for p in &self.pd_sms {
+            if !p.output {
+                continue;
+            }
+            let s = &mut self.sm[p.number];
+            let start = s.start as usize;
+            if s.is_mailbox() {
+                // One buffer: the slave reads it once the master has filled it, so the master
+                // may write again; in SAFEOP it reads and drops it (outputs stay safe).
+                if s.full {
+                    if op {
+                        let end = (start + s.len as usize).min(MEM_SIZE);
+                        crate::pdo::buffer_to_od(&p.map, &self.mem[start..end], &mut self.od);
+                    }
+                    s.full = false;
+                }
+                continue;
+            }
+            if !op {
+                continue;
+            }
+            if let Some(buf) = s.pdi_take() {
+                crate::pdo::buffer_to_od(&p.map, buf, &mut self.od);
+                if (DIGITAL_OUTPUTS..DIGITAL_OUTPUTS_END).contains(&start) {
+                    let n = buf.len().min(DIGITAL_OUTPUTS_END - start);
+                    self.mem[start..start + n].copy_from_slice(&buf[..n]);
+                }
+            }
         }
     }
 
-    /// Dictionary → SM buffer of inputs (SAFEOP and OP).
+    /// Dictionary → SM buffers of inputs (SAFEOP and OP).
     pub fn latch_inputs(&mut self) {
         if !matches!(
             self.al_state,
@@ -1369,18 +1527,127 @@ impl Esc {
         ) {
             return;
         }
-        let k = self.in_sm;
-        if !self.sm[k].enabled() || self.in_map.bits == 0 {
-            return;
+        for p in &self.pd_sms {
+            let s = &mut self.sm[p.number];
+            if p.output || !s.enabled() || p.map.bits == 0 {
+                continue;
+            }
+            let (map, od) = (&p.map, &self.od);
+            if s.is_mailbox() {
+                // One buffer: the slave fills it when the master has read the last one.
+                if !s.full {
+                    let start = s.start as usize;
+                    let end = (start + s.len as usize).min(MEM_SIZE);
+                    crate::pdo::od_to_buffer(map, od, &mut self.mem[start..end]);
+                    s.full = true;
+                }
+                continue;
+            }
+            s.pdi_publish(|buf| crate::pdo::od_to_buffer(map, od, buf));
         }
-        let (map, od) = (&self.in_map, &self.od);
-        self.sm[k].pdi_publish(|buf| crate::pdo::od_to_buffer(map, od, buf));
     }
 
     /// Advance the application to host time `host`: device steps at the device period and
     /// SYNC0 events in order, bounded catch-up, and the process-data watchdog.
     pub fn advance(&mut self, host: u64) {
         self.now = host;
+        self.run_events(host, true, u64::MAX);
+        self.check_watchdog();
+        // Time passes for a pending SAFEOP->OP request too (its timeout), before the frame's
+        // datagrams read the AL status.
+        self.resolve_pending_op();
+    }
+
+    /// The firmware's own clock (a worker thread, `crate::firmware`): what `advance` does,
+    /// then the mailbox, so emergencies the device raised reach the read mailbox without
+    /// waiting for a frame. At most `chunk_ns` of simulated time is run (from the first event
+    /// due) so that a firmware far behind lets the frame path in between; returns whether it
+    /// has caught up with `host`. The deadlines (watchdog, pending SAFEOP->OP) are those of
+    /// `host`: a firmware running behind sees the watchdog as it is now.
+    pub fn advance_firmware(&mut self, host: u64, chunk_ns: u64) -> bool {
+        self.now = host;
+        let caught_up = self.run_events(host, true, chunk_ns);
+        self.check_watchdog();
+        self.resolve_pending_op();
+        self.service_mailbox();
+        caught_up
+    }
+
+    /// A frame reaches this slave while its firmware runs on a worker thread: only what the
+    /// frame must see done by now. SYNC0 events already due are latched here if the worker
+    /// has not got to them yet, so the frame reads the inputs of the last SYNC0, exactly as in
+    /// simulated time; device steps are left to the worker, and so are the deadlines (the
+    /// watchdog, a pending SAFEOP->OP timeout), which it meets at their own instant.
+    pub fn frame_catch_up(&mut self, host: u64) {
+        self.now = host;
+        if self.sync0_due(host) {
+            self.counters.sync0_frame_latches += 1;
+            self.run_events(host, false, u64::MAX);
+        }
+    }
+
+    /// Is a SYNC0 event at or before host time `host` still to be latched?
+    fn sync0_due(&self, host: u64) -> bool {
+        match self.sync0_next {
+            Some(next) => {
+                let offset = self.get64(reg::DC_SYSTEM_TIME_OFFSET);
+                next.wrapping_sub(offset) <= self.dc.local(host)
+            }
+            None => false,
+        }
+    }
+
+    /// Host time (CLOCK_MONOTONIC ns, from `host` on) of the next thing the firmware side has
+    /// to do, and whether it must happen at that instant (`true`: a SYNC0 event, the watchdog
+    /// running out, a pending SAFEOP->OP request timing out) or is a device step (`false`,
+    /// which a worker may run a little later with its exact simulated time). None: nothing is
+    /// scheduled. Local times are turned into host time at the nominal rate: the worker may
+    /// wake a few ns early and look again.
+    pub fn next_firmware_event(&self, host: u64) -> Option<(u64, bool)> {
+        let local_now = self.dc.local(host);
+        let to_host = |local: u64| host.saturating_add(local.saturating_sub(local_now));
+        let mut exact: Option<u64> = None;
+        let mut consider = |t: u64| exact = Some(exact.map_or(t, |n: u64| n.min(t)));
+        if let Some(s) = self.sync0_next {
+            let offset = self.get64(reg::DC_SYSTEM_TIME_OFFSET);
+            consider(to_host(s.wrapping_sub(offset)));
+        }
+        let armed = self.watchdog_armed();
+        let wd = self.watchdog_ns();
+        if armed && wd > 0 && !self.watchdog_expired {
+            consider(self.wd_last_trigger.saturating_add(wd + 1));
+        }
+        if let Some(since) = self.op_pending_since {
+            let timeout = u64::from(self.spec.safeop_op_timeout_ms) * 1_000_000;
+            consider(since.saturating_add(timeout + 1));
+        }
+        let step = self.device.as_ref().map(|_| to_host(self.app_next_step));
+        match (exact, step) {
+            (Some(e), Some(s)) if s < e => Some((s, false)),
+            (Some(e), _) => Some((e, true)),
+            (None, Some(s)) => Some((s, false)),
+            (None, None) => None,
+        }
+    }
+
+    /// The firmware latches process data itself (worker threads): in free run its outputs
+    /// are taken before and its inputs published after each device step, instead of on each
+    /// frame. A slave without firmware keeps the ESC's own latch on the frame (the digital
+    /// I/O of a simple terminal).
+    pub fn set_firmware_latches(&mut self, on: bool) {
+        self.firmware_latches = on;
+    }
+
+    /// Does the frame latch this slave's process data in free run?
+    fn frame_latches(&self) -> bool {
+        let firmware_does = self.firmware_latches && self.device.is_some();
+        !self.sync0_active() && !firmware_does
+    }
+
+    /// Device steps and SYNC0 events up to host time `host`, in time order (without `steps`,
+    /// SYNC0 events only: the frame path's catch-up, the device steps stay due), at most
+    /// `chunk_ns` of local time from the first one due; true when nothing due is left.
+    fn run_events(&mut self, host: u64, steps: bool, chunk_ns: u64) -> bool {
         let local_now = self.dc.local(host);
         let period = self.device.as_ref().map(|d| d.period_ns().max(1_000));
         if self.app_next_step == 0 {
@@ -1388,7 +1655,7 @@ impl Esc {
         }
         // Bound the catch-up.
         let horizon = local_now.saturating_sub(MAX_CATCH_UP_NS);
-        if let Some(p) = period {
+        if let (Some(p), true) = (period, steps) {
             if self.app_next_step < horizon {
                 let skipped = (horizon - self.app_next_step).div_ceil(p);
                 self.counters.device_steps_skipped += skipped;
@@ -1405,21 +1672,28 @@ impl Esc {
                 sync_local = Some(n.saturating_add(skip.saturating_mul(cycle)));
             }
         }
+        // The firmware latches around its own steps in free run (worker threads).
+        let step_latches = self.firmware_latches && self.sync0_next.is_none();
+        let first = match period {
+            Some(_) if steps => self.app_next_step,
+            _ => u64::MAX,
+        }
+        .min(sync_local.unwrap_or(u64::MAX));
+        let until = local_now.min(first.saturating_add(chunk_ns));
         // Never loop forever on absurd settings: past this many events, skip to now.
         let mut budget = 4 * MAX_CATCH_UP_NS / 1_000;
         loop {
-            let next_dev = if period.is_some() {
-                self.app_next_step
-            } else {
-                u64::MAX
+            let next_dev = match period {
+                Some(_) if steps => self.app_next_step,
+                _ => u64::MAX,
             };
             let next_sync = sync_local.unwrap_or(u64::MAX);
             let t = next_dev.min(next_sync);
-            if t > local_now {
+            if t > until {
                 break;
             }
             if budget == 0 {
-                if let Some(p) = period {
+                if let (Some(p), true) = (period, steps) {
                     self.app_next_step = local_now.saturating_add(p);
                 }
                 sync_local = sync_local.map(|_| local_now.saturating_add(cycle));
@@ -1433,9 +1707,15 @@ impl Esc {
                 self.counters.sync0_events += 1;
                 sync_local = Some(next_sync.saturating_add(cycle));
             } else {
+                if step_latches {
+                    self.latch_outputs();
+                }
                 let valid = self.outputs_valid();
                 if let Some(d) = self.device.as_mut() {
                     d.step(&mut self.od, t, valid);
+                }
+                if step_latches {
+                    self.latch_inputs();
                 }
                 self.send_device_emergencies();
                 self.counters.device_steps += 1;
@@ -1445,10 +1725,7 @@ impl Esc {
             }
         }
         self.sync0_next = sync_local.map(|n| n.wrapping_add(offset));
-        self.check_watchdog();
-        // Time passes for a pending SAFEOP->OP request too (its timeout), before the frame's
-        // datagrams read the AL status.
-        self.resolve_pending_op();
+        until == local_now
     }
 
     /// Queue the CoE emergencies the firmware raised (a slave with a mailbox, past INIT, as
@@ -1462,6 +1739,14 @@ impl Esc {
         }
     }
 
+    /// The process-data watchdog runs on the output SMs that trigger it (control bit 6).
+    fn watchdog_armed(&self) -> bool {
+        self.pd_sms.iter().any(|p| {
+            let s = &self.sm[p.number];
+            p.output && s.enabled() && s.control & WATCHDOG_TRIGGER != 0 && !s.is_mailbox()
+        })
+    }
+
     fn watchdog_ns(&self) -> u64 {
         let divider = self.get16(reg::WATCHDOG_DIVIDER) as u64;
         let time = self.get16(reg::WATCHDOG_TIME_PD) as u64;
@@ -1469,8 +1754,7 @@ impl Esc {
     }
 
     fn check_watchdog(&mut self) {
-        let s = &self.sm[self.out_sm];
-        let armed = s.enabled() && s.control & WATCHDOG_TRIGGER != 0 && !s.is_mailbox();
+        let armed = self.watchdog_armed();
         let wd = self.watchdog_ns();
         if !armed || wd == 0 || self.watchdog_expired {
             return;
@@ -1481,7 +1765,9 @@ impl Esc {
             self.put16(reg::WATCHDOG_STATUS_PD, 0);
             let c = self.mem[reg::WATCHDOG_COUNTER_PD as usize];
             self.mem[reg::WATCHDOG_COUNTER_PD as usize] = c.saturating_add(1);
-            if self.al_state == ether_ros_protocol::al::OP {
+            // The outputs go to their safe state (outputs_valid is false now). A slave
+            // application leaves OP; under device emulation there is none to do it.
+            if self.al_state == ether_ros_protocol::al::OP && !self.device_emulation() {
                 self.enter_state(ether_ros_protocol::al::SAFEOP);
                 self.fail(ether_ros_protocol::al::SM_WATCHDOG);
             }
@@ -1490,8 +1776,7 @@ impl Esc {
 
     /// Per-frame work before the datagrams: free-run input latch.
     pub fn before_frame(&mut self) {
-        self.counters.frames += 1;
-        if !self.sync0_active() {
+        if self.frame_latches() {
             self.latch_inputs();
         }
     }
@@ -1501,7 +1786,7 @@ impl Esc {
         if std::mem::take(&mut self.process_data_seen) {
             self.counters.process_data_frames += 1;
         }
-        if !self.sync0_active() {
+        if self.frame_latches() {
             self.latch_outputs();
         }
         self.resolve_pending_op();
@@ -1511,6 +1796,117 @@ impl Esc {
     pub fn probe(&self) -> Vec<(&'static str, f64)> {
         self.device.as_ref().map(|d| d.probe()).unwrap_or_default()
     }
+}
+
+/// The ESC's digital output registers (0x0F00..0x0F03): a SyncManager may guard them, so
+/// that outputs written there count for the process-data watchdog (ET1100/ET1200 digital I/O).
+const DIGITAL_OUTPUTS: usize = reg::DIGITAL_OUTPUTS as usize;
+const DIGITAL_OUTPUTS_END: usize = DIGITAL_OUTPUTS + reg::DIGITAL_OUTPUTS_LEN as usize;
+
+/// One process-data SyncManager of the slave and the map of the PDOs it carries.
+#[derive(Clone, Debug, Default)]
+pub struct PdSm {
+    pub number: usize,
+    /// Master → slave (SII type 3); else slave → master (type 4).
+    pub output: bool,
+    /// Enabled only in OP (SII enable bit 3): it may stay disabled in SAFEOP.
+    pub op_only: bool,
+    /// Mode and direction (control bits 0..3) the slave expects: buffered or one buffer.
+    pub control: u8,
+    pub map: PdoMap,
+}
+
+/// The process-data SyncManagers and the mailbox SyncManagers of an SII. Without a SyncM
+/// category the usual layout: SM2/SM3 behind a mailbox at SM0/SM1, else SM0/SM1.
+fn process_sync_managers(image: &[u8], mailbox: bool) -> (Vec<PdSm>, Vec<usize>) {
+    let sms = sii::sync_managers(image);
+    if sms.is_empty() {
+        let (o, i) = if mailbox { (2, 3) } else { (0, 1) };
+        let pd = vec![
+            PdSm {
+                number: o,
+                output: true,
+                control: 0x04,
+                ..Default::default()
+            },
+            PdSm {
+                number: i,
+                output: false,
+                control: 0x00,
+                ..Default::default()
+            },
+        ];
+        return (pd, vec![0, 1]);
+    }
+    let mut pd = Vec::new();
+    let mut mbx = Vec::new();
+    for (n, s) in sms.iter().enumerate().take(N_SM) {
+        match s.kind {
+            syncm::TYPE_MBOX_OUT | syncm::TYPE_MBOX_IN => mbx.push(n),
+            syncm::TYPE_OUTPUTS | syncm::TYPE_INPUTS if s.enable & syncm::VIRTUAL == 0 => {
+                let output = s.kind == syncm::TYPE_OUTPUTS;
+                // The direction follows the type; the mode (buffered or one buffer) the SII.
+                let direction = if output { 0x04 } else { 0x00 };
+                pd.push(PdSm {
+                    number: n,
+                    output,
+                    op_only: s.enable & syncm::OP_ONLY != 0,
+                    control: (s.control & 0x03) | direction,
+                    map: PdoMap::default(),
+                })
+            }
+            _ => {}
+        }
+    }
+    if mbx.is_empty() {
+        mbx = vec![0, 1];
+    }
+    (pd, mbx)
+}
+
+/// A PDO mapping object: 0x1600..=0x17FF (RxPDOs) or 0x1A00..=0x1BFF (TxPDOs).
+fn is_mapping_object(index: u16) -> bool {
+    use ether_ros_protocol::coe::{RXPDO_MAPPING, TXPDO_MAPPING};
+    (RXPDO_MAPPING..RXPDO_MAPPING + 0x200).contains(&index)
+        || (TXPDO_MAPPING..TXPDO_MAPPING + 0x200).contains(&index)
+}
+
+/// The (index, subindex, bits) the device's own defaults (its mapping objects 0x1600..0x1BFF
+/// and its SII PDOs) map with another length than their object's: those mappings it accepts
+/// (e.g. 16 bits of a 32-bit counter; the copy takes the object's low bits).
+fn default_partial_mappings(od: &ObjectDictionary, image: &[u8]) -> Vec<(u16, u8, u16)> {
+    let mut out = Vec::new();
+    let mut consider = |index: u16, sub: u8, bits: u16| {
+        if index == 0 {
+            return;
+        }
+        if let Some(e) = od.entry(index, sub) {
+            if bits != e.bit_length && !out.contains(&(index, sub, bits)) {
+                out.push((index, sub, bits));
+            }
+        }
+    };
+    for o in od.objects() {
+        if !is_mapping_object(o.index) {
+            continue;
+        }
+        let n = od.get_int(o.index, 0).clamp(0, 254) as u8;
+        for s in 1..=n {
+            let raw = od.get_int(o.index, s) as u32;
+            consider((raw >> 16) as u16, (raw >> 8) as u8, (raw & 0xff) as u16);
+        }
+    }
+    for category in [
+        ether_ros_protocol::sii::category::TXPDO,
+        ether_ros_protocol::sii::category::RXPDO,
+    ] {
+        for p in sii::pdos(image, category) {
+            for &(index, sub, bits) in &p.entries {
+                consider(index, sub, bits);
+            }
+        }
+    }
+    out
 }
 
 #[cfg(test)]
@@ -1556,5 +1952,203 @@ mod tests {
         esc.request_state(ether_ros_protocol::al::SAFEOP as u16);
         assert_eq!(esc.al_code, ether_ros_protocol::al::INVALID_DC_SYNC_CONFIG);
         assert_eq!(last_emergency_code(&esc), Some(0xA000));
+    }
+
+    /// An SII image: the configuration area (word 0: PDI control and ESC configuration, with
+    /// its checksum), then a SyncM category (start, length, control, enable, type per SM) and
+    /// the end marker.
+    fn image(esc_config: u8, sms: &[(u16, u16, u8, u8, u8)]) -> Vec<u8> {
+        let mut head = vec![0u8; 128];
+        head[0] = 0x04;
+        head[1] = esc_config;
+        head[14] = sii::checksum(&head[..14]);
+        let mut cat = Vec::new();
+        for &(start, len, control, enable, kind) in sms {
+            cat.extend_from_slice(&start.to_le_bytes());
+            cat.extend_from_slice(&len.to_le_bytes());
+            cat.extend_from_slice(&[control, 0, enable, kind]);
+        }
+        head.extend_from_slice(&41u16.to_le_bytes());
+        head.extend_from_slice(&((cat.len() / 2) as u16).to_le_bytes());
+        head.extend_from_slice(&cat);
+        head.extend_from_slice(&[0xff, 0xff]);
+        head
+    }
+
+    fn slave(esc_config: u8, sms: &[(u16, u16, u8, u8, u8)]) -> Esc {
+        let spec = SlaveSpec {
+            sii: image(esc_config, sms),
+            ..Default::default()
+        };
+        Esc::new(spec, 0, 0)
+    }
+
+    /// The master's SM register write: start, length, control, status, activate.
+    fn configure_sm(esc: &mut Esc, k: usize, start: u16, len: u16, control: u8) {
+        let mut w = start.to_le_bytes().to_vec();
+        w.extend_from_slice(&len.to_le_bytes());
+        w.extend_from_slice(&[control, 0, 1, 0]);
+        esc.ecat_write(0x0800 + 8 * k, &w);
+    }
+
+    #[test]
+    fn an_input_only_slave_without_mailbox_takes_its_sm0_as_inputs() {
+        // EL1008: one SM, inputs at 0x1000, no mailbox. The simulator took SM0 for outputs
+        // and refused SAFEOP with 0x001D.
+        let mut esc = slave(0x00, &[(0x1000, 1, 0x00, 0x01, 4)]);
+        esc.od.add_entry(crate::od::Entry {
+            index: 0x6000,
+            subindex: 1,
+            name: "Input".into(),
+            data_type: crate::od::dtype::UINT8,
+            bit_length: 8,
+            access: crate::od::Access::ReadOnly,
+            pdo_mappable: true,
+            value: vec![0x5A],
+        });
+        // Its SII has no PDO category here: the map comes from the dictionary's 0x1C10.
+        esc.od.add_entry(crate::od::Entry {
+            index: 0x1C10,
+            subindex: 0,
+            name: "n".into(),
+            data_type: crate::od::dtype::UINT8,
+            bit_length: 8,
+            access: crate::od::Access::ReadOnly,
+            pdo_mappable: false,
+            value: vec![1],
+        });
+        esc.od.add_entry(crate::od::Entry {
+            index: 0x1C10,
+            subindex: 1,
+            name: "pdo".into(),
+            data_type: crate::od::dtype::UINT16,
+            bit_length: 16,
+            access: crate::od::Access::ReadOnly,
+            pdo_mappable: false,
+            value: 0x1A00u16.to_le_bytes().to_vec(),
+        });
+        for (sub, v) in [(0u8, 1u32), (1, 0x6000_0108)] {
+            esc.od.add_entry(crate::od::Entry {
+                index: 0x1A00,
+                subindex: sub,
+                name: "m".into(),
+                data_type: crate::od::dtype::UINT32,
+                bit_length: if sub == 0 { 8 } else { 32 },
+                access: crate::od::Access::ReadOnly,
+                pdo_mappable: false,
+                value: v.to_le_bytes()[..if sub == 0 { 1 } else { 4 }].to_vec(),
+            });
+        }
+        esc.request_state(ether_ros_protocol::al::PREOP as u16);
+        configure_sm(&mut esc, 0, 0x1000, 1, 0x00);
+        esc.request_state(ether_ros_protocol::al::SAFEOP as u16);
+        assert_eq!(
+            (esc.al_state, esc.al_code),
+            (ether_ros_protocol::al::SAFEOP, 0)
+        );
+        esc.latch_inputs();
+        let mut b = [0u8; 1];
+        assert!(esc.ecat_read(0x1000, &mut b, false));
+        assert_eq!(b, [0x5A]);
+    }
+
+    #[test]
+    fn device_emulation_copies_al_control_to_al_status() {
+        // 0x0141 bit 0 (ConfigData "0401"): no application checks the SyncManagers.
+        let mut esc = slave(0x01, &[(0x0F00, 1, 0x44, 0x09, 3)]);
+        assert!(esc.device_emulation());
+        for state in [
+            ether_ros_protocol::al::PREOP,
+            ether_ros_protocol::al::SAFEOP,
+            ether_ros_protocol::al::OP,
+        ] {
+            esc.request_state(state as u16);
+            assert_eq!((esc.al_state, esc.al_error), (state, false));
+        }
+    }
+
+    #[test]
+    fn an_sm_on_the_digital_output_registers_drives_them_in_op() {
+        // EL2008: SM0 at 0x0F00, enabled only in OP (SII enable bit 3).
+        let mut esc = slave(0x01, &[(0x0F00, 1, 0x44, 0x09, 3)]);
+        esc.request_state(ether_ros_protocol::al::PREOP as u16);
+        esc.request_state(ether_ros_protocol::al::SAFEOP as u16);
+        configure_sm(&mut esc, 0, 0x0F00, 1, 0x44);
+        esc.request_state(ether_ros_protocol::al::OP as u16);
+        assert!(esc.ecat_write(0x0F00, &[0xA5]));
+        esc.latch_outputs();
+        assert_eq!(esc.memory()[0x0F00], 0xA5);
+    }
+
+    #[test]
+    fn a_virtual_sm_takes_no_hardware_sm() {
+        // EL1252: a virtual SM at 0x09AE (SII enable bit 2) is mapped by an FMMU only.
+        let esc = slave(
+            0x01,
+            &[(0x1000, 1, 0x22, 0x01, 4), (0x09AE, 34, 0x00, 0x04, 4)],
+        );
+        assert_eq!(
+            esc.pd_sms
+                .iter()
+                .map(|p| (p.number, p.output, p.control))
+                .collect::<Vec<_>>(),
+            vec![(0, false, 0x02)]
+        );
+    }
+
+    #[test]
+    fn speed_counter_start_write_resets_the_difference_registers() {
+        // ESC datasheet 0x0930: a write resets 0x092C (system time difference) and 0x0932
+        // (speed counter difference).
+        let mut esc = slave(0x00, &[]);
+        esc.ecat_write(0x0910, &5_000_000u64.to_le_bytes());
+        assert_ne!(esc.get32(reg::DC_SYSTEM_TIME_DIFF), 0);
+        esc.put16(reg::DC_SPEED_COUNTER_DIFF, 7);
+        esc.ecat_write(0x0930, &0x1000u16.to_le_bytes());
+        assert_eq!(esc.get32(reg::DC_SYSTEM_TIME_DIFF), 0);
+        assert_eq!(esc.get16(reg::DC_SPEED_COUNTER_DIFF), 0);
+    }
+
+    #[test]
+    fn dc_time_stamps_are_on_the_10_ns_clock_with_jitter() {
+        let mut esc = slave(0x00, &[]);
+        let mut seen = std::collections::BTreeSet::new();
+        for k in 0..200u64 {
+            esc.now = 1_000_000 + k * 1_000_003;
+            esc.ecat_write(0x0900, &[0]);
+            let t = esc.get32(reg::DC_RECEIVE_TIME_PORT0) as u64;
+            assert_eq!(t % DC_GRANULARITY_NS, 0);
+            // Within one clock step of the true local time.
+            let local = esc.dc.local(esc.now);
+            assert!(
+                t.abs_diff(local & 0xffff_ffff) <= DC_GRANULARITY_NS,
+                "{t} {local}"
+            );
+            seen.insert((t as i64 - (local & 0xffff_ffff) as i64).signum());
+        }
+        assert!(seen.len() > 1, "no jitter: {seen:?}");
+    }
+
+    #[test]
+    fn eeprom_offered_to_the_pdi_ignores_the_master_until_taken_back() {
+        let mut esc = slave(0x00, &[]);
+        let read = |esc: &mut Esc| {
+            esc.ecat_write(0x0504, &0x08u32.to_le_bytes());
+            esc.ecat_write(0x0502, &0x0100u16.to_le_bytes());
+            esc.memory()[0x0508..0x0510].to_vec()
+        };
+        let before = read(&mut esc);
+        // Offered to the PDI (0x0500 = 1): the application takes it (0x0501 bit 0).
+        esc.ecat_write(0x0500, &[0x01]);
+        assert!(esc.eeprom_at_pdi() && esc.memory()[0x0501] & 1 == 1);
+        esc.mem[0x0508..0x0510].fill(0xEE);
+        assert_eq!(read(&mut esc), vec![0xEE; 8]);
+        // "Force ECAT access" (0x0500 = 2) takes it back at once.
+        esc.ecat_write(0x0500, &[0x02]);
+        assert!(!esc.eeprom_at_pdi() && esc.memory()[0x0501] == 0);
+        assert_eq!(read(&mut esc), before);
+        // 0x0501 belongs to the PDI: EtherCAT cannot write it.
+        esc.ecat_write(0x0501, &[0x01]);
+        assert_eq!(esc.memory()[0x0501], 0);
     }
 }

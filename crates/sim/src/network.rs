@@ -4,10 +4,15 @@
 //! with the working-counter rules of ETG.1000.4 / the ESC datasheet. A line is the tree where
 //! each slave hangs on port 1 of the previous one.
 
-use ether_ros_protocol::{self as wire, Command};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+
+use ether_ros_protocol::{self as wire, reg, Addressing, Command};
 
 use crate::esc::Esc;
 use crate::faults::{Faults, Rng};
+use crate::firmware::Roster;
+use crate::pi_mutex::{PiGuard, PiMutex};
 use crate::spec::SlaveSpec;
 use crate::topology::{self, Node, Walk};
 
@@ -35,6 +40,10 @@ pub struct NetStats {
     pub per_command: [u64; 15],
     pub polls: u64,
     pub send_errors: u64,
+    /// Longest gap between two frames received by the runner, and longest time one frame
+    /// took from its receipt to its answer leaving (ns; the runner's own measurement).
+    pub max_frame_gap_ns: u64,
+    pub max_frame_ns: u64,
 }
 
 #[derive(Clone, Copy, Default)]
@@ -44,8 +53,136 @@ struct Slot {
     len: usize,
 }
 
+/// One datagram's addressing, decoded once per frame.
+#[derive(Clone, Copy, Default)]
+struct Route {
+    cmd: Option<Command>,
+    adp: u16,
+    ado: u16,
+    /// Walk position an auto-increment datagram addresses (the slave that sees ADP = 0).
+    position: Option<usize>,
+    /// Configured-address datagrams: the walk positions whose address matched, from the map
+    /// (a range of `Network::fixed_hits`); None: ask each slave (the map may be out of date).
+    fixed: Option<(usize, usize)>,
+}
+
+/// A slave controller behind its own lock: the frame path and the firmware worker that runs
+/// its device (`crate::firmware`) take turns on it (priority inheritance: the frame thread
+/// never waits behind a preempted worker).
+pub type SlaveCell = Arc<PiMutex<Esc>>;
+
+/// Lock a slave.
+pub fn lock(cell: &SlaveCell) -> PiGuard<'_, Esc> {
+    cell.lock()
+}
+
+/// Where each slave's device firmware runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FirmwareMode {
+    /// In the frame path: every frame first advances every slave it reaches to its arrival
+    /// time (deterministic: tests with a manual clock, the in-process link).
+    Inline,
+    /// On worker threads at its own clock (`crate::firmware`); the frame path does ESC work.
+    Threads,
+}
+
+/// Who a datagram can reach, kept between frames: configured addresses and FMMU ranges per
+/// walk position. Rebuilt after a frame wrote an addressing or FMMU register, or the slaves
+/// or the topology changed.
+#[derive(Default)]
+struct AddressMaps {
+    stale: bool,
+    /// (station address or enabled alias, walk position), sorted.
+    fixed: Vec<(u16, usize)>,
+    /// (first logical bit, end bit, walk position) of every active FMMU, sorted.
+    logical: Vec<(u64, u64, usize)>,
+    /// Longest FMMU range in bits (bounds the search to the left).
+    longest: u64,
+}
+
+impl AddressMaps {
+    fn rebuild(&mut self, slaves: &[SlaveCell], order: &[usize]) {
+        self.fixed.clear();
+        self.logical.clear();
+        self.longest = 0;
+        for (p, &k) in order.iter().enumerate() {
+            let esc = lock(&slaves[k]);
+            let station = esc.station_address();
+            self.fixed.push((station, p));
+            if esc.alias_enabled() && esc.alias() != station {
+                self.fixed.push((esc.alias(), p));
+            }
+            for f in esc.fmmus() {
+                let (a, b) = (f.first_bit(), f.end_bit());
+                if b <= a {
+                    // A stop bit before the start bit in a one-byte mapping: maps no bit.
+                    continue;
+                }
+                self.logical.push((a, b, p));
+                self.longest = self.longest.max(b - a);
+            }
+        }
+        self.fixed.sort_unstable();
+        self.logical.sort_unstable();
+        self.stale = false;
+    }
+
+    /// Walk positions whose station address or alias is `adp`.
+    fn fixed_positions(&self, adp: u16, out: &mut Vec<usize>) {
+        let from = self.fixed.partition_point(|e| e.0 < adp);
+        out.extend(
+            self.fixed[from..]
+                .iter()
+                .take_while(|e| e.0 == adp)
+                .map(|e| e.1),
+        );
+    }
+
+    /// Walk positions with an FMMU overlapping logical bits `d0..d1`.
+    fn logical_positions(&self, d0: u64, d1: u64, out: &mut Vec<usize>) {
+        let from = self
+            .logical
+            .partition_point(|e| e.0.saturating_add(self.longest) <= d0);
+        let to = self.logical.partition_point(|e| e.0 < d1);
+        if from < to {
+            out.extend(
+                self.logical[from..to]
+                    .iter()
+                    .filter(|e| e.1 > d0)
+                    .map(|e| e.2),
+            );
+        }
+    }
+}
+
+/// Does writing `data` at register `ado` change who a datagram reaches? Station address and
+/// alias, DL control (alias enable), the FMMUs, and an SII reload command (it loads the
+/// alias from the EEPROM; the SII's read commands do not).
+fn changes_addressing(ado: usize, data: &[u8]) -> bool {
+    let hits = |start: u16, n: usize| {
+        let start = start as usize;
+        ado < start + n && ado + data.len() > start
+    };
+    let command = reg::SII_CONTROL as usize + 1;
+    let reload = (ado..ado + data.len()).contains(&command)
+        && (u16::from(data[command - ado]) << 8) & crate::sii::CMD_MASK == crate::sii::CMD_RELOAD;
+    hits(reg::STATION_ADDRESS, 4)
+        || hits(reg::DL_CONTROL, 4)
+        || hits(reg::FMMU0, crate::esc::N_FMMU * reg::FMMU_LEN as usize)
+        || reload
+}
+
+/// Bits on the wire per byte at 100 Mbit/s, as time: 80 ns.
+const NS_PER_BYTE: u64 = 80;
+/// What a frame occupies on the wire beside its bytes: preamble and start delimiter (8), FCS
+/// (4) and the inter-frame gap (12), IEEE 802.3.
+const FRAME_OVERHEAD_BYTES: u64 = 24;
+
 pub struct Network {
-    pub slaves: Vec<Esc>,
+    slaves: Vec<SlaveCell>,
+    /// Each slave's place in the tree (ports, delay, upstream), as the topology walk needs it;
+    /// `link_down` from `faults.cut_links`.
+    nodes: Vec<Node>,
     pub clock: Clock,
     pub faults: Faults,
     pub rng: Rng,
@@ -53,6 +190,21 @@ pub struct Network {
     /// The frame's path through the tree, recomputed when slaves or links change.
     walk: Walk,
     scratch: Vec<u8>,
+    firmware: FirmwareMode,
+    maps: AddressMaps,
+    /// Walk positions the current frame reaches (scratch, no allocation per frame).
+    touched: Vec<usize>,
+    routes: Vec<Route>,
+    fixed_hits: Vec<usize>,
+    /// Frames that walked the tree so far, and the value when each slave's own count was last
+    /// brought up to date (`counters.frames`; None: unreachable since then).
+    frames_walked: u64,
+    frames_since: Vec<Option<u64>>,
+    /// Bumped whenever the slaves or their order change: the firmware workers pick up their
+    /// share again.
+    generation: Arc<AtomicU64>,
+    /// The firmware workers' view of the slaves, while they run.
+    roster: Option<Arc<Roster>>,
 }
 
 impl Default for Network {
@@ -76,12 +228,22 @@ impl Network {
     pub fn new() -> Self {
         Network {
             slaves: Vec::new(),
+            nodes: Vec::new(),
             clock: Clock::Monotonic,
             faults: Faults::default(),
             rng: Rng::new(1),
             stats: NetStats::default(),
             walk: Walk::default(),
             scratch: Vec::with_capacity(wire::MAX_FRAME_LEN),
+            firmware: FirmwareMode::Inline,
+            maps: AddressMaps::default(),
+            touched: Vec::new(),
+            routes: Vec::with_capacity(MAX_DATAGRAMS),
+            fixed_hits: Vec::new(),
+            frames_walked: 0,
+            frames_since: Vec::new(),
+            generation: Arc::new(AtomicU64::new(0)),
+            roster: None,
         }
     }
 
@@ -106,6 +268,83 @@ impl Network {
         }
     }
 
+    /// Number of slaves.
+    pub fn len(&self) -> usize {
+        self.slaves.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.slaves.is_empty()
+    }
+
+    /// Slave `k`, locked (panics when there is none: tests; see `try_slave`).
+    pub fn slave(&self, k: usize) -> PiGuard<'_, Esc> {
+        lock(&self.slaves[k])
+    }
+
+    /// Slave `k`, locked, if there is one.
+    pub fn try_slave(&self, k: usize) -> Option<PiGuard<'_, Esc>> {
+        self.slaves.get(k).map(lock)
+    }
+
+    /// The slaves' cells (the firmware workers share them).
+    pub fn cells(&self) -> &[SlaveCell] {
+        &self.slaves
+    }
+
+    /// Changes whenever the slaves change (added, reset): workers reload their share.
+    pub fn generation(&self) -> Arc<AtomicU64> {
+        self.generation.clone()
+    }
+
+    pub fn firmware_mode(&self) -> FirmwareMode {
+        self.firmware
+    }
+
+    /// Run the device firmware inline (in the frame path) or leave it to worker threads
+    /// (`crate::firmware::Workers`, started by the runner).
+    pub fn set_firmware_mode(&mut self, mode: FirmwareMode) {
+        self.firmware = mode;
+        self.maps.stale = true;
+        for cell in &self.slaves {
+            lock(cell).set_firmware_latches(mode == FirmwareMode::Threads);
+        }
+    }
+
+    fn changed(&mut self) {
+        if let Some(r) = &self.roster {
+            r.update(self.slaves.clone());
+        }
+        self.generation.fetch_add(1, Ordering::Release);
+    }
+
+    /// Keep `roster` up to date with the slaves (the runner's workers read it).
+    pub fn set_roster(&mut self, roster: Arc<Roster>) {
+        self.roster = Some(roster);
+    }
+
+    pub fn clear_roster(&mut self) {
+        self.roster = None;
+    }
+
+    /// Frames that reached slave `k` (its own count since its last reset).
+    pub fn slave_frames(&self, k: usize) -> u64 {
+        let base = self.slaves.get(k).map_or(0, |c| lock(c).counters.frames);
+        let since = self.frames_since.get(k).copied().flatten();
+        base + since.map_or(0, |s| self.frames_walked - s)
+    }
+
+    /// Bring every slave's frame count up to date (before the set of reachable slaves changes).
+    fn settle_frame_counts(&mut self) {
+        for (k, since) in self.frames_since.iter_mut().enumerate() {
+            if let Some(s) = since.take() {
+                if self.frames_walked > s {
+                    lock(&self.slaves[k]).counters.frames += self.frames_walked - s;
+                }
+            }
+        }
+    }
+
     /// Append a slave; returns its index. It hangs on `spec.upstream` (default: port 1 of the
     /// previous slave), and slaves must be added in the order the frame visits them (their
     /// auto-increment order). The device model is created from the spec's `device` and
@@ -122,17 +361,29 @@ impl Network {
         if let Some(d) = esc.device.as_mut() {
             d.reset(&mut esc.od);
         }
-        self.slaves.push(esc);
-        if let Some(next) = topology::listed_out_of_order(&self.nodes()) {
-            let esc = self.slaves.pop().expect("just pushed");
-            let (parent, port) = esc.spec.upstream.expect("not the first slave");
+        esc.set_firmware_latches(self.firmware == FirmwareMode::Threads);
+        let spec_upstream = esc.spec.upstream;
+        let name = esc.spec.name.clone();
+        self.nodes.push(Node {
+            ports: esc.spec.esc.profile().ports,
+            delay_ns: esc.spec.delay_ns,
+            upstream: spec_upstream,
+            link_down: false,
+        });
+        if let Some(next) = topology::listed_out_of_order(&self.nodes) {
+            self.nodes.pop();
+            let (parent, port) = spec_upstream.expect("not the first slave");
             return Err(format!(
-                "slave '{}' on port {port} of '{}': the frame reaches it before '{}' (ports \
+                "slave '{name}' on port {port} of '{}': the frame reaches it before '{}' (ports \
                  are visited in the order 0, 3, 1, 2), so it must be listed before it",
-                esc.spec.name, self.slaves[parent].spec.name, self.slaves[next].spec.name
+                lock(&self.slaves[parent]).spec.name,
+                lock(&self.slaves[next]).spec.name
             ));
         }
+        self.slaves.push(Arc::new(PiMutex::new(esc)));
+        self.frames_since.push(None);
         self.update_topology();
+        self.changed();
         Ok(pos)
     }
 
@@ -149,7 +400,7 @@ impl Network {
             };
         }
         let (parent, port) = spec.upstream.unwrap_or((pos - 1, 1));
-        let Some(p) = self.slaves.get(parent) else {
+        let Some(p) = self.try_slave(parent) else {
             return Err(format!(
                 "slave '{}': parent index {parent} is not an earlier slave (0..{})",
                 spec.name,
@@ -166,38 +417,23 @@ impl Network {
                 ports - 1
             ));
         }
-        if let Some(other) = self
-            .slaves
-            .iter()
-            .find(|s| s.spec.upstream == Some((parent, port)))
-        {
+        let parent_name = p.spec.name.clone();
+        drop(p);
+        if let Some(other) = self.slave_on_port(parent, port) {
             return Err(format!(
-                "slave '{}': port {port} of '{}' is taken by '{}'",
-                spec.name, p.spec.name, other.spec.name
+                "slave '{}': port {port} of '{parent_name}' is taken by '{}'",
+                spec.name,
+                lock(&self.slaves[other]).spec.name
             ));
         }
         Ok(Some((parent, port)))
     }
 
-    /// The slaves as the topology walk sees them.
-    fn nodes(&self) -> Vec<Node> {
-        self.slaves
-            .iter()
-            .enumerate()
-            .map(|(k, s)| Node {
-                ports: s.spec.esc.profile().ports,
-                delay_ns: s.spec.delay_ns,
-                upstream: s.spec.upstream,
-                link_down: self.faults.cut_links.contains(&k),
-            })
-            .collect()
-    }
-
     /// Index of the slave on `port` of slave `parent` (None: nothing attached there).
     pub fn slave_on_port(&self, parent: usize, port: u8) -> Option<usize> {
-        self.slaves
+        self.nodes
             .iter()
-            .position(|s| s.spec.upstream == Some((parent, port)))
+            .position(|n| n.upstream == Some((parent, port)))
     }
 
     /// Cut (or mend) the link into slave `k`'s port 0.
@@ -221,18 +457,35 @@ impl Network {
     /// Power-cycle one slave: registers back to their defaults, device reset.
     pub fn reset_slave(&mut self, pos: usize) -> bool {
         let now = self.now();
-        let Some(old) = self.slaves.get_mut(pos) else {
+        let Some(cell) = self.slaves.get(pos) else {
             return false;
         };
-        let spec = old.spec.clone();
-        let device = old.device.take();
-        let mut esc = Esc::new(spec, pos, now);
-        esc.device = device;
-        if let Some(d) = esc.device.as_mut() {
-            d.reset(&mut esc.od);
+        {
+            let mut old = lock(cell);
+            let spec = old.spec.clone();
+            let device = old.device.take();
+            let mut esc = Esc::new(spec, pos, now);
+            esc.device = device;
+            if let Some(d) = esc.device.as_mut() {
+                d.reset(&mut esc.od);
+            }
+            esc.set_firmware_latches(self.firmware == FirmwareMode::Threads);
+            if let (Some(&ports), Some(&back)) = (
+                self.walk.open_ports.get(pos),
+                self.walk.port_return.get(pos),
+            ) {
+                esc.open_ports = ports;
+                esc.port_return_ns = back;
+                esc.update_dl_status();
+            }
+            *old = esc;
         }
-        self.slaves[pos] = esc;
+        if let Some(since) = self.frames_since.get_mut(pos) {
+            // The new slave counts from zero.
+            *since = since.map(|_| self.frames_walked);
+        }
         self.update_topology();
+        self.changed();
         true
     }
 
@@ -244,7 +497,7 @@ impl Network {
         fault: &str,
         axis: usize,
     ) -> Result<(), String> {
-        let Some(esc) = self.slaves.get_mut(pos) else {
+        let Some(mut esc) = self.try_slave(pos) else {
             return Err(format!("no slave at position {pos}"));
         };
         let name = esc.spec.name.clone();
@@ -261,12 +514,29 @@ impl Network {
     /// Recompute the frame's walk and every slave's port states from the tree and the cut
     /// links.
     pub fn update_topology(&mut self) {
-        self.walk = Walk::compute(&self.nodes());
-        for (k, s) in self.slaves.iter_mut().enumerate() {
+        self.settle_frame_counts();
+        for (k, n) in self.nodes.iter_mut().enumerate() {
+            n.link_down = self.faults.cut_links.contains(&k);
+        }
+        let old = std::mem::replace(&mut self.walk, Walk::compute(&self.nodes));
+        for (k, cell) in self.slaves.iter().enumerate() {
+            // Only slaves whose ports changed (adding a slave to a line changes one).
+            let same = old.open_ports.get(k) == Some(&self.walk.open_ports[k])
+                && old.port_return.get(k) == Some(&self.walk.port_return[k]);
+            if same {
+                continue;
+            }
+            let mut s = lock(cell);
             s.open_ports = self.walk.open_ports[k];
             s.port_return_ns = self.walk.port_return[k];
             s.update_dl_status();
         }
+        for &k in &self.walk.order {
+            self.frames_since[k] = Some(self.frames_walked);
+        }
+        self.touched = Vec::with_capacity(self.slaves.len() * crate::esc::N_FMMU + MAX_DATAGRAMS);
+        self.fixed_hits = Vec::with_capacity(self.slaves.len() * MAX_DATAGRAMS.min(8));
+        self.maps.stale = true;
     }
 
     /// Slaves the frame reaches, in auto-increment order.
@@ -274,8 +544,15 @@ impl Network {
         &self.walk.order
     }
 
+    /// The modelled wire for a frame of `len` bytes (without FCS): (ns it occupies the
+    /// master's 100 Mbit/s link, ns its last bit takes to come back through the slaves).
+    pub fn wire_time(&self, len: usize) -> (u64, u64) {
+        let bytes = (len.max(wire::MIN_FRAME_LEN) as u64) + FRAME_OVERHEAD_BYTES;
+        (bytes * NS_PER_BYTE, self.walk.round_trip)
+    }
+
     /// Advance every slave's application to now (device steps, SYNC0, watchdog, mailbox) —
-    /// called by the runner when no frame arrives.
+    /// called by the runner when no frame arrives (firmware inline).
     pub fn poll(&mut self) {
         let now = self.now();
         self.poll_at(now);
@@ -283,7 +560,8 @@ impl Network {
 
     pub fn poll_at(&mut self, now: u64) {
         self.stats.polls += 1;
-        for (k, s) in self.slaves.iter_mut().enumerate() {
+        for (k, cell) in self.slaves.iter().enumerate() {
+            let mut s = lock(cell);
             s.advance(now + self.walk.arrival[k]);
             s.service_mailbox();
         }
@@ -326,14 +604,45 @@ impl Network {
                 None => self.stats.unknown_commands += 1,
             }
         }
-        for &k in &self.walk.order {
-            let esc = &mut self.slaves[k];
-            esc.advance(now + self.walk.arrival[k]);
+        self.frames_walked += 1;
+        self.route(frame, &slots[..n]);
+        let reached = self.walk.order.len();
+        for i in 0..self.touched.len() {
+            let p = self.touched[i];
+            let k = self.walk.order[p];
+            let t = now + self.walk.arrival[k];
+            let mut esc = lock(&self.slaves[k]);
+            match self.firmware {
+                FirmwareMode::Inline => esc.advance(t),
+                FirmwareMode::Threads => esc.frame_catch_up(t),
+            }
             esc.before_frame();
-            for s in &slots[..n] {
-                process_datagram(esc, frame, s, &mut self.scratch);
+            for (s, r) in slots[..n].iter().zip(&self.routes) {
+                let addressed = match (r.cmd.map(Command::addressing), r.fixed) {
+                    (Some(Addressing::Fixed), Some((a, b))) => {
+                        self.fixed_hits[a..b].binary_search(&p).is_ok()
+                    }
+                    (Some(Addressing::Fixed), None) => esc.matches_fixed(r.adp),
+                    _ => r.position == Some(p),
+                };
+                process_datagram(&mut esc, frame, s, r, addressed, &mut self.scratch);
             }
             esc.after_frame();
+        }
+        // Every slave the frame passed incremented the ADP of auto-increment and broadcast
+        // datagrams.
+        for (s, r) in slots[..n].iter().zip(&self.routes) {
+            if matches!(
+                r.cmd.map(Command::addressing),
+                Some(Addressing::AutoIncrement | Addressing::Broadcast)
+            ) {
+                let adp = r.adp.wrapping_add(reached as u16);
+                frame[s.header + 2..s.header + 4].copy_from_slice(&adp.to_le_bytes());
+            }
+        }
+        if self.maps.stale && self.firmware == FirmwareMode::Threads {
+            // This frame changed addresses or FMMUs: the next one routes with the new maps.
+            self.maps.rebuild(&self.slaves, &self.walk.order);
         }
         if dropped {
             self.stats.frames_dropped += 1;
@@ -348,6 +657,88 @@ impl Network {
         frame[6] |= 0x02;
         self.stats.frames_answered += 1;
         true
+    }
+
+    /// Decode each datagram's addressing and collect the walk positions the frame reaches
+    /// (`touched`, in walk order): with the firmware inline every reachable slave (each
+    /// advances to the frame's time); otherwise only the slaves a datagram addresses, from
+    /// the maps — every slave for broadcasts, ARMW/FRMW, and frames that change addressing.
+    fn route(&mut self, frame: &[u8], slots: &[Slot]) {
+        let threads = self.firmware == FirmwareMode::Threads;
+        if self.maps.stale && threads {
+            self.maps.rebuild(&self.slaves, &self.walk.order);
+        }
+        let reached = self.walk.order.len();
+        self.routes.clear();
+        self.touched.clear();
+        self.fixed_hits.clear();
+        let mut all = !threads;
+        // Set once a datagram of this frame rewrites addressing registers: the maps no longer
+        // tell who the following datagrams reach.
+        let mut readdressed = !threads;
+        for s in slots {
+            let h = s.header;
+            let cmd = Command::from_u8(frame[h]);
+            let address =
+                u32::from_le_bytes([frame[h + 2], frame[h + 3], frame[h + 4], frame[h + 5]]);
+            let (adp, ado) = wire::split_address(address);
+            let mut route = Route {
+                cmd,
+                adp,
+                ado,
+                position: None,
+                fixed: None,
+            };
+            let Some(c) = cmd else {
+                self.routes.push(route);
+                continue;
+            };
+            if c.writes()
+                && c.addressing() != Addressing::Logical
+                && changes_addressing(ado as usize, &frame[s.data..s.data + s.len])
+            {
+                // Who the later datagrams reach may change within this frame.
+                self.maps.stale = true;
+                all = true;
+                readdressed = true;
+            }
+            if c.addressing() == Addressing::AutoIncrement {
+                let p = adp.wrapping_neg() as usize;
+                route.position = (p < reached).then_some(p);
+            }
+            if c.addressing() == Addressing::Fixed && !readdressed {
+                let from = self.fixed_hits.len();
+                self.maps.fixed_positions(adp, &mut self.fixed_hits);
+                route.fixed = Some((from, self.fixed_hits.len()));
+            }
+            match c {
+                Command::Nop => {}
+                // Read at the addressed slave, written at every other one.
+                Command::Armw | Command::Frmw => all = true,
+                _ => match c.addressing() {
+                    Addressing::AutoIncrement => self.touched.extend(route.position),
+                    Addressing::Fixed => match route.fixed {
+                        Some((a, b)) => self.touched.extend_from_slice(&self.fixed_hits[a..b]),
+                        None => all = true,
+                    },
+                    Addressing::Broadcast => all = true,
+                    Addressing::Logical => {
+                        let d0 = address as u64 * 8;
+                        self.maps
+                            .logical_positions(d0, d0 + s.len as u64 * 8, &mut self.touched);
+                    }
+                    Addressing::None => {}
+                },
+            }
+            self.routes.push(route);
+        }
+        if all {
+            self.touched.clear();
+            self.touched.extend(0..reached);
+        } else {
+            self.touched.sort_unstable();
+            self.touched.dedup();
+        }
     }
 
     /// Delay to apply before sending an answer (µs), from the fault settings.
@@ -385,39 +776,48 @@ fn parse_datagrams(frame: &[u8], end: usize, slots: &mut [Slot; MAX_DATAGRAMS]) 
     Some(n)
 }
 
-/// One datagram at one slave.
-fn process_datagram(esc: &mut Esc, frame: &mut [u8], s: &Slot, scratch: &mut Vec<u8>) {
-    let Some(cmd) = Command::from_u8(frame[s.header]) else {
+/// One datagram at one slave; `addressed`: the slave is the one a position or configured
+/// address names (broadcasts address every slave, logical datagrams go by the FMMUs).
+fn process_datagram(
+    esc: &mut Esc,
+    frame: &mut [u8],
+    s: &Slot,
+    r: &Route,
+    addressed: bool,
+    scratch: &mut Vec<u8>,
+) {
+    let Some(cmd) = r.cmd else {
         return;
     };
     let h = s.header;
-    let address = u32::from_le_bytes([frame[h + 2], frame[h + 3], frame[h + 4], frame[h + 5]]);
-    let (adp, ado) = wire::split_address(address);
     let wkc_at = s.data + s.len;
     let mut wkc = u16::from_le_bytes([frame[wkc_at], frame[wkc_at + 1]]);
-    let data = &mut frame[s.data..s.data + s.len];
-    let ado = ado as usize;
+    let ado = r.ado as usize;
     use Command::*;
-    match cmd {
+    let increment = match cmd {
         Nop => return,
         Aprd | Apwr | Aprw | Armw | Brd | Bwr | Brw => {
-            let addressed = matches!(cmd, Brd | Bwr | Brw) || adp == 0;
-            // Auto-increment and broadcast: every slave increments ADP.
-            let next = (adp.wrapping_add(1) as u32) | ((ado as u32) << 16);
-            wkc = wkc.wrapping_add(physical(esc, cmd, addressed, ado, data, scratch));
-            frame[h + 2..h + 6].copy_from_slice(&next.to_le_bytes());
+            // Auto-increment: the slave that sees ADP = 0 (the network writes the ADP every
+            // slave incremented once the frame has passed them all).
+            let addressed = addressed || matches!(cmd, Brd | Bwr | Brw);
+            let data = &mut frame[s.data..s.data + s.len];
+            physical(esc, cmd, addressed, ado, data, scratch)
         }
         Fprd | Fpwr | Fprw | Frmw => {
-            let addressed = esc.matches_fixed(adp);
-            wkc = wkc.wrapping_add(physical(esc, cmd, addressed, ado, data, scratch));
+            let data = &mut frame[s.data..s.data + s.len];
+            physical(esc, cmd, addressed, ado, data, scratch)
         }
         Lrd | Lwr | Lrw => {
-            let reads = cmd != Lwr;
-            let writes = cmd != Lrd;
-            wkc = wkc.wrapping_add(esc.logical(address, data, reads, writes, scratch));
+            let address =
+                u32::from_le_bytes([frame[h + 2], frame[h + 3], frame[h + 4], frame[h + 5]]);
+            let data = &mut frame[s.data..s.data + s.len];
+            esc.logical(address, data, cmd != Lwr, cmd != Lrd, scratch)
         }
+    };
+    if increment != 0 {
+        wkc = wkc.wrapping_add(increment);
+        frame[wkc_at..wkc_at + 2].copy_from_slice(&wkc.to_le_bytes());
     }
-    frame[wkc_at..wkc_at + 2].copy_from_slice(&wkc.to_le_bytes());
 }
 
 /// Physical access of a position/station/broadcast command; returns the WKC increment.

@@ -46,10 +46,16 @@ impl PdoMap {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct MappingError;
 
-/// Build the map from the assignment object `assign` (0x1C12 or 0x1C13). Returns None when the
-/// dictionary has no such object (no CoE). A mapped entry that does not exist, is not
-/// PDO-mappable or has another bit length is an error (gaps, index 0, are allowed).
-pub fn from_od(od: &ObjectDictionary, assign: u16) -> Option<Result<PdoMap, MappingError>> {
+/// Build the map from the assignment object `assign` (0x1C10 + SM number). Returns None when
+/// the dictionary has no such object (no CoE). A mapped entry that does not exist or has
+/// another bit length is an error (gaps, index 0, are allowed) — except a shorter mapping of
+/// an object the device's own default maps that way (`partial`: (index, subindex, bits)),
+/// which takes the object's low bits.
+pub fn from_od(
+    od: &ObjectDictionary,
+    assign: u16,
+    partial: &[(u16, u8, u16)],
+) -> Option<Result<PdoMap, MappingError>> {
     od.entry(assign, 0)?;
     let mut map = PdoMap::default();
     let n_pdos = od.get_int(assign, 0).clamp(0, 254) as u8;
@@ -71,7 +77,7 @@ pub fn from_od(od: &ObjectDictionary, assign: u16) -> Option<Result<PdoMap, Mapp
                     return Some(Err(MappingError));
                 };
                 let e = od.entry_at(pos);
-                if e.bit_length != bits {
+                if e.bit_length != bits && !partial.contains(&(index, subindex, bits)) {
                     return Some(Err(MappingError));
                 }
                 Some(pos)
@@ -83,7 +89,8 @@ pub fn from_od(od: &ObjectDictionary, assign: u16) -> Option<Result<PdoMap, Mapp
 }
 
 /// Build the map from SII PDO entries (index, subindex, bits); entries the OD lacks are carried
-/// without a place to store them.
+/// without a place to store them. The SII is the device's own default, so an entry of another
+/// length than its object maps the object's low bits (the copy stays inside both).
 pub fn from_entries(od: &ObjectDictionary, entries: &[(u16, u8, u16)]) -> PdoMap {
     let mut map = PdoMap::default();
     for &(index, subindex, bits) in entries {
@@ -91,7 +98,6 @@ pub fn from_entries(od: &ObjectDictionary, entries: &[(u16, u8, u16)]) -> PdoMap
             None
         } else {
             od.position(index, subindex)
-                .filter(|&p| od.entry_at(p).bit_length == bits)
         };
         map.append(index, subindex, bits, entry);
     }

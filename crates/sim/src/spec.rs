@@ -1,6 +1,8 @@
 //! Description of one virtual slave, built by the Python front from the bus config and the ESI
 //! (see `docs/simulator.md` for the dict keys that map onto these fields).
 
+use ether_ros_protocol::sii::syncm;
+
 use crate::chip::EscChip;
 use crate::od::{Entry, Object};
 
@@ -127,13 +129,14 @@ impl SlaveSpec {
         let rx = crate::sii::pdos(&self.sii, SII_CATEGORY_RXPDO);
         let tx = crate::sii::pdos(&self.sii, SII_CATEGORY_TXPDO);
         for (n, sm) in sms.iter().enumerate() {
-            if sm.kind == 0 {
+            // Unused, or virtual (SII enable bit 2: an FMMU maps ESC memory, no SM is used).
+            if sm.kind == syncm::TYPE_UNUSED || sm.enable & syncm::VIRTUAL != 0 {
                 continue;
             }
             // A process-data SyncManager without a default length is as long as its PDOs.
             let pdos = match sm.kind {
-                3 => &rx,
-                4 => &tx,
+                syncm::TYPE_OUTPUTS => &rx,
+                syncm::TYPE_INPUTS => &tx,
                 _ => &Vec::new(),
             };
             let pdo_bits: u32 = pdos
@@ -143,6 +146,10 @@ impl SlaveSpec {
                 .sum();
             let len = u32::from(sm.len).max(pdo_bits.div_ceil(8));
             let buffered = sm.control & 0x03 == 0;
+            // The digital output registers (0x0F00..0x0F03) take an SM of their own size.
+            if crate::sm::window_allowed(sm.start, len.min(0xFFFF) as u16) && sm.start < 0x1000 {
+                continue;
+            }
             let end = u32::from(sm.start) + len * if buffered { 3 } else { 1 };
             if u32::from(sm.start) < 0x1000 || end > ram_end {
                 return Err(format!(

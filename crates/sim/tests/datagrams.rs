@@ -200,14 +200,14 @@ fn sii_reads_eight_bytes_and_flags_out_of_range() {
     let (d, _) = fprd(&mut net, st, 0x0502, 2);
     assert_ne!(u16::from_le_bytes([d[0], d[1]]) & 0x4000, 0);
     fpwr(&mut net, st, 0x0502, &[0x01, 0x02]);
-    assert_eq!(&net.slaves[0].sii_image()[0x40..0x42], &[0xcd, 0xab]);
+    assert_eq!(&net.slave(0).sii_image()[0x40..0x42], &[0xcd, 0xab]);
 }
 
 #[test]
 fn sii_busy_bit_is_visible_while_the_eeprom_works() {
     let mut net = net_with(1);
     assign_addresses(&mut net);
-    net.slaves[0].set_sii_busy_ns(50_000);
+    net.slave(0).set_sii_busy_ns(50_000);
     fpwr(
         &mut net,
         station(0),
@@ -242,9 +242,9 @@ fn fmmu_maps_bits_onto_physical_memory() {
     // LWR: +1 for each slave written (ESC datasheet; +2 is LRW's write increment).
     let (_, wkc) = xfer(&mut net, Command::Lwr, 0x100, &[0b0010_1000, 0x5a]);
     assert_eq!(wkc, 1 + 1);
-    let m = net.slaves[0].memory();
-    assert_eq!((m[0x1400], m[0x1401]), (0b0100_0000, 0b0000_0001));
-    assert_eq!(net.slaves[1].memory()[0x1400], 0x5a);
+    let m = net.slave(0).memory()[0x1400..0x1402].to_vec();
+    assert_eq!((m[0], m[1]), (0b0100_0000, 0b0000_0001));
+    assert_eq!(net.slave(1).memory()[0x1400], 0x5a);
     // Read back: only the mapped bits come back; slave 1's write-only FMMU does not read.
     let (d, wkc) = xfer(&mut net, Command::Lrd, 0x100, &[0, 0]);
     assert_eq!(wkc, 1);
@@ -281,11 +281,11 @@ fn an_esc_without_lrw_says_so_and_ignores_lrw_but_serves_lrd_and_lwr() {
     // LRW: only slave 0 takes part (+3); slave 1 neither writes nor counts.
     let (_, wkc) = xfer(&mut net, Command::Lrw, 0x100, &[0x11, 0x22]);
     assert_eq!(wkc, 3);
-    assert_eq!(net.slaves[0].memory()[0x1400], 0x11);
-    assert_eq!(net.slaves[1].memory()[0x1400], 0);
+    assert_eq!(net.slave(0).memory()[0x1400], 0x11);
+    assert_eq!(net.slave(1).memory()[0x1400], 0);
     // LWR and LRD reach it: +1 each per slave.
     assert_eq!(xfer(&mut net, Command::Lwr, 0x100, &[0x33, 0x44]).1, 2);
-    assert_eq!(net.slaves[1].memory()[0x1400], 0x44);
+    assert_eq!(net.slave(1).memory()[0x1400], 0x44);
     let (d, wkc) = xfer(&mut net, Command::Lrd, 0x100, &[0, 0]);
     assert_eq!((d, wkc), (vec![0x33, 0x44], 2));
 }

@@ -208,7 +208,7 @@ fn run_cycles(net: &mut Network, write_reference: bool, seconds: f64) -> Run {
         let arrival = sent + 800;
         run.reference_peak_correction = run
             .reference_peak_correction
-            .max(net.slaves[0].dc.correction_ppm().abs());
+            .max(net.slave(0).dc.correction_ppm().abs());
         if k >= cycles / 2 {
             run.reference_vs_master
                 .push(reference_time.wrapping_sub(master_time(arrival)) as i64);
@@ -234,12 +234,12 @@ fn reference_follows_master_locks_without_saturating() {
         percentile_abs(&run.reference_diffs, 0.99),
         percentile_abs(&wander, 0.99),
         percentile_abs(&run.follower_diffs, 0.99),
-        net.slaves[0].dc.correction_ppm(),
+        net.slave(0).dc.correction_ppm(),
         run.reference_peak_correction,
     );
     // The reference trimmed its speed by its drift and nowhere near the ±500 ppm limit.
     assert!(run.reference_peak_correction < 200.0);
-    assert!((net.slaves[0].dc.correction_ppm() + 50.0).abs() < 10.0);
+    assert!((net.slave(0).dc.correction_ppm() + 50.0).abs() < 10.0);
     // It keeps the written (planned-send) time at its arrival: Δ averages out to ~0 and the
     // reference runs the mean send lag (25 µs) + one hop behind the master's clock, steadily.
     assert!(percentile_abs(&run.reference_diffs, 0.99) < 10_000);
@@ -249,7 +249,7 @@ fn reference_follows_master_locks_without_saturating() {
     // written time's jitter): their corrections stay near the master's rate − their drift.
     assert!(percentile_abs(&run.follower_diffs, 1.0) < 2_000);
     for (pos, drift) in DRIFTS_PPM.iter().enumerate().skip(1) {
-        let learned = net.slaves[pos].dc.correction_ppm();
+        let learned = net.slave(pos).dc.correction_ppm();
         assert!((learned + drift).abs() < 20.0, "slave {pos}: {learned} ppm");
     }
 }
@@ -263,11 +263,11 @@ fn master_follows_reference_followers_lock_to_the_nanosecond() {
         percentile_abs(&run.follower_diffs, 0.99)
     );
     // Nobody writes the reference: it runs free.
-    assert_eq!(net.slaves[0].dc.correction_ppm(), 0.0);
+    assert_eq!(net.slave(0).dc.correction_ppm(), 0.0);
     assert!(percentile_abs(&run.follower_diffs, 1.0) <= 5);
     for (pos, drift) in DRIFTS_PPM.iter().enumerate().skip(1) {
         let expected = DRIFTS_PPM[0] - drift;
-        let learned = net.slaves[pos].dc.correction_ppm();
+        let learned = net.slave(pos).dc.correction_ppm();
         assert!(
             (learned - expected).abs() < 0.5,
             "slave {pos}: {learned} ppm"

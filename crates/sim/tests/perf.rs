@@ -61,7 +61,11 @@ fn cyclic_frame_cost_for_four_legs() {
         assert!(net.process_frame(&mut buf[..n]));
     }
     let per_frame = t.elapsed().as_secs_f64() / frames as f64;
-    let steps: u64 = net.slaves.iter().map(|s| s.counters.device_steps).sum();
+    let steps: u64 = net
+        .cells()
+        .iter()
+        .map(|c| ether_ros_sim::network::lock(c).counters.device_steps)
+        .sum();
     println!(
         "per frame {:.2} µs (incl. {:.1} device steps), 20 kHz share {:.1} %",
         per_frame * 1e6,
@@ -125,4 +129,91 @@ fn cia402_step_cost_next_to_the_leg() {
         drive_ns / 125_000.0 * 100.0,
         drive_ns / leg_ns
     );
+}
+
+/// Cost of the frame path on a line of 1024 slaves in SAFEOP with a loopback firmware each:
+/// the DC frame (FRMW to every slave), a logical frame for 38 slaves and a broadcast read.
+/// Baseline in the same run: the older model (`FirmwareMode::Inline`), where each frame first
+/// advances the firmware of every slave it reaches; against it the frame path alone
+/// (`FirmwareMode::Threads`, the firmware belongs to the workers, here not running). Prints
+/// both and their ratio (run on demand:
+/// `cargo test -p ether-ros-sim --release --test perf frame_path -- --ignored --nocapture`).
+#[test]
+#[ignore]
+fn frame_path_cost_for_1024_slaves() {
+    use ether_ros_sim::network::FirmwareMode;
+    const N: usize = 1024;
+    const FRAMES: u32 = 2_000;
+    let build = |mode: FirmwareMode| {
+        let mut net = Network::with_manual_clock(1_000_000_000);
+        for _ in 0..N {
+            let mut s = io_spec();
+            s.device = "loopback".into();
+            s.loopback_links = vec![(0x7000, 1, 0x6000, 1)];
+            net.add_slave(s).unwrap();
+        }
+        net.set_firmware_mode(mode);
+        assign_addresses(&mut net);
+        for p in 0..N {
+            let st = station(p);
+            to_preop(&mut net, st);
+            to_safeop(&mut net, st, 0x1_0000 + 6 * p as u32);
+        }
+        net
+    };
+    // µs per frame, each frame 1 ms of simulated time after the last (a 1 kHz cycle).
+    let time = |net: &mut Network, build: &dyn Fn(&mut FrameBuilder)| {
+        let mut buf = [0u8; wire::MAX_FRAME_LEN];
+        let mut b = FrameBuilder::new(&mut buf, wire::MASTER_MAC).unwrap();
+        build(&mut b);
+        let n = b.finish();
+        let template = buf;
+        let t = Instant::now();
+        for _ in 0..FRAMES {
+            net.advance_clock(1_000_000);
+            buf[..n].copy_from_slice(&template[..n]);
+            assert!(net.process_frame(&mut buf[..n]));
+        }
+        t.elapsed().as_secs_f64() / FRAMES as f64 * 1e6
+    };
+    type Build = Box<dyn Fn(&mut FrameBuilder)>;
+    let frames: [(&str, Build); 3] = [
+        (
+            "FRMW 0x0910 (DC sync, every slave)",
+            Box::new(|b| {
+                b.push(
+                    Command::Frmw,
+                    1,
+                    wire::fixed_address(station(0), 0x0910),
+                    None,
+                    8,
+                )
+                .unwrap();
+            }),
+        ),
+        (
+            "LRW of 38 slaves",
+            Box::new(|b| {
+                b.push(Command::Lrw, 1, 0x1_0000, None, 38 * 6).unwrap();
+            }),
+        ),
+        (
+            "BRD AL status (every slave)",
+            Box::new(|b| {
+                b.push(Command::Brd, 1, 0x0130 << 16, None, 2).unwrap();
+            }),
+        ),
+    ];
+    let mut inline = build(FirmwareMode::Inline);
+    let mut threads = build(FirmwareMode::Threads);
+    for (what, frame) in &frames {
+        let base = time(&mut inline, frame.as_ref());
+        let alone = time(&mut threads, frame.as_ref());
+        println!(
+            "{what}: inline firmware {base:.1} µs, frame path alone {alone:.1} µs per frame \
+             ({:.0} ns per slave), ratio {:.2}",
+            alone * 1e3 / N as f64,
+            alone / base
+        );
+    }
 }

@@ -69,9 +69,9 @@ fn process_data_sms_are_checked_against_the_pdo_mapping() {
     fpwr(&mut net, st, 0x0120, &[0x12, 0]);
     fpwr(&mut net, st, 0x0818, &sm_bytes(IN_SM, 4, 0x20, 0));
     // A mapping that points at a missing entry.
-    net.slaves[0].od.set_int(0x1600, 1, 0x7001_0110);
+    net.slave(0).od.set_int(0x1600, 1, 0x7001_0110);
     to_safeop_err(&mut net, st, 0x0025);
-    net.slaves[0].od.set_int(0x1600, 1, 0x7000_0110);
+    net.slave(0).od.set_int(0x1600, 1, 0x7000_0110);
     to_safeop(&mut net, st, 0x1_0000);
 }
 
@@ -105,7 +105,7 @@ fn op_needs_valid_outputs_and_exchanges_process_data_in_free_run() {
     // the SAFEOP->OP timeout, then it is refused with 0x0019.
     fpwr(&mut net, station(0), 0x0120, &[8, 0]);
     assert_eq!(al_status(&mut net, station(0)), (0x04, 0), "pending");
-    assert!(net.slaves[0].op_request_pending());
+    assert!(net.slave(0).op_request_pending());
     net.advance_clock(9_000_000_000);
     assert_eq!(al_status(&mut net, station(0)), (0x04, 0), "still pending");
     net.advance_clock(1_100_000_000);
@@ -114,7 +114,7 @@ fn op_needs_valid_outputs_and_exchanges_process_data_in_free_run() {
         (0x14, 0x0019),
         "no outputs within the SAFEOP->OP timeout"
     );
-    assert!(!net.slaves[0].op_request_pending());
+    assert!(!net.slave(0).op_request_pending());
     fpwr(&mut net, station(0), 0x0120, &[0x14, 0]);
     // In SAFEOP the inputs are valid and outputs accepted: WKC 3 per slave.
     let mut frame = [0u8; 12];
@@ -124,7 +124,7 @@ fn op_needs_valid_outputs_and_exchanges_process_data_in_free_run() {
     assert_eq!(wkc, 6);
     assert_eq!(&d[2..6], &[0x44, 0x33, 0x22, 0x11]);
     assert_eq!(
-        net.slaves[0].od.get_int(0x7000, 1),
+        net.slave(0).od.get_int(0x7000, 1),
         0,
         "SAFEOP keeps outputs away from the app"
     );
@@ -133,9 +133,9 @@ fn op_needs_valid_outputs_and_exchanges_process_data_in_free_run() {
         assert_eq!(al_status(&mut net, station(p)), (8, 0));
     }
     xfer(&mut net, Command::Lrw, 0x1_0000, &frame);
-    assert_eq!(net.slaves[0].od.get_int(0x7000, 1), 0xBEEF);
-    assert_eq!(net.slaves[1].od.get_int(0x7000, 1), 0x1234);
-    net.slaves[1].od.set_int(0x6000, 1, 0x0102_0304);
+    assert_eq!(net.slave(0).od.get_int(0x7000, 1), 0xBEEF);
+    assert_eq!(net.slave(1).od.get_int(0x7000, 1), 0x1234);
+    net.slave(1).od.set_int(0x6000, 1, 0x0102_0304);
     let (d, _) = xfer(&mut net, Command::Lrd, 0x1_0008, &[0; 4]);
     assert_eq!(d, vec![4, 3, 2, 1]);
     // Back transitions are always allowed.
@@ -158,7 +158,7 @@ fn op_requested_before_outputs_is_entered_when_the_first_outputs_arrive() {
     // Another request replaces the pending one...
     fpwr(&mut net, st, 0x0120, &[2, 0]);
     assert_eq!(al_status(&mut net, st), (0x02, 0));
-    assert!(!net.slaves[0].op_request_pending());
+    assert!(!net.slave(0).op_request_pending());
     to_safeop(&mut net, st, 0x1_0000);
     fpwr(&mut net, st, 0x0120, &[8, 0]);
     net.advance_clock(5_000_000_000);
@@ -205,7 +205,7 @@ fn watchdog_expiry_drops_to_safeop_with_0x001b() {
     assert_eq!(al_status(&mut net, st), (8, 0), "outputs kept coming");
     net.advance_clock(150_000_000);
     net.poll();
-    assert!(net.slaves[0].watchdog_expired);
+    assert!(net.slave(0).watchdog_expired);
     assert_eq!(al_status(&mut net, st), (0x14, 0x001B));
     assert_eq!(fprd(&mut net, st, 0x0440, 2).0, vec![0, 0]);
     assert_eq!(fprd(&mut net, st, 0x0442, 1).0, vec![1]);
@@ -269,13 +269,13 @@ fn a_full_write_mailbox_refuses_the_next_write_and_a_stalled_slave_never_answers
     assign_addresses(&mut net);
     let st = station(0);
     to_preop(&mut net, st);
-    net.slaves[0].mailbox_stalled = true;
+    net.slave(0).mailbox_stalled = true;
     let req = [0x00, 0x20, 0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0];
     assert_eq!(mailbox_write(&mut net, st, 1, &req), 1);
     assert_eq!(mailbox_write(&mut net, st, 2, &req), 0, "full: WKC stays 0");
     assert_eq!(fprd(&mut net, st, 0x0805, 1).0[0] & 0x08, 0x08);
     assert_eq!(fprd(&mut net, st, MBX_TX.0, 8).1, 0);
-    net.slaves[0].mailbox_stalled = false;
+    net.slave(0).mailbox_stalled = false;
     net.poll();
     assert_eq!(fprd(&mut net, st, MBX_TX.0, MBX_TX.1 as usize).1, 1);
 }
@@ -317,9 +317,9 @@ fn drift_compensation_converges_and_sync0_latches_process_data() {
     }
     assign_addresses(&mut net);
     // Offsets: make every system time equal to slave 0's.
-    let t0 = net.slaves[0].system_time();
+    let t0 = net.slave(0).system_time();
     for p in 1..3 {
-        let off = t0.wrapping_sub(net.slaves[p].local_time());
+        let off = t0.wrapping_sub(net.slave(p).local_time());
         fpwr(&mut net, station(p), 0x0920, &off.to_le_bytes());
     }
     for _ in 0..500 {
@@ -339,20 +339,20 @@ fn drift_compensation_converges_and_sync0_latches_process_data() {
     // SYNC0: activate 1 ms cycles on slave 1, then check the app sees outputs only at events.
     let st = station(1);
     to_op(&mut net, st);
-    let now = net.slaves[1].system_time();
+    let now = net.slave(1).system_time();
     fpwr(&mut net, st, 0x09A0, &1_000_000u32.to_le_bytes());
     fpwr(&mut net, st, 0x0990, &(now + 500_000).to_le_bytes());
     fpwr(&mut net, st, 0x0981, &[3]);
-    assert!(net.slaves[1].sync0_active());
+    assert!(net.slave(1).sync0_active());
     xfer(&mut net, Command::Lrw, 0x1_0000, &[7, 0, 0, 0, 0, 0]);
     assert_eq!(
-        net.slaves[1].od.get_int(0x7000, 1),
+        net.slave(1).od.get_int(0x7000, 1),
         0,
         "not latched before SYNC0"
     );
     net.advance_clock(700_000);
     net.poll();
-    assert_eq!(net.slaves[1].od.get_int(0x7000, 1), 7);
+    assert_eq!(net.slave(1).od.get_int(0x7000, 1), 7);
     assert_eq!(fprd(&mut net, st, 0x098E, 1).0, vec![1]);
     assert_eq!(
         fprd(&mut net, st, 0x098E, 1).0,
@@ -420,7 +420,7 @@ fn faults_drop_refuse_reset_and_break_the_link() {
     assert!(try_xfer(&mut net, Command::Brd, 0, &[0; 2]).is_none());
     net.faults.link_down = false;
     // Refuse OP.
-    net.slaves[2].refuse_op = true;
+    net.slave(2).refuse_op = true;
     to_preop(&mut net, station(2));
     to_safeop(&mut net, station(2), 0x1_0000);
     xfer(&mut net, Command::Lrw, 0x1_0000, &[0; 6]);
@@ -515,6 +515,10 @@ fn random_bytes_and_mutated_frames_never_panic() {
         let _ = net.process_frame(&mut buf[..n]);
     }
     assert!(net.stats.frames_seen >= 60_000);
-    let touched: u64 = net.slaves.iter().map(|s| s.counters.al_errors).sum();
+    let touched: u64 = net
+        .cells()
+        .iter()
+        .map(|c| ether_ros_sim::network::lock(c).counters.al_errors)
+        .sum();
     assert!(touched > 0, "the fuzzer reached the AL state machine");
 }

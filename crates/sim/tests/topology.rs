@@ -206,7 +206,7 @@ fn slaves_must_be_added_in_visiting_order() {
     // Port 3 comes before port 1: a slave there would be reached before x.
     let err = net.add_slave(spec("y", 3, Some((0, 3)), 100)).unwrap_err();
     assert!(err.contains("'y'") && err.contains("before 'x'"), "{err}");
-    assert_eq!(net.slaves.len(), 2, "the refused slave is not kept");
+    assert_eq!(net.len(), 2, "the refused slave is not kept");
     let err = net.add_slave(spec("z", 4, Some((0, 1)), 100)).unwrap_err();
     assert!(err.contains("port 1 of 'coupler' is taken by 'x'"), "{err}");
     let mut small = spec("w", 5, Some((0, 2)), 100);

@@ -36,6 +36,8 @@ def object_code_name(code: int) -> str | None: ...
 def sii_checksum(data: bytes) -> int: ...
 def parse_address(text: str) -> tuple[int, int] | None: ...
 def format_address(index: int, subindex: int) -> str: ...
+def parse_pdo_address(text: str) -> tuple[int | None, int, int] | None: ...
+def format_pdo_address(pdo: int, index: int, subindex: int) -> str: ...
 def data_types() -> list[tuple[int, str, int, str]]: ...
 def esi_type(name: str) -> int | None: ...
 def config_type(name: str) -> int | None: ...
@@ -137,6 +139,7 @@ class reg:
     DC_SYSTEM_TIME_DELAY: Final[int]
     DC_SYSTEM_TIME_DIFF: Final[int]
     DC_SPEED_COUNTER_START: Final[int]
+    DC_SPEED_COUNTER_DIFF: Final[int]
     DC_FILTER_DEPTH: Final[int]
     DC_CYCLIC_UNIT_CONTROL: Final[int]
     DC_ACTIVATION: Final[int]
@@ -144,6 +147,8 @@ class reg:
     DC_START_TIME: Final[int]
     DC_SYNC0_CYCLE: Final[int]
     DC_SYNC1_CYCLE: Final[int]
+    DIGITAL_OUTPUTS: Final[int]
+    DIGITAL_OUTPUTS_LEN: Final[int]
     PDRAM: Final[int]
 
 class features:
@@ -228,6 +233,11 @@ class dc:
     ACTIVATE_SYNC0: Final[int]
     ACTIVATE_SYNC1: Final[int]
     DIFF_SIGN: Final[int]
+
+class esc_config:
+    """ESC configuration (0x0141) bits."""
+
+    DEVICE_EMULATION: Final[int]
 
 class al:
     """AL states and control/status bits."""
@@ -361,6 +371,19 @@ class sii_category:
     RXPDO: Final[int]
     DC: Final[int]
     END: Final[int]
+
+class sii_syncm:
+    """SII SyncM category: SyncManager types and enable bits."""
+
+    TYPE_UNUSED: Final[int]
+    TYPE_MBOX_OUT: Final[int]
+    TYPE_MBOX_IN: Final[int]
+    TYPE_OUTPUTS: Final[int]
+    TYPE_INPUTS: Final[int]
+    ENABLE: Final[int]
+    FIXED_CONTENT: Final[int]
+    VIRTUAL: Final[int]
+    OP_ONLY: Final[int]
 
 class mailbox:
     """Mailbox header length and types."""

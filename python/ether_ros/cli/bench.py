@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from ether_ros.cli.common import add_interface_argument, add_parser, resolve_interface
 from ether_ros.errors import ConfigError
 from ether_ros.master.link import add_link_argument
 
@@ -32,15 +33,29 @@ PERCENTILES = (("p50", "p50"), ("p99", "p99"), ("p999", "p99.9"), ("max", "max")
 
 
 def register(subparsers: Any) -> None:
-    p = subparsers.add_parser("bench", help="benchmarks of the master")
+    p = add_parser(
+        subparsers,
+        "bench",
+        help="benchmarks of the master",
+        description="Benchmarks of the master on a bus (the repository's bench/ has the rest).",
+        examples=["ether-ros bench cycle config/laelaps.yaml -i eth1 --seconds 10"],
+    )
     sub = p.add_subparsers(dest="bench_command", metavar="BENCH", required=True)
-    c = sub.add_parser(
+    c = add_parser(
+        sub,
         "cycle",
         help="run the cyclic exchange in OP and report latencies",
-        description="Bring the bus of CONFIG to OP and measure the cyclic loop (no ROS).",
+        description="Bring the bus of CONFIG to OP and measure the cyclic loop (no ROS): "
+        "cycles, lost/late/unmatched frames, working counter errors, and percentiles of "
+        "wake-up latency, execution time, period and round trip.",
+        examples=[
+            "ether-ros bench cycle config/laelaps.yaml -i eth1",
+            "ether-ros bench cycle config/laelaps.yaml -i eth1 --cycle-us 100 --seconds 10 "
+            "--json cycle.json",
+        ],
     )
     c.add_argument("config", help="bus configuration (YAML)")
-    c.add_argument("--interface", "-i", help="network interface (default: bus.interface)")
+    add_interface_argument(c)
     add_link_argument(c)
     c.add_argument("--cycle-us", type=int, help="cycle time in µs (default: bus.cycle_us)")
     c.add_argument("--seconds", type=float, default=10.0, help="how long to run (default 10)")
@@ -119,6 +134,7 @@ def run_cycle(args: argparse.Namespace) -> int:
     if args.seconds <= 0:
         raise ConfigError(f"--seconds must be positive, got {args.seconds}")
     cfg = load_bus_config(args.config, interface=args.interface, link=args.link)
+    cfg.bus.interface = resolve_interface(args, cfg.bus.interface, "bench cycle", args.config)
     if args.cycle_us is not None:
         if not 20 <= args.cycle_us <= 1_000_000:
             raise ConfigError(f"--cycle-us must be 20..1000000, got {args.cycle_us}")

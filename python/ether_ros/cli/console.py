@@ -7,9 +7,12 @@ import shlex
 import sys
 from typing import Any
 
+from ether_ros.cli.common import add_parser
+
 
 def register(subparsers: Any) -> None:
-    p = subparsers.add_parser(
+    p = add_parser(
+        subparsers,
         "console",
         help="operator console for a running ether_ros node (over ROS 2)",
         description="Operate a running ether_ros node over ROS 2: start/stop/restart, panic "
@@ -18,6 +21,12 @@ def register(subparsers: Any) -> None:
         "and with a terminal it is interactive; otherwise it reads commands from stdin. On a "
         "terminal the keys work while commands run: Ctrl-P/F1 panic, Ctrl-C stops the "
         "running command (docs/console.md).",
+        examples=[
+            "ether-ros console",
+            "ether-ros console -c states -c stats",
+            'ether-ros console -c "set all y_cntr_traj1000=599" -c "set all b_ellipse100=4"',
+            "ether-ros console --run lift.seq",
+        ],
     )
     p.add_argument("--node", default="ether_comm", help="node name (default ether_comm)")
     p.add_argument("--namespace", default="", help="ROS namespace of the node")

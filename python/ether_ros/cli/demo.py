@@ -27,18 +27,41 @@ import os
 from pathlib import Path
 from typing import Any
 
+from ether_ros.cli.common import add_parser
 from ether_ros.errors import EtherRosError
+
+# The --help text: what the module docstring says, without its markup.
+DESCRIPTION = """\
+The Laelaps II trot (default), or the 6-axis CiA 402 arm, on a simulated bus. Needs root: it
+creates a veth pair and a network namespace for the simulator and removes them afterwards.
+
+laelaps (--via ros, the default): the simulator and 'ether-ros run' each run in their own
+process; the trot of thesis Table 6.1 is published over ROS 2 only. The run's recording
+(trot.mcap) and the thesis's Figs. 6.5-6.11 as PNG are left in --output, and the share of time
+at the PWM limit per leg and joint is printed.
+
+laelaps --via pysoem: the same simulated bus driven by pysoem (SOEM) instead, a check that
+needs neither our master nor ROS; it prints how well the legs tracked their desired angles.
+
+arm: moves the arm of config/arm6.yaml with a joint trajectory sent over ROS 2 and prints the
+tracking error per joint."""
 
 DEFAULT_CONFIG = Path(__file__).resolve().parents[3] / "config" / "laelaps.yaml"
 ARM_CONFIG = Path(__file__).resolve().parents[3] / "config" / "arm6.yaml"
 
 
 def register(subparsers: Any) -> None:
-    p = subparsers.add_parser(
+    p = add_parser(
+        subparsers,
         "demo",
         help="trot the simulated Laelaps II through the ROS 2 node and print how the legs tracked",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=DESCRIPTION,
+        examples=[
+            "ether-ros demo                     # the trot through the ROS 2 node",
+            "ether-ros demo -o /tmp/demo        # ... with its recording and figures there",
+            "ether-ros demo --via pysoem --seconds 8",
+            "ether-ros demo arm",
+        ],
     )
     p.add_argument(
         "robot",

@@ -1,6 +1,7 @@
 """Inspection commands, standalone on an interface (like IgH's ``ethercat`` tool):
 ``pdos``, ``sdos``, ``upload``, ``download``, ``states``, ``reg-read``, ``reg-write``,
-``sii-read``, ``xml``, ``graph``, ``master``. Every one takes ``--json``.
+``sii-read``, ``xml``, ``graph``, ``master``. Every one takes ``--json``. ``graph`` renders
+PNG/SVG with Graphviz's ``dot`` (installed by scripts/bootstrap.sh).
 
 They scan without resetting the bus; do not point them at an interface a running master uses.
 """
@@ -9,19 +10,32 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
+import subprocess
 import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from ether_ros._native.protocol import format_address
+from ether_ros.cli.common import add_interface_argument, add_parser, resolve_interface
 from ether_ros.master.link import add_link_argument
 
 Handler = Callable[[Any, argparse.Namespace], Any]
 
+_STANDALONE = (
+    "\n\nIt opens the interface itself and scans without resetting the bus: do not point it "
+    "at an interface a running master uses."
+)
+_OBJECT_HELP = (
+    "object: index:subindex, both hexadecimal with or without 0x (0x1600:0a is 0x1600:0x0a; "
+    "0x1600:10 is subindex 16), or a dictionary name"
+)
+GRAPH_FORMATS = ("dot", "png", "svg")
+
 
 def _common(p: argparse.ArgumentParser, slave: str | None) -> None:
-    p.add_argument("--interface", "-i", help="network interface (or bus.interface of --config)")
+    add_interface_argument(p, "network interface (or bus.interface of --config)")
     add_link_argument(p)
     p.add_argument("--config", "-c", help="bus configuration: slave names and ESI files")
     p.add_argument(
@@ -50,49 +64,163 @@ def _common(p: argparse.ArgumentParser, slave: str | None) -> None:
 
 
 def register(subparsers: Any) -> None:
-    def add(name: str, help_text: str, handler: Handler, slave: str | None) -> Any:
-        p = subparsers.add_parser(name, help=help_text)
+    def add(
+        name: str,
+        help_text: str,
+        handler: Handler,
+        slave: str | None,
+        description: str,
+        examples: list[str],
+    ) -> Any:
+        p = add_parser(
+            subparsers,
+            name,
+            help=help_text,
+            description=description + _STANDALONE,
+            examples=examples,
+        )
         _common(p, slave)
         p.set_defaults(func=lambda args: _run(handler, args))
         return p
 
-    add("pdos", "SyncManagers and PDO assignment/mapping of slaves", cmd_pdos, "optional")
-    add("sdos", "object dictionary (SDO information service, else the ESI)", cmd_sdos, "optional")
-    p = add("upload", "read an object by SDO", cmd_upload, "required")
-    p.add_argument("object", help="index:subindex (0x7030:3) or a dictionary name")
+    add(
+        "pdos",
+        "SyncManagers and PDO assignment/mapping of slaves",
+        cmd_pdos,
+        "optional",
+        "Print each slave's SyncManagers and its PDO assignment and mapping, read from the "
+        "slave (CoE) or else its SII.",
+        ["ether-ros pdos -i eth1", "ether-ros pdos -i eth1 -p 0 --json"],
+    )
+    add(
+        "sdos",
+        "object dictionary (SDO information service, else the ESI)",
+        cmd_sdos,
+        "optional",
+        "Print each slave's object dictionary: from the SDO information service, or else from "
+        "the ESI file (--esi, or the configuration's).",
+        ["ether-ros sdos -i eth1 -p 0", "ether-ros sdos -i eth1 -c config/laelaps.yaml"],
+    )
+    p = add(
+        "upload",
+        "read an object by SDO",
+        cmd_upload,
+        "required",
+        "Read one object entry of a slave by SDO upload and print its value.",
+        [
+            "ether-ros upload -i eth1 -p 0 0x1018:01",
+            "ether-ros upload -i eth1 -p 0 0x1008 --type string",
+        ],
+    )
+    p.add_argument("object", help=_OBJECT_HELP)
     p.add_argument("--type", help="data type (uint16, int32, real32, string, ...)")
-    p = add("download", "write an object by SDO", cmd_download, "required")
-    p.add_argument("object", help="index:subindex (0x7030:3) or a dictionary name")
+    p = add(
+        "download",
+        "write an object by SDO",
+        cmd_download,
+        "required",
+        "Write one object entry of a slave by SDO download; the type comes from the ESI "
+        "dictionary unless --type names it.",
+        ["ether-ros download -i eth1 -p 0 0x6060:00 8 --type int8"],
+    )
+    p.add_argument("object", help=_OBJECT_HELP)
     p.add_argument("value", help="the value (decimal, 0x hex, true/false, text)")
     p.add_argument("--type", help="data type (default: from the ESI dictionary)")
-    p = add("states", "show AL states, or request one (INIT, PREOP, BOOT)", cmd_states, "optional")
+    p = add(
+        "states",
+        "show AL states, or request one (INIT, PREOP, BOOT)",
+        cmd_states,
+        "optional",
+        "Print each slave's AL state and AL status code, or request a state (INIT, PREOP, "
+        "BOOT) of one slave or all.",
+        ["ether-ros states -i eth1", "ether-ros states -i eth1 -p 2 INIT"],
+    )
     p.add_argument("state", nargs="?", help="state to request")
-    p = add("reg-read", "read ESC registers", cmd_reg_read, "required")
+    p = add(
+        "reg-read",
+        "read ESC registers",
+        cmd_reg_read,
+        "required",
+        "Read ESC registers of a slave (hex bytes, or a value with --type).",
+        ["ether-ros reg-read -i eth1 -p 0 0x0130 2", "ether-ros reg-read -i eth1 -p 0 0x0910 "
+         "--type uint64"],
+    )  # fmt: skip
     p.add_argument("address", help="register address (0x0130)")
     p.add_argument("length", nargs="?", help="bytes to read (default: the type's size, or 1)")
     p.add_argument("--type", help="decode as this type (uint16, int32, ...)")
-    p = add("reg-write", "write ESC registers", cmd_reg_write, "required")
+    p = add(
+        "reg-write",
+        "write ESC registers",
+        cmd_reg_write,
+        "required",
+        "Write ESC registers of a slave: hex bytes in wire order, or a value with --type.",
+        ["ether-ros reg-write -i eth1 -p 0 0x0120 0200", "ether-ros reg-write -i eth1 -p 0 "
+         "0x0120 2 --type uint16"],
+    )  # fmt: skip
     p.add_argument("address", help="register address (0x0120)")
     p.add_argument("data", help="hex bytes in wire order (0102), or a value with --type")
     p.add_argument("--type", help="encode the data as this type (uint16, ...)")
-    p = add("sii-read", "the SII EEPROM: decoded, or raw with --raw", cmd_sii_read, "required")
+    p = add(
+        "sii-read",
+        "the SII EEPROM: decoded, or raw with --raw",
+        cmd_sii_read,
+        "required",
+        "Read a slave's SII EEPROM and print what it says (identity, mailbox, SyncManagers, "
+        "PDOs, DC modes), or the raw image with --raw or -o.",
+        ["ether-ros sii-read -i eth1 -p 0", "ether-ros sii-read -i eth1 -p 0 -o slave0.bin"],
+    )
     p.add_argument("--raw", action="store_true", help="the image itself (hex, or -o file)")
     p.add_argument("-o", "--output", help="write the raw image to this file")
     p = add(
-        "xml", "an ESI (ETG.2000) description generated from a slave's SII", cmd_xml, "required"
+        "xml",
+        "an ESI (ETG.2000) description generated from a slave's SII",
+        cmd_xml,
+        "required",
+        "Generate an ESI (ETG.2000) XML description of a slave from its SII EEPROM.",
+        ["ether-ros xml -i eth1 -p 0 -o slave0.xml"],
     )
     p.add_argument("-o", "--output", help="write to this file instead of stdout")
-    p = add("graph", "bus topology as a Graphviz DOT graph", cmd_graph, None)
+    p = add(
+        "graph",
+        "bus topology as a Graphviz graph (DOT, PNG or SVG)",
+        cmd_graph,
+        None,
+        "Print the bus topology (which port of which slave leads where) as a Graphviz DOT "
+        "graph, or render it as PNG or SVG with Graphviz's dot (--format, or the -o file's "
+        "suffix).",
+        [
+            "ether-ros graph -i eth1 -o bus.png",
+            "ether-ros graph -i eth1 --format svg > bus.svg",
+            "ether-ros graph -i eth1 | dot -Tpdf -o bus.pdf",
+        ],
+    )
     p.add_argument("-o", "--output", help="write to this file instead of stdout")
-    p = add("master", "link statistics and round-trip time", cmd_master, None)
+    p.add_argument(
+        "--format",
+        choices=GRAPH_FORMATS,
+        help="dot (the graph's text), png or svg (rendered by Graphviz's dot); default: the "
+        "-o file's suffix, else dot",
+    )
+    p = add(
+        "master",
+        "link statistics and round-trip time",
+        cmd_master,
+        None,
+        "Measure the round-trip time of the link with --probes frames and print it with the "
+        "interface's counters and the engine's.",
+        ["ether-ros master -i eth1", "ether-ros master -i eth1 --probes 1000 --json"],
+    )
     p.add_argument("--probes", type=int, default=100, help="round-trip probes (default 100)")
 
 
 def _run(handler: Handler, args: argparse.Namespace) -> int:
+    from ether_ros.config import load_bus_config
     from ether_ros.tools.bus_inspect import Inspector
 
+    configured = load_bus_config(args.config).bus.interface if args.config else None
+    interface = resolve_interface(args, configured, args.command, args.config)
     with Inspector.open(
-        args.interface, config=args.config, esi=args.esi, link_kind=args.link
+        interface, config=args.config, esi=args.esi, link_kind=args.link
     ) as inspector:
         result = handler(inspector, args)
     if args.json and result is not None:
@@ -342,8 +470,51 @@ def cmd_xml(ins: Any, args: argparse.Namespace) -> Any:
 def cmd_graph(ins: Any, args: argparse.Namespace) -> Any:
     if args.json:
         return ins.topology()
-    _write(args, ins.graph_dot())
+    fmt = graph_format(args.format, args.output)
+    dot = ins.graph_dot()
+    if fmt == "dot":
+        _write(args, dot)
+        return None
+    image = render_graph(dot, fmt)
+    if args.output:
+        try:
+            Path(args.output).write_bytes(image)
+        except OSError as exc:
+            from ether_ros.errors import EtherRosError
+
+            raise EtherRosError(f"cannot write {args.output}: {exc.strerror}") from None
+    else:
+        sys.stdout.flush()
+        sys.stdout.buffer.write(image)
     return None
+
+
+def graph_format(fmt: str | None, output: str | None) -> str:
+    """The format ``graph`` writes: ``--format``, else the output file's suffix, else DOT."""
+    if fmt:
+        return fmt
+    suffix = Path(output).suffix.lower().lstrip(".") if output else ""
+    return suffix if suffix in GRAPH_FORMATS else "dot"
+
+
+def render_graph(dot: str, fmt: str) -> bytes:
+    """``dot`` rendered as ``fmt`` (png, svg) by Graphviz's ``dot`` program (an argument list,
+    no shell)."""
+    from ether_ros.errors import EtherRosError
+
+    program = shutil.which("dot")
+    if program is None:
+        raise EtherRosError(
+            f"rendering {fmt.upper()} needs Graphviz's dot program (apt-get install graphviz; "
+            f"scripts/bootstrap.sh installs it); without it, write the DOT text: "
+            f"'ether-ros graph -i IFACE -o bus.dot'"
+        )
+    done = subprocess.run(
+        [program, f"-T{fmt}"], input=dot.encode(), capture_output=True, check=False
+    )
+    if done.returncode != 0:
+        raise EtherRosError(f"dot -T{fmt} failed: {done.stderr.decode(errors='replace').strip()}")
+    return done.stdout
 
 
 def cmd_master(ins: Any, args: argparse.Namespace) -> Any:

@@ -6,16 +6,19 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from ether_ros.cli.common import add_parser
+
 
 def register(subparsers: Any) -> None:
-    parser = subparsers.add_parser(
+    parser = add_parser(
+        subparsers,
         "plot",
         help="figures of a recording (toe path, angles, PWM, velocities, loop timing)",
         description="Write the thesis's trot figures 6.5-6.11 (toe path, knee and hip angles, "
         "PWM commands, velocities, each against its limits) and the loop timing histograms of "
         "a recording as images, and print the steady-trot report (share of time at the PWM "
-        "limit per leg and joint, toe path error). "
-        "Example: ether-ros plot trot.mcap -o figures --format png",
+        "limit per leg and joint, toe path error).",
+        examples=["ether-ros plot trot.mcap", "ether-ros plot trot.mcap -o figures --format png"],
     )
     parser.add_argument(
         "recording", help="an MCAP file written by `ether-ros record` or an experiment"

@@ -6,15 +6,25 @@ import argparse
 import time
 from typing import Any
 
+from ether_ros.cli.common import add_interface_argument, add_parser, resolve_interface
 from ether_ros.master.link import add_link_argument
 
 
 def register(subparsers: Any) -> None:
-    parser = subparsers.add_parser(
-        "record", help="bring a bus to OP and record its cycles to an MCAP file"
+    parser = add_parser(
+        subparsers,
+        "record",
+        help="bring a bus to OP and record its cycles to an MCAP file",
+        description="Open the bus of CONFIG in this process (no ROS), bring it to OP and record "
+        "its decoded values (and, with --raw-decimation, the raw process images) and the loop "
+        "timing to an MCAP file for --seconds; then stop the bus (safe outputs, SAFEOP).",
+        examples=[
+            "ether-ros record config/laelaps.yaml -i eth1 --seconds 5 -o run.mcap",
+            "ether-ros plot run.mcap",
+        ],
     )
     parser.add_argument("config", help="bus configuration (YAML)")
-    parser.add_argument("--interface", help="network interface (overrides bus.interface)")
+    add_interface_argument(parser)
     add_link_argument(parser)
     parser.add_argument(
         "--seconds",
@@ -47,8 +57,9 @@ def run(args: argparse.Namespace) -> int:
     if args.seconds <= 0:
         raise EtherRosError(f"--seconds must be positive, got {args.seconds}")
     config = load_config(args.config, args.interface, args.link)
+    interface = resolve_interface(args, config.bus.interface, "record", args.config)
     decimation = args.decimation or config.ros.decoded_decimation
-    with running_bus(config, args.interface) as bus:
+    with running_bus(config, interface) as bus:
         writer = RecordingWriter(
             args.output, bus_info(bus), bus.config.joint_specs(), metadata={"command": "record"}
         )

@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+from ether_ros.cli.common import add_interface_argument, add_parser
 from ether_ros.tools.host import Host, HostError
 from ether_ros.tools.rt_check import FAIL, CheckOptions, format_table, run_checks
 from ether_ros.tools.rt_setup import apply_plan, make_plan, undo
@@ -15,12 +16,26 @@ DEFAULT_UNDO_FILE = "ether-ros-rt-undo.json"
 
 
 def register(subparsers: Any) -> None:
-    rt = subparsers.add_parser("rt", help="check or prepare this host for real-time operation")
+    rt = add_parser(
+        subparsers,
+        "rt",
+        help="check or prepare this host for real-time operation",
+        description="Check (rt check) or change (rt setup) the host's real-time tuning: kernel, "
+        "CPU isolation and frequency, the NIC's interrupts and coalescing (docs/realtime.md).",
+        examples=["ether-ros rt check -i eth1 --cpu 3", "ether-ros rt setup -i eth1 --cpu 3"],
+    )
     sub = rt.add_subparsers(dest="rt_command", metavar="ACTION", required=True)
 
-    check = sub.add_parser("check", help="pass/warn/fail table of the host's real-time tuning")
+    check = add_parser(
+        sub,
+        "check",
+        help="pass/warn/fail table of the host's real-time tuning",
+        description="Inspect the host (read-only) and print a pass/warn/fail table of what "
+        "matters for the RT thread; the exit status is 1 when a check fails.",
+        examples=["ether-ros rt check", "ether-ros rt check -i eth1 --cpu 3 --json"],
+    )
     check.add_argument("--root", default="/", help="host root to inspect (default /)")
-    check.add_argument("--interface", help="the EtherCAT network interface")
+    add_interface_argument(check, "the EtherCAT network interface", opens=False)
     check.add_argument("--cpu", type=int, help="the CPU the RT thread runs on")
     check.add_argument(
         "--priority",
@@ -37,10 +52,22 @@ def register(subparsers: Any) -> None:
     check.add_argument("--json", action="store_true", help="print JSON instead of a table")
     check.set_defaults(func=run_check)
 
-    setup = sub.add_parser("setup", help="apply the runtime tuning (dry run unless --apply)")
+    setup = add_parser(
+        sub,
+        "setup",
+        help="apply the runtime tuning (dry run unless --apply)",
+        description="Plan the runtime tuning for an RT thread on --cpu driving --interface "
+        "(IRQ affinity and priority, coalescing, CPU frequency); print it, or make it with "
+        "--apply, recording the previous values so --undo can restore them.",
+        examples=[
+            "ether-ros rt setup -i eth1 --cpu 3",
+            "ether-ros rt setup -i eth1 --cpu 3 --apply",
+            "ether-ros rt setup --undo ether-ros-rt-undo.json",
+        ],
+    )
     setup.add_argument("--root", default="/", help="host root to change (default /)")
     setup.add_argument("--cpu", type=int, help="the CPU to dedicate to the RT thread")
-    setup.add_argument("--interface", help="the EtherCAT network interface")
+    add_interface_argument(setup, "the EtherCAT network interface", opens=False)
     setup.add_argument(
         "--priority",
         type=int,
@@ -80,7 +107,7 @@ def run_setup(args: argparse.Namespace) -> int:
             print(f"restored everything recorded in {args.undo}")
         return 1 if problems else 0
     if args.cpu is None or args.interface is None:
-        raise HostError("rt setup needs --cpu and --interface (or --undo FILE)")
+        raise HostError("give 'ether-ros rt setup' --cpu and -i/--interface (or --undo FILE)")
     plan = make_plan(host, args.cpu, args.interface, args.priority)
     for note in plan.notes:
         print(f"note: {note}")

@@ -7,21 +7,28 @@ import signal
 import sys
 from typing import Any
 
+from ether_ros.cli.common import add_interface_argument, add_parser, resolve_interface
 from ether_ros.master.link import add_link_argument
 
 SWITCH_INTERVAL_S = 0.0005
 
 
 def register(subparsers: Any) -> None:
-    p = subparsers.add_parser(
+    p = add_parser(
+        subparsers,
         "run",
         help="run the ROS 2 lifecycle node on a bus",
         description="Start the ether_ros lifecycle node (name: ros.node_name of the config). "
         "By default it configures (opens and scans the bus) and activates (OP, cyclic "
-        "exchange, publishing); with --inactive it waits for lifecycle transitions.",
+        "exchange, publishing); with --inactive it waits for lifecycle transitions.\n"
+        "Ctrl-C or SIGTERM deactivates it (safe outputs, SAFEOP) before it exits.",
+        examples=[
+            "ether-ros run config/laelaps.yaml -i eth1",
+            "ether-ros run config/arm6.yaml -i eth1 --node-name arm --inactive",
+        ],
     )
     p.add_argument("config", help="bus configuration (YAML)")
-    p.add_argument("--interface", "-i", help="network interface (overrides bus.interface)")
+    add_interface_argument(p)
     add_link_argument(p)
     p.add_argument(
         "--inactive",
@@ -43,8 +50,16 @@ def run(args: argparse.Namespace) -> int:
     from rclpy.executors import ExternalShutdownException
     from rclpy.signals import SignalHandlerOptions
 
+    from ether_ros.config import load_bus_config
     from ether_ros.errors import EtherRosError
     from ether_ros.ros.node import EtherRosNode, spin
+
+    # The interface is checked before ROS starts: a missing one or a LAN card fails here. An
+    # inactive node may get its interface later, from its "interface" parameter.
+    configured = load_bus_config(args.config).bus.interface
+    interface: str | None = None
+    if not args.inactive or args.interface or configured:
+        interface = resolve_interface(args, configured, "run", args.config)
 
     # Signals end the spin with KeyboardInterrupt while the ROS context is still valid, so the
     # node can still deactivate cleanly (safe outputs, SAFEOP) and say so on its topics.
@@ -58,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         node = EtherRosNode(
             args.config,
-            args.interface,
+            interface,
             node_name=args.node_name,
             command_node=True,
             native_commands=not args.python_commands,

@@ -12,16 +12,24 @@ import json
 import sys
 from typing import Any
 
+from ether_ros.cli.common import add_interface_argument, add_parser, resolve_interface
 from ether_ros.master.link import add_link_argument, open_engine
 
 
 def register(subparsers: Any) -> None:
-    p = subparsers.add_parser(
+    p = add_parser(
+        subparsers,
         "slaves",
         help="list the slaves on a network interface",
-        description="Scan the bus on INTERFACE and print one line per slave.",
+        description="Scan the bus on INTERFACE and print one line per slave: position, station "
+        "address, AL state, vendor, product, name. It does not change AL states.",
+        examples=[
+            "ether-ros slaves -i eth1",
+            "ether-ros slaves -i eth1 -c config/laelaps.yaml -v",
+            "ether-ros slaves -i eth1 --json",
+        ],
     )
-    p.add_argument("--interface", "-i", required=True, help="network interface (e.g. eth1)")
+    add_interface_argument(p, "network interface (e.g. eth1)", required=True)
     add_link_argument(p)
     p.add_argument("--config", "-c", help="bus configuration: check identities, show names")
     p.add_argument("-v", "--verbose", action="store_true", help="details of every slave")
@@ -42,7 +50,7 @@ def describe(
         "alias": found.alias,
         "state": status.name,
         "error": bool(status.error),
-        "al_code": status.code,
+        "al_status_code": status.code,
         "vendor_id": h.vendor_id,
         "product_code": h.product_code,
         "revision": h.revision,
@@ -90,9 +98,8 @@ def details(entry: dict[str, Any]) -> list[str]:
         f"TxPDOs {' '.join(entry['tx_pdos']) or '-'}",
     ]
     if entry["error"]:
-        out.append(
-            f"     AL status code 0x{entry['al_code']:04X}: {al_code_text(entry['al_code'])}"
-        )
+        code = entry["al_status_code"]
+        out.append(f"     AL status code 0x{code:04X}: {al_code_text(code)}")
     return out
 
 
@@ -111,7 +118,8 @@ def run(args: argparse.Namespace) -> int:
         cfg = load_bus_config(args.config)
         expected = [_expected(s, i) for i, s in enumerate(cfg.slaves)]
         groups = {s.name: g.name for g in cfg.groups for s in cfg.slaves if s.name in g.slaves}
-    engine = open_engine(args.interface, args.link or "packet")
+    interface = resolve_interface(args, None, "slaves")
+    engine = open_engine(interface, args.link or "packet")
     try:
         dg = DatagramService(engine)
         found = scan(dg, reset=False)

@@ -6,19 +6,25 @@ import argparse
 import sys
 from typing import Any
 
+from ether_ros.cli.common import add_interface_argument, add_parser, resolve_interface
 from ether_ros.master.link import add_link_argument
 
 
 def register(subparsers: Any) -> None:
-    parser = subparsers.add_parser(
+    parser = add_parser(
+        subparsers,
         "top",
         help="live view of a bus (standalone with --config, else the running node)",
         description="A full-screen live view: each slave's AL state, cycle counters, loop "
         "timing, DC sync error. Ctrl-P or F1: PANIC; q: quit. Reports older than two of the "
         "node's periods are marked stale. Needs a terminal.",
+        examples=[
+            "ether-ros top                                  # the running node (/diagnostics)",
+            "ether-ros top --config config/laelaps.yaml -i eth1   # a bus of its own",
+        ],
     )
     parser.add_argument("--config", help="bus configuration: open the bus in this process")
-    parser.add_argument("--interface", help="network interface (with --config)")
+    add_interface_argument(parser, "network interface (with --config; overrides bus.interface)")
     add_link_argument(parser)
     parser.add_argument(
         "--topic",
@@ -53,9 +59,9 @@ def run(args: argparse.Namespace) -> int:
         from ether_ros.master.bus import Bus
         from ether_ros.tools.session import load_config
 
-        bus = Bus.open(
-            load_config(args.config, args.interface, args.link), interface=args.interface
-        )
+        config = load_config(args.config, args.interface, args.link)
+        interface = resolve_interface(args, config.bus.interface, "top", args.config)
+        bus = Bus.open(config, interface=interface)
         try:
             bus.start()
         except BaseException:
@@ -64,7 +70,10 @@ def run(args: argparse.Namespace) -> int:
         source = BusLiveSource(bus)
     else:
         if args.interface:
-            raise EtherRosError("--interface needs --config (a standalone bus)")
+            raise EtherRosError(
+                "-i/--interface needs --config (a bus of its own); without them 'ether-ros top' "
+                "shows the running node"
+            )
         source = DiagnosticsLiveSource(args.topic)
     run_top(TopApp(source, interval=args.interval))
     return 0

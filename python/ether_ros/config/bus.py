@@ -31,7 +31,13 @@ from pydantic import (
 from ether_ros._native.protocol import format_address
 from ether_ros.config import cia402
 from ether_ros.config import types as dt
-from ether_ros.config.esi import EsiDevice, esi_files, load_esi
+from ether_ros.config.esi import (
+    EsiDevice,
+    default_modules,
+    esi_files,
+    load_esi,
+    place_modules,
+)
 from ether_ros.config.files import MAX_PATH_CHARS
 from ether_ros.config.process import ProcessLayout, ProcessValueError
 from ether_ros.config.yamlsrc import KeyPath, SourceMap, load_yaml, shown
@@ -375,7 +381,9 @@ class SimConfig(_Model):
     esc: Literal["et1100", "et1200", "lan9252"] = "et1100"
     params: dict[Text, float] = Field(default_factory=dict)
     drift_ppm: float = Field(default=0.0, ge=-1000.0, le=1000.0)
-    delay_ns: int = Field(default=0, ge=0, le=1_000_000)
+    # One-way delay of the link into port 0 (ns); default from the device's physics: an E-bus
+    # hop 150 ns, a 100BASE-TX hop 700 ns (ether_ros.sim.spec.default_delay_ns).
+    delay_ns: int | None = Field(default=None, ge=0, le=1_000_000)
     serial: HexInt | None = Field(default=None, ge=0, le=0xFFFFFFFF)
     # False: the virtual ESC reports "LRW not supported" (0x0008 bit 9) and ignores LRW.
     lrw: bool = True
@@ -411,6 +419,9 @@ class SlaveConfig(_Model):
     revision: HexInt | None = Field(default=None, ge=0, le=0xFFFFFFFF)
     device: Text | None = None
     pdo_assign: PdoAssign | None = None
+    # ETG.2001 modular devices: the module in each slot (its type name or ModuleIdent; null
+    # leaves the slot empty). Default: the ESI's default module of each slot.
+    modules: list[str | HexInt | None] | None = Field(default=None, max_length=256)
     sdo_init: list[SdoInit] = Field(default_factory=list)
     safe_outputs: dict[Text, int | float | bool] = Field(default_factory=dict)
     joints: list[Joint] = Field(default_factory=list)
@@ -831,6 +842,9 @@ def _match_device(s: SlaveConfig, devices: list[EsiDevice], at: KeyPath, err: An
                     f"does not match ESI device {s.device} ({key} {actual:#010x})",
                     f"{have:#010x}",
                 )
+            if have is not None:
+                # Vendors give several products one type name (Elmo's "Elmo Drive").
+                cands = [d for d in cands if getattr(d, key) == have]
     else:
         cands = [
             d for d in devices if d.vendor_id == s.vendor_id and d.product_code == s.product_code
@@ -841,6 +855,12 @@ def _match_device(s: SlaveConfig, devices: list[EsiDevice], at: KeyPath, err: An
                 f"no ESI device with vendor {s.vendor_id:#010x} and this product code",
                 f"{s.product_code:#010x}",
             )
+    cands = [d for d in cands if not d.passive] or cands
+    if all(d.passive for d in cands):
+        raise err((*at, "device" if s.device is not None else "product_code"),
+                  f"{cands[0].type_name} is a passive terminal: it has no EtherCAT slave "
+                  "controller and is not on the bus; leave it out of slaves",
+                  cands[0].type_name)  # fmt: skip
     if s.revision is not None:
         exact = [d for d in cands if d.revision == s.revision]
         if not exact:
@@ -851,9 +871,40 @@ def _match_device(s: SlaveConfig, devices: list[EsiDevice], at: KeyPath, err: An
     return max(cands, key=lambda d: d.revision)
 
 
+def _place_modules(s: SlaveConfig, dev: EsiDevice, at: KeyPath, err: Any) -> EsiDevice:
+    """``dev`` with the configured modules (or the ESI's defaults) in its slots."""
+    if not dev.slots:
+        if s.modules:
+            raise err((*at, "modules"), f"{dev.type_name} has no slots (no ETG.2001 <Slots> in "
+                      "its ESI)", s.modules)  # fmt: skip
+        return dev
+    if s.modules is None:
+        return place_modules(dev, default_modules(dev))
+    if len(s.modules) > len(dev.slots):
+        raise err((*at, "modules"), f"{dev.type_name} has {len(dev.slots)} slots",
+                  s.modules)  # fmt: skip
+    by_name = {m.type_name: m.ident for m in dev.modules}
+    idents: list[int | None] = []
+    for k, item in enumerate(s.modules):
+        slot = dev.slots[k]
+        ident = by_name.get(item) if isinstance(item, str) else item
+        if item is not None and (ident is None or ident not in slot.module_idents):
+            names = [m.type_name for m in dev.modules if m.ident in slot.module_idents]
+            raise err((*at, "modules", k), f"slot {k + 1} ({slot.name or 'unnamed'}) of "
+                      f"{dev.type_name} takes: {', '.join(names) or 'nothing'}",
+                      item)  # fmt: skip
+        if item is None and slot.min_instances > 0:
+            raise err((*at, "modules", k), f"slot {k + 1} ({slot.name or 'unnamed'}) must hold "
+                      "a module", item)  # fmt: skip
+        idents.append(ident)
+    idents += [None] * (len(dev.slots) - len(idents))
+    return place_modules(dev, idents)
+
+
 def _resolve_slave(
     s: SlaveConfig, dev: EsiDevice, at: KeyPath, err: Any, joints: dict[str, str]
 ) -> None:
+    dev = s._esi = _place_modules(s, dev, at, err)
     rx = s.pdo_assign.rx if s.pdo_assign is not None else None
     tx = s.pdo_assign.tx if s.pdo_assign is not None else None
     is_drive = s.profile == "cia402" or (
@@ -930,7 +981,7 @@ def _resolve_slave(
     for var_name, value in s.safe_outputs.items():
         path = (*at, "safe_outputs", var_name)
         try:
-            var = layout.variable(var_name)
+            var = layout.variable(var_name, "output")
         except ProcessValueError as exc:
             names = ", ".join(v.name for v in layout.outputs)
             raise err(path, f"{exc}; output variables of {dev.type_name}: {names}", var_name,
@@ -984,7 +1035,7 @@ def _resolve_slave(
             if var_name is None:
                 continue
             try:
-                var = layout.variable(var_name)
+                var = layout.variable(var_name, "input")
             except ProcessValueError as exc:
                 names = ", ".join(v.name for v in layout.inputs)
                 raise err((*path, key), f"{exc}; input variables of {dev.type_name}: {names}",

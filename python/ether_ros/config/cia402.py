@@ -101,7 +101,8 @@ class AxisSpec:
     slave: str
     axis_index: int
     variables: dict[str, ProcessVariable]
-    # Modes the ESI offers (names), from 0x6502's default when it has one.
+    # Modes the ESI offers (names), from 0x6502's default when it has one, else from the
+    # objects of its dictionary.
     modes: tuple[str, ...]
     # The axis's extras by name, in configuration order.
     extras: dict[str, ExtraSpec] = field(default_factory=dict)
@@ -120,15 +121,39 @@ def object_index(role: str, axis: int) -> int:
     return OBJECTS[role][0] + axis * AXIS_STRIDE
 
 
+#: The objects a mode cannot run without, by which the dictionary shows what a drive offers
+#: when 0x6502 does not say (CiA 402: the mode's target, and for homing its method).
+MODE_OBJECTS: dict[str, tuple[int, ...]] = {
+    "pp": (0x607A,),
+    "pv": (0x60FF,),
+    "hm": (0x6098,),
+    "csp": (0x607A,),
+    "csv": (0x60FF,),
+    "cst": (0x6071,),
+}
+
+
 def offered_modes(dev: EsiDevice, axis: int) -> tuple[str, ...]:
-    """The modes 0x6502 (supported drive modes) announces; all of them when the ESI has no
-    default for it (the drive is asked at run time, not here)."""
+    """The modes 0x6502 (supported drive modes) announces. Many ESIs give 0x6502 a default of
+    0, a placeholder the drive fills in at run time (IS620N, STMBL): then — and when the ESI
+    has no default for it — the modes are those whose objects the dictionary holds (or a PDO
+    maps); all of them when the ESI has no dictionary (the drive is asked at run time)."""
     entry = dev.od_entry(SUPPORTED_MODES + axis * AXIS_STRIDE, 0)
     default = getattr(entry, "default", None) if entry is not None else None
-    if not isinstance(default, bytes | bytearray) or not default:
+    bits = int.from_bytes(default[:4], "little") if isinstance(default, bytes | bytearray) else 0
+    if bits:
+        return tuple(name for name, (_, bit, _t) in MODES.items() if bits >> bit & 1)
+    if not dev.objects:
         return tuple(MODES)
-    bits = int.from_bytes(default[:4], "little")
-    return tuple(name for name, (_, bit, _t) in MODES.items() if bits >> bit & 1)
+    shift = axis * AXIS_STRIDE
+    # An object a PDO maps is the device's too, whether its dictionary lists it or not (an
+    # ETG.2001 drive's module objects).
+    mapped = {e.index for p in (*dev.rx_pdos, *dev.tx_pdos) for e in p.entries}
+    return tuple(
+        name
+        for name, needed in MODE_OBJECTS.items()
+        if all(dev.od_object(i + shift) is not None or i + shift in mapped for i in needed)
+    )
 
 
 def needed_roles(mode: str) -> tuple[str, ...]:

@@ -18,6 +18,8 @@ from ether_ros.config.esi import EsiDevice, load_esi
 from ether_ros.errors import ConfigError
 
 MAX_COUNT = 64
+#: Slaves on a bus made from several devices (``bus_config_for_devices``).
+MAX_BUS_SLAVES = 512
 
 
 def pick_device(path: Path, device: str | None) -> EsiDevice:
@@ -73,3 +75,63 @@ def bus_config_for_esi(
         yml = Path(tmp) / f"{base}.yaml"
         yml.write_text(yaml.safe_dump(data, sort_keys=False))
         return load_bus_config(yml, interface=interface)
+
+
+def slave_name(device: EsiDevice, taken: set[str]) -> str:
+    """A config identifier for a slave of ``device``: its type (and revision when needed)
+    lower-cased, letters, digits and underscores, unique among ``taken``."""
+    base = "".join(c if c.isalnum() else "_" for c in device.type_name.lower()).strip("_")
+    base = base or "slave"
+    if not base[0].isalpha():
+        base = f"s_{base}"
+    base = base[:40]
+    name = base
+    if name in taken:
+        name = f"{base}_r{device.revision:x}"[:55]
+    k = 2
+    while name in taken:
+        name = f"{base}_{k}"
+        k += 1
+    taken.add(name)
+    return name
+
+
+def bus_yaml_for_devices(
+    devices: list[EsiDevice],
+    yml: Path,
+    *,
+    cycle_us: int = 1000,
+    name: str = "esi_bus",
+) -> Path:
+    """Write the bus configuration of one slave per device of ``devices`` (a line, in the
+    given order; each slave names its device by type and revision, its ESI file listed) to
+    ``yml``. DC is on when a device needs it. Both the simulator (``ether-ros sim YML``) and
+    the master open the bus from that one file."""
+    if not 1 <= len(devices) <= MAX_BUS_SLAVES:
+        raise ConfigError(f"a bus of 1..{MAX_BUS_SLAVES} devices, got {len(devices)}")
+    for d in devices:
+        if d.passive:
+            raise ConfigError(f"{d.source}: {d.type_name} is a passive terminal, not on the bus")
+    files = sorted({str(Path(d.source).resolve()) for d in devices})
+    taken: set[str] = set()
+    data = {
+        "bus": {
+            "name": name,
+            "cycle_us": cycle_us,
+            "dc": {"enabled": any(d.dc_required for d in devices)},
+        },
+        "esi": files,
+        "slaves": [
+            {
+                "name": slave_name(d, taken),
+                "position": n,
+                "device": d.type_name,
+                "vendor_id": d.vendor_id,
+                "product_code": d.product_code,
+                "revision": d.revision,
+            }
+            for n, d in enumerate(devices)
+        ],
+    }
+    yml.write_text(yaml.safe_dump(data, sort_keys=False))
+    return yml

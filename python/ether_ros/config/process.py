@@ -19,9 +19,9 @@ Example::
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
-from ether_ros._native.protocol import format_address, parse_address
+from ether_ros._native.protocol import format_address, format_pdo_address, parse_pdo_address
 from ether_ros.config import types as dt
 from ether_ros.config.esi import EsiDevice, Pdo
 from ether_ros.errors import ConfigError, EtherRosError
@@ -43,10 +43,17 @@ class ProcessVariable:
     bit_length: int
     data_type: int  # ETG.1000.6 code
     pdo: int  # index of the PDO the entry is mapped in
+    # The entry is mapped more than once in the layout (e.g. one object in an RxPDO and a
+    # TxPDO): its key names the PDO too.
+    qualified: bool = False
+    sm: int = 0  # the SyncManager that carries it
 
     @property
     def key(self) -> str:
-        """``0x7000:01``: the name that is always unique (the canonical object address)."""
+        """``0x7000:01``, or ``0x1600/0x7000:01`` when the entry is mapped more than once: the
+        name that is always unique (the canonical object address, with its PDO when needed)."""
+        if self.qualified:
+            return format_pdo_address(self.pdo, self.index, self.subindex)
         return format_address(self.index, self.subindex)
 
     @property
@@ -86,22 +93,43 @@ class ProcessVariable:
         return dt.from_raw(t, raw, self.bit_length)
 
 
+@dataclass(frozen=True)
+class SmSegment:
+    """The part of a slave's output or input area one SyncManager carries: it starts on a byte
+    boundary and holds the SM's assigned PDOs bit-packed in assignment order."""
+
+    sm: int  # SyncManager number (the device's <Sm> order)
+    direction: str  # 'output' | 'input'
+    byte_offset: int  # in the slave's output or input area
+    byte_length: int
+    pdos: tuple[int, ...]
+
+
 class ProcessLayout:
     """The output and input variables of one slave for a given PDO assignment."""
 
     def __init__(self, outputs: Sequence[ProcessVariable], inputs: Sequence[ProcessVariable],
                  output_bits: int, input_bits: int, rx_pdos: Sequence[int],
-                 tx_pdos: Sequence[int]) -> None:  # fmt: skip
-        self.outputs: tuple[ProcessVariable, ...] = tuple(outputs)
-        self.inputs: tuple[ProcessVariable, ...] = tuple(inputs)
+                 tx_pdos: Sequence[int],
+                 segments: Sequence[SmSegment] = ()) -> None:  # fmt: skip
         self.output_bits = output_bits
         self.input_bits = input_bits
         self.rx_pdos = tuple(rx_pdos)
         self.tx_pdos = tuple(tx_pdos)
-        self._by_key: dict[tuple[int, int], ProcessVariable] = {}
+        self.segments: tuple[SmSegment, ...] = tuple(segments)
+        # An entry mapped more than once gets a key that names its PDO too.
+        plain: dict[tuple[int, int], int] = {}
+        for v in (*outputs, *inputs):
+            plain[(v.index, v.subindex)] = plain.get((v.index, v.subindex), 0) + 1
+        qualify = {k for k, n in plain.items() if n > 1}
+        self.outputs: tuple[ProcessVariable, ...] = tuple(_qualified(v, qualify) for v in outputs)
+        self.inputs: tuple[ProcessVariable, ...] = tuple(_qualified(v, qualify) for v in inputs)
+        self._by_key: dict[tuple[int | None, int, int], ProcessVariable] = {}
+        self._by_address: dict[tuple[int, int], list[ProcessVariable]] = {}
         self._by_name: dict[str, list[ProcessVariable]] = {}
         for v in (*self.outputs, *self.inputs):
-            self._by_key[(v.index, v.subindex)] = v
+            self._by_key.setdefault((v.pdo if v.qualified else None, v.index, v.subindex), v)
+            self._by_address.setdefault((v.index, v.subindex), []).append(v)
             self._by_name.setdefault(v.name, []).append(v)
 
     @property
@@ -120,15 +148,18 @@ class ProcessLayout:
     def for_device(
         cls,
         device: EsiDevice,
-        rx_pdos: Iterable[int] | None = None,
-        tx_pdos: Iterable[int] | None = None,
+        rx_pdos: Iterable[int | Pdo] | None = None,
+        tx_pdos: Iterable[int | Pdo] | None = None,
     ) -> ProcessLayout:
-        """Layout of ``device`` with the given PDO assignment (default: the ESI's)."""
-        rx = tuple(device.default_rx_pdos() if rx_pdos is None else rx_pdos)
-        tx = tuple(device.default_tx_pdos() if tx_pdos is None else tx_pdos)
-        outs, obits = _place(device, rx, "rx", "output")
-        ins, ibits = _place(device, tx, "tx", "input")
-        return cls(outs, ins, obits, ibits, rx, tx)
+        """Layout of ``device`` with the given PDO assignment (default: the ESI's). PDOs are
+        given by index or as :class:`Pdo` objects (an ESI may give two PDOs one index)."""
+        rx = device.default_rx() if rx_pdos is None else _resolve(device, rx_pdos, "rx")
+        tx = device.default_tx() if tx_pdos is None else _resolve(device, tx_pdos, "tx")
+        outs, obits, oseg = _place(device, rx, "rx", "output")
+        ins, ibits, iseg = _place(device, tx, "tx", "input")
+        return cls(
+            outs, ins, obits, ibits, [p.index for p in rx], [p.index for p in tx], [*oseg, *iseg]
+        )
 
     def has(self, name: str) -> bool:
         try:
@@ -136,28 +167,44 @@ class ProcessLayout:
         except ProcessValueError:
             return False
 
-    def variable(self, name: str) -> ProcessVariable:
+    def variable(self, name: str, direction: str | None = None) -> ProcessVariable:
         """A variable by entry name (``hip_angle``) or by object address (``0x7000:01``,
-        ``7000:1``: hexadecimal, the grammar of ``ether_ros._native.protocol.parse_address``).
+        ``7000:1``: hexadecimal, the grammar of ``ether_ros._native.protocol.parse_address``;
+        ``0x1600/0x7000:01`` for an entry mapped more than once); ``direction`` ('output' or
+        'input') narrows a name or address used in both directions.
 
         Raises :class:`ProcessValueError` for unknown or ambiguous names."""
         found = self._by_name.get(name)
         if found is not None:
+            if direction is not None and len(found) > 1:
+                narrowed = [v for v in found if v.direction == direction]
+                found = narrowed or found
             if len(found) > 1:
                 keys = ", ".join(v.key for v in found)
                 raise ProcessValueError(f"variable name {name!r} is ambiguous; use one of {keys}")
             return found[0]
-        by_key = self._lookup_key(name)
+        by_key = self._lookup_key(name, direction)
         if by_key is not None:
             return by_key
         raise ProcessValueError(f"no process variable {name!r}")
 
-    def _lookup_key(self, name: str) -> ProcessVariable | None:
+    def _lookup_key(self, name: str, direction: str | None = None) -> ProcessVariable | None:
         try:
-            address = parse_address(name)
+            address = parse_pdo_address(name)
         except ValueError as exc:
             raise ProcessValueError(str(exc)) from None
-        return None if address is None else self._by_key.get(address)
+        if address is None:
+            return None
+        pdo, index, subindex = address
+        if pdo is not None:
+            return self._by_key.get((pdo, index, subindex))
+        found = self._by_address.get((index, subindex), [])
+        if direction is not None and len(found) > 1:
+            found = [v for v in found if v.direction == direction] or found
+        if len(found) > 1:
+            keys = ", ".join(v.key for v in found)
+            raise ProcessValueError(f"{name!r} is mapped more than once; use one of {keys}")
+        return found[0] if found else None
 
     # -- codec on area buffers ---------------------------------------------------------------
 
@@ -178,7 +225,7 @@ class ProcessLayout:
                 f"output area is {self.output_bytes} bytes, base has {len(area)}"
             )
         for name, value in values.items():
-            var = self.variable(name)
+            var = self.variable(name, "output")
             if var.direction != "output":
                 raise ProcessValueError(f"variable {name!r} is an input, not an output")
             self.write(area, var, value)
@@ -196,37 +243,93 @@ class ProcessLayout:
         return out
 
 
-def _place(
-    device: EsiDevice, pdos: Sequence[int], kind: str, direction: str
-) -> tuple[list[ProcessVariable], int]:
-    variables: list[ProcessVariable] = []
-    bit = 0
-    for index in pdos:
-        pdo: Pdo | None = device.pdo(index)
-        if pdo is None or pdo.direction != kind:
+def _qualified(v: ProcessVariable, qualify: set[tuple[int, int]]) -> ProcessVariable:
+    return replace(v, qualified=True) if (v.index, v.subindex) in qualify else v
+
+
+def _resolve(device: EsiDevice, pdos: Iterable[int | Pdo], kind: str) -> tuple[Pdo, ...]:
+    out: list[Pdo] = []
+    for item in pdos:
+        if isinstance(item, Pdo):
+            out.append(item)
+            continue
+        pdo = device.pdo(item, kind)
+        if pdo is None:
             what = "RxPDO" if kind == "rx" else "TxPDO"
             have = ", ".join(
                 f"{p.index:#06x}" for p in (device.rx_pdos if kind == "rx" else device.tx_pdos)
             )
             raise ConfigError(
-                f"{device.type_name} has no {what} {index:#06x} (it has: {have or 'none'})"
+                f"{device.type_name} has no {what} {item:#06x} (it has: {have or 'none'})"
             )
-        for e in pdo.entries:
-            if not e.is_padding:
-                variables.append(
-                    ProcessVariable(
-                        name=e.name,
-                        index=e.index,
-                        subindex=e.subindex,
-                        direction=direction,
-                        bit_offset=bit,
-                        bit_length=e.bit_length,
-                        data_type=e.data_type,
-                        pdo=pdo.index,
+        out.append(pdo)
+    return tuple(out)
+
+
+def pdo_sync_manager(device: EsiDevice, pdo: Pdo) -> int:
+    """The SyncManager a PDO goes into: its ``Sm`` when that SM carries its direction, else
+    the device's first real SM of the direction (where configurable PDOs go)."""
+    role = "Outputs" if pdo.direction == "rx" else "Inputs"
+    if pdo.sm is not None:
+        sm = device.sm_number(pdo.sm)
+        if sm is not None and sm.role == role:
+            return pdo.sm
+    main = device.sm(role)
+    if main is None:
+        what = "outputs" if pdo.direction == "rx" else "inputs"
+        raise ConfigError(
+            f"{device.type_name}: PDO {pdo.index:#06x} has no SyncManager (the device has no"
+            f" SyncManager for {what})"
+        )
+    return main.number
+
+
+def _place(
+    device: EsiDevice, pdos: Sequence[Pdo], kind: str, direction: str
+) -> tuple[list[ProcessVariable], int, list[SmSegment]]:
+    """The variables of ``pdos`` and the area's SM segments: the PDOs grouped by their
+    SyncManager (SM number order, assignment order within one SM), each SM from a byte
+    boundary."""
+    by_sm: dict[int, list[Pdo]] = {}
+    for pdo in pdos:
+        if pdo.direction != kind:
+            what = "RxPDO" if kind == "rx" else "TxPDO"
+            raise ConfigError(f"{device.type_name}: PDO {pdo.index:#06x} is not an {what}")
+        sm = pdo_sync_manager(device, pdo) if device.sync_managers else 0
+        by_sm.setdefault(sm, []).append(pdo)
+    variables: list[ProcessVariable] = []
+    segments: list[SmSegment] = []
+    bit = 0
+    for sm in sorted(by_sm):
+        bit = (bit + 7) // 8 * 8
+        start = bit
+        for pdo in by_sm[sm]:
+            for e in pdo.entries:
+                if not e.is_padding:
+                    variables.append(
+                        ProcessVariable(
+                            name=e.name,
+                            index=e.index,
+                            subindex=e.subindex,
+                            direction=direction,
+                            bit_offset=bit,
+                            bit_length=e.bit_length,
+                            data_type=e.data_type,
+                            pdo=pdo.index,
+                            sm=sm,
+                        )
                     )
-                )
-            bit += e.bit_length
-    return variables, bit
+                bit += e.bit_length
+        segments.append(
+            SmSegment(
+                sm,
+                direction,
+                start // 8,
+                (bit - start + 7) // 8,
+                tuple(p.index for p in by_sm[sm]),
+            )
+        )
+    return variables, bit, segments
 
 
 def read_bits(area: bytes | bytearray | memoryview, bit_offset: int, bit_length: int) -> int:

@@ -11,18 +11,30 @@ version), then categories from word 0x40: ``type:u16, size_in_words:u16, data``,
 
 from __future__ import annotations
 
+import logging
 import struct
+import unicodedata
 from dataclasses import dataclass, field
 
-from ether_ros._native.protocol import sii_category, sii_checksum, sii_word
-from ether_ros.config.esi import EsiDevice, Pdo
+from ether_ros._native.protocol import sii_category, sii_checksum, sii_syncm, sii_word
+from ether_ros.config.esi import MAX_EEPROM_BYTES, EsiDevice, Pdo
 from ether_ros.errors import ConfigError
+
+log = logging.getLogger(__name__)
 
 # Category types and header word addresses are the protocol crate's (ETG.2010); in bytes:
 HEADER_BYTES = 2 * sii_word.FIRST_CATEGORY
 CHECKSUMMED = sii_word.CHECKSUM_COVERS  # bytes of words 0..6 the CRC-8 in word 7 covers
+#: The EEPROM bytes SOEM reads (its EC_MAXEEPBUF): categories past them it does not find.
+SOEM_EEPROM_WINDOW = 4096
 
-SM_TYPE = {"": 0, "MBoxOut": 1, "MBoxIn": 2, "Outputs": 3, "Inputs": 4}
+SM_TYPE = {
+    "": sii_syncm.TYPE_UNUSED,
+    "MBoxOut": sii_syncm.TYPE_MBOX_OUT,
+    "MBoxIn": sii_syncm.TYPE_MBOX_IN,
+    "Outputs": sii_syncm.TYPE_OUTPUTS,
+    "Inputs": sii_syncm.TYPE_INPUTS,
+}
 SM_ROLE = {v: k for k, v in SM_TYPE.items()}
 FMMU_TYPE = {"": 0, "Outputs": 1, "Inputs": 2, "MBoxState": 3}
 FMMU_ROLE = {v: k for k, v in FMMU_TYPE.items()}
@@ -131,24 +143,54 @@ class SiiInfo:
 class _Strings:
     def __init__(self) -> None:
         self.items: list[str] = []
+        self._index: dict[str, int] = {}
 
     def index(self, text: str) -> int:
         """1-based string index; 0 means 'no string'."""
         if not text:
             return 0
-        if text in self.items:
-            return self.items.index(text) + 1
+        if text in self._index:
+            return self._index[text]
         if len(self.items) >= 255:
-            raise ConfigError("SII: more than 255 strings")
+            # The category indexes strings with one byte: the rest go without a name.
+            return 0
         self.items.append(text)
+        self._index[text] = len(self.items)
         return len(self.items)
+
+    def copy(self) -> _Strings:
+        other = _Strings()
+        other.items = list(self.items)
+        other._index = dict(self._index)
+        return other
 
     def encode(self) -> bytes:
         out = bytearray([len(self.items)])
         for s in self.items:
-            b = s.encode("latin-1", "replace")[:255]
+            b = sii_text(s)[:255]
             out += bytes([len(b)]) + b
         return bytes(out)
+
+
+# Characters vendors use that have no ASCII decomposition.
+_ASCII_FOR = {"µ": "u", "μ": "u", "°": "deg", "±": "+/-", "ß": "ss", "Ω": "Ohm", "€": "EUR"}
+
+
+def sii_text(text: str) -> bytes:
+    """A string as the SII stores it: printable ASCII (ETG.2010 strings are visible strings),
+    which every master decodes. Accents are dropped ("é" → "e"), a few signs spelled out
+    ("µs" → "us"), anything else is "?" and control characters are dropped."""
+    spelled = "".join(_ASCII_FOR.get(c, c) for c in text)
+    plain = unicodedata.normalize("NFKD", spelled)
+    out = []
+    for c in plain:
+        if unicodedata.combining(c):
+            continue
+        if " " <= c <= "~":
+            out.append(c)
+        elif not unicodedata.category(c).startswith("C"):
+            out.append("?")
+    return "".join(out).encode("ascii")
 
 
 def _category(ctype: int, data: bytes) -> bytes:
@@ -157,9 +199,22 @@ def _category(ctype: int, data: bytes) -> bytes:
     return struct.pack("<HH", ctype, len(data) // 2) + data
 
 
-def _pdo_category(pdos: tuple[Pdo, ...], strings: _Strings) -> bytes:
+def _pdo_category(
+    device: EsiDevice, pdos: tuple[Pdo, ...], strings: _Strings, named: bool = True
+) -> bytes:
+    """The TxPDO or RxPDO category. An entry longer than 255 bits (the category's bit length
+    is one byte) cannot be described: the PDO is left out with a warning."""
     out = bytearray()
     for p in pdos:
+        too_long = next((e for e in p.entries if e.bit_length > 0xFF), None)
+        if too_long is not None or len(p.entries) > 0xFF:
+            log.warning(
+                "%s: %s: PDO 0x%04X has an entry of more than 255 bits: not in the SII",
+                device.source,
+                device.type_name,
+                p.index,
+            )
+            continue
         flags = (
             (0x0001 if p.mandatory else 0)
             | (0x0002 if p.sm is not None else 0)
@@ -179,7 +234,7 @@ def _pdo_category(pdos: tuple[Pdo, ...], strings: _Strings) -> bytes:
                 "<HBBBBH",
                 e.index,
                 e.subindex,
-                strings.index(e.name),
+                strings.index(e.name) if named else 0,
                 e.data_type & 0xFF,
                 e.bit_length,
                 0,
@@ -188,7 +243,8 @@ def _pdo_category(pdos: tuple[Pdo, ...], strings: _Strings) -> bytes:
 
 
 def build_sii(device: EsiDevice, alias: int = 0, serial: int = 0) -> bytes:
-    """The SII EEPROM image of ``device`` (``device.eeprom.byte_size`` bytes, 0xFF filled)."""
+    """The SII EEPROM image of ``device``: ``device.eeprom.byte_size`` bytes, 0xFF filled, or
+    more (a power of two, with a warning) when the content needs more than the ESI says."""
     if not 0 <= alias <= 0xFFFF:
         raise ConfigError(f"SII alias must be 0..65535, got {alias}")
     if not 0 <= serial <= 0xFFFFFFFF:
@@ -217,8 +273,6 @@ def build_sii(device: EsiDevice, alias: int = 0, serial: int = 0) -> bytes:
         )  # bootstrap mailbox: same as standard
         struct.pack_into("<HHHH", head, 2 * sii_word.STD_RX_MBX_OFFSET, *mbx)
         struct.pack_into("<H", head, 2 * sii_word.MBX_PROTOCOL, device.mailbox.protocols)
-    size_kbit = device.eeprom.byte_size * 8 // 1024
-    struct.pack_into("<HH", head, 2 * sii_word.SIZE, max(size_kbit - 1, 0), 1)
 
     # Categories. Strings first: the others reference them, so build them before encoding.
     mb = device.mailbox
@@ -257,11 +311,65 @@ def build_sii(device: EsiDevice, alias: int = 0, serial: int = 0) -> bytes:
             kind = "rx" if sm.role == "Outputs" else "tx"
             pdos = device.rx_pdos if kind == "rx" else device.tx_pdos
             size = (sum(p.bit_length for p in pdos if p.sm == sm.number) + 7) // 8
-        syncm += struct.pack(
-            "<HHBBBB", sm.start, size, sm.control, 0, 0x01 if sm.enable else 0, SM_TYPE[sm.role]
+        # Enable byte (ETG.2010): a virtual SM is flagged and not enabled (it takes no
+        # hardware SM: a master maps its memory with an FMMU only), an OpOnly SM flagged.
+        enable = sm.sii_enable
+        syncm += struct.pack("<HHBBBB", sm.start, size & 0xFFFF, sm.control, 0, enable,
+                             SM_TYPE[sm.role])  # fmt: skip
+    # The PDO categories, strings and DC category: as much as the ESI's EEPROM holds. A CoE
+    # device's vendor tool leaves out what masters read over CoE (ETG.2010: the PDO categories
+    # describe the PDOs of a device without CoE): first the PDOs not assigned by default, then
+    # the entry names, then the PDO categories; a device without CoE keeps its default PDOs.
+    coe_pdos = mb is not None and mb.coe and (mb.pdo_assign or mb.sdo_info)
+    levels = ("all", "default", "unnamed") + (("none",) if coe_pdos else ())
+    for level in levels:
+        trial = strings.copy()
+        body = _body(device, level, trial, bytes(general), fmmu, bytes(syncm))
+        if len(head) + len(body) <= device.eeprom.byte_size:
+            break
+    needed = len(head) + len(body)
+    size = device.eeprom.byte_size
+    if needed > size:
+        # As big as the content needs (a power of two, as EEPROMs come): the ESI's ByteSize
+        # describes the vendor's EEPROM, whose SII the vendor's tool made smaller.
+        grown = max(size, 128)
+        while grown < needed:
+            grown *= 2
+        log.warning(
+            "%s: %s: the SII needs %d bytes, more than <Eeprom><ByteSize> %d: the simulated "
+            "EEPROM has %d",
+            device.source,
+            device.type_name,
+            needed,
+            size,
+            grown,
         )
-    tx = _pdo_category(device.tx_pdos, strings)
-    rx = _pdo_category(device.rx_pdos, strings)
+        size = grown
+    if size > MAX_EEPROM_BYTES:
+        raise ConfigError(
+            f"{device.source}: SII image of {device.type_name} needs {needed} bytes, more than an"
+            f" EEPROM holds ({MAX_EEPROM_BYTES})"
+        )
+    size_kbit = size * 8 // 1024
+    struct.pack_into("<HH", head, 2 * sii_word.SIZE, max(size_kbit - 1, 0), 1)
+    image = bytes(head) + bytes(body)
+    return image.ljust(size, b"\xff")
+
+
+def _body(
+    device: EsiDevice, level: str, strings: _Strings, general: bytes, fmmu: bytes, syncm: bytes
+) -> bytes:
+    """The categories after the header, the PDO categories as ``level`` says: ``all`` PDOs,
+    the ``default`` assigned ones, those ``unnamed`` (no entry names) or ``none``."""
+    tx_pdos, rx_pdos = device.tx_pdos, device.rx_pdos
+    if level != "all":
+        tx_pdos = tuple(p for p in tx_pdos if p.sm is not None)
+        rx_pdos = tuple(p for p in rx_pdos if p.sm is not None)
+    if level == "none":
+        tx_pdos = rx_pdos = ()
+    named = level == "all" or level == "default"
+    tx = _pdo_category(device, tx_pdos, strings, named)
+    rx = _pdo_category(device, rx_pdos, strings, named)
     dc = bytearray()
     for m in device.dc_opmodes:
         dc += struct.pack(
@@ -275,27 +383,34 @@ def build_sii(device: EsiDevice, alias: int = 0, serial: int = 0) -> bytes:
             strings.index(m.name),
             strings.index(m.description),
         )
-    body = bytearray()
-    body += _category(sii_category.STRINGS, strings.encode())
-    body += _category(sii_category.GENERAL, bytes(general))
+    essential = bytearray(_category(sii_category.GENERAL, general))
     if fmmu:
-        body += _category(sii_category.FMMU, fmmu)
+        essential += _category(sii_category.FMMU, fmmu)
     if syncm:
-        body += _category(sii_category.SYNCM, bytes(syncm))
+        essential += _category(sii_category.SYNCM, syncm)
+    pdos = bytearray()
     if tx:
-        body += _category(sii_category.TXPDO, tx)
+        pdos += _category(sii_category.TXPDO, tx)
     if rx:
-        body += _category(sii_category.RXPDO, rx)
+        pdos += _category(sii_category.RXPDO, rx)
+    text = _category(sii_category.STRINGS, strings.encode())
+    if HEADER_BYTES + len(text) + len(essential) <= SOEM_EEPROM_WINDOW:
+        body = bytearray(text + essential + pdos)  # the usual order (ETG.2010's examples)
+    else:
+        # SOEM reads the first 4 KiB of an EEPROM only (EC_MAXEEPBUF): General, FMMU and
+        # SyncM go first so that it finds them; the strings after (names late in a long list
+        # are lost to SOEM, not the device).
+        body = bytearray(essential + text + pdos)
     if dc:
         body += _category(sii_category.DC, bytes(dc))
+    ours = {sii_category.STRINGS, sii_category.GENERAL, sii_category.FMMU, sii_category.SYNCM,
+            sii_category.TXPDO, sii_category.RXPDO, sii_category.DC}  # fmt: skip
+    for number, data in device.eeprom.categories:
+        if number in ours:
+            continue  # made from the ESI above
+        body += _category(number, data)
     body += struct.pack("<H", sii_category.END)
-    image = bytes(head) + bytes(body)
-    if len(image) > device.eeprom.byte_size:
-        raise ConfigError(
-            f"{device.source}: SII image of {device.type_name} needs {len(image)} bytes but the"
-            f" EEPROM has {device.eeprom.byte_size} (<Eeprom><ByteSize>)"
-        )
-    return image.ljust(device.eeprom.byte_size, b"\xff")
+    return bytes(body)
 
 
 # --------------------------------------------------------------------------------------------

@@ -2,29 +2,39 @@
 supervisor (one slave that dropped out and came back).
 
 INIT   : mailbox SyncManagers (SM0/SM1)                           → request PREOP
-PREOP  : sdo_init list, PDO assignment/mapping over CoE (if the configuration overrides it),
-         process-data SyncManagers (SM2/SM3) and FMMUs, DC SYNC0    → request SAFEOP
-SAFEOP : (the cyclic frame runs, so outputs are valid)             → request OP
+PREOP  : ESI init commands (IP, PS), sdo_init list, PDO assignment/mapping over CoE (read
+         first, written where the slave differs), process-data SyncManagers and FMMUs,
+         DC SYNC0                                                   → request SAFEOP
+SAFEOP : ESI init commands (SO), OpOnly SyncManagers enabled; the cyclic frame runs, so
+         outputs are valid                                          → request OP
 """
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from ether_ros._native.protocol import format_address
 from ether_ros.config import types as dt
-from ether_ros.errors import BusError, EtherRosError
+from ether_ros.config.esi import Pdo
+from ether_ros.errors import BusError, EtherRosError, MailboxError
 from ether_ros.master.configure import (
     mailbox_sync_managers,
+    op_only_sync_managers,
     process_fmmus,
     process_sync_managers,
     write_fmmus,
     write_sync_managers,
 )
 from ether_ros.master.datagrams import DatagramService
-from ether_ros.master.pdo import assignment_writes
+from ether_ros.master.pdo import (
+    PdoSelection,
+    SmAssignment,
+    assignment_writes,
+    mapping_values,
+    sm_assignments,
+)
 from ether_ros.master.plan import LOGICAL_BASE
 from ether_ros.master.shared_frames import run_in_parallel
 from ether_ros.master.slave import Slave
@@ -100,7 +110,10 @@ def encode_sdo_value(slave: Slave, index: int, subindex: int, value: object,
 
 
 def configure_preop(dg: DatagramService, slave: Slave) -> None:
-    """PREOP: sdo_init, PDO assignment, process SMs and FMMUs."""
+    """PREOP: the ESI's CoE init commands of INIT → PREOP and PREOP → SAFEOP, the
+    configuration's sdo_init (after them: the configuration wins), the PDO assignment and
+    mapping, process-data SMs and FMMUs."""
+    run_init_cmds(slave, ("IP", "PS"))
     cfg = slave.config
     for item in getattr(cfg, "sdo_init", None) or []:
         index, sub = int(item.index), int(item.subindex)
@@ -109,54 +122,141 @@ def configure_preop(dg: DatagramService, slave: Slave) -> None:
             slave, index, sub, item.value, getattr(item, "type", None)
         )
         sdo_download(slave, index, sub, data, f"sdo_init {format_address(index, sub)}")
-    if slave.selection.source == "config":
-        write_pdo_assignment(slave)
+    configure_pdos(slave)
     area = slave.area
     if area is None:
         return
-    sms = process_sync_managers(slave.device, area.output_bytes, area.input_bytes)
+    segments = slave.layout.segments if slave.layout is not None else ()
+    if slave.device is not None and slave.layout is not None:
+        sms = process_sync_managers(slave.device, segments)
+    else:
+        sms = process_sync_managers(slave.device, area.output_bytes, area.input_bytes)
     write_sync_managers(dg, slave.station, str(slave), sms)
-    write_fmmus(dg, slave.station, str(slave), process_fmmus(area, sms, LOGICAL_BASE))
+    fmmus = process_fmmus(area, sms, LOGICAL_BASE, slave.device, segments)
+    write_fmmus(dg, slave.station, str(slave), fmmus)
+
+
+def configure_safeop(dg: DatagramService, slave: Slave) -> None:
+    """SAFEOP, before OP is requested: the init commands of SAFEOP → OP, and the ``OpOnly``
+    SyncManagers enabled."""
+    run_init_cmds(slave, ("SO",))
+    if slave.device is None or slave.layout is None:
+        return
+    sms = op_only_sync_managers(slave.device, slave.layout.segments)
+    if sms:
+        write_sync_managers(dg, slave.station, str(slave), sms)
+
+
+def run_init_cmds(slave: Slave, transitions: Sequence[str]) -> None:
+    """The ESI's CoE init commands of ``transitions``, in ESI order (as TwinCAT sends them)."""
+    device = slave.device
+    if device is None or not slave.has_coe:
+        return
+    for cmd in device.init_cmds:
+        if not any(t in cmd.transitions for t in transitions):
+            continue
+        why = f"ESI init command {format_address(cmd.index, cmd.subindex)}"
+        if cmd.comment:
+            why += f" ({cmd.comment})"
+        if slave.sdo is None:
+            raise BusError(f"{slave}: has no CoE mailbox for the {why}")
+        try:
+            slave.sdo.download(cmd.index, cmd.subindex, cmd.data, cmd.complete_access)
+        except EtherRosError as exc:
+            raise BusError(f"{slave}: {why} failed: {exc}") from None
+
+
+def configure_pdos(slave: Slave) -> None:
+    """Tell a CoE slave its PDO assignment and mapping (module doc of ``master/pdo.py``): what
+    the slave has is read first, and only what differs is written. A slave that cannot change
+    its assignment is fine as long as it has what the configuration asks for."""
+    device = slave.device
+    if device is None or slave.layout is None:
+        return
+    mailbox = device.mailbox
+    override = slave.selection.source == "config"
+    can_assign = slave.has_coe and mailbox is not None and mailbox.pdo_assign
+    can_map = slave.has_coe and mailbox is not None and mailbox.pdo_config
+    assignments = sm_assignments(device, slave.selection)
+    if not can_assign:
+        if override and [a.pdo_indices for a in assignments] != [
+            a.pdo_indices
+            for a in sm_assignments(device, PdoSelection(list(device.default_rx()),
+                                                         list(device.default_tx())))
+        ]:  # fmt: skip
+            wanted = ", ".join(f"0x{p.index:04X}" for a in assignments for p in a.pdos)
+            raise BusError(
+                f"{slave}: the configuration assigns PDOs {wanted}, but the device cannot change "
+                "its PDO assignment (no CoE PdoAssign in its ESI)"
+            )
+        return
+    changed: list[SmAssignment] = []
+    remap: list[Pdo] = []
+    for a in assignments:
+        current = _read_list(slave, a.index, 2)
+        if current is None:
+            if override:
+                raise BusError(
+                    f"{slave}: the configuration assigns PDOs to SM{a.sm}, but the slave has no "
+                    f"assignment object 0x{a.index:04X}"
+                )
+            log.info("%s: no PDO assignment object 0x%04X: the slave's own assignment is used",
+                     slave, a.index)  # fmt: skip
+            continue
+        stale = [
+            p
+            for p in a.pdos
+            if can_map and not p.fixed and not p.virtual
+            and _read_list(slave, p.index, 4) != mapping_values(p)
+        ]  # fmt: skip
+        if stale or current != a.pdo_indices:
+            changed.append(a)
+            remap.extend(stale)
+    for w in assignment_writes(changed, remap):
+        sdo_download(slave, w.index, w.subindex, w.data, w.why)
+
+
+def _read_list(slave: Slave, index: int, width: int) -> list[int] | None:
+    """Subindex 0 (a count) and the entries of an assignment (``width`` 2) or mapping (4)
+    object of the slave; None when the slave has no such object."""
+    if slave.sdo is None:
+        return None
+    try:
+        count = int.from_bytes(slave.sdo.upload(index, 0)[:1] or b"\0", "little")
+        return [
+            int.from_bytes(slave.sdo.upload(index, sub)[:width], "little")
+            for sub in range(1, count + 1)
+        ]
+    except MailboxError:
+        return None
 
 
 def write_pdo_assignment(slave: Slave) -> None:
-    """Tell the slave the configuration's PDO assignment (0x1C12/0x1C13, and the mapping
-    objects when it supports PDO configuration). A slave that cannot change its assignment is
-    fine as long as the configuration asks for what it has anyway."""
-    device = slave.device
-    mailbox = device.mailbox if device is not None else None
-    can_assign = slave.has_coe and mailbox is not None and mailbox.pdo_assign
-    chosen = ([p.index for p in slave.selection.rx], [p.index for p in slave.selection.tx])
-    if not can_assign:
-        if device is not None and chosen == (
-            list(device.default_rx_pdos()),
-            list(device.default_tx_pdos()),
-        ):
-            return
-        wanted = ", ".join(f"0x{i:04X}" for i in (*chosen[0], *chosen[1]))
-        raise BusError(
-            f"{slave}: the configuration assigns PDOs {wanted}, but the device cannot change "
-            "its PDO assignment (no CoE PdoAssign in its ESI)"
-        )
-    pdo_config = mailbox is not None and mailbox.pdo_config
-    for w in assignment_writes(slave.selection, write_mapping=pdo_config):
-        sdo_download(slave, w.index, w.subindex, w.data, w.why)
+    """Compatibility name of :func:`configure_pdos`."""
+    configure_pdos(slave)
 
 
 def configure_all_preop(dg: DatagramService, slaves: Sequence[Slave]) -> None:
     """``configure_preop`` of every slave at once, their datagrams (SDO init, PDO assignment,
     SyncManagers, FMMUs) sharing frames (``shared_frames.py``)."""
-    run_in_parallel(dg, slaves, _configure_preop_over)
+    run_in_parallel(dg, slaves, lambda d, s: _with_mailbox_on(d, s, configure_preop))
 
 
-def _configure_preop_over(dg: DatagramService, slave: Slave) -> None:
-    """``configure_preop`` with the slave's mailbox on ``dg`` for the time of it."""
+def configure_all_safeop(dg: DatagramService, slaves: Sequence[Slave]) -> None:
+    """``configure_safeop`` of every slave at once."""
+    run_in_parallel(dg, slaves, lambda d, s: _with_mailbox_on(d, s, configure_safeop))
+
+
+def _with_mailbox_on(
+    dg: DatagramService, slave: Slave, step: Callable[[DatagramService, Slave], None]
+) -> None:
+    """``step`` with the slave's mailbox on ``dg`` for the time of it."""
     mailbox = slave.mailbox
     before = mailbox.dg if mailbox is not None else None
     if mailbox is not None:
         mailbox.dg = dg
     try:
-        configure_preop(dg, slave)
+        step(dg, slave)
     finally:
         if mailbox is not None:
             mailbox.dg = before

@@ -252,9 +252,7 @@ class Bus:
         layout = None
         if device is not None:
             try:
-                layout = ProcessLayout.for_device(
-                    device, [p.index for p in selection.rx], [p.index for p in selection.tx]
-                )
+                layout = ProcessLayout.for_device(device, selection.rx, selection.tx)
             except ConfigError as exc:
                 raise BusError(f"{who}: {exc}") from None
         return Slave(
@@ -347,6 +345,7 @@ class Bus:
                     dc_slaves, self.cycle_ns, self._sync0_shift_ns, ref
                 )
             self.al.transition(refs, AlState.SAFEOP)
+            bringup.configure_all_safeop(self.dg, self.slaves)
             # The cyclic frame starts with the safe outputs; writes before start are dropped.
             self._outputs = bytearray(self._safe)
             self.plan = self._build_plan()
@@ -549,11 +548,11 @@ class Bus:
         names = ", ".join(s.name for s in self.slaves)
         raise BusError(f"no slave {which!r} on this bus (slaves: {names})")
 
-    def _variable(self, slave: Slave, name: str) -> ProcessVariable:
+    def _variable(self, slave: Slave, name: str, direction: str | None = None) -> ProcessVariable:
         if slave.layout is None:
             raise BusError(f"{slave}: has no process data")
         try:
-            return slave.layout.variable(name)
+            return slave.layout.variable(name, direction)
         except ProcessValueError as exc:
             raise ProcessValueError(f"{slave}: {exc}") from None
 
@@ -588,7 +587,7 @@ class Bus:
             for s in self.slaves
             if s.layout is not None
             and s.layout.has(variable)
-            and s.layout.variable(variable).direction == "output"
+            and s.layout.variable(variable, "output").direction == "output"
         ]
         if not targets:
             raise ProcessValueError(f"no slave has an output variable {variable!r}")
@@ -602,7 +601,7 @@ class Bus:
             raise BusError(f"{s}: has no outputs")
         variables: list[ProcessVariable] = []
         for name in values:
-            var = self._variable(s, name)
+            var = self._variable(s, name, "output")
             if var.direction != "output":
                 raise ProcessValueError(f"{s}: variable {name!r} is an input, not an output")
             self._refuse_axis_owned(s, var)
@@ -902,6 +901,7 @@ class Bus:
                 self.dc.resync_slave(source, s.dc)
                 self.dc.activate_sync0([s.dc], self.cycle_ns, self._sync0_shift_ns, ref)
             self.al.transition([s.ref], AlState.SAFEOP)
+            bringup.configure_safeop(self.dg, s)
             time.sleep(max(3 * self.cycle_ns / 1e9, 0.005))
             self.al.transition([s.ref], AlState.OP)
 

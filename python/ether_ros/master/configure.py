@@ -1,17 +1,21 @@
 """Per-slave configuration written during bring-up: mailbox SyncManagers (INIT → PREOP),
-process-data SyncManagers and FMMUs (PREOP → SAFEOP).
+process-data SyncManagers and FMMUs (PREOP → SAFEOP), ``OpOnly`` SyncManagers (SAFEOP → OP).
 
 Where a value comes from: the ESI when the configuration names a device for the slave, the
 slave's own SII otherwise (standard mailbox words for SM0/SM1). SyncManager numbers follow the
-ESI roles (normally 0 MBoxOut, 1 MBoxIn, 2 Outputs, 3 Inputs); a slave with outputs gets FMMU 0
-for them, its inputs the next FMMU.
+ESI (normally 0 MBoxOut, 1 MBoxIn, 2 Outputs, 3 Inputs, but a device may have several of a
+direction, none, or SMs in the ESC's digital I/O registers at 0x0F00); a slave's output FMMUs
+come first, then its input FMMUs.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 from ether_ros._native.protocol import fmmu as fmmu_bits
 from ether_ros._native.protocol import sm as sm_bits
 from ether_ros.config.esi import EsiDevice
+from ether_ros.config.process import SmSegment
 from ether_ros.config.sii import SiiInfo
 from ether_ros.errors import BusError
 from ether_ros.master.datagrams import Cmd, Datagram, DatagramService, fixed_address
@@ -56,10 +60,52 @@ def mailbox_sync_managers(who: str, header: SiiInfo, device: EsiDevice | None) -
 
 
 def process_sync_managers(
+    device: EsiDevice | None,
+    segments: Sequence[SmSegment] | int,
+    input_bytes: int | None = None,
+    *,
+    op: bool = False,
+) -> list[SyncManager]:
+    """The process-data SyncManagers of a slave, each as long as its segment of the slave's
+    area. Every real process-data SM of the ESI is written: one without PDOs disabled (length
+    0), as slaves expect then; an ``OpOnly`` SM stays disabled until ``op`` (SAFEOP → OP);
+    a virtual SM is no hardware SM and is not written (an FMMU maps its memory directly).
+
+    Without an ESI, ``segments`` is the output byte count and ``input_bytes`` the input one,
+    laid out as the usual SM2 (outputs at 0x1100) and SM3 (inputs at 0x1400)."""
+    if device is None or isinstance(segments, int):
+        return _default_process_sms(
+            device, int(segments) if isinstance(segments, int) else 0, input_bytes or 0
+        )
+    length = {seg.sm: seg.byte_length for seg in segments}
+    sms: list[SyncManager] = []
+    for desc in device.sync_managers:
+        if not desc.is_process_data or desc.virtual:
+            continue
+        nbytes = length.get(desc.number, 0)
+        default = OUTPUTS_CONTROL if desc.role == "Outputs" else INPUTS_CONTROL
+        enable = nbytes > 0 and (op or not desc.op_only)
+        sms.append(SyncManager(desc.number, desc.start, nbytes, desc.control or default, enable))
+    return sms
+
+
+def op_only_sync_managers(
+    device: EsiDevice | None, segments: Sequence[SmSegment]
+) -> list[SyncManager]:
+    """The ``OpOnly`` SyncManagers with data, enabled: written on SAFEOP → OP."""
+    if device is None:
+        return []
+    ops = {d.number for d in device.sync_managers if d.op_only and not d.virtual}
+    return [
+        sm
+        for sm in process_sync_managers(device, segments, op=True)
+        if sm.index in ops and sm.enable
+    ]
+
+
+def _default_process_sms(
     device: EsiDevice | None, output_bytes: int, input_bytes: int
 ) -> list[SyncManager]:
-    """The output (SM2) and input (SM3) SyncManagers sized to the assigned PDOs. A direction
-    without data gets its SM disabled (length 0), which is what slaves expect then."""
     sms: list[SyncManager] = []
     for role, nbytes, (number, start), control in (
         ("Outputs", output_bytes, DEFAULT_OUTPUTS_SM, OUTPUTS_CONTROL),
@@ -74,8 +120,48 @@ def process_sync_managers(
     return sms
 
 
-def process_fmmus(area: SlaveArea, sms: list[SyncManager], logical_base: int) -> list[Fmmu]:
-    """FMMUs mapping the slave's output and input SyncManagers into the logical image."""
+def process_fmmus(
+    area: SlaveArea,
+    sms: Sequence[SyncManager],
+    logical_base: int,
+    device: EsiDevice | None = None,
+    segments: Sequence[SmSegment] = (),
+) -> list[Fmmu]:
+    """FMMUs mapping the slave's areas into the logical image: outputs first, then inputs
+    (the FMMU numbers follow this order). With the layout's ``segments``, each SM segment —
+    of a hardware SM or of a virtual one, whose FMMU maps the ESC memory at its start
+    address — is mapped where it sits in the area, and segments adjacent both in the area and
+    in the ESC memory share one FMMU (4 output SMs at 0x0F00..0x0F03 take one FMMU)."""
+    if device is None or not segments:
+        return _simple_fmmus(area, sms, logical_base)
+    fmmus: list[Fmmu] = []
+    for direction, base, access in (
+        ("output", area.output_offset, fmmu_bits.WRITE),
+        ("input", area.input_offset, fmmu_bits.READ),
+    ):
+        runs: list[list[int]] = []  # [logical start, length, physical start]
+        for seg in sorted(
+            (s for s in segments if s.direction == direction and s.byte_length),
+            key=lambda s: s.byte_offset,
+        ):
+            desc = device.sm_number(seg.sm)
+            if desc is None:
+                raise BusError(f"slave {area.position} ({area.name}): no SyncManager {seg.sm}")
+            logical = logical_base + base + seg.byte_offset
+            if (
+                runs
+                and runs[-1][0] + runs[-1][1] == logical
+                and (runs[-1][2] + runs[-1][1] == desc.start)
+            ):
+                runs[-1][1] += seg.byte_length
+            else:
+                runs.append([logical, seg.byte_length, desc.start])
+        for logical, length, physical in runs:
+            fmmus.append(Fmmu(len(fmmus), logical, length, physical, access))
+    return fmmus
+
+
+def _simple_fmmus(area: SlaveArea, sms: Sequence[SyncManager], logical_base: int) -> list[Fmmu]:
     fmmus: list[Fmmu] = []
     by_dir = {(sm.control & sm_bits.DIR_MASK): sm for sm in sms if sm.enable}
     # Outputs first, then inputs: the FMMU numbers follow this order.

@@ -1,14 +1,21 @@
-"""Which PDOs a slave exchanges, and the CoE writes that tell the slave.
+"""Which PDOs a slave exchanges, and the CoE writes that tell the slave — as TwinCAT and the
+IgH master do it.
 
 Sources, first that applies:
 1. the bus configuration's ``pdo_assign`` override (PDO indices; their contents from the ESI),
-2. the ESI's default assignment (PDOs with an ``Sm`` attribute),
+2. the ESI's default assignment (PDOs with an ``Sm`` attribute; modules placed in slots),
 3. the PDO categories of the slave's SII (for slaves without an ESI file).
 
-When the configuration overrides the assignment and the slave has CoE, the master writes it in
-PREOP: 0x1C12 (RxPDOs, SM2) and 0x1C13 (TxPDOs, SM3) — subindex 0 to 0, the PDO indices, then
-subindex 0 to their count — and, for PDOs the ESI does not mark fixed, the mapping objects
-(0x16xx/0x1Axx) the same way with one 32-bit entry (index<<16 | subindex<<8 | bits) each.
+Whichever it is, a slave with CoE is told in PREOP: for every process-data SyncManager n that
+carries PDOs, the assignment object 0x1C10 + n (0x1C12 for SM2, 0x1C13 for SM3) holds the PDO
+indices when the ESI allows PDO assignment (``<CoE PdoAssign>``), and the mapping objects
+(0x16xx/0x1Axx) of the PDOs the ESI does not mark ``Fixed`` hold their entries when it allows
+PDO configuration (``<CoE PdoConfig>``). The master reads what the slave has first and writes
+only what differs (as the IgH master does), so a device whose objects are read-only but
+already right is fine, and one whose stored assignment differs from its ESI is set right.
+A write goes: assignment subindex 0 to 0, the mapping of each changed PDO (subindex 0 to 0,
+the entries as index<<16 | subindex<<8 | bits, subindex 0 to their count), the assignment's
+PDO indices, assignment subindex 0 to their count.
 """
 
 from __future__ import annotations
@@ -19,8 +26,11 @@ from dataclasses import dataclass, field
 
 from ether_ros._native.protocol import coe, format_address
 from ether_ros.config.esi import EsiDevice, Pdo, PdoEntry
+from ether_ros.config.process import pdo_sync_manager
 from ether_ros.errors import BusError
 
+#: PDO assignment object of SyncManager n: 0x1C10 + n (0x1C12 for SM2, 0x1C13 for SM3).
+SM_ASSIGN_BASE = coe.SM_PDO_ASSIGN
 RX_ASSIGN = coe.RXPDO_ASSIGN
 TX_ASSIGN = coe.TXPDO_ASSIGN
 
@@ -82,16 +92,16 @@ def select_pdos(
         return PdoSelection(
             [p for p in sii_rx if p.sm is not None], [p for p in sii_tx if p.sm is not None], "sii"
         )
-    by_index = {p.index: p for p in (*device.rx_pdos, *device.tx_pdos)}
     source = "esi"
-    rx_ids: Sequence[int] = device.default_rx_pdos()
-    tx_ids: Sequence[int] = device.default_tx_pdos()
+    rx = list(device.default_rx())
+    tx = list(device.default_tx())
+    by_index = {p.index: p for p in (*device.rx_pdos, *device.tx_pdos) if not p.virtual}
+    for p in (*device.rx_pdos, *device.tx_pdos):
+        by_index.setdefault(p.index, p)
     if override_rx is not None:
-        rx_ids, source = override_rx, "config"
+        rx, source = [_lookup(who, by_index, i, "ESI") for i in override_rx], "config"
     if override_tx is not None:
-        tx_ids, source = override_tx, "config"
-    rx = [_lookup(who, by_index, i, "ESI") for i in rx_ids]
-    tx = [_lookup(who, by_index, i, "ESI") for i in tx_ids]
+        tx, source = [_lookup(who, by_index, i, "ESI") for i in override_tx], "config"
     for p in rx:
         if p.direction != "rx":
             raise BusError(f"{who}: PDO 0x{p.index:04X} is a TxPDO (input), assigned as output")
@@ -100,7 +110,7 @@ def select_pdos(
             raise BusError(f"{who}: PDO 0x{p.index:04X} is an RxPDO (output), assigned as input")
     chosen = {p.index for p in (*rx, *tx)}
     for p in (*rx, *tx):
-        clash = chosen.intersection(p.excludes)
+        clash = chosen.intersection(p.excludes) - {p.index}
         if clash:
             other = min(clash)
             raise BusError(f"{who}: PDO 0x{p.index:04X} excludes PDO 0x{other:04X}")
@@ -115,31 +125,71 @@ def _lookup(who: str, by_index: dict[int, Pdo], index: int, where: str) -> Pdo:
     return pdo
 
 
-def assignment_writes(selection: PdoSelection, write_mapping: bool) -> list[SdoWrite]:
-    """The SDO downloads that make the slave use ``selection`` (see module doc)."""
+@dataclass(frozen=True)
+class SmAssignment:
+    """The PDOs one process-data SyncManager carries, and its assignment object."""
+
+    sm: int
+    pdos: tuple[Pdo, ...]
+
+    @property
+    def index(self) -> int:
+        return SM_ASSIGN_BASE + self.sm
+
+    @property
+    def pdo_indices(self) -> list[int]:
+        return [p.index for p in self.pdos]
+
+
+def sm_assignments(device: EsiDevice, selection: PdoSelection) -> list[SmAssignment]:
+    """The selection split by SyncManager, for every real (not virtual) process-data SM of the
+    device — also those left without PDOs, whose assignment is then empty."""
+    by_sm: dict[int, list[Pdo]] = {
+        sm.number: [] for sm in device.sync_managers if sm.is_process_data and not sm.virtual
+    }
+    for pdo in (*selection.rx, *selection.tx):
+        sm = pdo_sync_manager(device, pdo)
+        if sm in by_sm:
+            by_sm[sm].append(pdo)
+    return [SmAssignment(sm, tuple(pdos)) for sm, pdos in sorted(by_sm.items())]
+
+
+def assignment_writes(
+    assignments: Sequence[SmAssignment], mapped: Sequence[Pdo] = ()
+) -> list[SdoWrite]:
+    """The SDO downloads that give ``assignments`` their PDOs and ``mapped`` their entries
+    (see module doc): per SyncManager, clear the assignment, write the mappings of its PDOs
+    that are in ``mapped``, then the assignment."""
     writes: list[SdoWrite] = []
-    if write_mapping:
-        for pdo in (*selection.rx, *selection.tx):
-            if pdo.fixed:
-                continue
-            writes.append(SdoWrite(pdo.index, 0, b"\0", f"clear mapping 0x{pdo.index:04X}"))
-            for sub, entry in enumerate(pdo.entries, start=1):
-                writes.append(
-                    SdoWrite(
-                        pdo.index,
-                        sub,
-                        struct.pack("<I", entry.mapping_value),
-                        f"mapping {format_address(pdo.index, sub)}",
-                    )
-                )
+    for a in assignments:
+        writes.append(SdoWrite(a.index, 0, b"\0", f"clear assignment 0x{a.index:04X}"))
+        for pdo in a.pdos:
+            if pdo in mapped:
+                writes.extend(mapping_writes(pdo))
+        for sub, index in enumerate(a.pdo_indices, start=1):
             writes.append(
-                SdoWrite(pdo.index, 0, bytes([len(pdo.entries)]), f"mapping 0x{pdo.index:04X}")
+                SdoWrite(a.index, sub, struct.pack("<H", index), f"assignment 0x{a.index:04X}")
             )
-    for assign, pdos in ((RX_ASSIGN, selection.rx), (TX_ASSIGN, selection.tx)):
-        writes.append(SdoWrite(assign, 0, b"\0", f"clear assignment 0x{assign:04X}"))
-        for sub, pdo in enumerate(pdos, start=1):
-            writes.append(
-                SdoWrite(assign, sub, struct.pack("<H", pdo.index), f"assignment 0x{assign:04X}")
-            )
-        writes.append(SdoWrite(assign, 0, bytes([len(pdos)]), f"assignment 0x{assign:04X}"))
+        writes.append(SdoWrite(a.index, 0, bytes([len(a.pdos)]), f"assignment 0x{a.index:04X}"))
     return writes
+
+
+def mapping_writes(pdo: Pdo) -> list[SdoWrite]:
+    """Clear the mapping object of ``pdo``, write its entries, then their count."""
+    writes = [SdoWrite(pdo.index, 0, b"\0", f"clear mapping 0x{pdo.index:04X}")]
+    for sub, entry in enumerate(pdo.entries, start=1):
+        writes.append(
+            SdoWrite(
+                pdo.index,
+                sub,
+                struct.pack("<I", entry.mapping_value),
+                f"mapping {format_address(pdo.index, sub)}",
+            )
+        )
+    writes.append(SdoWrite(pdo.index, 0, bytes([len(pdo.entries)]), f"mapping 0x{pdo.index:04X}"))
+    return writes
+
+
+def mapping_values(pdo: Pdo) -> list[int]:
+    """The 32-bit mapping entries of ``pdo`` as the slave stores them."""
+    return [e.mapping_value for e in pdo.entries]

@@ -202,6 +202,16 @@ def layout_image(
     by_name = {a.name: a for a in areas}
     for frame, chunk in zip(frames, members, strict=True):
         frame.datagrams = _datagrams([by_name[s.name] for s in chunk], areas)
+    # A frame left without datagrams (its slaves have no process data) is dropped, except the
+    # one carrying the DC datagrams. When no frame is left at all, one LRD of a byte that no
+    # slave maps (the last image byte, belonging to no slave; working counter 0) keeps the
+    # cyclic frame going round the bus: a bus without process data runs too, and a lost
+    # frame or a broken link is still seen every cycle.
+    frames = [f for f in frames if f.datagrams or f.dc]
+    if not frames:
+        heartbeat = LogicalDatagram("lrd", LOGICAL_BASE + offset, 1, offset, 0)
+        frames = [Frame(DEFAULT_GROUP, 1, datagrams=[heartbeat])]
+        offset += 1
     layout = ImageLayout(areas, total_out, offset - total_out)
     layout.frames = _split_oversized(frames, frame_payload, areas)
     layout.slaves = [

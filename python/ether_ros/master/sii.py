@@ -1,6 +1,7 @@
 """Reading the slaves' SII EEPROM through the ESC's EEPROM interface (0x0500..0x050F).
 
-The master takes the EEPROM from the PDI (0x0500 = 0), then for each read writes the word
+The master takes the EEPROM from the PDI (0x0500 = 2, "force ECAT access", which resets the
+PDI's access bit 0x0501.0; then 0x0500 = 0), then for each read writes the word
 address (0x0504) and the read command (0x0502 = 0x0100), polls until the busy bit (15) clears and
 takes 4 or 8 bytes from 0x0508 (bit 6 of 0x0502 says which). A read failed when the EEPROM did
 not acknowledge or the command was refused (bits 13 and 14). Bit 11 is the ESC's checksum error
@@ -10,7 +11,9 @@ The register's bits are the protocol crate's (``ether_ros._native.protocol.sii``
 
 All slaves are read at the same time, one datagram each per frame, and each stops at the end
 marker of its category list (decoded by ``ether_ros.config.sii.parse_sii``), so a scan costs
-about two round trips per 8 bytes of the longest EEPROM.
+about two round trips per 8 bytes of the longest EEPROM. Afterwards the EEPROM is offered back
+to the PDI (0x0500 = 1), as SOEM does: a slave application that keeps its own data there may
+use it again (ESC datasheet, 0x0500/0x0501 "EEPROM access").
 """
 
 from __future__ import annotations
@@ -25,6 +28,10 @@ from ether_ros.errors import BusError, SiiReadError
 from ether_ros.master.datagrams import Cmd, Datagram, DatagramService, fixed_address, u16, u32
 
 log = logging.getLogger(__name__)
+
+# 0x0500: take the EEPROM from the PDI at once, and offer it back.
+FORCE_ECAT_ACCESS = bytes([sii.CONFIG_RESET_PDI_ACCESS])
+TO_PDI = bytes([sii.CONFIG_PDI])
 
 MAX_SII_BYTES = 64 * 1024
 
@@ -62,10 +69,11 @@ def read_sii(
     if n == 0:
         return []
     take = dg.batch(
-        [Datagram(Cmd.FPWR, fixed_address(s, reg.SII_CONFIG), b"\0") for s in stations]
+        [Datagram(Cmd.FPWR, fixed_address(s, reg.SII_CONFIG), FORCE_ECAT_ACCESS) for s in stations]
+        + [Datagram(Cmd.FPWR, fixed_address(s, reg.SII_CONFIG), b"\0") for s in stations]
         + [Datagram(Cmd.FPRD, fixed_address(s, reg.SII_CONTROL), 2) for s in stations]
     )
-    for i, reply in enumerate(take[n:]):
+    for i, reply in enumerate(take[2 * n :]):
         if reply.wkc != 1:
             raise BusError(f"{_who(names, i)}: no answer from the SII EEPROM interface")
         status = struct.unpack("<H", reply.data)[0]
@@ -125,4 +133,5 @@ def read_sii(
             ):
                 done.append(i)
         active = [i for i in active if i not in done]
+    dg.batch([Datagram(Cmd.FPWR, fixed_address(s, reg.SII_CONFIG), TO_PDI) for s in stations])
     return [bytes(img) for img in images]

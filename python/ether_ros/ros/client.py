@@ -27,7 +27,7 @@ from typing import Any, TypeVar
 import rclpy
 import rclpy.executors
 from builtin_interfaces.msg import Duration
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from ether_ros_msgs.msg import BusLayout, PdoRaw, SlaveValues, WriteResult, WriteVariable
 from ether_ros_msgs.srv import (
     AxisCommand,
@@ -89,6 +89,21 @@ TRANSITIONS = {
 
 class ClientError(EtherRosError):
     """The node did not answer (not running, wrong name or namespace, timeout)."""
+
+
+# A diagnostic status level as the word every tool prints (diagnostic_msgs/DiagnosticStatus).
+LEVEL_WORDS = {
+    int.from_bytes(DiagnosticStatus.OK, "little"): "OK",
+    int.from_bytes(DiagnosticStatus.WARN, "little"): "WARN",
+    int.from_bytes(DiagnosticStatus.ERROR, "little"): "ERROR",
+    int.from_bytes(DiagnosticStatus.STALE, "little"): "STALE",
+}
+
+
+def level_word(level: bytes) -> str:
+    """``b"\\x01"`` -> ``"WARN"`` (an unknown level as its number)."""
+    number = int.from_bytes(level, "little")
+    return LEVEL_WORDS.get(number, str(number))
 
 
 @dataclass
@@ -311,7 +326,7 @@ class EtherRosClient:
             if st.name.endswith(": master"):
                 values = {kv.key: kv.value for kv in st.values}
                 values["message"] = st.message
-                values["level"] = str(int.from_bytes(st.level, "little"))
+                values["level"] = level_word(st.level)
                 return values
         return {}
 
@@ -463,7 +478,7 @@ class EtherRosClient:
             if ": axis " in st.name:
                 values = {kv.key: kv.value for kv in st.values}
                 values["message"] = st.message
-                values["level"] = str(int.from_bytes(st.level, "little"))
+                values["level"] = level_word(st.level)
                 out[st.name.split(": axis ", 1)[1]] = values
         return out
 

@@ -24,6 +24,7 @@ import contextlib
 import json
 import os
 import socket
+import tempfile
 import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -43,6 +44,42 @@ class ControlError(EtherRosError):
 
 def socket_path(interface: str) -> Path:
     return RUN_DIR / f"sim-{interface}.sock"
+
+
+class InterfaceLock:
+    """One simulator per interface: an exclusive lock (``flock``) on a file named after the
+    network namespace and the interface, held for the simulator's life. A second simulator on
+    the same link would answer every frame twice; it is refused instead. The kernel drops the
+    lock when the process ends, however it ends."""
+
+    def __init__(self, interface: str) -> None:
+        import fcntl
+
+        try:
+            netns = os.stat("/proc/self/ns/net").st_ino
+        except OSError:
+            netns = 0
+        name = f"sim-{netns}-{interface}.lock"
+        directory = RUN_DIR
+        try:
+            directory.mkdir(parents=True, exist_ok=True)
+            self.path = directory / name
+            self._fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
+        except OSError:
+            self.path = Path(tempfile.gettempdir()) / f"ether_ros-{name}"
+            self._fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
+        try:
+            fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(self._fd)
+            raise ControlError(
+                f"another simulator is already running on {interface} (lock {self.path})"
+            ) from None
+
+    def release(self) -> None:
+        if self._fd >= 0:
+            os.close(self._fd)
+            self._fd = -1
 
 
 REQUIRED = object()  # an argument without default
@@ -214,6 +251,12 @@ class ControlServer:
 
     def close(self) -> None:
         self._stop.set()
+        # Wake the thread waiting in accept() at once instead of at its next timeout: a
+        # connection of our own.
+        if self._thread.is_alive():
+            with contextlib.suppress(OSError), socket.socket(socket.AF_UNIX) as wake:
+                wake.settimeout(0.1)
+                wake.connect(str(self.path))
         if self._thread.is_alive():
             self._thread.join(timeout=2)
         self._sock.close()

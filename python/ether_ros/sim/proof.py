@@ -46,10 +46,14 @@ class SimProcess:
         netns: str | None = None,
         extra: Sequence[str] = (),
         link: str = "packet",
+        ready_timeout: float = 30.0,
     ) -> None:
         """``config`` is the bus YAML; None with ``extra`` such as ``["--esi", FILE]``;
-        ``link`` is how the simulator meets the wire (``ether-ros sim --link``)."""
+        ``link`` is how the simulator meets the wire (``ether-ros sim --link``);
+        ``ready_timeout`` how long the context manager waits for it to start (loading big
+        vendor ESI files on a loaded machine takes a while)."""
         self.config = None if config is None else Path(config)
+        self.ready_timeout = ready_timeout
         self.extra = (*extra, "--link", link)
         self.interface = interface
         self.netns = netns
@@ -112,7 +116,7 @@ class SimProcess:
         return err
 
     def __enter__(self) -> SimProcess:
-        return self.start() if self.proc is None else self
+        return self.start(self.ready_timeout) if self.proc is None else self
 
     def __exit__(
         self,

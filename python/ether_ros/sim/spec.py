@@ -12,9 +12,12 @@ from __future__ import annotations
 from typing import Any
 
 from ether_ros._native.protocol import coe
+from ether_ros.config import types as dt
 from ether_ros.config.bus import BusConfig, SlaveConfig
+from ether_ros.config.cia402 import AXIS_STRIDE, MAX_AXES, MODES, SUPPORTED_MODES, offered_modes
 from ether_ros.config.esi import EsiDevice, Pdo, PdoEntry
-from ether_ros.config.sii import build_sii
+from ether_ros.config.process import pdo_sync_manager
+from ether_ros.config.sii import SM_TYPE, build_sii
 from ether_ros.errors import ConfigError
 
 # Serial numbers of simulated slaves when the config gives none: recognisable, and unique
@@ -38,9 +41,10 @@ def mailbox_spec(device: EsiDevice) -> dict[str, int] | None:
 def loopback_pairs(device: EsiDevice) -> list[tuple[int, int, int, int]]:
     """Output → input links of the ``loopback`` model: each output entry (of any RxPDO, in the
     ESI's order, each entry once) with the first input entry not yet taken (of any TxPDO) of
-    the same data type and bit length."""
-    outputs = _pdo_entries(device.rx_pdos)
-    free = _pdo_entries(device.tx_pdos)
+    the same data type and bit length. Virtual PDOs (ESC registers, not the dictionary) are not
+    paired."""
+    outputs = _pdo_entries(tuple(p for p in device.rx_pdos if not p.virtual))
+    free = _pdo_entries(tuple(p for p in device.tx_pdos if not p.virtual))
     pairs: list[tuple[int, int, int, int]] = []
     for out in outputs:
         for k, inp in enumerate(free):
@@ -62,14 +66,308 @@ def _pdo_entries(pdos: tuple[Pdo, ...]) -> list[PdoEntry]:
     return out
 
 
+def is_mapping_object(index: int) -> bool:
+    """A PDO mapping object: 0x1600..0x17FF (RxPDOs) or 0x1A00..0x1BFF (TxPDOs)."""
+    return (
+        coe.RXPDO_MAPPING <= index < coe.RXPDO_MAPPING + 0x200
+        or coe.TXPDO_MAPPING <= index < coe.TXPDO_MAPPING + 0x200
+    )
+
+
+#: Objects 0x1D00..0x1DFF in a Virtual PDO name ESC registers (0x1D09:0x90 is 0x0990): they
+#: live in the ESC's memory, not in the dictionary.
+ESC_REGISTER_OBJECTS = range(0x1D00, 0x1E00)
+
+
 def _process_entries(device: EsiDevice) -> list[tuple[Any, ...]]:
     """Dictionary entries for PDO entries the ESI's dictionary lacks (a device without CoE has
-    no dictionary at all): the simulated slave needs a place to keep their values."""
+    no dictionary at all; vendors' dictionaries often leave objects out): the simulated slave
+    needs a place to keep their values. Both the ESI's PDOs and the default contents of the
+    dictionary's own mapping objects (which may name other objects) are looked at."""
     rows: list[tuple[Any, ...]] = []
-    for e in _pdo_entries((*device.rx_pdos, *device.tx_pdos)):
-        if device.od_entry(e.index, e.subindex) is None:
-            rows.append((e.index, e.subindex, e.name, e.data_type, e.bit_length, "rw", True, None))
+    seen: set[tuple[int, int]] = set()
+
+    def add(index: int, sub: int, name: str, code: int, bits: int) -> None:
+        if index == 0 or index in ESC_REGISTER_OBJECTS or not 0 < bits <= MAX_ENTRY_BITS:
+            return
+        if (index, sub) in seen or device.od_entry(index, sub) is not None:
+            return
+        seen.add((index, sub))
+        rows.append((index, sub, name, code, bits, "rw", True, None))
+
+    pdos = [p for p in (*device.rx_pdos, *device.tx_pdos) if not p.virtual]
+    for e in _pdo_entries(tuple(pdos)):
+        add(e.index, e.subindex, e.name, e.data_type, e.bit_length)
+    for obj in device.objects:
+        if not is_mapping_object(obj.index):
+            continue
+        for entry in obj.entries:
+            if entry.subindex == 0 or len(entry.default) != 4:
+                continue
+            value = int.from_bytes(entry.default, "little")
+            index, sub, bits = value >> 16, (value >> 8) & 0xFF, value & 0xFF
+            add(index, sub, f"{index:#06x}:{sub:02x}", _UNSIGNED_BY_BITS.get(bits, 0), bits)
     return rows
+
+
+def _fill_empty_mappings(device: EsiDevice, rows: list[tuple[Any, ...]]) -> list[tuple[Any, ...]]:
+    """Mapping objects as CoE defines them (ETG.1000.6: subindex 0 the count, then UNSIGNED32
+    entries; an ESI that types them otherwise, as Elmo's DT1A00 with a UINT, is read so), and
+    one the dictionary declares without default contents (Elmo's 0x1600 has no ``<Info>``)
+    holding what the ESI's PDO of that index maps: that is the device's content (a ``Fixed``
+    PDO is never written by a master). The same for an empty PDO assignment object."""
+    out = [
+        (*r[:3], dt.UINT32.code, 32, *r[5:7], bytes(r[7][:4]).ljust(4, b"\0"))
+        if is_mapping_object(r[0]) and r[1] > 0 and r[4] != 32
+        else r
+        for r in rows
+    ]
+    by_key = {(r[0], r[1]): k for k, r in enumerate(out)}
+    # Subindex 0 of a PDO assignment or mapping object is its count (ETG.1000.6); an ESI that
+    # gives the largest subindex there instead (SOES's "Max SubIndex" 8 with two PDOs
+    # assigned) counts only the entries before the first empty one (a PDO index or mapping
+    # of 0 means nothing).
+    for (index, sub), k in list(by_key.items()):
+        assignment = SM_ASSIGN_BASE <= index < SM_ASSIGN_BASE + 0x20
+        if sub != 0 or not (is_mapping_object(index) or assignment):
+            continue
+        count = out[k][7][0] if out[k][7] else 0
+        used = 0
+        while used < count:
+            entry = by_key.get((index, used + 1))
+            if entry is None or not any(out[entry][7]):
+                break
+            used += 1
+        if used < count:
+            out[k] = (*out[k][:7], bytes([used]))
+    pdos = {p.index: p for p in (*device.rx_pdos, *device.tx_pdos) if not p.virtual}
+    for index, pdo in pdos.items():
+        count = by_key.get((index, 0))
+        if count is None or any(out[count][7]) or not pdo.entries:
+            continue
+        found = [by_key.get((index, n)) for n in range(1, len(pdo.entries) + 1)]
+        subs = [k for k in found if k is not None]
+        if len(subs) != len(found):
+            continue
+        out[count] = (*out[count][:7], bytes([len(pdo.entries)]))
+        for row, e in zip(subs, pdo.entries, strict=True):
+            out[row] = (*out[row][:7], e.mapping_value.to_bytes(4, "little"))
+    # Likewise an assignment object 0x1C10+n left empty (Elmo's 0x1C12 without <Info>), or
+    # naming a PDO that neither the dictionary nor the ESI describes (EL3632's 0x1A73): the
+    # device has the PDOs its ESI assigns to SM n by default.
+    known = {p.index for p in (*device.rx_pdos, *device.tx_pdos)} | {
+        r[0] for r in out if is_mapping_object(r[0])
+    }
+    for sm in device.sync_managers:
+        index = SM_ASSIGN_BASE + sm.number
+        count = by_key.get((index, 0))
+        if count is None or not sm.is_process_data:
+            continue
+        n = out[count][7][0] if out[count][7] else 0
+        assigned = [by_key.get((index, k)) for k in range(1, n + 1)]
+        unknown = any(
+            k is None or int.from_bytes(out[k][7][:2], "little") not in known for k in assigned
+        )
+        default = [p.index for p in (*device.default_rx(), *device.default_tx())
+                   if not p.virtual and pdo_sync_manager(device, p) == sm.number]  # fmt: skip
+        # A modular device (ETG.5001) assigns the PDOs of the modules in its slots itself: its
+        # ESI's assignment object lists the head's PDOs only (and may have no room for more).
+        values = {int.from_bytes(out[k][7][:2], "little") for k in assigned if k is not None}
+        plugged = bool(device.slots) and not set(default) <= values
+        if n and not unknown and not plugged:
+            continue
+        if plugged:
+            out = _with_subindices(out, index, min(len(default), 254))
+            by_key = {(r[0], r[1]): k for k, r in enumerate(out)}
+            count = by_key[(index, 0)]
+        found = [by_key.get((index, n)) for n in range(1, len(default) + 1)]
+        subs = [k for k in found if k is not None]
+        if not default or len(subs) != len(found):
+            continue
+        out[count] = (*out[count][:7], bytes([len(default)]))
+        for row, pdo_index in zip(subs, default, strict=True):
+            value = pdo_index.to_bytes(2, "little").ljust(len(out[row][7]), b"\0")
+            out[row] = (*out[row][:7], value)
+    return out
+
+
+def _with_subindices(rows: list[tuple[Any, ...]], index: int, n: int) -> list[tuple[Any, ...]]:
+    """``rows`` with object ``index`` holding subindices 1..n (new ones as its subindex 1, or
+    UNSIGNED16 entries of a PDO assignment, zero), placed after the object's last row."""
+    have = {r[1] for r in rows if r[0] == index}
+    first = next((r for r in rows if r[0] == index and r[1] == 1), None)
+    code, bits, access = (first[3], first[4], first[5]) if first else (dt.UINT16.code, 16, "ro")
+    extra = [(index, sub, f"SubIndex {sub:03d}", code, bits, access, False, bytes(bits // 8))
+             for sub in range(1, n + 1) if sub not in have]  # fmt: skip
+    last = max(k for k, r in enumerate(rows) if r[0] == index)
+    return [*rows[: last + 1], *extra, *rows[last + 1 :]]
+
+
+def _supported_modes(device: EsiDevice, rows: list[tuple[Any, ...]]) -> list[tuple[Any, ...]]:
+    """A drive fills in 0x6502 (supported drive modes) itself; an ESI that gives it 0 (a
+    placeholder: IS620N, STMBL) leaves the simulated drive with the modes its dictionary
+    offers, as the master reads them (``config.cia402.offered_modes``)."""
+    out = list(rows)
+    for k, r in enumerate(out):
+        if SUPPORTED_MODES <= r[0] < SUPPORTED_MODES + MAX_AXES * AXIS_STRIDE and r[1] == 0:
+            axis, rest = divmod(r[0] - SUPPORTED_MODES, AXIS_STRIDE)
+            if rest or any(r[7] or b""):
+                continue
+            bits = sum(1 << MODES[m][1] for m in offered_modes(device, axis))
+            out[k] = (*r[:7], bits.to_bytes(4, "little"))
+    return out
+
+
+#: The type a dictionary entry gets when only a mapping names it: unsigned of its length.
+_UNSIGNED_BY_BITS = {
+    1: dt.BOOL.code,
+    8: dt.UINT8.code,
+    16: dt.UINT16.code,
+    32: dt.UINT32.code,
+    64: dt.UINT64.code,
+}
+
+
+#: Largest entry the simulator's dictionary holds (a CoE entry's bit length is 16 bits).
+MAX_ENTRY_BITS = 0xFFFF
+#: Subindices a configurable mapping object offers (the ESI lists only the default entries).
+CONFIGURABLE_MAPPING_ENTRIES = 32
+#: PDO assignment of SyncManager n: 0x1C10 + n; SM communication types: 0x1C00.
+SM_ASSIGN_BASE = coe.SM_PDO_ASSIGN
+SM_TYPES = coe.SM_COMM_TYPE
+
+
+def communication_objects(device: EsiDevice) -> list[tuple[Any, ...]]:
+    """The CoE communication objects a slave carries but its ESI dictionary may lack, built
+    from the ESI's SyncManagers and PDOs (ETG.1000.6): 0x1C00 (SM communication types), 0x1C10+n
+    (PDO assignment of every process-data SM, the default PDOs assigned) and the mapping object
+    of every PDO (0x16xx/0x1Axx, its entries). Objects the dictionary has are left alone. Rows
+    as ``entries`` of the spec; only for a device with CoE (the others have no dictionary)."""
+    mbx = device.mailbox
+    if mbx is None or not mbx.coe:
+        return []
+    rows: list[tuple[Any, ...]] = []
+
+    def missing(index: int) -> bool:
+        return device.od_object(index) is None
+
+    u8, u16, u32 = dt.UINT8.code, dt.UINT16.code, dt.UINT32.code
+    if missing(SM_TYPES) and device.sync_managers:
+        sms = device.sync_managers
+        rows.append((SM_TYPES, 0, "SubIndex 000", u8, 8, "ro", False, bytes([len(sms)])))
+        for sm in sms:
+            kind = 0 if sm.virtual else SM_TYPE.get(sm.role, 0)
+            rows.append((SM_TYPES, sm.number + 1, f"SubIndex {sm.number + 1:03d}", u8, 8, "ro",
+                         False, bytes([kind])))  # fmt: skip
+    for sm in device.sync_managers:
+        index = SM_ASSIGN_BASE + sm.number
+        if not sm.is_process_data or sm.virtual or not missing(index):
+            continue
+        direction = "rx" if sm.role == "Outputs" else "tx"
+        candidates = [p for p in (device.rx_pdos if direction == "rx" else device.tx_pdos)
+                      if not p.virtual]  # fmt: skip
+        assigned = [p.index for p in candidates if p.sm is not None
+                    and pdo_sync_manager(device, p) == sm.number]  # fmt: skip
+        room = min(max(len(assigned), len(candidates), 1), 254)
+        access = "rw" if mbx.pdo_assign else "ro"
+        rows.append((index, 0, "SubIndex 000", u8, 8, access, False, bytes([len(assigned)])))
+        for sub in range(1, room + 1):
+            value = assigned[sub - 1] if sub <= len(assigned) else 0
+            rows.append((index, sub, f"SubIndex {sub:03d}", u16, 16, access, False,
+                         value.to_bytes(2, "little")))  # fmt: skip
+    seen: set[int] = set()
+    for pdo in (*device.rx_pdos, *device.tx_pdos):
+        if pdo.virtual or pdo.index in seen or not missing(pdo.index):
+            continue
+        seen.add(pdo.index)
+        configurable = mbx.pdo_config and not pdo.fixed
+        access = "rw" if configurable else "ro"
+        room = len(pdo.entries)
+        if configurable:
+            room = max(room, CONFIGURABLE_MAPPING_ENTRIES)
+        room = min(room, 254)
+        rows.append((pdo.index, 0, "SubIndex 000", u8, 8, access, False,
+                     bytes([len(pdo.entries)])))  # fmt: skip
+        for sub in range(1, room + 1):
+            value = pdo.entries[sub - 1].mapping_value if sub <= len(pdo.entries) else 0
+            rows.append((pdo.index, sub, f"SubIndex {sub:03d}", u32, 32, access, False,
+                         value.to_bytes(4, "little")))  # fmt: skip
+    return rows
+
+
+#: One-way delay of a link into a slave's port 0 when the config gives none, by the port's
+#: physics (ESI ``Physics``): an E-bus hop (the upstream ESC's forwarding and a few cm of
+#: backplane) and a 100BASE-TX hop (two PHYs, the forwarding and a few metres of cable), in
+#: the ESC's 10 ns steps. Measured delays of real Beckhoff lines are of this order.
+DELAY_EBUS_NS = 150
+DELAY_MII_NS = 700
+
+
+def default_delay_ns(device: EsiDevice) -> int:
+    """The link delay into a slave's port 0 from its physics (``K`` E-bus, else MII)."""
+    return DELAY_EBUS_NS if device.physics[:1] == "K" else DELAY_MII_NS
+
+
+def _dictionary(
+    device: EsiDevice, sim_device: str
+) -> tuple[list[tuple[Any, ...]], list[tuple[Any, ...]]]:
+    """The CoE objects and entries (with their ESI defaults) a slave running ``device`` with
+    the ``sim_device`` model starts with: the same for every such slave, so built once
+    (``_DICTIONARIES``; a thousand-slave bus has three devices). The serial number is each
+    slave's own and is put in by ``device_spec``."""
+    key = (id(device), sim_device)
+    cached = _DICTIONARIES.get(key)
+    if cached is not None and cached[0] is device:
+        return cached[1], cached[2]
+    objects = [(o.index, o.name, o.object_code) for o in device.objects]
+    entries = [
+        (
+            e.index,
+            e.subindex,
+            e.name,
+            e.data_type,
+            e.bit_length,
+            e.access,
+            e.pdo_mappable,
+            bytes(e.default),
+        )
+        for o in device.objects
+        for e in o.entries
+    ]
+    entries = [e for e in entries if e[4] <= MAX_ENTRY_BITS]
+    entries = _fill_empty_mappings(device, entries)
+    if sim_device == "cia402":
+        entries = _supported_modes(device, entries)
+    entries += _process_entries(device)
+    entries += communication_objects(device)
+    known = {o[0] for o in objects}
+    names = {SM_TYPES: ("Sync manager type", 8)}
+    for r in entries:
+        if r[0] in known or r[0] in names:
+            continue
+        if SM_ASSIGN_BASE <= r[0] < SM_ASSIGN_BASE + 32:
+            names[r[0]] = (f"SM{r[0] - SM_ASSIGN_BASE} PDO assignment", 8)
+        elif is_mapping_object(r[0]):
+            names[r[0]] = (f"PDO mapping {r[0]:#06x}", 9)
+        else:
+            names[r[0]] = (f"Process data {r[0]:#06x}", 7)
+    objects += sorted(
+        (index, name, code)
+        for index, (name, code) in names.items()
+        if any(r[0] == index for r in entries) and index not in known
+    )
+    _DICTIONARIES[key] = (device, objects, entries)
+    return objects, entries
+
+
+# (id(device), sim_device) -> (device, objects, entries); the device is kept so its id stays
+# its own.
+_DICTIONARIES: dict[
+    tuple[int, str], tuple[EsiDevice, list[tuple[Any, ...]], list[tuple[Any, ...]]]
+] = {}
+
+# The identity object's serial number (0x1018:4): the ESI can't know it, each slave has its own.
+_SERIAL_ENTRY = (coe.IDENTITY, 4)
 
 
 def device_spec(
@@ -81,33 +379,16 @@ def device_spec(
     alias: int = 0,
     serial: int = 0,
     drift_ppm: float = 0.0,
-    delay_ns: int = 500,
+    delay_ns: int | None = None,
     esc: str = "et1100",
     lrw: bool = True,
 ) -> dict[str, Any]:
     """The ``add_slave`` spec of one slave running ``device``."""
-    objects = [(o.index, o.name, o.object_code) for o in device.objects]
-    # The identity object carries this slave's serial number (the ESI can't know it).
-    identity = {(coe.IDENTITY, 4): serial}
+    objects, entries = _dictionary(device, sim_device)
     entries = [
-        (
-            e.index,
-            e.subindex,
-            e.name,
-            e.data_type,
-            e.bit_length,
-            e.access,
-            e.pdo_mappable,
-            _default(e.default, identity.get((e.index, e.subindex)), e.bit_length),
-        )
-        for o in device.objects
-        for e in o.entries
+        (*e[:7], _default(e[7], serial, e[4])) if (e[0], e[1]) == _SERIAL_ENTRY else e
+        for e in entries
     ]
-    entries += _process_entries(device)
-    known = {o[0] for o in objects}
-    objects += sorted(
-        {(r[0], f"Process data {r[0]:#06x}", 7) for r in entries if r[0] not in known}
-    )
     return {
         "name": name,
         "vendor_id": device.vendor_id,
@@ -116,14 +397,14 @@ def device_spec(
         "serial": serial,
         "alias": alias,
         "sii": build_sii(device, alias=alias, serial=serial),
-        "objects": objects,
+        "objects": list(objects),
         "entries": entries,
         "device": sim_device,
         "params": {k: float(v) for k, v in (params or {}).items()},
         "drift_ppm": float(drift_ppm),
-        "delay_ns": int(delay_ns),
+        "delay_ns": int(default_delay_ns(device) if delay_ns is None else delay_ns),
         "dc_supported": device.dc_supported,
-        "dc_required": device.dc_required,
+        "dc_required": device.sync0_required,
         "mailbox": mailbox_spec(device),
         "esc": esc,
         "lrw": lrw,
@@ -135,7 +416,8 @@ def device_spec(
 def _default(esi_default: bytes, override: int | None, bit_length: int) -> bytes:
     if override is None:
         return bytes(esi_default)
-    return override.to_bytes((bit_length + 7) // 8, "little")
+    nbytes = (bit_length + 7) // 8
+    return (override & ((1 << (8 * nbytes)) - 1)).to_bytes(nbytes, "little")
 
 
 def slave_spec(slave: SlaveConfig, position: int) -> dict[str, Any]:

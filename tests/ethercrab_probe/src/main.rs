@@ -20,12 +20,12 @@ use std::time::{Duration, Instant};
 
 use ethercrab::std::{ethercat_now, tx_rx_task};
 use ethercrab::subdevice_group::DcConfiguration;
-use ethercrab::{DcSync, MainDevice, MainDeviceConfig, PduStorage, Timeouts};
+use ethercrab::{DcSync, MainDevice, MainDeviceConfig, PduStorage, RetryBehaviour, Timeouts};
 
 const MAX_SUBDEVICES: usize = 16;
 const MAX_PDU_DATA: usize = PduStorage::element_size(1100);
 const MAX_FRAMES: usize = 16;
-const PDI_LEN: usize = 1024;
+const PDI_LEN: usize = 4096;
 
 static PDU_STORAGE: PduStorage<MAX_FRAMES, MAX_PDU_DATA> = PduStorage::new();
 
@@ -275,13 +275,18 @@ async fn run(args: &Args, report: &mut Report) -> Result<(), String> {
         Timeouts {
             wait_loop_delay: Duration::from_millis(2),
             state_transition: Duration::from_secs(10),
-            pdu: Duration::from_millis(200),
+            // A loaded VM may hold a frame back for a while: wait longer, and send a lost
+            // frame again (below) instead of failing the bring-up on the first.
+            pdu: Duration::from_millis(1000),
             mailbox_response: Duration::from_millis(1000),
+            // ethercrab's 10 ms for one EEPROM poll is one round trip on a quiet machine; a
+            // loaded VM with a long bus needs more (the slaves answer at once: busy is 0).
+            eeprom: Duration::from_millis(200),
             ..Timeouts::default()
         },
         MainDeviceConfig {
             dc_static_sync_iterations: 1000,
-            ..MainDeviceConfig::default()
+            retry_behaviour: RetryBehaviour::Count(3),
         },
     ));
     let task = tx_rx_task(&args.interface, tx, rx).map_err(|e| format!("tx/rx task: {e}"))?;

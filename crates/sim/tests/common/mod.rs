@@ -168,7 +168,7 @@ pub fn station(pos: usize) -> u16 {
 
 /// Give every slave its station address 0x1001 + position.
 pub fn assign_addresses(net: &mut Network) {
-    for p in 0..net.slaves.len() {
+    for p in 0..net.len() {
         let w = xfer(
             net,
             Command::Apwr,
