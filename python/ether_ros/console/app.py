@@ -32,6 +32,7 @@ from ether_ros.console.commands import (
     Get,
     Help,
     JointLimits,
+    LeaseOp,
     Move,
     Quit,
     RunSequence,
@@ -53,6 +54,9 @@ from ether_ros.ros.panic_line import PanicLine
 from ether_ros.ros.values import format_value
 
 SENT_MEMORY_S = 2.0
+# How long a check that needs the node's outputs waits for the first outputs message of a
+# freshly started console (a node publishes them every pdo_out period; `-c` runs at once).
+FIRST_OUTPUTS_WAIT_S = 3.0
 # How long a move waits for the node to refuse it (it answers only refusals).
 MOVE_ANSWER_S = 0.3
 # `states` asks the node for its lifecycle state with this timeout (a dead node never answers).
@@ -146,6 +150,13 @@ class Console:
         """The layout and the last commanded outputs (``pdo_out_timer``; the wire echo when no
         snapshot arrived yet), for checking writes."""
         latest = self.client.latest
+        if latest.layout is not None and not latest.outputs and not latest.commanded:
+            # A console started a moment ago has the layout but no outputs message yet: wait
+            # for the first one (briefly) instead of refusing a write it could check.
+            with contextlib.suppress(EtherRosError):
+                self.client.wait_for(
+                    lambda current: current.outputs or current.commanded, FIRST_OUTPUTS_WAIT_S
+                )
         outputs = {slave: dict(values) for slave, values in latest.outputs.items()}
         for slave, values in latest.commanded.items():
             outputs[slave] = dict(values)
@@ -255,6 +266,8 @@ class Console:
             ok, message, _ = self.client.set_mode(command.mode, list(command.joints))
         elif isinstance(command, Move):
             ok, message = self._move(command)
+        elif isinstance(command, LeaseOp):
+            ok, message = self._lease(command.action)
         elif isinstance(command, Help):
             message = help_text(command.topic)
         elif isinstance(command, Quit):
@@ -262,6 +275,19 @@ class Console:
         if message:
             self.out(message if ok else f"error: {message}")
         return ok
+
+    def _lease(self, action: str) -> tuple[bool, str]:
+        """``lease``: who holds it; ``lease take``: take it over (this console commands from
+        now on); ``lease release``: give it back (the outputs stay as they are)."""
+        if action == "take":
+            return self.client.acquire_lease(takeover=True)
+        if action == "release":
+            return self.client.release_lease()
+        st = self.client.lease_status()
+        if not st.enabled:
+            return True, str(st.message)
+        mine = " (this console)" if self.client.lease_token else ""
+        return True, f"{st.message}{mine}"
 
     def _move(self, command: Move) -> tuple[bool, str]:
         before = len(self.client.joint_results)
