@@ -348,10 +348,14 @@ def fjt_runs(fields: Fields, rounds: int, duration: float) -> list[Run]:
         client = rig.client
         if client.wait_for_node(timeout=60) != "active":
             raise RuntimeError("the node did not come up active")
+        # The action client first: the enable below acquires the control lease (where the
+        # configuration turns it on, as arm6 does) with the action client already registered.
+        fjt = TrajectoryActionClient(client.node)
         ok, message, _ = client.axis_command("enable")
         if not ok:
             raise RuntimeError(f"enable: {message}")
-        fjt = TrajectoryActionClient(client.node)
+        if client.lease_enabled and not client.lease_token:
+            raise RuntimeError("the node's control lease is on but this client does not hold it")
         assert rig.veth is not None
         recorder = WireRecorder(rig.veth.master, fields.lrw, fields.image_len)
         for _ in range(rounds):
