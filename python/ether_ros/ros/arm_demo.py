@@ -11,8 +11,8 @@ the simulator) moved by a joint trajectory sent over ROS 2.
    records ``joint_states``.
 4. A summary: per joint the RMS and largest tracking error (measured position against the
    trajectory, interpolated as the engine does: as ROS 2's JointTrajectoryController, from the
-   state at the trajectory's arrival to its first point), where it ended, then the bus's counters and loop
-   timing from the node's diagnostics.
+   state at the trajectory's arrival to its first point), where it ended, then the bus's
+   counters and loop timing from the node's diagnostics.
 
 Run: ``ether-ros demo arm`` (root; about 20 s).
 """
