@@ -6,7 +6,8 @@ and publishes
 
 - ``pdo_raw`` every ``raw_decimation`` cycles (the whole image, inputs and outputs),
 - ``pdo_in`` / ``pdo_out`` (decoded values per slave) and ``joint_states`` (the ``joints:``
-  mappings and every CiA 402 axis, SI units) every ``decoded_decimation`` cycles.
+  mappings and every CiA 402 axis, SI units) every ``decoded_decimation`` cycles,
+- ``joint_extras`` (the axes' ``extras:``, SI units) at the same rate, when some axis has extras.
 
 When ROS falls behind (a batch holds more than ``max_backlog`` samples) the oldest samples are
 skipped and counted in ``dropped``; the engine counts the samples it could not even queue
@@ -29,7 +30,7 @@ from typing import Any
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from ether_ros_msgs.msg import PdoRaw, SlaveValues
+from ether_ros_msgs.msg import JointExtras, PdoRaw, SlaveValues
 from sensor_msgs.msg import JointState
 
 from ether_ros.config.bus import JointSpec
@@ -74,6 +75,7 @@ class SamplePublisher:
         poll_s: float = 0.002,
         axis_joints: Callable[[], list[tuple[str, float, float, float]]] | None = None,
         feeder_priority: int = 0,
+        axis_extras: Callable[[], list[tuple[str, str, float]]] | None = None,
     ) -> None:
         self._bus = bus
         self._spec = spec
@@ -83,6 +85,9 @@ class SamplePublisher:
         # status when a joint_states message is built (so at most one cycle newer than the
         # sample it goes with).
         self._axis_joints = axis_joints
+        # (joint, extra, value in SI) of every axis extra, read like the axes' joint_states
+        # part; None when no axis has extras (no joint_extras then).
+        self._axis_extras = axis_extras
         self.rates = rates
         self._feed_watchdog = feed_watchdog
         # SCHED_FIFO priority of the watchdog feeder (0: normal scheduling).
@@ -236,7 +241,19 @@ class SamplePublisher:
                 self._pub[topic].publish(msg)
         if self._joints or self._axis_joints is not None:
             self._pub["joint_states"].publish(self._joint_state(stamp, inputs_by_slave))
+        if self._axis_extras is not None:
+            self._pub["joint_extras"].publish(self._joint_extras(stamp))
         self.counters.published_decoded += 1
+
+    def _joint_extras(self, stamp: Time) -> JointExtras:
+        msg = JointExtras()
+        msg.header.stamp = stamp
+        msg.header.frame_id = self._spec.bus
+        entries = self._axis_extras() if self._axis_extras is not None else []
+        msg.joints = [joint for joint, _, _ in entries]
+        msg.names = [name for _, name, _ in entries]
+        msg.values = [value for _, _, value in entries]
+        return msg
 
     def _joint_state(self, stamp: Time, inputs: dict[str, list[float]]) -> JointState:
         msg = JointState()
