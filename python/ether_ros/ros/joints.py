@@ -195,7 +195,7 @@ def axis_joint_values(axes: Mapping[str, Any]) -> list[tuple[str, float, float, 
 def axis_extra_values(axes: Mapping[str, Any]) -> list[tuple[str, str, float]]:
     """(joint, extra, value in SI) of every axis's extras (``Axis.extras``), for
     ``joint_extras``: axes in bus order, each axis's extras in configuration order."""
-    out = []
+    out: list[tuple[str, str, float]] = []
     for name, axis in axes.items():
         try:
             values = axis.extras
