@@ -21,12 +21,21 @@ else in the benchmark process (the rig's ROS client, the wire sniffer) shares it
   it, before this thread woke); on ``__end__`` prints
   ``{request_id: [t_woken, t_taken, t_received]}`` as JSON and exits.
 
+- ``flood TOPIC KIND [RATE]``: a flooding publisher (bench_flood.py). Once its writer matched a
+  reader it prints ``ready`` and publishes one message, serialized once, as fast as it can (or
+  RATE messages a second, on an absolute schedule)
+  (``joint_commands``: KIND ``unknown`` — a joint the bus does not have —, ``limit`` — a
+  position far beyond the elbow's limits —, ``garbage`` — bytes no JointState decodes to;
+  ``pdo_listener``: ``text`` — a write of an unknown variable — or ``garbage``) until a line
+  ``stop`` (or EOF), then prints ``{"sent": N, "seconds": S}``.
+
 Both print ``ready`` once set up (the publisher: once its writer matched a reader). The ROS
 domain comes from the environment (``ROS_DOMAIN_ID``, set by the benchmark).
 
     python bench/ros_floor.py publish SLAVE VARIABLE
     python bench/ros_floor.py publish-joint JOINT SCALE
     python bench/ros_floor.py subscribe [joints]
+    python bench/ros_floor.py flood TOPIC KIND [RATE]
 """
 
 from __future__ import annotations
@@ -36,6 +45,7 @@ import json
 import os
 import random
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -211,6 +221,71 @@ def subscribe(messages: Messages) -> int:
     return 0
 
 
+FLOOD_KINDS = {
+    "joint_commands": ("unknown", "limit", "garbage"),
+    "pdo_listener": ("text", "garbage"),
+}
+
+
+def flood_message(topic: str, kind: str) -> tuple[Any, bytes]:
+    """(message type, serialized message) a flooder publishes."""
+    from ether_ros_msgs.msg import WriteVariable
+    from rclpy.serialization import serialize_message
+    from sensor_msgs.msg import JointState
+
+    garbage = b"\x00\x01\x00\x00" + b"\xff" * 12  # CDR_LE, then a length nothing fits
+    if topic == "joint_commands":
+        if kind == "unknown":
+            return JointState, serialize_message(JointState(name=["no_such"], position=[0.0]))
+        if kind == "limit":
+            return JointState, serialize_message(JointState(name=["elbow"], position=[1e6]))
+        return JointState, garbage
+    if kind == "text":
+        return WriteVariable, serialize_message(WriteVariable(slave="x", variable="no", text="1"))
+    return WriteVariable, garbage
+
+
+def flood(topic: str, kind: str, rate: float = 0.0) -> int:
+    import rclpy
+
+    from ether_ros.ros.node import QOS_COMMANDS
+
+    rclpy.init()
+    node = rclpy.create_node(f"bench_flood_{os.getpid()}")
+    msg_type, data = flood_message(topic, kind)
+    pub = node.create_publisher(msg_type, topic, QOS_COMMANDS)
+    deadline = time.monotonic() + MATCH_TIMEOUT_S
+    while pub.get_subscription_count() < 1:
+        if time.monotonic() > deadline:
+            print("no subscriber matched", file=sys.stderr, flush=True)
+            return 1
+        time.sleep(0.05)
+    stop = False
+
+    def watch() -> None:
+        nonlocal stop
+        for line in sys.stdin:
+            if line.strip() in ("stop", "quit"):
+                break
+        stop = True
+
+    threading.Thread(target=watch, daemon=True).start()
+    print("ready", flush=True)
+    sent, start = 0, time.monotonic()
+    gap = 1.0 / rate if rate > 0 else 0.0
+    while not stop:
+        pub.publish(data)
+        sent += 1
+        if gap:
+            delay = start + sent * gap - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+    print(json.dumps({"sent": sent, "seconds": time.monotonic() - start}), flush=True)
+    node.destroy_node()
+    rclpy.try_shutdown()
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="worker of the ROS benchmark (internal)")
     sub = parser.add_subparsers(dest="cmd", required=True)
@@ -222,7 +297,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("scale")
     p = sub.add_parser("subscribe")
     p.add_argument("kind", nargs="?", choices=("writes", "joints"), default="writes")
+    p = sub.add_parser("flood")
+    p.add_argument("topic", choices=tuple(FLOOD_KINDS))
+    p.add_argument("kind", choices=sorted({k for ks in FLOOD_KINDS.values() for k in ks}))
+    p.add_argument("rate", nargs="?", type=float, default=0.0, help="messages/s (0: max)")
     args = parser.parse_args(argv)
+    if args.cmd == "flood":
+        if args.kind not in FLOOD_KINDS[args.topic]:
+            parser.error(f"{args.topic} floods take {', '.join(FLOOD_KINDS[args.topic])}")
+        return flood(args.topic, args.kind, args.rate)
     if args.cmd == "publish":
         return publish(Messages(False, args.slave, args.variable))
     if args.cmd == "publish-joint":

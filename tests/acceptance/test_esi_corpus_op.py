@@ -8,7 +8,6 @@ runs the ``cia402`` drive model instead: its statusword answers the controlword.
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +21,7 @@ from ether_ros.master import Bus
 from ether_ros.sim.proof import SimProcess
 from ether_ros.sim.spec import loopback_pairs
 from ether_ros.testing.netns import VethPair
+from ether_ros.testing.wait import wait_for
 from user_commands import ether_ros
 
 pytestmark = pytest.mark.netns
@@ -70,10 +70,11 @@ def test_corpus_device_reaches_op_and_loops_back(file: str, device: str) -> None
             in_var = next(v for v in layout.inputs if (v.index, v.subindex) == pairs[0][2:])
             value = _value_for(out_var.data_type, out_var.bit_length)
             bus.write(slave.name, out_var.name, value)
-            deadline = time.monotonic() + 10
-            while bus.read(slave.name, in_var.name) != value:
-                assert time.monotonic() < deadline, f"{device}: {in_var.name} never echoed"
-                time.sleep(0.01)
+            wait_for(
+                f"{device}: {in_var.name} to echo",
+                lambda: bus.read(slave.name, in_var.name) == value,
+                timeout=10,
+            )
 
 
 def _drive_answers_shutdown(bus: Bus, slave: str, layout: Any) -> None:
@@ -82,10 +83,11 @@ def _drive_answers_shutdown(bus: Bus, slave: str, layout: Any) -> None:
     status = next(v for v in layout.inputs if v.index == 0x6041)
     # By key: a multi-axis drive names the objects of every axis alike.
     bus.write(slave, control.key, 0x06)
-    deadline = time.monotonic() + 10
-    while int(bus.read(slave, status.key)) & 0x6F != 0x21:
-        assert time.monotonic() < deadline, f"{slave}: statusword never showed the shutdown"
-        time.sleep(0.01)
+    wait_for(
+        f"{slave}: the statusword to show the shutdown",
+        lambda: int(bus.read(slave, status.key)) & 0x6F == 0x21,
+        timeout=10,
+    )
 
 
 def test_sim_esi_refuses_a_missing_device_with_the_choices(tmp_path: Path) -> None:
@@ -103,7 +105,10 @@ def test_sim_esi_refuses_a_missing_device_with_the_choices(tmp_path: Path) -> No
         ((), "give a bus configuration or --esi FILE (one of them)"),
         (("config/laelaps.yaml", "--esi", "x.xml"), "give a bus configuration or --esi FILE"),
         (("config/laelaps.yaml", "--count", "3"), "--device and --count go with --esi"),
-        (("--esi", str(CORPUS / "servo_vendor_style.xml")), "--esi needs --interface"),
+        (
+            ("--esi", str(CORPUS / "servo_vendor_style.xml")),
+            "'ether-ros sim --esi' needs -i/--interface",
+        ),
         (
             ("--esi", str(CORPUS / "multi_device_latin1.xml"), "--interface", "lo"),
             "holds several devices (CorpusDIO16, CorpusDIO8): give --device",

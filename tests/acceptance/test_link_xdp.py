@@ -10,7 +10,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -22,6 +21,7 @@ from ether_ros.master import Bus
 from ether_ros.master.link import open_engine
 from ether_ros.sim.proof import SimProcess
 from ether_ros.testing.netns import VethPair, unique_name
+from ether_ros.testing.wait import wait_for
 
 pytestmark = pytest.mark.netns
 
@@ -135,10 +135,11 @@ def test_the_simulator_serves_on_xdp(veth_ns: VethPair, master_link: str) -> Non
             bus.start()
             assert [s.state for s in bus.states()] == ["OP"] * 5
             bus.write("io_box", "DigitalOutput2", True)
-            deadline = time.monotonic() + 10
-            while bus.read("io_box", "DigitalInput2") is not True:
-                assert time.monotonic() < deadline, "no echo through the xdp simulator"
-                time.sleep(0.02)
+            wait_for(
+                "the echo through the xdp simulator",
+                lambda: bus.read("io_box", "DigitalInput2") is True,
+                timeout=10,
+            )
             assert int(bus.stats()["lost_frames"]) < int(bus.stats()["cycles"])
         stats = sim.request({"op": "stats"})
         assert stats["frames_answered"] > 100 and stats["send_errors"] == 0, stats

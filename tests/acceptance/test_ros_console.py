@@ -38,6 +38,9 @@ def rig(veth_allowed: bool) -> Iterator[RosRig]:
 
 
 def console(rig: RosRig, *args: str, stdin: str | None = None) -> subprocess.CompletedProcess[str]:
+    # The node's control lease is on (config/laelaps.yaml): the test's own client hands it over,
+    # the console process acquires it at its first command and gives it back when it ends.
+    rig.client.release_lease()
     return subprocess.run(
         [sys.executable, "-m", "ether_ros.cli.main", "console", *args],
         input=stdin if stdin is not None else "",
@@ -135,7 +138,10 @@ def test_sequence_file_runs_step_by_step(rig: RosRig, tmp_path: Path) -> None:
 
 
 def pty_console(rig: RosRig, *args: str) -> Pty:
-    """The console as an operator runs it: its own process, on a terminal."""
+    """The console as an operator runs it: its own process, on a terminal. The test's client
+    hands the control lease over first (config/laelaps.yaml has it on): the console acquires
+    it at its first command that needs it and gives it back when it ends."""
+    rig.client.release_lease()
     env = dict(rig.env, PROMPT_TOOLKIT_NO_CPR="1")  # the test's terminal answers no queries
     term = Pty([sys.executable, "-m", "ether_ros.cli.main", "console", *args], env=env)
     term.expect("ether_ros>", timeout=60)
@@ -277,6 +283,44 @@ def test_panic_command_from_stdin_names_the_console_command_to_clear_it(rig: Ros
     assert "PANIC: safe outputs on the wire until the panic is cleared" in r.stdout
     assert "type 'clear'" in r.stdout and "clear_panic" not in r.stdout
     assert "panic cleared" in r.stdout
+
+
+def test_the_console_takes_the_lease_over_and_panics_without_it(rig: RosRig) -> None:
+    """The control lease (config/laelaps.yaml has it on) held by another client, here the
+    test's own: the console's writes are refused naming the holder, its panic is accepted all
+    the same (panic is anyone's), and ``lease take`` makes the console the holder."""
+    ok, message = rig.client.acquire_lease(takeover=True)
+    assert ok, message
+    holder = rig.client.node.get_fully_qualified_name()
+    assert rig.client.write("front_right_leg", "Kp100_knee", 2424)[0]
+    wire(rig, "front_right_leg", "Kp100_knee", 2424.0)
+
+    def run(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            [sys.executable, "-m", "ether_ros.cli.main", "console", *args],
+            input="", env=rig.env, capture_output=True, text=True, timeout=120, check=False,
+        )  # fmt: skip
+
+    r = run("-c", "set front_right_leg Kp100_knee=2525")
+    assert r.returncode != 0
+    assert f"held by '{holder}'" in r.stdout + r.stderr
+    assert rig.client.latest.outputs["front_right_leg"]["Kp100_knee"] == 2424.0
+
+    r = run("-c", "panic")  # without the lease
+    assert r.returncode == 0, r.stdout + r.stderr
+    wire(rig, "front_right_leg", "Kp100_knee", 0.0)  # the safe outputs
+    ok, message = rig.client.command("clear_panic")  # the holder clears it
+    assert ok, message
+    wire(rig, "front_right_leg", "Kp100_knee", 2424.0)
+
+    r = run("-c", "lease take", "-c", "set front_right_leg Kp100_knee=2626", "-c", "lease")
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert f"taken over from '{holder}'" in r.stdout
+    assert "(this console)" in r.stdout
+    wire(rig, "front_right_leg", "Kp100_knee", 2626.0)
+    # The console gave the lease back as it ended; the test's client takes it again.
+    ok, message = rig.client.acquire_lease(takeover=True)
+    assert ok, message
 
 
 def test_states_tell_the_truth_after_start_and_when_the_node_is_gone(rig: RosRig) -> None:

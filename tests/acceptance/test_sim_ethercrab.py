@@ -94,7 +94,8 @@ def check_identity_and_sizes(result: dict[str, Any], cfg: BusConfig) -> None:
     for inp, out, s in zip(result["inputs"], result["outputs"], slaves, strict=True):
         layout = default_layout(s)
         assert (len(out) // 2, len(inp) // 2) == (layout.output_bytes, layout.input_bytes)
-    assert result["op"] and result["cycles"] == CYCLES
+    # At least CYCLES: --expect-input runs on until the inputs show what it waits for.
+    assert result["op"] and result["cycles"] >= CYCLES, result
     assert result["wkc_errors"] == 0
 
 

@@ -60,8 +60,11 @@ def test_branched_bus_reaches_op_with_dc_locked_and_a_pulled_cable_is_located(
         bus.start()
         delays = {s.name: s.dc.delay_ns for s in bus.slaves if s.dc is not None}
         assert list(delays) == NAMES
+        # The ESCs stamp on their 10 ns clock at a phase the frame does not control (0 or
+        # 10 ns between two stamps of one instant, as a real ET1100's): a delay computed from
+        # differences of those stamps is good to about two steps.
         for name, want in zip(NAMES, DELAYS, strict=True):
-            assert abs(delays[name] - want) <= 5, delays
+            assert abs(delays[name] - want) <= 20, delays
         assert all(s.state == "OP" for s in bus.states())
         wait_for(
             "DC lock",

@@ -153,7 +153,10 @@ def test_a_5000_digit_integer_is_refused_naming_its_line(tmp_path: Path) -> None
     p = tmp_path / "big.yaml"
     p.write_text(LAELAPS.read_text().replace("cycle_us: 400", "cycle_us: " + "9" * 5000))
     err = refused(p)
-    assert err.line == 7 and "4096" in str(err)
+    line = 1 + LAELAPS.read_text().splitlines().index(
+        next(ln for ln in LAELAPS.read_text().splitlines() if "cycle_us: 400" in ln)
+    )
+    assert err.line == line and "4096" in str(err)
     p.write_text(LAELAPS.read_text().replace("cycle_us: 400", "cycle_us: " + "9" * 4000))
     err = refused(p)
     assert err.field == "bus.cycle_us" and "wider than 64 bits" in str(err)

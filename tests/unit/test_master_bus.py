@@ -4,7 +4,7 @@ bring-up to OP, process data both ways, validation before the wire, SDO in OP, s
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -14,6 +14,7 @@ from ether_ros.config.bus import BusConfig, PdoAssign
 from ether_ros.config.process import ProcessValueError
 from ether_ros.errors import BusError
 from ether_ros.master import Bus
+from ether_ros.testing.wait import wait_for
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -121,10 +122,7 @@ def test_pdo_assignment_override_is_written_over_coe() -> None:
         with pytest.raises(ProcessValueError, match="DigitalOutput1"):
             bus.write("io_box", "DigitalOutput1", True)
         bus.write("io_box", "AnalogOutput2", -1200)
-        deadline = time.monotonic() + 10
-        while bus.read("io_box", "AnalogInput2") > -1100 and time.monotonic() < deadline:  # type: ignore[operator]
-            time.sleep(0.02)
-        assert bus.read("io_box", "AnalogInput2") <= -1100  # type: ignore[operator]
+        wait_for("the analog echo", lambda: bus.read("io_box", "AnalogInput2") <= -1100)  # type: ignore[operator]
 
 
 def test_pdo_override_on_a_fixed_device_is_refused_by_name() -> None:
@@ -134,13 +132,6 @@ def test_pdo_override_on_a_fixed_device_is_refused_by_name() -> None:
     message = r"slave 1 \(hind_left_leg\): .* cannot change its PDO"
     with Bus.open(cfg, link=net, drift_frames=100) as bus, pytest.raises(BusError, match=message):
         bus.start()
-
-
-def _wait_for(what: str, check: Callable[[], bool]) -> None:
-    deadline = time.monotonic() + 10
-    while not check():
-        assert time.monotonic() < deadline, f"timed out waiting for {what}"
-        time.sleep(0.02)
 
 
 def test_writers_of_different_variables_keep_each_others_values() -> None:
@@ -172,8 +163,8 @@ def test_writers_of_different_variables_keep_each_others_values() -> None:
             digital = all(inputs[f"DigitalInput{n}"] is True for n in (1, 3, 8))
             return digital and float(inputs["AnalogInput1"]) > 900
 
-        _wait_for("the echo of both writers' outputs", echoed)
-        assert bus.read("io_box", "DigitalInput2") is False
+        wait_for("the echo of both writers' outputs", echoed)
+        assert bus.read("io_box", "DigitalInput2", stale_ok=True) is False
 
 
 def test_write_all_is_one_masked_write_and_a_bad_value_changes_nothing(bus: Bus) -> None:

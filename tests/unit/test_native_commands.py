@@ -212,7 +212,7 @@ class Rig:
     """A bus on the in-process simulator, an rclpy node serving pdo_listener natively, and a
     second node publishing commands and listening to the answers, in one ROS context."""
 
-    def __init__(self, handler: Callable[[WriteVariable], None]) -> None:
+    def __init__(self, handler: Callable[[WriteVariable, bytes], None], lease: Any = None) -> None:
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain_for(os.getpid(), 5))
         cfg = load_bus_config(REPO / "config" / "laelaps.yaml")
@@ -222,10 +222,13 @@ class Rig:
         self.node = rclpy.create_node("native_under_test", context=self.context)
         results = self.node.create_publisher(WriteResult, "write_results", QOS_COMMANDS)
         self.path = NativeCommandPath(
-            self.node, "pdo_listener", QOS_COMMANDS, results, handler, priority=10
+            self.node, "pdo_listener", QOS_COMMANDS, results, handler, priority=10, lease=lease
         )
         self.client = rclpy.create_node("native_client", context=self.context)
         self.publisher = self.client.create_publisher(WriteVariable, "pdo_listener", QOS_COMMANDS)
+        # A second publisher (another writer: its own GID) on the same client node.
+        self.other = self.client.create_publisher(WriteVariable, "pdo_listener", QOS_COMMANDS)
+        self.publishers: list[bytes] = []  # the GID of each deferred request, as handled
         self.answers: dict[int, WriteResult] = {}
         self.client.create_subscription(
             WriteResult,
@@ -238,6 +241,7 @@ class Rig:
         self.thread = threading.Thread(target=self.executor.spin, daemon=True)
         self.thread.start()
         wait_until(lambda: self.publisher.get_subscription_count() > 0)
+        wait_until(lambda: self.other.get_subscription_count() > 0)
 
     def publish(self, r: WriteVariable) -> None:
         self.publisher.publish(r)
@@ -268,10 +272,12 @@ def rig() -> Iterator[tuple[Rig, list[WriteVariable]]]:
     deferred: list[WriteVariable] = []
     holder: dict[str, Rig] = {}
 
-    def handle(msg: WriteVariable) -> None:
+    def handle(msg: WriteVariable, publisher: bytes) -> None:
         # The Python path's stand-in: apply text values after a pause, so a later native-able
         # request would overtake it if the order were not kept.
+        assert len(publisher) == 16  # the GID of the publisher that sent it
         time.sleep(0.2)
+        holder["rig"].publishers.append(publisher)
         deferred.append(msg)
         rig = holder["rig"]
         if msg.text.strip().isdigit():
@@ -323,6 +329,63 @@ def test_deferred_requests_keep_their_order(rig: tuple[Rig, list[WriteVariable]]
     r.publish(request("front_left_leg", "Kp100_knee", 10.0, request_id=23))
     wait_until(lambda: r.output("front_left_leg", "Kp100_knee") == 10)
     assert r.path.counters()["applied"] == 1 and len(deferred) == 2
+
+
+def test_a_flooding_publisher_does_not_hold_up_another(
+    rig: tuple[Rig, list[WriteVariable]],
+) -> None:
+    """Requests Python must handle are queued per publisher and served in turn: while one
+    publisher's ten slow requests wait, another's valid request is applied at once and its own
+    deferred request is handled before the flood's last."""
+    r, deferred = rig
+    r.path.attach(r.bus, r.spec)
+    for i in range(10):
+        r.publish(request("front_left_leg", "Kp100_knee", text=str(100 + i), request_id=40 + i))
+    wait_until(lambda: len(deferred) >= 1)
+    r.other.publish(request("front_left_leg", "Kp100_hip", 555.0, request_id=60))
+    r.other.publish(request("front_left_leg", "Kp100_hip", text="556", request_id=61))
+    wait_until(lambda: 60 in r.answers)
+    assert r.answers[60].success
+    assert len(deferred) < 10  # applied natively while the flood still waits for Python
+    wait_until(lambda: len(deferred) == 11, timeout=15)
+    order = [m.request_id for m in deferred]
+    assert order.index(61) < order.index(49)  # served in turn, not behind the whole flood
+    assert [i for i in order if i != 61] == list(range(40, 50))  # each publisher in order
+    assert r.path.counters()["applied"] == 1
+    assert len(set(r.publishers)) == 2  # told apart by their GIDs
+    wait_until(lambda: r.output("front_left_leg", "Kp100_knee") == 109)
+
+
+def test_the_lease_is_checked_by_publisher_on_the_native_thread() -> None:
+    from ether_ros import _native
+
+    gate = _native.LeaseGate()
+    gate.set_enabled(True)
+    deferred: list[tuple[WriteVariable, bytes]] = []
+    r = Rig(lambda m, p: deferred.append((m, p)), lease=gate)
+    try:
+        r.path.attach(r.bus, r.spec)
+        r.publish(request("front_left_leg", "Kp100_hip", 11.0, request_id=71))
+        wait_until(lambda: 71 in r.answers)
+        assert not r.answers[71].success
+        assert "acquire it with the 'lease' service" in r.answers[71].message
+        # Learn the publisher's GID from a request let through with the lease off.
+        gate.set_enabled(False)
+        r.publish(request("front_left_leg", "Kp100_hip", text="12", request_id=72))
+        wait_until(lambda: len(deferred) == 1)
+        mine = deferred[0][1]
+        gate.set_enabled(True)
+        now = time.clock_gettime_ns(time.CLOCK_MONOTONIC)
+        gate.grant("/holder", 5, [mine], now + 60_000_000_000)
+        r.publish(request("front_left_leg", "Kp100_hip", 13.0, request_id=73))
+        wait_until(lambda: r.output("front_left_leg", "Kp100_hip") == 13)
+        r.other.publish(request("front_left_leg", "Kp100_hip", 14.0, request_id=74))
+        wait_until(lambda: 74 in r.answers)
+        assert r.answers[74].message == "the control lease is held by '/holder'"
+        assert r.output("front_left_leg", "Kp100_hip") == 13
+        assert r.path.counters()["refused_lease"] == 2
+    finally:
+        r.close()
 
 
 def test_detached_every_request_goes_to_python(rig: tuple[Rig, list[WriteVariable]]) -> None:

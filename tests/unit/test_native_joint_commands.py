@@ -88,6 +88,35 @@ def test_the_native_resolver_applies_exactly_what_python_accepts(axes: dict[str,
     assert applied > 500 and refused > 500
 
 
+def python_refusal(axes: dict[str, Any], msg: JointState) -> str | None:
+    try:
+        bridge.resolve_joint_command(
+            axes, list(msg.name), list(msg.position), list(msg.velocity), list(msg.effort)
+        )
+    except EtherRosError as exc:
+        return str(exc)
+    return None
+
+
+def test_the_native_path_refuses_only_what_python_refuses_in_its_words(
+    axes: dict[str, Any],
+) -> None:
+    """What the native path refuses by itself (so a flood of it never reaches the queue for
+    Python) Python refuses too, with the very same message."""
+    table = joint_table(axes)
+    refused_natively = 0
+    for msg in messages(list(axes), seed=2, count=6000):
+        native = table.refusal(serialize_message(msg))
+        if native is not None:
+            refused_natively += 1
+            assert native == python_refusal(axes, msg), msg
+    assert refused_natively > 500  # unknown and repeated joints, arrays of the wrong length
+    # Names Python would quote with escapes are left to Python.
+    odd = JointState(name=["it's"], position=[0.0])
+    assert table.refusal(serialize_message(odd)) is None
+    assert python_refusal(axes, odd) is not None
+
+
 def test_a_mode_change_reaches_the_table(axes: dict[str, Any]) -> None:
     table = joint_table(axes)
     msg = JointState(name=["wrist_2"], velocity=[0.5])

@@ -17,11 +17,12 @@ from typing import Any
 import pytest
 from ether_ros_msgs.msg import WriteVariable
 from rclpy.serialization import serialize_message
-from test_ros_node_inprocess import running_node
+from test_ros_node_inprocess import CONFIG, running_node
 
 from ether_ros.config.process import ProcessValueError
 from ether_ros.ros.client import EtherRosClient, make_write
 from ether_ros.ros.node import QOS_COMMANDS, EtherRosNode
+from ether_ros.testing.configs import config_without_lease
 
 pytestmark = [pytest.mark.ros]
 
@@ -29,9 +30,22 @@ LEG = "front_left_leg"
 
 
 @pytest.fixture(scope="module", params=[True, False], ids=["native", "python"])
-def laelaps(request: Any) -> Iterator[tuple[EtherRosNode, EtherRosClient]]:
-    """The Laelaps bus, active, with pdo_listener served natively or by Python."""
-    with running_node(11 + request.param, native_commands=request.param) as (node, client, _n):
+def laelaps(
+    request: Any, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[tuple[EtherRosNode, EtherRosClient]]:
+    """The Laelaps bus, active, with pdo_listener served natively or by Python. Python cannot
+    tell a message's publisher, so with its lease on it refuses every topic message
+    (docs/security.md): the Python path runs a copy with the lease off."""
+    config = (
+        CONFIG
+        if request.param
+        else config_without_lease("laelaps.yaml", tmp_path_factory.mktemp("cfg"))
+    )
+    with running_node(11 + request.param, config, native_commands=request.param) as (
+        node,
+        client,
+        _n,
+    ):
         ok, message = client.command("start")
         assert ok, message
         yield node, client

@@ -1,5 +1,6 @@
-"""The node's diagnostics for a cable pulled on a branch: the master's status warns with the
-location, the slaves cut off carry it as their problem (messages built by the real module)."""
+"""The node's diagnostics for a cable pulled on a branch: the master's status is an error naming
+the location (slaves are cut off now), the slaves cut off carry it as their problem (messages
+built by the real module)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ MESSAGE = "link lost behind slave 'coupler' port 2: slaves junction, io_3 unreac
 
 def test_a_broken_branch_is_reported_on_the_master_and_its_slaves() -> None:
     master = diagnostics.master_status("n", "active", {"cycles": 10}, {}, False, 0.0, [MESSAGE])
-    assert master.level == diagnostics.WARN and master.message == MESSAGE
+    assert master.level == diagnostics.ERROR and master.message == MESSAGE
     assert diagnostics.values_of(master)["link_problem_0"] == MESSAGE
     healthy = diagnostics.master_status("n", "active", {"cycles": 10}, {}, False, 0.0)
     assert healthy.level == diagnostics.OK

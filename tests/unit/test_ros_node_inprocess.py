@@ -22,6 +22,7 @@ from ether_ros.ros.client import EtherRosClient
 from ether_ros.ros.node import EtherRosNode
 from ether_ros.ros.rig import domain_for
 from ether_ros.sim.network import build_network
+from ether_ros.testing.configs import config_without_lease
 
 pytestmark = [pytest.mark.ros]
 
@@ -31,10 +32,13 @@ BRANCHED = CONFIG.with_name("branched.yaml")
 
 @contextlib.contextmanager
 def running_node(
-    domain_offset: int, config: Path = CONFIG, **options: Any
+    domain_offset: int,
+    config: Path = CONFIG,
+    client_options: dict[str, Any] | None = None,
+    **options: Any,
 ) -> Iterator[tuple[EtherRosNode, EtherRosClient, object]]:
-    """The node on the in-process simulator, spun by an executor thread, and a client; all in a
-    ROS context of their own."""
+    """The node on the in-process simulator, spun by an executor thread, and a client (with
+    ``client_options``); all in a ROS context of their own."""
     context = Context()
     rclpy.init(context=context, domain_id=domain_for(os.getpid(), domain_offset))
     net = build_network(load_bus_config(config))
@@ -43,7 +47,7 @@ def running_node(
     executor.add_node(node)
     thread = threading.Thread(target=executor.spin, daemon=True)
     thread.start()
-    client = EtherRosClient(context=context)
+    client = EtherRosClient(context=context, **(client_options or {}))
     try:
         yield node, client, net
     finally:
@@ -86,10 +90,13 @@ def test_start_write_echo_and_panic(setup: tuple[EtherRosNode, EtherRosClient, o
     assert net.slave_info(0)["al_state_name"] != "OP"  # type: ignore[attr-defined]
 
 
-def test_pdo_listener_served_by_python_when_asked() -> None:
+def test_pdo_listener_served_by_python_when_asked(tmp_path: Path) -> None:
     """``native_commands=False`` (``ether-ros run --python-commands``): the Python executor
-    serves pdo_listener; writes still reach the slave and invalid ones are refused."""
-    with running_node(7, native_commands=False) as (node, client, _net):
+    serves pdo_listener; writes still reach the slave and invalid ones are refused. (With the
+    lease off: rclpy does not tell who published a message, so with the lease on a topic
+    served by Python is refused, see test_python_served_topics_are_refused_under_a_lease.)"""
+    config = config_without_lease("laelaps.yaml", tmp_path)
+    with running_node(7, config, native_commands=False) as (node, client, _net):
         assert client.command("start")[0]
         assert node.command_path_counters() == {}
         result = client.wait_result(client.publish_write("hind_right_leg", "Kp100_knee", 6000))
@@ -97,6 +104,13 @@ def test_pdo_listener_served_by_python_when_asked() -> None:
         echo(client, 6000.0)
         result = client.wait_result(client.publish_write("hind_right_leg", "Kp100_knee", 1e6))
         assert not result.success and "outside" in result.message
+
+
+def test_python_served_topics_are_refused_under_a_lease() -> None:
+    with running_node(8, native_commands=False) as (_node, client, _net):
+        assert client.command("start")[0]  # the service carries the lease token
+        result = client.wait_result(client.publish_write("hind_right_leg", "Kp100_knee", 6000))
+        assert not result.success and "native command path" in result.message
 
 
 def test_a_cable_pulled_on_a_branch_shows_in_the_diagnostics() -> None:

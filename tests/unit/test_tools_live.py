@@ -157,7 +157,7 @@ def test_groups_from_the_nodes_diagnostics_are_shown() -> None:
     groups = [GroupStats("io", 4, 4_000_000, ("io_a",), (2,), 3, 0, 250, 1, 0, 40)]
     (status,) = group_statuses("ether_comm", groups)
     assert (
-        status.level == DiagnosticStatus.WARN and status.message == "working counter 0, expected 3"
+        status.level == DiagnosticStatus.ERROR and status.message == "working counter 0, expected 3"
     )
     snap = snapshot_from_diagnostics({"cycles": "1"}, {}, "b", groups={"io": values_of(status)})
     text = stats_text(snap)

@@ -106,6 +106,12 @@ impl<'a> Reader<'a> {
         Ok(self.take(1, 1, field)?[0] != 0)
     }
 
+    /// Step over a string by its length alone (its bytes unchecked).
+    fn skip_string(&mut self, field: &'static str) -> Result<(), CdrError> {
+        let len = self.u32(field)? as usize;
+        self.take(len, 1, field).map(|_| ())
+    }
+
     fn string(&mut self, field: &'static str) -> Result<&'a str, CdrError> {
         let len = self.u32(field)? as usize;
         if len == 0 {
@@ -156,6 +162,20 @@ pub fn decode_write_variable(data: &[u8]) -> Result<WriteRequest<'_>, CdrError> 
         text: r.string("text")?,
         request_id: r.u32("request_id")?,
     })
+}
+
+/// The `request_id` of a serialized `WriteVariable` whose strings may be bad (a NUL inside, not
+/// UTF-8): the fields are stepped over by their lengths, so that a refusal can still be answered
+/// to its request, as rclpy reads it. None when even the lengths do not fit.
+pub fn write_variable_request_id(data: &[u8]) -> Option<u32> {
+    let mut r = reader(data).ok()?;
+    r.skip_string("slave").ok()?;
+    r.i32("position").ok()?;
+    r.bool("all_slaves").ok()?;
+    r.skip_string("variable").ok()?;
+    r.f64("value").ok()?;
+    r.skip_string("text").ok()?;
+    r.u32("request_id").ok()
 }
 
 /// A `sequence<float64>` of a serialized message, read in place (no copy, no allocation).
@@ -317,6 +337,23 @@ mod tests {
                 request_id: 7
             }
         );
+    }
+
+    #[test]
+    fn the_request_id_of_a_message_with_a_bad_string_is_still_read() {
+        let mut data = hex(FROM_RCLPY);
+        // variable 'xyz' → 'x\0z': refused, but its request is known.
+        let at = data.windows(3).position(|w| w == b"xyz").unwrap();
+        data[at + 1] = 0;
+        assert!(matches!(
+            decode_write_variable(&data),
+            Err(CdrError::EmbeddedNul {
+                field: "variable",
+                at: 1
+            })
+        ));
+        assert_eq!(write_variable_request_id(&data), Some(7));
+        assert_eq!(write_variable_request_id(&data[..data.len() - 1]), None);
     }
 
     #[test]

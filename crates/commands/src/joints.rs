@@ -74,26 +74,75 @@ impl JointTable {
     }
 
     /// Resolve a decoded command (`names` from `decode_joint_state`): `Apply` with every
-    /// setpoint in `out` (cleared first), or `Defer`.
+    /// setpoint in `out` (cleared first), or `Defer` (also for what `resolve_or_refuse` would
+    /// refuse).
     pub fn resolve(
         &self,
         cmd: &JointCommand<'_>,
         names: &[&str],
         out: &mut Vec<Setpoint>,
     ) -> Resolution {
+        let mut why = String::new();
+        match self.resolve_or_refuse(cmd, names, out, &mut why) {
+            Resolution::Refuse => Resolution::Defer,
+            r => r,
+        }
+    }
+
+    /// As `resolve`, and `Refuse` (with Python's words in `why`, cleared first) for what is
+    /// certainly invalid by its structure: no names, an array whose length differs from the
+    /// names, a joint named twice or not on this bus. Python
+    /// (`bridge.resolve_joint_command`) checks in the same order, so the first problem it
+    /// would name is the one named here; at the first check only Python can make (a value, a
+    /// mode) this defers instead.
+    pub fn resolve_or_refuse(
+        &self,
+        cmd: &JointCommand<'_>,
+        names: &[&str],
+        out: &mut Vec<Setpoint>,
+        why: &mut String,
+    ) -> Resolution {
+        use std::fmt::Write as _;
         out.clear();
+        why.clear();
         let n = names.len();
+        if n == 0 {
+            why.push_str("no joint names");
+            return Resolution::Refuse;
+        }
         let arrays = [cmd.position, cmd.velocity, cmd.effort];
-        if n == 0 || arrays.iter().any(|a| !a.is_empty() && a.len() != n) {
-            return Resolution::Defer;
+        for (label, a) in ["position", "velocity", "effort"].iter().zip(arrays) {
+            if !a.is_empty() && a.len() != n {
+                let _ = write!(
+                    why,
+                    "{label} has {} value(s) for {n} joint name(s) (give one per name, or none)",
+                    a.len()
+                );
+                return Resolution::Refuse;
+            }
         }
         for (i, name) in names.iter().enumerate() {
+            let plain = python_plain(name);
+            let earlier = names[..i].contains(name);
             let Some(j) = self.joints.iter().position(|e| e.name == *name) else {
-                return Resolution::Defer;
+                if !plain || earlier {
+                    return Resolution::Defer;
+                }
+                let _ = write!(why, "unknown joint '{name}' (joints: ");
+                for (k, e) in self.joints.iter().enumerate() {
+                    why.push_str(if k == 0 { "" } else { ", " });
+                    why.push_str(&e.name);
+                }
+                why.push(')');
+                return Resolution::Refuse;
             };
             let entry = &self.joints[j];
-            if out.iter().any(|s| s.0 == entry.axis) {
-                return Resolution::Defer; // named twice
+            if earlier {
+                if !plain {
+                    return Resolution::Defer;
+                }
+                let _ = write!(why, "joint '{name}' is named twice");
+                return Resolution::Refuse;
             }
             let Some(kind) = SetpointKind::from_code(self.kinds[j].load(Ordering::Acquire)) else {
                 return Resolution::Defer;
@@ -119,6 +168,13 @@ impl JointTable {
         }
         Resolution::Apply
     }
+}
+
+/// Whether Python's `repr(name)` is `'name'`: printable ASCII without quote or backslash (for
+/// any other name the refusal is left to Python, which words it).
+fn python_plain(name: &str) -> bool {
+    name.bytes()
+        .all(|b| (0x20..0x7F).contains(&b) && b != b'\'' && b != b'\\')
 }
 
 #[cfg(test)]
@@ -229,5 +285,45 @@ mod tests {
             (r, out),
             (Resolution::Apply, vec![(0, SetpointKind::Velocity, 1.0)])
         );
+    }
+
+    fn refusal(t: &JointTable, data: &[u8]) -> Option<String> {
+        let mut names = Vec::new();
+        let cmd = decode_joint_state(data, &mut names).unwrap();
+        let (mut out, mut why) = (Vec::new(), String::new());
+        (t.resolve_or_refuse(&cmd, &names, &mut out, &mut why) == Resolution::Refuse).then_some(why)
+    }
+
+    #[test]
+    fn refuses_what_is_wrong_by_its_structure_in_python_order() {
+        let t = table();
+        let cases: [(Vec<u8>, Option<&str>); 9] = [
+            (message(&[], &[], &[]), Some("no joint names")),
+            (
+                message(&["a", "b"], &[0.0], &[]),
+                Some("position has 1 value(s) for 2 joint name(s) (give one per name, or none)"),
+            ),
+            (
+                message(&["x"], &[0.0], &[]),
+                Some("unknown joint 'x' (joints: a, b)"),
+            ),
+            (
+                message(&["a", "a"], &[0.0, 0.1], &[]),
+                Some("joint 'a' is named twice"),
+            ),
+            // Python names the first problem: a's value before x being unknown.
+            (message(&["a", "x"], &[9.0, 0.0], &[]), None),
+            (
+                message(&["a", "x"], &[1.0, 0.0], &[]),
+                Some("unknown joint 'x' (joints: a, b)"),
+            ),
+            // Names Python would quote differently are left to it.
+            (message(&["it's"], &[0.0], &[]), None),
+            (message(&["a\n"], &[0.0], &[]), None),
+            (message(&["a"], &[0.5], &[]), None),
+        ];
+        for (data, want) in cases {
+            assert_eq!(refusal(&t, &data).as_deref(), want);
+        }
     }
 }

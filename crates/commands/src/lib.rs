@@ -14,12 +14,16 @@
 //! The operator console's panic key is read here too ([`panic_keys`]): a native thread reads the
 //! terminal and sends the node's `panic` request through rcl without waiting for Python.
 //!
-//! Only requests that are certainly valid take the fast path; anything else (text values,
-//! unknown names, values out of range, malformed data) is handed to the node's Python code,
-//! which owns every error message, so both paths accept exactly the same writes.
+//! Only requests that are certainly valid take the fast path. Malformed data and structurally
+//! invalid joint commands are refused here, with the words Python uses; anything else (text
+//! values, unknown names, values out of range) is handed to the node's Python code, which owns
+//! those error messages, so both paths accept exactly the same writes. The queue for Python is
+//! fair per publisher, and with the control lease on ([`lease`]) only the holder's publishers
+//! get past the first check.
 
 pub mod cdr;
 pub mod joints;
+pub mod lease;
 pub mod panic_keys;
 pub mod rcl;
 pub mod receiver;
@@ -27,9 +31,10 @@ pub mod table;
 
 pub use cdr::{
     check_joint_trajectory, decode_joint_state, decode_write_variable, encode_write_result,
-    CdrError, JointCommand, WriteRequest,
+    write_variable_request_id, CdrError, JointCommand, WriteRequest,
 };
 pub use joints::{JointEntry, JointTable, Setpoint};
+pub use lease::{Gid, LeaseGate, LeaseState, Verdict};
 pub use panic_keys::{PanicKeyHandles, PanicKeys, Sent, PANIC_KEYS};
 pub use receiver::{CommandReceiver, ReceiverCounters, ReceiverHandles};
 pub use table::{CommandTable, Kind, Resolution, SlaveEntry, VariableEntry};

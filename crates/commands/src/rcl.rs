@@ -53,14 +53,27 @@ pub struct WaitSet {
     implementation: *mut c_void,
 }
 
-/// rmw_message_info_t starts with the source and received timestamps (int64 ns, system clock);
-/// the rest (sequence numbers, publisher gid, intra-process flag) is room this struct leaves
-/// generously.
+/// rmw_gid_t (Jazzy: `RMW_GID_STORAGE_SIZE` = 16).
+#[repr(C)]
+#[derive(Clone, Copy)]
+pub struct Gid {
+    implementation_identifier: *const c_char,
+    pub data: [u8; 16],
+}
+
+/// rmw_message_info_t as rmw/types.h (Jazzy) lays it out: the source and received timestamps
+/// (int64 ns, system clock), the publication and reception sequence numbers, the publisher's
+/// GID (which DataWriter sent the message: the command path's fairness and the control lease
+/// go by it) and the intra-process flag; generous room follows in case an rmw writes more.
 #[repr(C, align(8))]
 pub struct MessageInfo {
     pub source_timestamp: i64,
     pub received_timestamp: i64,
-    _rest: [u8; 240],
+    pub publication_sequence_number: u64,
+    pub reception_sequence_number: u64,
+    pub publisher_gid: Gid,
+    pub from_intra_process: bool,
+    _room: [u8; 184],
 }
 
 impl Default for MessageInfo {
@@ -68,7 +81,14 @@ impl Default for MessageInfo {
         MessageInfo {
             source_timestamp: 0,
             received_timestamp: 0,
-            _rest: [0; 240],
+            publication_sequence_number: 0,
+            reception_sequence_number: 0,
+            publisher_gid: Gid {
+                implementation_identifier: ptr::null(),
+                data: [0; 16],
+            },
+            from_intra_process: false,
+            _room: [0; 184],
         }
     }
 }
@@ -357,5 +377,26 @@ pub unsafe fn server_is_available(
     match (rcl.server_is_available)(node, client, &mut available) {
         RCL_RET_OK => Ok(available),
         ret => Err(rcl.take_error(ret)),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn message_info_has_the_rmw_layout() {
+        // rmw/types.h (Jazzy): two int64 stamps, two uint64 sequence numbers, then rmw_gid_t
+        // (a pointer and 16 bytes), then the bool.
+        assert_eq!(
+            std::mem::offset_of!(MessageInfo, publication_sequence_number),
+            16
+        );
+        assert_eq!(std::mem::offset_of!(MessageInfo, publisher_gid), 32);
+        assert_eq!(
+            std::mem::offset_of!(MessageInfo, publisher_gid) + std::mem::offset_of!(Gid, data),
+            40
+        );
+        assert_eq!(std::mem::offset_of!(MessageInfo, from_intra_process), 56);
     }
 }

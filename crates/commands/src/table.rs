@@ -83,6 +83,10 @@ pub enum Resolution {
     Apply,
     /// Python decides (and explains, if it refuses).
     Defer,
+    /// Certainly invalid, refused here with the words Python would use (the joint table's
+    /// structural checks: names and array lengths), so a flood of such messages never reaches
+    /// the queue for Python.
+    Refuse,
 }
 
 /// How many written variables the answer lists before "(+N more)" (as Python's).

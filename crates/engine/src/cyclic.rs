@@ -2,7 +2,7 @@
 //! cycle it makes only the cycle's own syscalls (clock_nanosleep, send, recvmsg/ppoll) and hands
 //! data to Python through the lock-free structures of `handover`.
 
-use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, AtomicU8, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU32, AtomicU64, AtomicU8, Ordering};
 use std::sync::Arc;
 
 use ether_ros_protocol::{self as wire, MAX_FRAME_LEN};
@@ -64,6 +64,9 @@ pub struct Exchange {
     pub frame_outputs: Vec<Vec<(usize, usize)>>,
     /// Which cyclic run of the engine this is (1, 2, ...; 0 before `start_cyclic` numbers it).
     pub run: u64,
+    /// Bit k: cyclic frame k's inputs in the image are stale (the last cycle's
+    /// `SampleRecord::stale_mask`); all set until the first whole replies.
+    pub stale_mask: AtomicU32,
 }
 
 impl Exchange {
@@ -110,6 +113,7 @@ impl Exchange {
             ring: SampleRing::new(plan.ring_capacity, plan.image_len),
             axes: AxisExchange::new(&plan.axes, plan.trajectory_capacity),
             run: 0,
+            stale_mask: AtomicU32::new(u32::MAX),
             plan,
         }
     }
@@ -243,6 +247,11 @@ pub struct Cyclic {
     wkc_seen: u32,
     dc_diff_ns: i32,
     lost_mask: u32,
+    /// Per frame: the cycle whose reply last came back whole (None: none yet).
+    good_cycle: Vec<Option<u64>>,
+    /// Per frame: its inputs are stale once the last whole reply is more than this many cycles
+    /// old (two of the frame's periods: one reply lost in a row is not staleness yet).
+    stale_after: Vec<u64>,
 }
 
 impl Cyclic {
@@ -276,6 +285,8 @@ impl Cyclic {
             last_processed: vec![None; layout.frames.len()],
             frame_wkc: vec![0; layout.frames.len()],
             wkc_seen: 0,
+            good_cycle: vec![None; layout.frames.len()],
+            stale_after: layout.frames.iter().map(|f| 2 * f.every as u64).collect(),
             rx: vec![0u8; MAX_FRAME_LEN],
             live_out: image.clone(),
             scratch: image.clone(),
@@ -388,7 +399,11 @@ impl Cyclic {
                 flags: self.flags,
                 dc_diff_ns: self.dc_diff_ns,
                 lost_mask: self.lost_mask,
+                stale_mask: self.stale_mask(),
             };
+            self.ex
+                .stale_mask
+                .store(record.stale_mask, Ordering::Release);
             self.account(&record);
             if !self.ex.ring.push(&record, &self.image) {
                 self.shared
@@ -414,6 +429,17 @@ impl Cyclic {
             planned = next;
         }
         self.shared.alive.store(false, Ordering::Release);
+    }
+
+    /// Bit k: frame k's inputs in the image are stale this cycle.
+    fn stale_mask(&self) -> u32 {
+        let mut mask = 0u32;
+        for (k, (good, after)) in self.good_cycle.iter().zip(&self.stale_after).enumerate() {
+            if good.is_none_or(|g| self.cycle.saturating_sub(g) > *after) {
+                mask |= 1 << k;
+            }
+        }
+        mask
     }
 
     fn account(&self, r: &SampleRecord) {
@@ -551,6 +577,12 @@ impl Cyclic {
         if bad {
             self.flags |= flags::WKC_ERROR;
             stats.wkc_errors.fetch_add(1, Ordering::Relaxed);
+        } else {
+            self.good_cycle[p.frame] = Some(p.cycle);
+            stats
+                .last_good_ns
+                .store(r.rx_ns.max(0) as u64, Ordering::Release);
+            stats.last_good_cycle.store(p.cycle + 1, Ordering::Release);
         }
         for &(f, i, len) in &layout.inputs {
             self.image[i..i + len].copy_from_slice(&rx[f..f + len]);

@@ -89,7 +89,7 @@ impl SeqBuffer {
 }
 
 /// Size of one sample record in bytes (see `SampleRecord::encode` and `samples.py`).
-pub const RECORD_LEN: usize = 48;
+pub const RECORD_LEN: usize = 56;
 
 /// Flags of a sample (bit values shared with `python/ether_ros/master/samples.py`).
 pub mod flags {
@@ -136,11 +136,14 @@ pub struct SampleRecord {
     pub dc_diff_ns: i32,
     /// Bit k: the reply to cyclic frame k was declared lost in this cycle.
     pub lost_mask: u32,
+    /// Bit k: frame k's inputs in this cycle's image are stale: no reply to it came back whole
+    /// (every working counter as expected) within two of its periods, or none ever did.
+    pub stale_mask: u32,
 }
 
 impl SampleRecord {
     /// Little-endian layout: cycle u64, t_wake u64, latency i64, exec u32, period u32, rtt u32,
-    /// wkc u16, flags u16, dc_diff i32, lost_mask u32.
+    /// wkc u16, flags u16, dc_diff i32, lost_mask u32, stale_mask u32, 4 reserved bytes (0).
     pub fn encode(&self, out: &mut [u8]) {
         out[0..8].copy_from_slice(&self.cycle.to_le_bytes());
         out[8..16].copy_from_slice(&self.t_wake_ns.to_le_bytes());
@@ -152,6 +155,8 @@ impl SampleRecord {
         out[38..40].copy_from_slice(&self.flags.to_le_bytes());
         out[40..44].copy_from_slice(&self.dc_diff_ns.to_le_bytes());
         out[44..48].copy_from_slice(&self.lost_mask.to_le_bytes());
+        out[48..52].copy_from_slice(&self.stale_mask.to_le_bytes());
+        out[52..56].fill(0);
     }
 
     pub fn decode(b: &[u8]) -> SampleRecord {
@@ -169,6 +174,7 @@ impl SampleRecord {
             flags: u16_at(38),
             dc_diff_ns: u32_at(40) as i32,
             lost_mask: u32_at(44),
+            stale_mask: u32_at(48),
         }
     }
 }
@@ -486,6 +492,7 @@ mod tests {
             flags: flags::LOST | flags::PANIC,
             dc_diff_ns: -99,
             lost_mask: 0b101,
+            stale_mask: 0b110,
         };
         let mut b = [0u8; RECORD_LEN];
         r.encode(&mut b);

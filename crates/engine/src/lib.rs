@@ -176,6 +176,10 @@ pub struct FrameSnapshot {
     pub every: u32,
     pub counters: Vec<(&'static str, u64)>,
     pub rtt: Summary,
+    /// 1 + the cycle whose reply last came back whole (0: none yet) and its arrival
+    /// (CLOCK_MONOTONIC ns): how fresh the frame's inputs in the image are.
+    pub last_good_cycle: u64,
+    pub last_good_ns: u64,
 }
 
 pub struct Engine {
@@ -783,6 +787,18 @@ impl Engine {
         Ok(self.exchange()?.image.read())
     }
 
+    /// Bit k: cyclic frame k's inputs in the image are stale now (no reply to it came back
+    /// whole within two of its periods); every bit set while no cyclic exchange runs.
+    pub fn stale_mask(&self) -> u32 {
+        if !self.is_running() {
+            return u32::MAX;
+        }
+        match self.exchange() {
+            Ok(ex) => ex.stale_mask.load(Ordering::Acquire),
+            Err(_) => u32::MAX,
+        }
+    }
+
     /// The output buffer as Python wrote it (what goes on the wire unless panic/watchdog).
     pub fn outputs(&self) -> Result<Vec<u8>> {
         Ok(self.exchange()?.outputs.read())
@@ -827,6 +843,8 @@ impl Engine {
                                 .map(|(n, c)| (*n, c.load(Ordering::Relaxed)))
                                 .collect(),
                             rtt: f.rtt.summary(),
+                            last_good_cycle: f.last_good_cycle.load(Ordering::Acquire),
+                            last_good_ns: f.last_good_ns.load(Ordering::Acquire),
                         })
                         .collect()
                 })

@@ -55,11 +55,25 @@ impl std::str::FromStr for LinkKind {
 }
 
 /// How a link should be opened: which queue, and whether the kernel busy-polls for us.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct LinkOptions {
     /// `SO_BUSY_POLL` time in µs (0 = off): `recv` spins in the driver for this long before
     /// sleeping, which trades a CPU for wake-up latency.
     pub busy_poll_us: u32,
+    /// AF_PACKET: hand frames straight to the driver (`PACKET_QDISC_BYPASS`, the default),
+    /// past the queueing discipline and the packet taps. Off, frames take the kernel's
+    /// transmit queue, so a capture on the master's own interface (tcpdump, tshark) sees what
+    /// the master sends, at the cost measured in docs/benchmarks.md ("capture").
+    pub qdisc_bypass: bool,
+}
+
+impl Default for LinkOptions {
+    fn default() -> Self {
+        LinkOptions {
+            busy_poll_us: 0,
+            qdisc_bypass: true,
+        }
+    }
 }
 
 /// Apply the busy-poll options to a socket (both links use them). Returns false when the
@@ -159,9 +173,12 @@ impl RawSocketLink {
             {
                 return Err(os_error("cannot bind the raw socket", ifname));
             }
-            // Frames go straight to the driver: no queueing discipline between us and the wire.
+            // Frames go straight to the driver: no queueing discipline between us and the wire
+            // (nor the taps a capture on this interface listens at: off when one is wanted).
             // Optional (older kernels lack it), so failure is ignored.
-            set_int_option(fd, libc::SOL_PACKET, libc::PACKET_QDISC_BYPASS, 1);
+            if options.qdisc_bypass {
+                set_int_option(fd, libc::SOL_PACKET, libc::PACKET_QDISC_BYPASS, 1);
+            }
             // Kernel receive timestamps make the round trip exact even when the reply is read
             // a cycle later (send_at_wake). Optional as well.
             set_int_option(fd, libc::SOL_SOCKET, libc::SO_TIMESTAMPNS, 1);

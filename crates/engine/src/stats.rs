@@ -188,6 +188,11 @@ pub struct FrameStats {
     /// Times the frame's own (group) watchdog tripped.
     pub watchdog_trips: AtomicU64,
     pub rtt: Histogram,
+    /// Freshness (kept by `reset`: it is state, not a count): 1 + the cycle whose reply last
+    /// came back whole (every working counter as expected; 0: none yet), and when it arrived
+    /// (CLOCK_MONOTONIC ns).
+    pub last_good_cycle: AtomicU64,
+    pub last_good_ns: AtomicU64,
 }
 
 impl FrameStats {

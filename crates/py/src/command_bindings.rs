@@ -5,11 +5,16 @@
 
 use std::time::Duration;
 
-use ether_ros_commands::receiver::{MessageKind, Resolver};
+use std::sync::Arc;
+
+use ether_ros_commands::lease::{refusal_text, GID_LEN, MAX_WRITERS};
+use ether_ros_commands::receiver::{
+    MessageKind, Resolver, ANSWER_BUDGETS, PUBLISHER_LIMIT, REFUSAL_ANSWERS_PER_S,
+};
 use ether_ros_commands::{
     check_joint_trajectory, decode_joint_state, decode_write_variable, CommandReceiver,
-    CommandTable, JointEntry, JointTable, Kind, PanicKeyHandles, PanicKeys, ReceiverHandles,
-    Resolution, Sent, SlaveEntry, VariableEntry, PANIC_KEYS,
+    CommandTable, Gid, JointEntry, JointTable, Kind, LeaseGate, PanicKeyHandles, PanicKeys,
+    ReceiverHandles, Resolution, Sent, SlaveEntry, VariableEntry, Verdict, PANIC_KEYS,
 };
 use ether_ros_engine::SetpointKind;
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
@@ -87,7 +92,7 @@ impl PyCommandTable {
                         .collect(),
                     answer,
                 )),
-                Resolution::Defer => None,
+                Resolution::Defer | Resolution::Refuse => None,
             },
         )
     }
@@ -172,8 +177,139 @@ impl PyJointTable {
                     .map(|&(axis, kind, value)| (axis, kind_name(kind).to_string(), value))
                     .collect(),
             ),
-            Resolution::Defer => None,
+            Resolution::Defer | Resolution::Refuse => None,
         })
+    }
+
+    /// The refusal the native path answers a serialized `JointState` with by itself (the words
+    /// after "joint_commands refused: "), None when it applies the message or leaves it to
+    /// Python. ValueError if the bytes are not a JointState.
+    fn refusal(&self, data: &[u8]) -> PyResult<Option<String>> {
+        let mut names = Vec::new();
+        let command = decode_joint_state(data, &mut names)
+            .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        let (mut out, mut why) = (Vec::new(), String::new());
+        Ok(
+            match self
+                .table
+                .resolve_or_refuse(&command, &names, &mut out, &mut why)
+            {
+                Resolution::Refuse => Some(why),
+                _ => None,
+            },
+        )
+    }
+}
+
+fn verdict_name(v: Verdict) -> &'static str {
+    match v {
+        Verdict::Allowed => "allowed",
+        Verdict::NoHolder => "no_holder",
+        Verdict::HeldByOther => "held_by_other",
+        Verdict::Lapsed => "lapsed",
+    }
+}
+
+fn gid_of(data: &[u8]) -> PyResult<Gid> {
+    data.try_into().map_err(|_| {
+        PyValueError::new_err(format!(
+            "a publisher GID has {GID_LEN} bytes, got {}",
+            data.len()
+        ))
+    })
+}
+
+/// The control lease as every command entry point checks it (crates/commands/src/lease.rs):
+/// written by the node's lease policy (`ether_ros.ros.lease`), read without a lock by the
+/// native command threads and by Python.
+#[pyclass(name = "LeaseGate", module = "ether_ros._native", frozen)]
+pub struct PyLeaseGate {
+    gate: Arc<LeaseGate>,
+}
+
+#[pymethods]
+impl PyLeaseGate {
+    #[new]
+    fn new() -> Self {
+        PyLeaseGate {
+            gate: Arc::new(LeaseGate::new()),
+        }
+    }
+
+    /// Most publisher GIDs a holder may register.
+    #[classattr]
+    const MAX_WRITERS: usize = MAX_WRITERS;
+    /// Bytes of one publisher GID.
+    #[classattr]
+    const GID_LEN: usize = GID_LEN;
+
+    fn set_enabled(&self, enabled: bool) {
+        self.gate.set_enabled(enabled);
+    }
+
+    /// A holder: its name, token, publisher GIDs (16 bytes each) and the CLOCK_MONOTONIC ns
+    /// its lease runs out.
+    fn grant(&self, holder: &str, token: u64, gids: Vec<Vec<u8>>, expires_ns: i64) -> PyResult<()> {
+        if gids.len() > MAX_WRITERS {
+            return Err(PyValueError::new_err(format!(
+                "{} publisher GIDs, at most {MAX_WRITERS}",
+                gids.len()
+            )));
+        }
+        let gids = gids
+            .iter()
+            .map(|g| gid_of(g))
+            .collect::<PyResult<Vec<_>>>()?;
+        self.gate.grant(holder, token, &gids, expires_ns);
+        Ok(())
+    }
+
+    fn renew(&self, expires_ns: i64) {
+        self.gate.renew(expires_ns);
+    }
+
+    fn revoke(&self) {
+        self.gate.revoke();
+    }
+
+    /// {enabled, expires_ns, token, holder, gids}.
+    fn state<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let s = self.gate.state();
+        let d = PyDict::new(py);
+        d.set_item("enabled", s.enabled)?;
+        d.set_item("expires_ns", s.expires_ns)?;
+        d.set_item("token", s.token)?;
+        d.set_item("holder", s.holder)?;
+        let gids: Vec<Bound<'py, PyBytes>> = s.gids.iter().map(|g| PyBytes::new(py, g)).collect();
+        d.set_item("gids", gids)?;
+        Ok(d)
+    }
+
+    /// (verdict, refusal text) for a service request carrying lease `token` at `now_ns`
+    /// (CLOCK_MONOTONIC; default now, the clock the native threads check with): verdict
+    /// "allowed" (text empty), "no_holder", "held_by_other" or "lapsed".
+    #[pyo3(signature = (token, now_ns=None))]
+    fn check_token(&self, token: u64, now_ns: Option<i64>) -> (&'static str, String) {
+        let mut holder = String::new();
+        let v = self.gate.check_token(
+            token,
+            now_ns.unwrap_or_else(ether_ros_engine::now_ns),
+            &mut holder,
+        );
+        let mut text = String::new();
+        refusal_text(v, &holder, &mut text);
+        (verdict_name(v), text)
+    }
+
+    /// As `check_token`, for a message from publisher `gid` (16 bytes).
+    #[pyo3(signature = (gid, now_ns=None))]
+    fn check_gid(&self, gid: &[u8], now_ns: Option<i64>) -> PyResult<(&'static str, String)> {
+        let mut holder = String::new();
+        let now = now_ns.unwrap_or_else(ether_ros_engine::now_ns);
+        let v = self.gate.check_gid(&gid_of(gid)?, now, &mut holder);
+        let mut text = String::new();
+        refusal_text(v, &holder, &mut text);
+        Ok((verdict_name(v), text))
     }
 }
 
@@ -186,9 +322,22 @@ pub struct PyCommandReceiver {
 
 #[pymethods]
 impl PyCommandReceiver {
+    /// Refusals answered per publisher and second (a burst of as many): beyond that a
+    /// flooding publisher's refusals are counted, not answered.
+    #[classattr]
+    const REFUSAL_ANSWERS_PER_S: u32 = REFUSAL_ANSWERS_PER_S;
+    /// Publishers whose answer budget is kept.
+    #[classattr]
+    const ANSWER_BUDGETS: usize = ANSWER_BUDGETS;
+    /// Requests of one publisher that may wait for Python.
+    #[classattr]
+    const PUBLISHER_LIMIT: usize = PUBLISHER_LIMIT;
+
     #[new]
-    /// `message`: "write_variable" (`pdo_listener`) or "joint_state" (`joint_commands`).
-    #[pyo3(signature = (*, librcl, librcutils, context, subscription, results, priority, cpus=Vec::new(), message="write_variable"))]
+    /// `message`: "write_variable" (`pdo_listener`), "joint_state" (`joint_commands`) or
+    /// "passthrough" (every message to Python: `joint_trajectory`). `lease`: the LeaseGate every
+    /// message is checked against (None: everyone may command).
+    #[pyo3(signature = (*, librcl, librcutils, context, subscription, results, priority, cpus=Vec::new(), message="write_variable", lease=None))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -200,13 +349,15 @@ impl PyCommandReceiver {
         priority: i32,
         cpus: Vec<usize>,
         message: &str,
+        lease: Option<PyRef<'_, PyLeaseGate>>,
     ) -> PyResult<Self> {
         let message = match message {
             "write_variable" => MessageKind::WriteVariable,
             "joint_state" => MessageKind::JointState,
+            "passthrough" => MessageKind::Passthrough,
             other => {
                 return Err(PyValueError::new_err(format!(
-                    "unknown message kind '{other}' (write_variable, joint_state)"
+                    "unknown message kind '{other}' (write_variable, joint_state, passthrough)"
                 )))
             }
         };
@@ -217,6 +368,7 @@ impl PyCommandReceiver {
             subscription,
             results,
             message,
+            lease: lease.map(|g| g.gate.clone()),
         };
         let inner = py
             .detach(move || CommandReceiver::start(handles, priority, cpus))
@@ -255,12 +407,21 @@ impl PyCommandReceiver {
         self.inner.is_running()
     }
 
-    /// The oldest request left to Python (serialized WriteVariable), or None after `timeout`
-    /// seconds. Call `deferred_done()` once it is handled.
-    fn next_deferred<'py>(&self, py: Python<'py>, timeout: f64) -> Option<Bound<'py, PyBytes>> {
+    /// The next request left to Python (publishers in turn): (serialized message, publisher
+    /// GID), or None after `timeout` seconds. Call `deferred_done()` once it is handled.
+    fn next_deferred<'py>(
+        &self,
+        py: Python<'py>,
+        timeout: f64,
+    ) -> Option<(Bound<'py, PyBytes>, Bound<'py, PyBytes>)> {
         let timeout = Duration::from_secs_f64(timeout.clamp(0.0, 3600.0));
         py.detach(|| self.inner.next_deferred(timeout))
-            .map(|data| PyBytes::new(py, &data))
+            .map(|(data, gid)| (PyBytes::new(py, &data), PyBytes::new(py, &gid)))
+    }
+
+    /// Publishers with requests waiting for Python (or in its hands) now.
+    fn waiting_publishers(&self) -> usize {
+        self.inner.waiting_publishers()
     }
 
     fn deferred_done(&self) {
@@ -400,6 +561,7 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyCommandTable>()?;
     m.add_class::<PyJointTable>()?;
     m.add_class::<PyCommandReceiver>()?;
+    m.add_class::<PyLeaseGate>()?;
     m.add_class::<PyPanicKeys>()?;
     let keys: Vec<&[u8]> = PANIC_KEYS.to_vec();
     m.add("PANIC_KEYS", keys)?;

@@ -701,16 +701,22 @@ impl PyEngine {
     /// Open network interface `ifname` through `link`: "packet" (an AF_PACKET raw socket,
     /// needs CAP_NET_RAW) or "xdp" (an AF_XDP socket and its XDP program, needs CAP_NET_RAW,
     /// CAP_NET_ADMIN and CAP_BPF). `busy_poll_us` > 0 turns on the kernel's busy polling.
+    /// `qdisc_bypass` false (AF_PACKET only) sends through the kernel's transmit queue, so a
+    /// capture on the interface sees the master's frames.
     #[staticmethod]
-    #[pyo3(signature = (ifname, link = "packet", busy_poll_us = 0))]
+    #[pyo3(signature = (ifname, link = "packet", busy_poll_us = 0, qdisc_bypass = true))]
     fn open_interface(
         py: Python<'_>,
         ifname: String,
         link: &str,
         busy_poll_us: u32,
+        qdisc_bypass: bool,
     ) -> PyResult<PyEngine> {
         let kind: LinkKind = link.parse().map_err(PyValueError::new_err)?;
-        let options = LinkOptions { busy_poll_us };
+        let options = LinkOptions {
+            busy_poll_us,
+            qdisc_bypass,
+        };
         let engine = py
             .detach(|| Engine::open_interface_with(&ifname, kind, &options))
             .map_err(|e| to_py(py, e))?;
@@ -963,10 +969,17 @@ impl PyEngine {
                 d.set_item(name, v)?;
             }
             d.set_item("rtt", summary_dict(py, &f.rtt)?)?;
+            d.set_item("last_good_cycle", f.last_good_cycle)?;
+            d.set_item("last_good_ns", f.last_good_ns)?;
             frames.append(d)?;
         }
         out.set_item("frames", frames)?;
         Ok(out)
+    }
+
+    /// Bit k: cyclic frame k's inputs are stale now (every bit set while not cyclic).
+    fn stale_mask(&self) -> u32 {
+        self.inner.stale_mask()
     }
 
     fn reset_stats(&self, py: Python<'_>) {

@@ -530,7 +530,10 @@ impl SimNetwork {
                             "fault 'link': 'port' needs 'at' (the slave whose port it is)",
                         ))
                     }
-                    None => net.faults.link_down = !up,
+                    // Without `at`: the master's own link. `up` plugs every cable back in,
+                    // the cuts inside the bus too (`link --at 2 down` is undone by `link up`).
+                    None if up => net.mend_all_links(),
+                    None => net.faults.link_down = true,
                     Some(pos) => {
                         let name = slave(&net, pos)?.spec.name.clone();
                         let target = match port {

@@ -445,6 +445,15 @@ impl Network {
         self.update_topology();
     }
 
+    /// Every link up again: the master's and every cut inside the bus.
+    pub fn mend_all_links(&mut self) {
+        self.faults.link_down = false;
+        if !self.faults.cut_links.is_empty() {
+            self.faults.cut_links.clear();
+            self.update_topology();
+        }
+    }
+
     /// Power-cycle one slave: registers back to their defaults, device reset.
     pub fn reset_slave(&mut self, pos: usize) -> bool {
         let now = self.now();

@@ -14,18 +14,26 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ether_ros.cli.common import add_parser
 from ether_ros.config import types as dt
 from ether_ros.config.cia402 import PROFILE_NUMBER, offered_modes
 from ether_ros.config.esi import EsiDevice, EsiFile, Pdo, load_esi_file
 
 
 def register(subparsers: Any) -> None:
-    p = subparsers.add_parser(
+    p = add_parser(
+        subparsers,
         "esi",
         help="list the devices of an ESI file: PDOs, modes, profiles, what was skipped",
         description="Read an ESI (EtherCATInfo XML) file and print its devices as ether_ros"
         " reads them, and every element the parser disabled, one line each (FILE:LINE:"
         " <element>: why).",
+        examples=[
+            "ether-ros esi devices/laelaps_ii_leg.xml           # every device in full",
+            'ether-ros esi "Beckhoff EL2xxx.xml" --device EL2008  # one device of a vendor file',
+            "ether-ros esi vendor.xml --brief                   # one line per device",
+            "ether-ros esi vendor.xml --json | jq '.[0].name'   # for scripts",
+        ],
     )
     p.add_argument("file", type=Path, help="the ESI file")
     p.add_argument("--device", help="only devices of this <Type> name")

@@ -22,7 +22,7 @@ _FAULT_HELP = {
     "reset": "power-cycle a slave (it falls back to INIT)",
     "refuse-op": "make a slave refuse SAFEOP->OP (--off to stop)",
     "link": "pull (down) or plug (up) the cable; --at SLAVE breaks the link before that slave,"
-    " --at SLAVE --port P the one on its port P",
+    " --at SLAVE --port P the one on its port P; 'link up' without --at plugs every cable back",
     "drift-step": "change a slave's clock drift by PPM",
     "stall-mailbox": "a slave stops answering mailbox requests (--off to stop)",
     "drive-fault": "raise a fault in one axis of a CiA 402 drive (cleared by a fault reset)",

@@ -203,6 +203,10 @@ class BusSection(_Model):
     # SO_BUSY_POLL time of the link's socket in µs (0: off): the kernel spins for a reply
     # before the RT thread sleeps.
     busy_poll_us: int = Field(default=0, ge=0, le=1_000_000)
+    # AF_PACKET frames through the kernel's transmit queue instead of straight to the driver, so
+    # a capture on the master's interface (tcpdump, tshark) sees them; costs a little per frame
+    # (docs/benchmarks.md, "capture").
+    capture: bool = False
     dc: DcConfig = Field(default_factory=DcConfig)
     realtime: RealtimeConfig = Field(default_factory=RealtimeConfig)
 
@@ -230,6 +234,21 @@ MAX_ROS_PERIOD_MS = 3_600_000
 MAX_DECIMATION = 1_000_000
 
 
+class LeaseConfig(_Model):
+    """The control lease (docs/security.md): off by default, on in the shipped robot configs."""
+
+    enabled: bool = False
+    # Time to live a client gets when it asks for none (s), and the most it may ask for.
+    ttl_s: float = Field(default=3.0, ge=0.1, le=600.0)
+    max_ttl_s: float = Field(default=30.0, ge=0.1, le=3600.0)
+
+    @model_validator(mode="after")
+    def _default_within_max(self) -> LeaseConfig:
+        if self.ttl_s > self.max_ttl_s:
+            raise ValueError(f"ttl_s ({self.ttl_s}) must not exceed max_ttl_s ({self.max_ttl_s})")
+        return self
+
+
 class RosConfig(_Model):
     node_name: Identifier = "ether_comm"
     namespace: RosNamespace = ""
@@ -239,6 +258,7 @@ class RosConfig(_Model):
     # SCHED_FIFO priority of the native thread that serves pdo_listener (0: normal scheduling);
     # capped below rt.priority so commands never delay a cycle.
     command_priority: int = Field(default=50, ge=0, le=98)
+    lease: LeaseConfig = Field(default_factory=LeaseConfig)
     # The FollowJointTrajectory action server of the CiA 402 axes, relative to the namespace
     # (MoveIt's simple controller manager: <controller name>/<action_ns>); empty: none.
     trajectory_action: str = Field(

@@ -32,6 +32,7 @@ from ether_ros.console.commands import (
     Get,
     Help,
     JointLimits,
+    LeaseOp,
     Move,
     Quit,
     RunSequence,
@@ -255,6 +256,8 @@ class Console:
             ok, message, _ = self.client.set_mode(command.mode, list(command.joints))
         elif isinstance(command, Move):
             ok, message = self._move(command)
+        elif isinstance(command, LeaseOp):
+            ok, message = self._lease(command.action)
         elif isinstance(command, Help):
             message = help_text(command.topic)
         elif isinstance(command, Quit):
@@ -262,6 +265,19 @@ class Console:
         if message:
             self.out(message if ok else f"error: {message}")
         return ok
+
+    def _lease(self, action: str) -> tuple[bool, str]:
+        """``lease``: who holds it; ``lease take``: take it over (this console commands from
+        now on); ``lease release``: give it back (the outputs stay as they are)."""
+        if action == "take":
+            return self.client.acquire_lease(takeover=True)
+        if action == "release":
+            return self.client.release_lease()
+        st = self.client.lease_status()
+        if not st.enabled:
+            return True, str(st.message)
+        mine = " (this console)" if self.client.lease_token else ""
+        return True, f"{st.message}{mine}"
 
     def _move(self, command: Move) -> tuple[bool, str]:
         before = len(self.client.joint_results)

@@ -20,6 +20,7 @@ Grammar (words separated by blanks; quotes group words, nothing is ever run by a
     set_mode JOINT|all MODE                  MODE: csp csv cst pp pv hm
     move JOINT VALUE                         one setpoint, SI units, of the kind the mode takes
     run FILE [step]                          a sequence file (see ether_ros.console.sequence)
+    lease [take|release]                     the control lease: who holds it; take it over
     wait SECONDS
     help [COMMAND] | quit | exit
 """
@@ -72,6 +73,7 @@ HELP: dict[str, str] = {
     "reset_fault": "reset_fault [JOINT ...|all] fault reset of the axes",
     "set_mode": "set_mode JOINT|all MODE     mode of operation (csp csv cst pp pv hm)",
     "move": "move JOINT VALUE           one setpoint (SI units) of the kind the joint's mode takes",
+    "lease": "lease [take|release]       who holds the control lease; take it over; give it back",
     "help": "help [COMMAND]             this text",
     "quit": "quit                       leave the console (the node keeps running)",
 }
@@ -172,6 +174,14 @@ class Move:
 
 
 @dataclass(frozen=True)
+class LeaseOp:
+    """The control lease: ``status`` (who holds it), ``take`` (take it over from whoever holds
+    it: the operator's right) or ``release``."""
+
+    action: str
+
+
+@dataclass(frozen=True)
 class Help:
     topic: str | None = None
 
@@ -193,6 +203,7 @@ Command = (
     | AxisOp
     | SetMode
     | Move
+    | LeaseOp
     | Help
     | Quit
 )
@@ -266,6 +277,10 @@ def parse_command(line: str, ctx: ConsoleContext) -> Command | None:
         if len(args) != 1:
             raise CommandError("usage: wait SECONDS")
         return Wait(_seconds(args[0]))
+    if head == "lease":
+        if len(args) > 1 or (args and args[0].lower() not in ("take", "release", "status")):
+            raise CommandError("usage: lease [take|release]")
+        return LeaseOp(args[0].lower() if args else "status")
     if head in ("help", "?"):
         if len(args) > 1:
             raise CommandError("usage: help [COMMAND]")

@@ -73,7 +73,13 @@ log = logging.getLogger(__name__)
 # How long stop() gives the drives to leave Operation Enabled after their on_stop command.
 AXIS_STOP_WAIT_S = 0.5
 
-__all__ = ["Bus", "BusEvent"]
+__all__ = ["Bus", "BusEvent", "StaleInputs"]
+
+
+class StaleInputs(BusError):
+    """Inputs that are not fresh: the bus is not running, or no reply to the frame carrying
+    the slave's inputs came back whole (every working counter as expected) within two of its
+    periods — a cable pulled, the slave cut off or gone. Names the slave and since when."""
 
 
 def _now_monotonic_ns() -> int:
@@ -156,7 +162,9 @@ class Bus:
             ifname = interface or getattr(cfg.bus, "interface", None)
             if not ifname:
                 raise LinkError("no network interface: give --interface or bus.interface")
-            engine = open_engine(ifname, cfg.bus.link, cfg.bus.busy_poll_us)
+            engine = open_engine(
+                ifname, cfg.bus.link, cfg.bus.busy_poll_us, qdisc_bypass=not cfg.bus.capture
+            )
         bus = cls(cfg, engine, drift_frames=drift_frames)
         try:
             bus._discover()
@@ -667,20 +675,72 @@ class Bus:
             return image[offset : offset + area.input_bytes]
         return bytes(area.input_bytes)
 
-    def read(self, slave: str | int, variable: str) -> Value:
-        """The latest value of an input (as received) or an output (as commanded)."""
+    def read(self, slave: str | int, variable: str, stale_ok: bool = False) -> Value:
+        """The latest value of an input (as received) or an output (as commanded). An input
+        that is not fresh raises :class:`StaleInputs` (``stale_ok``: return the last value
+        received anyway)."""
         s = self.slave(slave)
         var = self._variable(s, variable)
         assert s.layout is not None and s.area is not None
         if var.direction == "output":
             return s.layout.read(self._output_area(s), var)
+        if not stale_ok:
+            self._check_fresh(s)
         return s.layout.read(self._input_area(s), var)
 
-    def inputs(self, slave: str | int) -> dict[str, Value]:
+    def inputs(self, slave: str | int, stale_ok: bool = False) -> dict[str, Value]:
+        """Every input of ``slave``; :class:`StaleInputs` when they are not fresh (unless
+        ``stale_ok``)."""
         s = self.slave(slave)
         if s.layout is None:
             return {}
+        if not stale_ok:
+            self._check_fresh(s)
         return s.layout.unpack(self._input_area(s), "input")
+
+    def input_frames(self, slave: str | int) -> tuple[int, ...]:
+        """The cyclic frames that carry ``slave``'s process data."""
+        s = self.slave(slave)
+        if self.layout is None or s.area is None:
+            return ()
+        return self.layout.frames_of(s.name)
+
+    def inputs_fresh(self, slave: str | int) -> bool:
+        """Whether ``slave``'s inputs are fresh now: the bus runs and every frame carrying them
+        came back whole within two of its periods (the engine's stale mask)."""
+        frames = self.input_frames(slave)
+        if not self._running:
+            return False
+        if not frames:
+            return True  # no process data: nothing to be stale
+        mask = int(self.engine.stale_mask())
+        return not any(mask >> k & 1 for k in frames)
+
+    def input_age(self, slave: str | int) -> float:
+        """Seconds since the oldest frame carrying ``slave``'s inputs last came back whole
+        (inf: never, or the bus is not running)."""
+        frames = self.input_frames(slave)
+        if not self._running or not frames:
+            return float("inf")
+        stats = self.engine.stats().get("frames") or []
+        now = _now_monotonic_ns()
+        ages = []
+        for k in frames:
+            f = stats[k] if k < len(stats) else {}
+            good = int(f.get("last_good_ns", 0))
+            ages.append((now - good) / 1e9 if f.get("last_good_cycle") and good else float("inf"))
+        return max(ages)
+
+    def _check_fresh(self, s: Slave) -> None:
+        if not self._running:
+            raise StaleInputs(f"slave '{s.name}': no inputs, the bus is not running")
+        if not self.inputs_fresh(s.name):
+            age = self.input_age(s.name)
+            since = "never came back whole" if age == float("inf") else f"{age * 1000:.0f} ms"
+            raise StaleInputs(
+                f"slave '{s.name}': inputs are stale (its frame's last whole reply: {since}); "
+                "the bus or the slave is down"
+            )
 
     def outputs(self, slave: str | int) -> dict[str, Value]:
         s = self.slave(slave)
@@ -731,6 +791,20 @@ class Bus:
 
     def feed_watchdog(self) -> None:
         self.engine.feed_watchdog()
+
+    def stop_motion(self) -> None:
+        """Stop what moves without leaving OP: every CiA 402 axis to its ``on_stop`` command and
+        every slave's outputs to their configured safe values, as commands (unlike ``panic``
+        nothing is latched: the next write moves again). The node does this when nobody holds
+        the control lease any more."""
+        if not self._running:
+            return
+        for i in range(len(self._axis_specs())):
+            self.engine.axis_enable(i, False)
+        if self._safe:
+            with self._output_lock:
+                self.engine.write_outputs(0, bytes(self._safe))
+                self._outputs = bytearray(self._safe)
 
     # ---------------------------------------------------------------------------- acyclic
     def states(self) -> list[SlaveState]:

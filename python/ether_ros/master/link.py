@@ -19,20 +19,24 @@ LINKS = ("packet", "xdp", "auto")
 log = logging.getLogger(__name__)
 
 
-def open_engine(interface: str, link: str = "packet", busy_poll_us: int = 0) -> Any:
-    """An ``ether_ros._native.Engine`` on ``interface`` through ``link`` (one of ``LINKS``)."""
+def open_engine(
+    interface: str, link: str = "packet", busy_poll_us: int = 0, qdisc_bypass: bool = True
+) -> Any:
+    """An ``ether_ros._native.Engine`` on ``interface`` through ``link`` (one of ``LINKS``).
+    ``qdisc_bypass`` False (``bus.capture``): AF_PACKET frames take the kernel's transmit queue,
+    so tcpdump/tshark on ``interface`` see them (AF_XDP frames never pass the stack)."""
     from ether_ros import _native
 
     if link not in LINKS:
         raise LinkError(f"unknown link {link!r}: use one of {', '.join(LINKS)}")
     if link == "auto":
         try:
-            return _native.Engine.open_interface(interface, "xdp", busy_poll_us)
+            return _native.Engine.open_interface(interface, "xdp", busy_poll_us, qdisc_bypass)
         except (EtherRosError, OSError) as exc:
             log.warning("link auto: no AF_XDP on %s (%s); using AF_PACKET", interface, exc)
             link = "packet"
     try:
-        return _native.Engine.open_interface(interface, link, busy_poll_us)
+        return _native.Engine.open_interface(interface, link, busy_poll_us, qdisc_bypass)
     except EtherRosError:
         raise
     except OSError as exc:

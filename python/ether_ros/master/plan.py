@@ -144,6 +144,12 @@ class ImageLayout:
                 return g
         raise KeyError(name)
 
+    def frames_of(self, name: str) -> tuple[int, ...]:
+        """The frames that carry slave ``name``'s process data (several when it is larger than
+        one frame)."""
+        area = self.area(name)
+        return tuple(k for k, f in enumerate(self.frames) if _carries(f, area))
+
     def group_wkc(self, name: str) -> int:
         return sum(self.frames[k].expected_wkc for k in self.group(name).frames)
 

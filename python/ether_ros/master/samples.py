@@ -1,6 +1,6 @@
 """Per-cycle samples of the engine's real-time thread, as numpy arrays.
 
-``Engine.drain_samples(n)`` returns two byte strings: fixed 48-byte records (one per cycle, layout
+``Engine.drain_samples(n)`` returns two byte strings: fixed 56-byte records (one per cycle, layout
 below, little endian) and, for each record, a copy of the whole process image of that cycle
 (inputs as received, outputs as sent). :func:`decode_samples` turns them into a structured array
 and a 2-D ``uint8`` array without copying. The layout is the Rust ``SampleRecord::encode`` in
@@ -27,9 +27,13 @@ SAMPLE_DTYPE = np.dtype(
         ("flags", "<u2"),  # FLAG_* bits
         ("dc_diff_ns", "<i4"),  # see docs/engine.md, "Distributed clocks"
         ("lost_mask", "<u4"),  # bit k: cyclic frame k's reply declared lost this cycle
+        # bit k: cyclic frame k's inputs in this image are stale (no reply came back whole within
+        # two of its periods, or none yet)
+        ("stale_mask", "<u4"),
+        ("reserved", "<u4"),
     ]
 )
-RECORD_LEN = SAMPLE_DTYPE.itemsize  # 48
+RECORD_LEN = SAMPLE_DTYPE.itemsize  # 56
 
 #: The reply to the cyclic frame did not arrive in time.
 FLAG_LOST = 1 << 0

@@ -24,6 +24,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 from sensor_msgs.msg import JointState
 
@@ -115,7 +116,14 @@ def run_arm_demo(config: Path = ARM_CONFIG) -> int:
         print(f"node {client.target} {state}; enable: {message}", flush=True)
         if not ok:
             return 1
-        msg = client.wait_for(lambda latest: latest.joint_state, 5.0)
+
+        # A joint_states message with every joint (one whose drive's inputs are stale is left
+        # out of it).
+        def complete(latest: Any) -> Any:
+            js = latest.joint_state
+            return js if js is not None and set(AMPLITUDE) <= set(js.name) else None
+
+        msg = client.wait_for(complete, 5.0)
         assert msg is not None  # wait_for returns a truthy value
         initial = dict(zip(msg.name, msg.position, strict=True))
         joints = list(AMPLITUDE)

@@ -100,6 +100,21 @@ class ImageSlice:
     input_bytes: int
 
 
+def frame_masks(bus: Any) -> dict[str, int]:
+    """Per slave, a bit mask of the cyclic frames that carry its process data (what a sample's
+    ``stale_mask`` is checked against)."""
+    frames_of = getattr(bus, "input_frames", None)
+    if frames_of is None:
+        return {}
+    out = {}
+    for s in bus.slaves:
+        mask = 0
+        for k in frames_of(s.name):
+            mask |= 1 << k
+        out[s.name] = mask
+    return out
+
+
 def image_slices(bus: Any) -> list[ImageSlice]:
     out = []
     for s in bus.slaves:
@@ -507,3 +522,10 @@ def joint_rows(axes: Mapping[str, Any]) -> list[tuple[str, int, float, float, fl
             )
         )
     return rows
+
+
+def stop_motion(bus: Any) -> None:
+    """Every axis to its ``on_stop``, every slave's outputs to their safe values (as commands;
+    the cyclic exchange goes on): what a lapsed control lease does."""
+    if bus is not None and getattr(bus, "running", False):
+        bus.stop_motion()

@@ -5,6 +5,12 @@ It is an ordinary rclpy node spun by its own executor thread. It calls the node'
 (commands, writes, SDO, lifecycle transitions) and keeps the latest message of each topic (layout,
 decoded inputs/outputs per slave, joint states, diagnostics, write results) so callers can read
 them or wait for a condition on them.
+
+The control lease (docs/security.md): with ``lease="auto"`` (the default) the client asks the
+node once whether its lease is on and, if so, acquires it before its first command (never taking
+it from another holder) and keeps it alive from a thread of its own; its command publishers are
+registered as the holder's. ``lease="manual"`` leaves that to :meth:`acquire_lease` /
+:meth:`release_lease`; ``panic`` never needs it.
 """
 
 from __future__ import annotations
@@ -33,6 +39,7 @@ from ether_ros_msgs.msg import (
 from ether_ros_msgs.srv import (
     AxisCommand,
     Command,
+    Lease,
     SdoRead,
     SdoWrite,
     SetExtras,
@@ -54,9 +61,28 @@ from ether_ros.ros.bridge import AXIS_SERVICES
 from ether_ros.ros.convert import spec_from_msg
 from ether_ros.ros.freshness import Arrivals
 from ether_ros.ros.layout import BusSpec
-from ether_ros.ros.node import QOS_COMMANDS, QOS_HIGH_RATE, QOS_LATCHED, QOS_RELIABLE
+from ether_ros.ros.lease import own_goal_reply_gids, own_publisher_gids
+from ether_ros.ros.node import (
+    COMMAND_TOPICS,
+    QOS_COMMANDS,
+    QOS_HIGH_RATE,
+    QOS_LATCHED,
+    QOS_RELIABLE,
+)
 
 T = TypeVar("T")
+
+# Transitions ``ethercat_communicator`` runs by name, with the lease: the lifecycle
+# transition -> the command (the three shutdowns are one command, from whatever state).
+LEASED_TRANSITIONS = {
+    "configure": "configure",
+    "activate": "activate",
+    "deactivate": "deactivate",
+    "cleanup": "cleanup",
+    "shutdown": "shutdown",
+    "inactive_shutdown": "shutdown",
+    "active_shutdown": "shutdown",
+}
 
 TRANSITIONS = {
     "configure": Transition.TRANSITION_CONFIGURE,
@@ -117,7 +143,12 @@ class EtherRosClient:
         on_joint_state: Callable[[JointState], None] | None = None,
         on_inputs: Callable[[SlaveValues], None] | None = None,
         on_outputs: Callable[[SlaveValues], None] | None = None,
+        lease: str = "auto",
+        lease_ttl_s: float = 0.0,
+        lease_writers: list[str] | None = None,
     ) -> None:
+        if lease not in ("auto", "manual"):
+            raise ClientError(f"lease: 'auto' or 'manual', got {lease!r}")
         self._own_context = context is None and not rclpy.ok()
         if self._own_context:
             rclpy.init()
@@ -151,6 +182,21 @@ class EtherRosClient:
         self._trajectory_pub = n.create_publisher(
             JointTrajectory, f"{p}joint_trajectory", QOS_COMMANDS
         )
+        self._lease_client = n.create_client(Lease, f"{p}lease")
+        self._lease_mode = lease
+        self._lease_ttl_s = float(lease_ttl_s)
+        #: Other nodes (full names) whose command publishers count as this client's while it
+        #: holds the lease (e.g. a controller node it runs).
+        self.lease_writers = list(lease_writers or [])
+        self._lease_lock = threading.RLock()
+        #: The lease token held (0: none), whether the node's lease is on (None: not asked yet)
+        #: and why the last renewal failed ("" while it holds).
+        self.lease_token = 0
+        self.lease_enabled: bool | None = None
+        self.lease_lost = ""
+        self._lease_ttl_granted = 0.0
+        self._keeper: threading.Thread | None = None
+        self._keeper_stop = threading.Event()
         n.create_subscription(BusLayout, f"{p}bus_layout", self._on_layout, QOS_LATCHED)
         n.create_subscription(SlaveValues, f"{p}pdo_in", self._on_values("inputs"), QOS_HIGH_RATE)
         n.create_subscription(SlaveValues, f"{p}pdo_out", self._on_values("outputs"), QOS_HIGH_RATE)
@@ -174,6 +220,12 @@ class EtherRosClient:
             self._executor.spin()
 
     def close(self) -> None:
+        self._keeper_stop.set()
+        if self._keeper is not None:
+            self._keeper.join(timeout=2)
+        if self.lease_token:
+            with contextlib.suppress(Exception):  # the node may be gone already
+                self.release_lease(timeout=1.0)
         self._executor.shutdown(timeout_sec=5.0)
         # The spin thread must be out of the executor's wait before the node's handles go:
         # destroying the node first crashed rclpy (a segfault in wait_for_ready_callbacks) when
@@ -320,7 +372,9 @@ class EtherRosClient:
         return future.result()
 
     def command(self, command: str, timeout: float = 30.0) -> tuple[bool, str]:
-        resp = self._call(self._command, Command.Request(command=command), timeout)
+        token = 0 if command.strip().lower() == "panic" else self._token()
+        req = Command.Request(command=command, lease=token)
+        resp = self._call(self._command, req, timeout)
         return bool(resp.success), str(resp.message)
 
     def panic(self, timeout: float = 5.0) -> tuple[bool, str]:
@@ -329,7 +383,8 @@ class EtherRosClient:
 
     def write_many(self, writes: list[WriteVariable], timeout: float = 5.0) -> tuple[bool, str]:
         """All-or-nothing: the node validates every write before applying any."""
-        resp = self._call(self._writes, WriteVariables.Request(writes=writes), timeout)
+        req = WriteVariables.Request(writes=writes, lease=self._token())
+        resp = self._call(self._writes, req, timeout)
         return bool(resp.success), str(resp.message)
 
     def write(
@@ -342,6 +397,7 @@ class EtherRosClient:
         returned request id."""
         msg = make_write(slave, variable, value)
         msg.request_id = next(self._request_ids)
+        self._token()
         self._write_pub.publish(msg)
         return int(msg.request_id)
 
@@ -362,14 +418,14 @@ class EtherRosClient:
         (success, message, {joint: CiA 402 state})."""
         if command not in self._axis:
             raise ClientError(f"unknown axis command {command!r} ({', '.join(self._axis)})")
-        req = AxisCommand.Request(joints=list(joints or []))
+        req = AxisCommand.Request(joints=list(joints or []), lease=self._token())
         resp = self._call(self._axis[command], req, timeout)
         return _axis_answer(resp)
 
     def set_mode(
         self, mode: str, joints: list[str] | None = None, timeout: float = 10.0
     ) -> tuple[bool, str, dict[str, str]]:
-        req = SetMode.Request(joints=list(joints or []), mode=mode)
+        req = SetMode.Request(joints=list(joints or []), mode=mode, lease=self._token())
         resp = self._call(self._set_mode, req, timeout)
         return _axis_answer(resp)
 
@@ -379,7 +435,10 @@ class EtherRosClient:
         """Command writable extras of one axis in SI units (``set_extras``): (success,
         message)."""
         req = SetExtras.Request(
-            joint=joint, names=list(values), values=[float(v) for v in values.values()]
+            joint=joint,
+            names=list(values),
+            values=[float(v) for v in values.values()],
+            lease=self._token(),
         )
         resp = self._call(self._set_extras, req, timeout)
         return bool(resp.success), str(resp.message)
@@ -398,6 +457,7 @@ class EtherRosClient:
         msg.position = [float(x) for x in position or []]
         msg.velocity = [float(x) for x in velocity or []]
         msg.effort = [float(x) for x in effort or []]
+        self._token()
         self._joint_pub.publish(msg)
 
     def publish_trajectory(
@@ -422,6 +482,7 @@ class EtherRosClient:
             ns = round(t * 1e9)
             p.time_from_start = Duration(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
             msg.points.append(p)
+        self._token()
         self._trajectory_pub.publish(msg)
 
     def axis_parameters(self, timeout: float = 5.0) -> dict[str, dict[str, Any]]:
@@ -468,14 +529,24 @@ class EtherRosClient:
         timeout: float = 10.0,
     ) -> tuple[bool, str]:
         req = SdoWrite.Request(
-            slave=slave, index=index, subindex=subindex, type=type_name, value=value
+            slave=slave,
+            index=index,
+            subindex=subindex,
+            type=type_name,
+            value=value,
+            lease=self._token(),
         )
         resp = self._call(self._sdo_write, req, timeout)
         return bool(resp.success), str(resp.message)
 
     def change_state(self, transition: str, timeout: float = 30.0) -> bool:
+        """A lifecycle transition. While the node's lease is on, its ``change_state`` is
+        refused (it carries no lease): the transition goes through ``ethercat_communicator``
+        with the lease instead."""
         if transition not in TRANSITIONS:
             raise ClientError(f"unknown transition '{transition}' ({', '.join(TRANSITIONS)})")
+        if self._token():
+            return self.command(LEASED_TRANSITIONS[transition], timeout)[0]
         req = ChangeState.Request()
         req.transition.id = TRANSITIONS[transition]
         return bool(self._call(self._change_state, req, timeout).success)
@@ -513,6 +584,103 @@ class EtherRosClient:
         finally:
             self.node.destroy_client(client)
         return bool(result.successful), str(result.reason)
+
+    # ------------------------------------------------------------------------ lease
+    def _token(self) -> int:
+        """The lease token for a command: acquired first when ``lease="auto"`` and the node's
+        lease is on (0 when there is none to have)."""
+        with self._lease_lock:
+            if self.lease_token or self._lease_mode != "auto":
+                return self.lease_token
+            if self.lease_enabled is None:
+                try:
+                    self.lease_enabled = self.lease_status(timeout=5.0).enabled
+                except ClientError:
+                    return 0  # no lease service (yet): ask again with the next command
+            if self.lease_enabled:
+                self.acquire_lease()
+            return self.lease_token
+
+    def lease_status(self, timeout: float = 5.0) -> Any:
+        """The node's ``lease`` status answer (``Lease.Response``)."""
+        return self._lease_call("status", timeout=timeout)
+
+    def acquire_lease(
+        self, takeover: bool = False, ttl_s: float | None = None, timeout: float = 5.0
+    ) -> tuple[bool, str]:
+        """Acquire the node's control lease (``takeover``: from whoever holds it; ``ttl_s``:
+        its time to live, default the client's or the node's) and keep it alive until
+        :meth:`release_lease` or ``close``. Registers this client's command publishers as the
+        holder's."""
+        if ttl_s is not None:
+            self._lease_ttl_s = float(ttl_s)
+        resp = self._lease_call("takeover" if takeover else "acquire", timeout=timeout)
+        with self._lease_lock:
+            self.lease_enabled = bool(resp.enabled)
+            if resp.success and resp.token:
+                self.lease_token = int(resp.token)
+                self._lease_ttl_granted = float(resp.ttl_s)
+                self.lease_lost = ""
+                self._start_keeper()
+        return bool(resp.success), str(resp.message)
+
+    def release_lease(self, timeout: float = 5.0) -> tuple[bool, str]:
+        """Give the lease back: a deliberate hand-back, the outputs stay as they are."""
+        with self._lease_lock:
+            token, self.lease_token = self.lease_token, 0
+        if not token:
+            return False, "this client holds no lease"
+        resp = self._lease_call("release", token=token, timeout=timeout)
+        return bool(resp.success), str(resp.message)
+
+    def _lease_call(self, operation: str, token: int = 0, timeout: float = 5.0) -> Any:
+        req = Lease.Request(
+            operation=operation,
+            holder=self.node.get_fully_qualified_name(),
+            ttl_s=self._lease_ttl_s,
+            token=token,
+        )
+        if operation in ("acquire", "takeover", "renew"):
+            topics = [f"{self.prefix}{t}" for t in COMMAND_TOPICS]
+            # Its command publishers, and its action clients (a FollowJointTrajectory goal is
+            # known by the client's goal-reply reader; the keeper's renewals pick up clients
+            # made after the lease was granted).
+            gids = own_publisher_gids(self.node, topics) + own_goal_reply_gids(self.node)
+            req.gids = list(gids)
+            # Its own node too: a publisher or action client it makes later is found in the
+            # graph (the node looks again before refusing one).
+            own = self.node.get_fully_qualified_name()
+            req.writer_nodes = list(dict.fromkeys([own, *self.lease_writers]))
+        return self._call(self._lease_client, req, timeout)
+
+    def _start_keeper(self) -> None:
+        if self._keeper is not None and self._keeper.is_alive():
+            return
+        self._keeper_stop.clear()
+        self._keeper = threading.Thread(target=self._keep, name="ether_ros-lease", daemon=True)
+        self._keeper.start()
+
+    def _keep(self) -> None:
+        """Renew the lease a few times per time to live; stop when it is lost."""
+        while True:
+            period = min(max(self._lease_ttl_granted / 4, 0.05), 1.0)
+            if self._keeper_stop.wait(period):
+                return
+            with self._lease_lock:
+                token = self.lease_token
+            if not token:
+                return
+            try:
+                resp = self._lease_call("renew", token=token, timeout=max(period, 1.0))
+            except ClientError as exc:
+                self.lease_lost = f"renewing the lease: {exc}"
+                continue  # keep trying while the lease may still run
+            if not resp.success:
+                with self._lease_lock:
+                    if self.lease_token == token:
+                        self.lease_token = 0
+                    self.lease_lost = str(resp.message)
+                return
 
     def wait_for_node(self, timeout: float = 20.0) -> str:
         """Wait until the node answers ``get_state``; returns its lifecycle state."""

@@ -1,18 +1,30 @@
 """The node's ``diagnostics`` (diagnostic_msgs/DiagnosticArray): the master and every slave.
 
+The levels say how things are *now*: they come from rates over a sliding window (``Window``,
+``diagnostics_window_s``, 10 s by default) and from the current state, never from totals since
+start, so one lost frame an hour ago does not keep the master in WARN. The totals are still
+reported, as counters of their own.
+
 Master status: lifecycle state, cycles, lost/late frames, working-counter errors, watchdog trips,
-panics, overruns, samples dropped (engine ring and ROS side), loop timing (wake-up latency,
-execution time, period, round trip: p50/p99/max) and the largest DC sync error since the last
-report; cables found broken on a branch (``link lost behind slave 'coupler' port 2: slaves …
-unreachable``) make it WARN. One status per slave group (``master/groups.py``): its cycle,
-frames, frames sent, lost and late, working-counter errors and last working counter against the
-expected one. One status per slave: its AL state and AL status code, and the supervisor's reason
-when the slave is lost (e.g. the broken cable that cut it off). One per CiA 402 axis: its state,
-mode, error code with its text, following error and clamp counts.
+panics, overruns, samples dropped (engine ring and ROS side) since start; the same over the
+window (``window_*``) with the loss rate; how old the oldest frame's inputs are
+(``input_age_ms``, ``stale_frames``); loop timing (wake-up latency, execution time, period,
+round trip: p50/p99/max) and the largest DC sync error since the last report. ERROR while
+slaves are cut off (a cable broken on a branch: ``link lost behind slave 'coupler' port 2:
+slaves … unreachable``, or a group's working counter short now), while a frame's inputs are
+stale (no reply came back whole within ``STALE_S``) or when the loss rate over the window
+reaches ``ERROR_RATE``; WARN from ``WARN_RATE`` (or an expired command watchdog). One status
+per slave group (``master/groups.py``): its cycle, frames, frames sent, lost and late,
+working-counter errors and last working counter against the expected one (ERROR while it is
+short: slaves are not answering), with the same window. One status per slave: its AL state and
+AL status code, and the supervisor's reason when the slave is lost (e.g. the broken cable that
+cut it off). One per CiA 402 axis: its state, mode, error code with its text, following error
+and clamp counts.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -42,6 +54,96 @@ _COUNTERS = (
 )
 _HISTOGRAMS = ("wake_latency", "exec", "period", "rtt")
 
+#: Rates over the window (lost or late frames per frame sent; cycles with a working-counter
+#: error, an overrun or a send error per cycle) from which the level is WARN, and ERROR.
+WARN_RATE = 0.001
+ERROR_RATE = 0.05
+#: A frame whose last whole reply is older than this (or three of its periods, if longer) has
+#: stale inputs: the bus, or that frame's slaves, are down now.
+STALE_S = 0.1
+#: The window's counters (master): totals whose increase over the window is reported.
+WINDOW_COUNTERS = (
+    "cycles",
+    "frames_sent",
+    "lost_frames",
+    "late_frames",
+    "wkc_errors",
+    "overruns",
+    "send_errors",
+    "watchdog_trips",
+)
+
+
+class Window:
+    """Increase of counter totals over the last ``seconds``: kept as the reports of that span,
+    the oldest one the base. A total that went down (statistics reset, bus reopened) starts
+    the window again from zero."""
+
+    def __init__(self, seconds: float) -> None:
+        self.seconds = float(seconds)
+        self._reports: deque[tuple[float, dict[str, float]]] = deque()
+
+    def update(self, now: float, totals: Mapping[str, float]) -> dict[str, float]:
+        """The increase of each total over the window, and ``seconds`` it spans."""
+        current = {k: float(v) for k, v in totals.items()}
+        if self._reports and any(current[k] < self._reports[-1][1].get(k, 0.0) for k in current):
+            self._reports.clear()
+        if not self._reports:
+            # Everything counted so far happened within this first span.
+            self._reports.append((now, dict.fromkeys(current, 0.0)))
+        self._reports.append((now, current))
+        while len(self._reports) > 2 and now - self._reports[1][0] >= self.seconds:
+            self._reports.popleft()
+        t0, base = self._reports[0]
+        out = {k: max(0.0, v - base.get(k, 0.0)) for k, v in current.items()}
+        out["seconds"] = now - t0
+        return out
+
+
+class Windows:
+    """The windows of one node: the master's and one per slave group (made on first use)."""
+
+    def __init__(self, seconds: float) -> None:
+        self.seconds = seconds
+        self.master = Window(seconds)
+        self.groups: dict[str, Window] = _GroupWindows(seconds)
+
+
+class _GroupWindows(dict[str, Window]):
+    def __init__(self, seconds: float) -> None:
+        super().__init__()
+        self.seconds = seconds
+
+    def __missing__(self, name: str) -> Window:
+        w = self[name] = Window(self.seconds)
+        return w
+
+
+def rate(count: float, total: float) -> float:
+    return count / total if total > 0 else 0.0
+
+
+def frame_ages(frames: Sequence[Mapping[str, Any]], cycle_ns: int, now_ns: int) -> list[float]:
+    """How old each cyclic frame's inputs are (s; inf before its first whole reply)."""
+    ages = []
+    for f in frames:
+        good = int(f.get("last_good_ns", 0))
+        if not int(f.get("last_good_cycle", 0)) or good <= 0:
+            ages.append(float("inf"))
+        else:
+            ages.append(max(0.0, (now_ns - good) / 1e9))
+    return ages
+
+
+def stale_frames(frames: Sequence[Mapping[str, Any]], cycle_ns: int, now_ns: int) -> list[int]:
+    """The frames whose inputs are stale now (see ``STALE_S``)."""
+    out = []
+    for k, (f, age) in enumerate(zip(frames, frame_ages(frames, cycle_ns, now_ns), strict=True)):
+        limit = max(STALE_S, 3 * int(f.get("every", 1)) * cycle_ns / 1e9)
+        if age > limit:
+            out.append(k)
+    return out
+
 
 def describe(code: int) -> str:
     """``0x2310 continuous over-current``: an error code and its text (the protocol crate's)."""
@@ -56,7 +158,16 @@ def master_status(
     panic: bool,
     dc_error_ns: float,
     link_problems: Sequence[str] = (),
+    window: Mapping[str, float] | None = None,
+    stale: Sequence[int] = (),
+    input_age_s: float = 0.0,
+    short_groups: Sequence[str] = (),
+    frame_count: int = 0,
 ) -> DiagnosticStatus:
+    """The master's status. ``window``: ``Window.update`` of the ``WINDOW_COUNTERS`` (None:
+    judged on the totals, as over one window since start); ``stale``: frames whose inputs are
+    stale now (of ``frame_count``); ``short_groups``: groups whose working counter is short
+    now."""
     st = DiagnosticStatus()
     st.name = f"{node_name}: master"
     st.hardware_id = node_name
@@ -69,34 +180,81 @@ def master_status(
             if key in stats or any(k.endswith("." + key) for k in stats):
                 values.append((f"{h}_{q}_ns", f"{int(bridge.stat(stats, key))}"))
     values.append(("dc_sync_error_max_ns", f"{int(dc_error_ns)}"))
+    if window is None:
+        window = {k: bridge.stat(stats, k) for k in WINDOW_COUNTERS}
+        window["seconds"] = 0.0
+    sent = window.get("frames_sent", 0.0) or window.get("cycles", 0.0)
+    cycles = window.get("cycles", 0.0)
+    lost_rate = rate(window.get("lost_frames", 0.0) + window.get("late_frames", 0.0), sent)
+    cycle_rate = rate(
+        window.get("wkc_errors", 0.0)
+        + window.get("overruns", 0.0)
+        + window.get("send_errors", 0.0),
+        cycles,
+    )
+    values.append(("window_s", f"{window.get('seconds', 0.0):.1f}"))
+    for name in WINDOW_COUNTERS:
+        values.append((f"window_{name}", f"{int(window.get(name, 0.0))}"))
+    values.append(("lost_rate", f"{lost_rate:.6f}"))
+    values.append(("cycle_error_rate", f"{cycle_rate:.6f}"))
+    age = "inf" if input_age_s == float("inf") else f"{input_age_s * 1000:.1f}"
+    values.append(("input_age_ms", age))
+    values.append(("stale_frames", " ".join(str(k) for k in stale)))
     for key, value in ros.items():
         values.append((f"ros_{key}", f"{value:g}"))
     for k, problem in enumerate(link_problems):
         values.append((f"link_problem_{k}", problem))
     st.values = [KeyValue(key=k, value=v) for k, v in values]
-    lost = bridge.stat(stats, "lost_frames")
+    in_window = int(window.get("lost_frames", 0.0))
+    span = f"in the last {window.get('seconds', 0.0):.0f} s"
     if lifecycle != "active":
         st.level, st.message = OK, f"{lifecycle}: no cyclic exchange"
     elif panic:
         st.level, st.message = ERROR, "panic: safe outputs on the wire"
+    elif link_problems:
+        st.level, st.message = ERROR, "; ".join(link_problems)
+    elif stale:
+        what = "the bus is down" if len(stale) >= frame_count else "frames down"
+        frames = ", ".join(map(str, stale))
+        st.level = ERROR
+        st.message = f"{what}: no whole reply to frame(s) {frames} for {age} ms"
+    elif short_groups:
+        st.level = ERROR
+        st.message = f"slaves not answering in group(s) {', '.join(short_groups)}"
+    elif lost_rate >= ERROR_RATE or cycle_rate >= ERROR_RATE:
+        st.level = ERROR
+        st.message = f"{lost_rate:.1%} of frames lost, {cycle_rate:.1%} of cycles in error {span}"
     elif ros.get("watchdog_cycles", 0) and ros.get("watchdog_active", 0):
         st.level, st.message = WARN, "command watchdog expired: safe outputs on the wire"
-    elif link_problems:
-        st.level, st.message = WARN, "; ".join(link_problems)
-    elif lost:
-        st.level, st.message = WARN, f"running, {int(lost)} frames lost"
+    elif lost_rate >= WARN_RATE or cycle_rate >= WARN_RATE:
+        st.level = WARN
+        st.message = f"{lost_rate:.2%} of frames lost, {cycle_rate:.2%} of cycles in error {span}"
+    elif in_window:
+        st.level, st.message = OK, f"running ({in_window} frame(s) lost {span})"
     else:
         st.level, st.message = OK, "running"
     return st
 
 
-def group_statuses(node_name: str, groups: Sequence[Any]) -> list[DiagnosticStatus]:
-    """One status per slave group (``GroupStats``): WARN while its working counter is off."""
+def group_statuses(
+    node_name: str,
+    groups: Sequence[Any],
+    windows: Mapping[str, Window] | None = None,
+    now: float = 0.0,
+) -> list[DiagnosticStatus]:
+    """One status per slave group (``GroupStats``): ERROR while its working counter is short
+    (slaves not answering now) or its loss rate over the window reaches ``ERROR_RATE``, WARN
+    from ``WARN_RATE``. ``windows`` (by group name, kept by the caller from report to report)
+    give the rates; without them the totals are judged."""
     out = []
     for g in groups:
         st = DiagnosticStatus()
         st.name = f"{node_name}: group {g.name}"
         st.hardware_id = node_name
+        totals = {"sent": g.sent, "lost": g.lost, "late": g.late, "wkc_errors": g.wkc_errors}
+        win = windows[g.name].update(now, totals) if windows is not None else dict(totals)
+        lost_rate = rate(win.get("lost", 0) + win.get("late", 0), win.get("sent", 0))
+        wkc_rate = rate(win.get("wkc_errors", 0), win.get("sent", 0))
         values = [
             ("cycle_us", f"{g.cycle_ns / 1000:g}"),
             ("frames", " ".join(str(k) for k in g.frames)),
@@ -108,11 +266,19 @@ def group_statuses(node_name: str, groups: Sequence[Any]) -> list[DiagnosticStat
             ("watchdog_trips", str(g.watchdog_trips)),
             ("working_counter", str(g.last_wkc)),
             ("expected_working_counter", str(g.expected_wkc)),
+            ("window_s", f"{win.get('seconds', 0.0):.1f}"),
+            ("window_lost_frames", str(int(win.get("lost", 0)))),
+            ("window_wkc_errors", str(int(win.get("wkc_errors", 0)))),
+            ("lost_rate", f"{lost_rate:.6f}"),
         ]
         st.values = [KeyValue(key=k, value=v) for k, v in values]
         if g.sent and not g.wkc_ok:
-            st.level = WARN
+            st.level = ERROR
             st.message = f"working counter {g.last_wkc}, expected {g.expected_wkc}"
+        elif lost_rate >= ERROR_RATE or wkc_rate >= ERROR_RATE:
+            st.level, st.message = ERROR, f"{lost_rate:.1%} of frames lost, {wkc_rate:.1%} bad"
+        elif lost_rate >= WARN_RATE or wkc_rate >= WARN_RATE:
+            st.level, st.message = WARN, f"{lost_rate:.2%} of frames lost, {wkc_rate:.2%} bad"
         else:
             st.level, st.message = OK, f"every {g.cycle_ns / 1000:g} µs"
         out.append(st)

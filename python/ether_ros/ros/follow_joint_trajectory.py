@@ -13,6 +13,11 @@ the path tolerances are checked; after its end the goal tolerances, for up to
 goal_time_tolerance. A cancel or a violated tolerance stops the joints with a quiet stop at
 their configured deceleration.
 
+While the node's control lease is on (docs/security.md), a goal is the holder's when the client
+that sent it is (its goal-reply reader is one the holder registered, or belongs to one of its
+``writer_nodes``); any other goal ends aborted with INVALID_GOAL naming the holder, and the
+running goal goes on.
+
 Talks to the axes through :mod:`ether_ros.ros.bridge` and :mod:`ether_ros.ros.joints` only.
 """
 
@@ -32,12 +37,31 @@ from trajectory_msgs.msg import JointTrajectoryPoint
 
 from ether_ros.errors import EtherRosError
 from ether_ros.ros import bridge, joints
+from ether_ros.ros.lease import request_sender
 
 Result = FollowJointTrajectory.Result
 # Feedback and supervision period (s): 100 Hz.
 PERIOD_S = 0.01
 # A tolerance given as this means: not checked for this joint (control_msgs/JointTolerance).
 ERASED = -1.0
+
+
+# Who may command: raises EtherRosError (naming the lease's holder) unless the client that sent
+# a goal (its GID; None: unknown) may command now.
+SenderGate = Callable[[bytes | None], None]
+
+
+class _SenderAwareActionServer(ActionServer):
+    """An ActionServer that remembers who sent each goal request (by goal id), for the gate."""
+
+    def __init__(self, *args: Any, senders: dict[bytes, bytes | None], **kwargs: Any) -> None:
+        self._senders = senders
+        super().__init__(*args, **kwargs)
+
+    async def _execute_goal_request(self, request_header_and_message: Any) -> None:
+        header, request = request_header_and_message
+        self._senders[bytes(request.goal_id.uuid)] = request_sender(header)
+        await super()._execute_goal_request(request_header_and_message)
 
 
 class GoalRefused(EtherRosError):
@@ -171,7 +195,8 @@ def _violation(
 class FollowJointTrajectoryServer:
     """The action server on ``node`` (see the module doc). ``axes`` gives the active axes by
     joint name (raising ``EtherRosError`` when the node is not active), ``capacity`` the
-    engine's points per trajectory, ``note_command`` tells the node a command came."""
+    engine's points per trajectory, ``note_command`` tells the node a command came, ``gate``
+    (if any) says who may send goals."""
 
     def __init__(
         self,
@@ -181,16 +206,19 @@ class FollowJointTrajectoryServer:
         axes: Callable[[], Mapping[str, Any]],
         capacity: Callable[[], int],
         note_command: Callable[[], None],
+        gate: SenderGate | None = None,
     ) -> None:
         self._node = node
         self._defaults = defaults
         self._axes = axes
         self._capacity = capacity
         self._note_command = note_command
+        self._gate = gate
+        self._senders: dict[bytes, bytes | None] = {}
         self._lock = threading.Lock()
         self._runs: dict[bytes, GoalRun] = {}
         self._active: GoalRun | None = None
-        self.server = ActionServer(
+        self.server = _SenderAwareActionServer(
             node,
             FollowJointTrajectory,
             name,
@@ -199,6 +227,7 @@ class FollowJointTrajectoryServer:
             handle_accepted_callback=self._accepted,
             cancel_callback=lambda _handle: CancelResponse.ACCEPT,
             callback_group=ReentrantCallbackGroup(),
+            senders=self._senders,
         )
 
     def destroy(self) -> None:
@@ -209,7 +238,11 @@ class FollowJointTrajectoryServer:
         """Every goal is accepted, so that a refusal carries its code and message; a valid one
         starts at once and replaces the running goal."""
         run = GoalRun()
+        goal_id = bytes(handle.goal_id.uuid)
+        sender = self._senders.pop(goal_id, None)
         try:
+            if self._gate is not None:  # before anything, so a refused goal replaces nothing
+                self._gate(sender)
             axes = self._axes()
             run = check_goal(axes, handle.request, self._capacity(), self._defaults,
                              time.time_ns(), bridge.engine_now_ns(axes))  # fmt: skip
@@ -223,13 +256,11 @@ class FollowJointTrajectoryServer:
                     self._active.replaced = True
                 self._active = run
             try:
-                # The one place a goal becomes motion: a gate on who may command (a control
-                # lease) belongs here, before the hand-over, as on every other command path.
                 self._note_command()
                 run.seq = bridge.follow_plan(run.plan)
             except EtherRosError as exc:
                 run.refusal = GoalRefused(Result.INVALID_GOAL, str(exc))
-        self._runs[bytes(handle.goal_id.uuid)] = run
+        self._runs[goal_id] = run
         handle.execute()
 
     def _execute(self, handle: Any) -> Any:

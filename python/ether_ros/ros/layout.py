@@ -69,7 +69,7 @@ class BusSpec:
 
     def slave(self, ref: str | int) -> SlaveSpec:
         """A slave by name, or by position (an int or a decimal string)."""
-        if isinstance(ref, int) or (isinstance(ref, str) and ref.isdigit()):
+        if isinstance(ref, int) or (isinstance(ref, str) and ref.isascii() and ref.isdigit()):
             position = int(ref)
             for s in self.slaves:
                 if s.position == position:

@@ -12,7 +12,15 @@ refusals and their wording stay in one place (``bridge.resolve_write``).
 
 ``joint_commands`` (``sensor_msgs/JointState`` for CiA 402 axes) has a receiver of its own
 (``message="joint_state"``): certainly valid commands go straight into the engine's axis command
-slots; the rest to :meth:`EtherRosNode._on_joint_commands` (``bridge.resolve_joint_command``).
+slots, structurally invalid ones are refused natively; the rest go to
+:meth:`EtherRosNode._on_joint_commands` (``bridge.resolve_joint_command``). ``joint_trajectory``
+takes the native path too (``message="passthrough"``), only for who-may and fairness: every
+trajectory goes to Python.
+
+Every receiver checks the control lease (``lease``, a ``_native.LeaseGate``) for each message by
+its publisher's GID before anything else, and queues what it defers per publisher, served round
+robin, so one flooding publisher never delays another's commands (docs/ros.md, "The command
+path"). The deferred handler gets the message and its publisher's GID.
 
 The rcl objects are created with rclpy's low-level API so no executor ever waits on (and takes
 from) the same subscription; they are marked in use while the thread runs, so rclpy cannot
@@ -24,6 +32,7 @@ from __future__ import annotations
 import logging
 import os
 import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -181,6 +190,38 @@ def raise_middleware_receivers(
     return changed
 
 
+class RefusalBudget:
+    """Refusals answered per publisher (by GID), as the native threads budget theirs: a burst
+    of ``CommandReceiver.REFUSAL_ANSWERS_PER_S``, then that many a second; beyond it a flooding
+    publisher's refusals are counted, not answered, so the flood does not turn into as many
+    answers. Kept for the ``ANSWER_BUDGETS`` publishers refused most recently."""
+
+    def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
+        self.rate = float(_native.CommandReceiver.REFUSAL_ANSWERS_PER_S)
+        self.size = int(_native.CommandReceiver.ANSWER_BUDGETS)
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._budgets: dict[bytes, tuple[float, float]] = {}
+        self.unanswered = 0
+
+    def spend(self, publisher: bytes | None) -> bool:
+        """Take one answer from ``publisher``'s budget; False when it is spent. A request
+        without a known publisher (a topic rclpy serves) is always answered."""
+        if publisher is None:
+            return True
+        now = self._clock()
+        with self._lock:
+            tokens, last = self._budgets.pop(publisher, (self.rate, now))
+            tokens = min(self.rate, tokens + (now - last) * self.rate)
+            ok = tokens >= 1.0
+            self._budgets[publisher] = (tokens - 1.0 if ok else tokens, now)
+            if len(self._budgets) > self.size:  # forget the least recently refused
+                del self._budgets[next(iter(self._budgets))]
+            if not ok:
+                self.unanswered += 1
+            return ok
+
+
 def housekeeping_cpus(rt_cpu: int | None) -> set[int]:
     """The CPUs this process may use other than the real-time thread's: where the command path
     runs. Empty (no pinning) when the RT thread is not pinned or no other CPU is left.
@@ -205,15 +246,19 @@ class NativeCommandPath:
         topic: str,
         qos: QoSProfile,
         results_publisher: Any,
-        handle_deferred: Callable[[Any], None],
+        handle_deferred: Callable[[Any, bytes], None],
         priority: int,
         cpus: set[int] | None = None,
         message_type: Any = WriteVariable,
-        handle_refused: Callable[[Any, str], None] | None = None,
+        kind: str | None = None,
+        lease: Any = None,
+        handle_refused: Callable[..., None] | None = None,
     ) -> None:
         self._handle_deferred = handle_deferred
         self._handle_refused = handle_refused
         self._message_type = message_type
+        if kind is None:
+            kind = "write_variable" if message_type is WriteVariable else "joint_state"
         self._joints: Any = None
         check_is_valid_msg_type(message_type)  # loads the type support the subscription needs
         with node.handle:
@@ -234,7 +279,8 @@ class NativeCommandPath:
                 results=results_publisher.handle.pointer,
                 priority=priority,
                 cpus=sorted(cpus or ()),
-                message="write_variable" if message_type is WriteVariable else "joint_state",
+                message=kind,
+                lease=lease,
             )
         except (RuntimeError, CommandPathError) as exc:
             self._release()
@@ -244,7 +290,9 @@ class NativeCommandPath:
         self._stop = threading.Event()
         self._thread = threading.Thread(
             target=self._serve_deferred,
-            name="ether_ros-deferred" if message_type is WriteVariable else "ether_ros-jdeferred",
+            name={"write_variable": "ether_ros-deferred", "joint_state": "ether_ros-jdeferred"}.get(
+                kind, "ether_ros-tdeferred"
+            ),
             daemon=True,
         )
         self._thread.start()
@@ -302,20 +350,24 @@ class NativeCommandPath:
         self._in_use = []
         self._subscription.destroy_when_not_in_use()
 
+    def waiting_publishers(self) -> int:
+        return int(self.receiver.waiting_publishers())
+
     def _serve_deferred(self) -> None:
         while not self._stop.is_set():
-            data = self.receiver.next_deferred(_POLL_S)
-            if data is None:
+            taken = self.receiver.next_deferred(_POLL_S)
+            if taken is None:
                 continue
+            data, publisher = taken
             try:
                 message, problem = checked_message(data, self._message_type)
                 if problem is None:
-                    self._handle_deferred(message)
+                    self._handle_deferred(message, publisher)
                 elif self._handle_refused is not None:
-                    self._handle_refused(message, problem)
+                    self._handle_refused(message, problem, publisher=publisher)
                 else:
                     log.warning("%s refused: %s", self._message_type.__name__, problem)
             except Exception:  # one bad request must not end the command path
-                log.exception("handling a deferred write failed")
+                log.exception("handling a deferred request failed")
             finally:
                 self.receiver.deferred_done()

@@ -48,6 +48,7 @@ from ether_ros_msgs.msg import (
 from ether_ros_msgs.srv import (
     AxisCommand,
     Command,
+    Lease,
     SdoRead,
     SdoWrite,
     SetExtras,
@@ -75,13 +76,20 @@ from ether_ros._native.protocol import format_address
 from ether_ros.config import types as dt
 from ether_ros.config.bus import check_node_name
 from ether_ros.errors import EtherRosError
-from ether_ros.ros import bridge, command_watchdog, diagnostics, joints
+from ether_ros.ros import bridge, command_watchdog, diagnostics, joints, security
 from ether_ros.ros.convert import layout_msg
 from ether_ros.ros.follow_joint_trajectory import FollowJointTrajectoryServer
 from ether_ros.ros.layout import BusSpec, LayoutError
+from ether_ros.ros.lease import (
+    ControlLease,
+    LeaseRefused,
+    goal_reply_topic,
+    graph_writer_gids,
+)
 from ether_ros.ros.native_commands import (
     CommandPathError,
     NativeCommandPath,
+    RefusalBudget,
     checked_message,
     housekeeping_cpus,
 )
@@ -120,12 +128,18 @@ _RUNTIME_PARAMETERS = {
     "ros.snapshot_period_ms",
     "command_timeout_ms",
     "diagnostics_period_ms",
+    "diagnostics_window_ms",
 }
 
 BusOpener = Callable[..., Any]
 
 # Nice value of the command executor's thread (see ``spin``).
 COMMAND_THREAD_NICE = -10
+
+# The topics that command the bus: a lease holder's publishers on these are the holder's.
+COMMAND_TOPICS = ("pdo_listener", "joint_commands", "joint_trajectory")
+# Lifecycle transitions the ``ethercat_communicator`` service runs by name (with the lease).
+_TRANSITIONS = ("configure", "activate", "deactivate", "cleanup", "shutdown")
 
 
 def _open_bus(config: Any, interface: str | None = None, link: Any = None) -> Any:
@@ -199,6 +213,28 @@ class EtherRosNode(LifecycleNode):
         self._declare_parameters(cfg, interface)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
+        # The control lease (ether_ros.ros.lease): the gate every command entry point checks.
+        lease_cfg = cfg.ros.lease
+        self._lease = ControlLease(
+            lease_cfg.enabled,
+            lease_cfg.ttl_s,
+            lease_cfg.max_ttl_s,
+            stop_motion=self._stop_motion,
+            lookup_writers=graph_writer_gids(
+                self, COMMAND_TOPICS, self._goal_reply_topics(cfg.ros.trajectory_action)
+            ),
+        )
+        # Refusals of topic requests Python answers, budgeted per publisher as the native
+        # threads budget theirs.
+        self._refusal_budget = RefusalBudget()
+        # What protects the node (lease, discovery range, DDS profile, DDS security): found once,
+        # logged now and reported in the diagnostics.
+        self._security = security.detect(self._lease.enabled)
+        for line in security.describe(self._security):
+            self.get_logger().info(f"security: {line}")
+        for warning in self._security.warnings:
+            self.get_logger().warning(f"security: {warning}")
+
         # Callback groups: the default (mutually exclusive) group serializes the lifecycle
         # services, commands, SDO and parameters (what opens, closes or talks acyclically to the
         # bus); writes have their own group, the timers (diagnostics, snapshot) theirs; panic is
@@ -233,12 +269,23 @@ class EtherRosNode(LifecycleNode):
         # joint_commands likewise, on a native thread of its own.
         self._native: NativeCommandPath | None = None
         self._native_joints: NativeCommandPath | None = None
+        self._native_trajectory: NativeCommandPath | None = None
         if native_commands:
             self._native = self._native_path(
                 cfg, "pdo_listener", WriteVariable, self._result_pub, self._on_write_topic
             )
             self._native_joints = self._native_path(
                 cfg, "joint_commands", JointState, self._joint_result_pub, self._on_joint_commands
+            )
+            # joint_trajectory: every message goes to Python, but taken natively so it is
+            # checked against the lease by its publisher and queued fairly per publisher.
+            self._native_trajectory = self._native_path(
+                cfg,
+                "joint_trajectory",
+                JointTrajectory,
+                self._joint_result_pub,
+                self._on_joint_trajectory,
+                kind="passthrough",
             )
         # The Python subscriptions take the serialized message and check it before rclpy
         # turns it into Python (which would cut a name at a NUL): see _checked.
@@ -272,13 +319,21 @@ class EtherRosNode(LifecycleNode):
             self._on_panic,
             callback_group=None if self.command_node else self._panic_group,
         )
-        commands.create_subscription(
-            JointTrajectory,
-            "joint_trajectory",
-            self._checked(JointTrajectory, "joint_trajectory", self._on_joint_trajectory),
-            QOS_COMMANDS,
-            callback_group=None if self.command_node else self._writes_group,
-            raw=True,
+        if self._native_trajectory is None:
+            commands.create_subscription(
+                JointTrajectory,
+                "joint_trajectory",
+                self._checked(JointTrajectory, "joint_trajectory", self._on_joint_trajectory),
+                QOS_COMMANDS,
+                callback_group=None if self.command_node else self._writes_group,
+                raw=True,
+            )
+        # The lease service answers beside panic: it never waits for the bus.
+        commands.create_service(
+            Lease,
+            "lease",
+            self._on_lease,
+            callback_group=None if self.command_node else self._panic_group,
         )
         for service in bridge.AXIS_SERVICES:
             self.create_service(
@@ -300,12 +355,19 @@ class EtherRosNode(LifecycleNode):
         self.create_service(SdoRead, "sdo_read", self._on_sdo_read)
         self.create_service(SdoWrite, "sdo_write", self._on_sdo_write)
 
+        self._windows = diagnostics.Windows(self._param_ms("diagnostics_window_ms") / 1000.0)
         self._diag_timer = self.create_timer(
             self._param_ms("diagnostics_period_ms") / 1000.0,
             self._publish_diagnostics,
             callback_group=self._timer_group,
         )
         self._snapshot_timer: Any = None
+        # With the lease on, the lifecycle's own change_state (lifecycle_msgs, no lease field)
+        # is refused: transitions go through ethercat_communicator with the holder's token.
+        change_state = getattr(self, "_service_change_state", None)
+        if change_state is not None and self._lease.enabled:
+            change_state.callback = self._refuse_change_state
+        self._lease.start()
 
     # ------------------------------------------------------------------------ parameters
     def _declare_parameters(self, cfg: Any, interface: str | None) -> None:
@@ -329,6 +391,13 @@ class EtherRosNode(LifecycleNode):
         )
         self.declare_parameter(
             "diagnostics_period_ms", 1000, ParameterDescriptor(description="diagnostics period")
+        )
+        self.declare_parameter(
+            "diagnostics_window_ms",
+            10000,
+            ParameterDescriptor(
+                description="the diagnostics' levels come from rates over this window"
+            ),
         )
         for name, value in config_parameters(cfg).items():
             self.declare_parameter(
@@ -367,7 +436,7 @@ class EtherRosNode(LifecycleNode):
                 continue
             if not isinstance(p.value, int) or isinstance(p.value, bool):
                 return SetParametersResult(successful=False, reason=f"{p.name} is an integer")
-            low = 1 if p.name.endswith("decimation") or p.name == "diagnostics_period_ms" else 0
+            low = 1 if p.name.endswith("decimation") or p.name.startswith("diagnostics_") else 0
             if p.value < low:
                 return SetParametersResult(successful=False, reason=f"{p.name} must be >= {low}")
         for p in params:
@@ -380,6 +449,8 @@ class EtherRosNode(LifecycleNode):
             elif p.name == "diagnostics_period_ms":
                 self._diag_timer.timer_period_ns = int(p.value) * 1_000_000
                 self._diag_timer.reset()
+            elif p.name == "diagnostics_window_ms":
+                self._windows = diagnostics.Windows(int(p.value) / 1000.0)
         return SetParametersResult(successful=True)
 
     def _param_ms(self, name: str) -> int:
@@ -423,6 +494,7 @@ class EtherRosNode(LifecycleNode):
             return self._fail("activate", exc)
         self._panic = False
         self._last_command = time.monotonic()
+        self._windows = diagnostics.Windows(self._param_ms("diagnostics_window_ms") / 1000.0)
         self._variables_written = False
         # Half a second of samples at most per batch: beyond that ROS has fallen behind and
         # the oldest samples are skipped (and counted) rather than published late.
@@ -436,6 +508,7 @@ class EtherRosNode(LifecycleNode):
             self._feed_watchdog,
             max_backlog=backlog,
             axis_joints=(lambda: joints.axis_joint_values(self._axes)) if self._axes else None,
+            axis_slaves={name: axis.spec.slave for name, axis in self._axes.items()},
             feeder_priority=command_priority(self._cfg),
             axis_extras=(
                 (lambda: joints.axis_extra_values(self._axes))
@@ -511,13 +584,14 @@ class EtherRosNode(LifecycleNode):
         return str(self._state_machine.current_state[1])
 
     def destroy_node(self) -> None:
+        self._lease.close()
         self._release()
         if self._trajectory_action is not None:
             self._trajectory_action.destroy()
             self._trajectory_action = None
         for native in self._native_paths():
             native.close()
-        self._native = self._native_joints = None
+        self._native = self._native_joints = self._native_trajectory = None
         if self.command_node is not None:
             self.command_node.destroy_node()
             self.command_node = None
@@ -564,16 +638,24 @@ class EtherRosNode(LifecycleNode):
     def _publish_diagnostics(self) -> None:
         name = self.get_fully_qualified_name()
         lifecycle = self.lifecycle_state()
-        stats: dict[str, float] = {}
+        raw: dict[str, Any] = {}
         statuses = []
         ros_numbers: dict[str, float] = {}
         dc_error = 0.0
-        bus = self._bus
-        if bus is not None and getattr(bus, "running", False):
+        bus, spec = self._bus, self._spec
+        running = bus is not None and getattr(bus, "running", False)
+        if running:
             try:
-                stats = bridge.flat_stats(bus.stats())
+                raw = dict(bus.stats())
             except EtherRosError as exc:
                 self.get_logger().warning(f"reading statistics: {exc}")
+        stats = bridge.flat_stats(raw)
+        frames = list(raw.get("frames") or [])
+        stats["frames_sent"] = float(sum(int(f.get("sent", 0)) for f in frames))
+        cycle_ns = int(spec.cycle_us) * 1000 if spec is not None else 0
+        now_ns = time.clock_gettime_ns(time.CLOCK_MONOTONIC)
+        stale = diagnostics.stale_frames(frames, cycle_ns, now_ns) if running else []
+        ages = diagnostics.frame_ages(frames, cycle_ns, now_ns) if running else []
         samples = self._samples
         if samples is not None:
             c = samples.counters
@@ -587,6 +669,7 @@ class EtherRosNode(LifecycleNode):
                 "panic_cycles": c.panic_cycles,
                 "last_cycle": c.last_cycle,
                 "working_counter": c.wkc,
+                "stale_samples": c.stale_samples,
             }
             dc_error = samples.take_dc_error()
             commands = self.command_path_counters()
@@ -594,6 +677,9 @@ class EtherRosNode(LifecycleNode):
                 ros_numbers["commands_native"] = commands["applied"]
                 ros_numbers["commands_deferred"] = commands["deferred"]
                 ros_numbers["commands_refused_queue_full"] = commands["overflowed"]
+                ros_numbers["commands_refused"] = commands["refused"]
+                ros_numbers["commands_refused_lease"] = commands["refused_lease"]
+                ros_numbers["commands_refused_throttled"] = commands["throttled"]
                 ros_numbers["commands_rcl_errors"] = commands["rcl_errors"]
                 if commands["delivery_count"]:
                     ros_numbers["command_delivery_mean_ns"] = (
@@ -604,22 +690,47 @@ class EtherRosNode(LifecycleNode):
             if joint_commands:
                 ros_numbers["joint_commands_native"] = joint_commands["applied"]
                 ros_numbers["joint_commands_deferred"] = joint_commands["deferred"]
+                ros_numbers["joint_commands_refused"] = joint_commands["refused"]
+                ros_numbers["joint_commands_refused_lease"] = joint_commands["refused_lease"]
+                ros_numbers["joint_commands_refused_throttled"] = joint_commands["throttled"]
         supervisor = getattr(bus, "supervisor", None)
         problems = supervisor.branch_problems() if supervisor is not None else []
+        groups: list[Any] = []
+        if running and bus is not None:
+            try:
+                groups = list(bus.group_stats(raw))
+            except Exception as exc:
+                self.get_logger().warning(f"reading group statistics: {exc}")
+        now = time.monotonic()
+        window = self._windows.master.update(
+            now, {k: bridge.stat(stats, k) for k in diagnostics.WINDOW_COUNTERS}
+        )
         statuses.append(
             diagnostics.master_status(
-                name, lifecycle, stats, ros_numbers, self._panic, dc_error, problems
+                name,
+                lifecycle,
+                stats,
+                ros_numbers,
+                self._panic,
+                dc_error,
+                problems,
+                window=window,
+                stale=stale,
+                input_age_s=max(ages, default=0.0),
+                short_groups=[g.name for g in groups if g.sent and not g.wkc_ok],
+                frame_count=len(frames),
             )
         )
+        statuses.extend(diagnostics.group_statuses(name, groups, self._windows.groups, now))
         if bus is not None:
             # Not under _bus_lock: reading the AL states is acyclic traffic (a few cycles) and
             # writes must not wait for it. A bus closed meanwhile just skips this report.
             try:
-                statuses.extend(diagnostics.group_statuses(name, bus.group_stats()))
                 statuses.extend(diagnostics.slave_statuses(name, bus.states()))
             except Exception as exc:
                 self.get_logger().warning(f"reading slave states: {exc}")
         statuses.extend(diagnostics.axis_statuses(name, self._axis_reports()))
+        statuses.append(security.status(name, self._security, self._lease.status()))
         self._diag_pub.publish(diagnostics.array(statuses, self.get_clock().now().to_msg()))
 
     def _axis_reports(self) -> list[tuple[str, str, dict[str, Any]]]:
@@ -669,10 +780,17 @@ class EtherRosNode(LifecycleNode):
         return max(self._last_command, native)
 
     def _native_paths(self) -> list[NativeCommandPath]:
-        return [n for n in (self._native, self._native_joints) if n is not None]
+        paths = (self._native, self._native_joints, self._native_trajectory)
+        return [n for n in paths if n is not None]
 
     def _native_path(
-        self, cfg: Any, topic: str, message_type: Any, results: Any, handler: Any
+        self,
+        cfg: Any,
+        topic: str,
+        message_type: Any,
+        results: Any,
+        handler: Any,
+        kind: str | None = None,
     ) -> NativeCommandPath | None:
         """The native command path for ``topic``, or None (with the reason logged) when it
         cannot start: then Python serves the topic."""
@@ -686,6 +804,8 @@ class EtherRosNode(LifecycleNode):
                 command_priority(cfg),
                 housekeeping_cpus(cfg.bus.realtime.cpu),
                 message_type=message_type,
+                kind=kind,
+                lease=self._lease.gate,
                 handle_refused=functools.partial(self._refuse_message, topic),
             )
         except CommandPathError as exc:
@@ -707,12 +827,17 @@ class EtherRosNode(LifecycleNode):
 
         return callback
 
-    def _refuse_message(self, topic: str, message: Any, problem: str) -> None:
+    def _refuse_message(
+        self, topic: str, message: Any, problem: str, publisher: bytes | None = None
+    ) -> None:
         """Answer a command message refused before it was read (``message`` may be None when
         nothing of it could be read): on ``write_results`` for ``pdo_listener`` (with its
-        request_id), else on ``joint_results``."""
+        request_id), else on ``joint_results`` — within the publisher's answer budget, as every
+        refusal (a flood of bad messages must not become a flood of answers)."""
         text = f"{topic} refused: {problem}"
         self.get_logger().warning(text, throttle_duration_sec=1.0)
+        if not self._refusal_budget.spend(publisher):
+            return
         if topic == "pdo_listener":
             request_id = int(message.request_id) if message is not None else 0
             self._result_pub.publish(
@@ -761,10 +886,16 @@ class EtherRosNode(LifecycleNode):
                 return False, str(exc)
         return True, bridge.describe_writes(writes)
 
-    def _on_write_topic(self, msg: WriteVariable) -> None:
-        ok, message = self._write([msg])
+    def _on_write_topic(self, msg: WriteVariable, publisher: bytes | None = None) -> None:
+        try:
+            self._lease.check_publisher(publisher)
+            ok, message = self._write([msg])
+        except LeaseRefused as exc:
+            ok, message = False, str(exc)
         if not ok:
-            self.get_logger().warning(f"write refused: {message}")
+            self._warn_refused("write", message)
+            if not self._refusal_budget.spend(publisher):
+                return
         self._result_pub.publish(
             WriteResult(request_id=msg.request_id, success=ok, message=message)
         )
@@ -772,7 +903,11 @@ class EtherRosNode(LifecycleNode):
     def _on_write_service(
         self, req: WriteVariables.Request, resp: WriteVariables.Response
     ) -> WriteVariables.Response:
-        resp.success, resp.message = self._write(list(req.writes))
+        try:
+            self._lease.check_token(req.lease)
+            resp.success, resp.message = self._write(list(req.writes))
+        except LeaseRefused as exc:
+            resp.success, resp.message = False, str(exc)
         return resp
 
     # ------------------------------------------------------------------------ joints
@@ -804,10 +939,16 @@ class EtherRosNode(LifecycleNode):
             return False, str(exc)
         return True, bridge.describe_joint_commands(commands)
 
-    def _on_joint_commands(self, msg: JointState) -> None:
-        ok, message = self.joint_command(msg)
+    def _on_joint_commands(self, msg: JointState, publisher: bytes | None = None) -> None:
+        try:
+            self._lease.check_publisher(publisher)
+            ok, message = self.joint_command(msg)
+        except LeaseRefused as exc:
+            ok, message = False, str(exc)
         if not ok:  # applied commands are not answered: they come at the controller's rate
-            self.get_logger().warning(f"joint_commands refused: {message}")
+            self._warn_refused("joint_commands", message)
+            if not self._refusal_budget.spend(publisher):
+                return
             self._joint_result_pub.publish(
                 WriteResult(success=False, message=f"joint_commands refused: {message}")
             )
@@ -835,10 +976,16 @@ class EtherRosNode(LifecycleNode):
             f"{', '.join(plan.names)}, starting in {starts:.3f} s"
         )
 
-    def _on_joint_trajectory(self, msg: JointTrajectory) -> None:
-        ok, message = self.joint_trajectory(msg)
+    def _on_joint_trajectory(self, msg: JointTrajectory, publisher: bytes | None = None) -> None:
+        try:
+            self._lease.check_publisher(publisher)
+            ok, message = self.joint_trajectory(msg)
+        except LeaseRefused as exc:
+            ok, message = False, str(exc)
         if not ok:
-            self.get_logger().warning(f"joint_trajectory refused: {message}")
+            self._warn_refused("joint_trajectory", message)
+            if not self._refusal_budget.spend(publisher):
+                return
         text = f"joint_trajectory: {message}" if ok else f"joint_trajectory refused: {message}"
         self._joint_result_pub.publish(WriteResult(success=ok, message=text))
 
@@ -854,7 +1001,15 @@ class EtherRosNode(LifecycleNode):
             axes=self._axes_if_active,
             capacity=lambda: bridge.trajectory_capacity(self._bus),
             note_command=self._note_command,
+            gate=self._lease.check_goal_sender,
         )
+
+    def _goal_reply_topics(self, action: str) -> list[str]:
+        """The DDS topic on which the action server's clients read goal replies (none without
+        a server): a lease holder's action clients are looked up there."""
+        if not action:
+            return []
+        return [goal_reply_topic(f"{self.get_namespace().rstrip('/')}/{action}")]
 
     def _note_command(self) -> None:
         """A command came (it feeds the command watchdog, see ``_feed_watchdog``)."""
@@ -903,18 +1058,24 @@ class EtherRosNode(LifecycleNode):
         self, command: str, req: AxisCommand.Request, resp: AxisCommand.Response
     ) -> AxisCommand.Response:
         try:
+            self._lease.check_token(req.lease)
             resp.success, resp.message, resp.joints, resp.states = self.axis_command(
                 command, list(req.joints)
             )
+        except LeaseRefused as exc:
+            resp.success, resp.message = False, f"{command} refused: {exc}"
         except Exception as exc:  # a service must always answer
             resp.success, resp.message = False, f"{command} failed: {exc}"
         return resp
 
     def _on_set_mode(self, req: SetMode.Request, resp: SetMode.Response) -> SetMode.Response:
         try:
+            self._lease.check_token(req.lease)
             resp.success, resp.message, resp.joints, resp.states = self.axis_command(
                 "set_mode", list(req.joints), req.mode.strip().lower()
             )
+        except LeaseRefused as exc:
+            resp.success, resp.message = False, f"set_mode refused: {exc}"
         except Exception as exc:
             resp.success, resp.message = False, f"set_mode failed: {exc}"
         return resp
@@ -944,9 +1105,12 @@ class EtherRosNode(LifecycleNode):
         self, req: SetExtras.Request, resp: SetExtras.Response
     ) -> SetExtras.Response:
         try:
+            self._lease.check_token(req.lease)
             resp.success, resp.message = self.set_extras(
                 req.joint, list(req.names), [float(v) for v in req.values]
             )
+        except LeaseRefused as exc:
+            resp.success, resp.message = False, f"set_extras refused: {exc}"
         except Exception as exc:  # a service must always answer
             resp.success, resp.message = False, f"set_extras failed: {exc}"
         return resp
@@ -955,7 +1119,11 @@ class EtherRosNode(LifecycleNode):
     def _on_command(self, req: Command.Request, resp: Command.Response) -> Command.Response:
         command = req.command.strip().lower()
         try:
+            if command != "panic":  # panic from anyone; everything else needs the lease
+                self._lease.check_token(req.lease)
             resp.success, resp.message = self.run_command(command)
+        except LeaseRefused as exc:
+            resp.success, resp.message = False, f"{command} refused: {exc}"
         except Exception as exc:  # a service must always answer
             resp.success, resp.message = False, f"{command} failed: {exc}"
         return resp
@@ -986,9 +1154,13 @@ class EtherRosNode(LifecycleNode):
         if command == "reset_watchdog":
             self._last_command = time.monotonic()
             return True, "command watchdog fed"
+        if command in _TRANSITIONS:
+            if not self._transition(command):
+                return False, self._last_error or f"{command} failed in state {state}"
+            return True, f"{command}: now {self.lifecycle_state()}"
         return False, (
             f"unknown command '{command}' (start, stop, restart, panic, clear_panic, "
-            "reset_watchdog)"
+            f"reset_watchdog, {', '.join(_TRANSITIONS)})"
         )
 
     def _transition(self, name: str) -> bool:
@@ -1070,6 +1242,7 @@ class EtherRosNode(LifecycleNode):
         from ether_ros.ros.values import parse_text, type_range
 
         try:
+            self._lease.check_token(req.lease)
             name = self._sdo_target(req.slave)
             lo, hi = type_range(req.type)
             address = format_address(req.index, req.subindex)
@@ -1077,9 +1250,50 @@ class EtherRosNode(LifecycleNode):
             value = to_python(parse_text(req.value, var), req.type)
             self._bus.sdo_write(name, int(req.index), int(req.subindex), value, req.type)
             resp.success, resp.message = True, f"{name} {address} = {value}"
+        except LeaseRefused as exc:
+            resp.success, resp.message = False, f"sdo_write refused: {exc}"
         except (EtherRosError, ValueError, InvalidValue) as exc:
             resp.success, resp.message = False, str(exc)
         return resp
+
+    # ------------------------------------------------------------------------ lease
+    def _on_lease(self, req: Lease.Request, resp: Lease.Response) -> Lease.Response:
+        try:
+            answer = self._lease.request(
+                req.operation, req.holder, req.ttl_s, req.token, bytes(req.gids), req.writer_nodes
+            )
+        except Exception as exc:  # a service must always answer
+            resp.success, resp.message = False, f"lease failed: {exc}"
+            return resp
+        resp.success, resp.message = answer.success, answer.message
+        resp.token, resp.holder, resp.ttl_s = answer.token, answer.holder, answer.ttl_s
+        resp.remaining_s, resp.enabled = answer.remaining_s, answer.enabled
+        return resp
+
+    def _refuse_change_state(self, req: Any, resp: Any) -> Any:
+        self.get_logger().warning(
+            "change_state refused: the control lease is on; run lifecycle transitions through "
+            "ethercat_communicator (configure, activate, deactivate, cleanup) with the lease"
+        )
+        resp.success = False
+        return resp
+
+    def _stop_motion(self, why: str) -> None:
+        """The lease lapsed: stop as ``on_stop`` says (bridge.stop_motion)."""
+        try:
+            bridge.stop_motion(self._bus)
+        except EtherRosError as exc:
+            self.get_logger().error(f"{why}; stopping motion failed: {exc}")
+            return
+        self.get_logger().warning(f"{why}: motion stopped (on_stop, safe outputs)")
+
+    def _warn_refused(self, what: str, message: str) -> None:
+        """One log line per refused topic request, at most one per second per kind: a flood
+        of bad requests must not turn into a flood of log lines."""
+        self.get_logger().warning(f"{what} refused: {message}", throttle_duration_sec=1.0)
+
+    def lease_status(self) -> dict[str, Any]:
+        return self._lease.status()
 
 
 def command_priority(cfg: Any) -> int:

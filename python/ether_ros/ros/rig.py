@@ -55,6 +55,7 @@ class RosRig:
         log_dir: str | Path | None = None,
         client_options: dict[str, Any] | None = None,
         node_args: list[str] | None = None,
+        discovery_range: str = "LOCALHOST",
     ) -> None:
         self.config = str(Path(config).resolve())
         self.inactive = inactive
@@ -64,6 +65,9 @@ class RosRig:
         self.raw = raw
         self.client_options = dict(client_options or {})
         self.node_args = list(node_args or [])  # more `ether-ros run` options
+        # ROS_AUTOMATIC_DISCOVERY_RANGE of the rig's processes (SYSTEM_DEFAULT: as the DDS
+        # profile in the environment says, docs/security.md).
+        self.discovery_range = discovery_range
         self._tmp = tempfile.TemporaryDirectory(prefix="ether_ros_rig_")
         self.dir = Path(log_dir) if log_dir is not None else Path(self._tmp.name)
         self.veth: VethPair | None = None
@@ -77,7 +81,7 @@ class RosRig:
     def env(self) -> dict[str, str]:
         env = dict(os.environ)
         env["ROS_DOMAIN_ID"] = str(self.domain_id)
-        env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+        env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = self.discovery_range
         env["PYTHONUNBUFFERED"] = "1"
         return env
 

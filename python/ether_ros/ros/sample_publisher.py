@@ -9,6 +9,12 @@ and publishes
   mappings and every CiA 402 axis, SI units) every ``decoded_decimation`` cycles,
 - ``joint_extras`` (the axes' ``extras:``, SI units) at the same rate, when some axis has extras.
 
+Freshness: each sample says which cyclic frames' inputs are stale (``stale_mask``: no reply came
+back whole within two of the frame's periods). ``pdo_in`` carries it per slave (``stale``, the
+values being the last ones received), and ``joint_states`` leaves out the joints whose slave's
+inputs are stale — no message at all while every joint is — so a consumer never takes old
+positions for new ones (ROS consumers already treat a joint that stops coming as unknown).
+
 When ROS falls behind (a batch holds more than ``max_backlog`` samples) the oldest samples are
 skipped and counted in ``dropped``; the engine counts the samples it could not even queue
 (ring full) itself. A second small thread feeds the engine's command watchdog every 10 ms while
@@ -53,6 +59,8 @@ class PublisherCounters:
     last_flags: int = 0
     dc_error_max_ns: int = 0  # largest |DC difference| since the diagnostics last read it
     wkc: int = 0
+    # Decoded samples in which some slave's inputs were stale.
+    stale_samples: int = 0
     extra: dict[str, float] = field(default_factory=dict)
 
 
@@ -74,6 +82,7 @@ class SamplePublisher:
         max_backlog: int = 5000,
         poll_s: float = 0.002,
         axis_joints: Callable[[], list[tuple[str, float, float, float]]] | None = None,
+        axis_slaves: dict[str, str] | None = None,
         feeder_priority: int = 0,
         axis_extras: Callable[[], list[tuple[str, str, float]]] | None = None,
     ) -> None:
@@ -88,6 +97,10 @@ class SamplePublisher:
         # (joint, extra, value in SI) of every axis extra, read like the axes' joint_states
         # part; None when no axis has extras (no joint_extras then).
         self._axis_extras = axis_extras
+        # Frames carrying each slave's data (a bit mask), and each axis joint's slave: what
+        # the sample's stale_mask is checked against.
+        self._frame_masks = bridge.frame_masks(bus)
+        self._axis_slaves = dict(axis_slaves or {})
         self.rates = rates
         self._feed_watchdog = feed_watchdog
         # SCHED_FIFO priority of the watchdog feeder (0: normal scheduling).
@@ -198,8 +211,11 @@ class SamplePublisher:
             if cycle % raw_every == 0:
                 self._publish_raw(stamp, cycle, int(record["wkc"]), image)
             if cycle % decoded_every == 0:
-                self._publish_decoded(stamp, cycle, image)
+                self._publish_decoded(stamp, cycle, image, int(record["stale_mask"]))
         return n
+
+    def _stale(self, slave: str, stale_mask: int) -> bool:
+        return bool(self._frame_masks.get(slave, 0) & stale_mask)
 
     def _stamp(self, t_mono_ns: int) -> Time:
         wall = t_mono_ns + self._mono_to_wall_ns if t_mono_ns else time.time_ns()
@@ -217,8 +233,11 @@ class SamplePublisher:
         self._pub["pdo_raw"].publish(msg)
         self.counters.published_raw += 1
 
-    def _publish_decoded(self, stamp: Time, cycle: int, image: bytes) -> None:
+    def _publish_decoded(self, stamp: Time, cycle: int, image: bytes, stale_mask: int = 0) -> None:
         inputs_by_slave: dict[str, list[float]] = {}
+        stale_slaves = {sl.slave for sl in self._slices if self._stale(sl.slave, stale_mask)}
+        if stale_slaves:
+            self.counters.stale_samples += 1
         for sl in self._slices:
             decoders = self._decoders.get(sl.slave)
             if decoders is None:
@@ -238,24 +257,38 @@ class SamplePublisher:
                 msg.position = self._positions.get(sl.slave, 0)
                 msg.cycle = cycle
                 msg.values = values
+                msg.stale = topic == "pdo_in" and sl.slave in stale_slaves
                 self._pub[topic].publish(msg)
         if self._joints or self._axis_joints is not None:
-            self._pub["joint_states"].publish(self._joint_state(stamp, inputs_by_slave))
+            joint_state = self._joint_state(stamp, inputs_by_slave, stale_slaves)
+            if joint_state.name:  # every joint stale: no message at all
+                self._pub["joint_states"].publish(joint_state)
         if self._axis_extras is not None:
-            self._pub["joint_extras"].publish(self._joint_extras(stamp))
+            extras = self._joint_extras(stamp, stale_slaves)
+            if extras.joints:  # every axis with extras stale: no message at all
+                self._pub["joint_extras"].publish(extras)
         self.counters.published_decoded += 1
 
-    def _joint_extras(self, stamp: Time) -> JointExtras:
+    def _joint_extras(self, stamp: Time, stale: set[str]) -> JointExtras:
+        """The extras of the axes whose slave's inputs are fresh (as ``joint_states``)."""
         msg = JointExtras()
         msg.header.stamp = stamp
         msg.header.frame_id = self._spec.bus
-        entries = self._axis_extras() if self._axis_extras is not None else []
+        entries = [
+            entry
+            for entry in (self._axis_extras() if self._axis_extras is not None else [])
+            if self._axis_slaves.get(entry[0]) not in stale
+        ]
         msg.joints = [joint for joint, _, _ in entries]
         msg.names = [name for _, name, _ in entries]
         msg.values = [value for _, _, value in entries]
         return msg
 
-    def _joint_state(self, stamp: Time, inputs: dict[str, list[float]]) -> JointState:
+    def _joint_state(
+        self, stamp: Time, inputs: dict[str, list[float]], stale: set[str] | None = None
+    ) -> JointState:
+        """The joints whose slave's inputs are fresh (all of them when ``stale`` is empty)."""
+        stale = stale or set()
         msg = JointState()
         msg.header.stamp = stamp
         names, pos, vel, eff = [], [], [], []
@@ -268,6 +301,8 @@ class SamplePublisher:
             return values[index] if values is not None and index is not None else 0.0
 
         for j in self._joints:
+            if j.slave in stale:
+                continue
             names.append(j.name)
             pos.append(raw(j.slave, j.position) * j.position_scale + j.position_offset)
             if with_velocity:
@@ -276,6 +311,8 @@ class SamplePublisher:
                 eff.append(raw(j.slave, j.effort) * j.effort_scale)
         if self._axis_joints is not None:
             for name, p, v, e in self._axis_joints():
+                if self._axis_slaves.get(name) in stale:
+                    continue
                 names.append(name)
                 pos.append(p)
                 if with_velocity:

@@ -137,7 +137,7 @@ def _check_value(name: str, spec: Arg, value: Any, slaves: Sequence[str]) -> Any
                 raise ControlError(f"{name}: no slave at position {value} (0..{len(slaves) - 1})")
             return value
         if isinstance(value, str):
-            if value.isdigit():
+            if value.isascii() and value.isdigit():
                 return _check_value(name, spec, int(value), slaves)
             if value in slaves:
                 return slaves.index(value)

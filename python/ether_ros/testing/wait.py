@@ -8,9 +8,19 @@ from collections.abc import Callable
 
 
 def wait_for(what: str, check: Callable[[], object], timeout: float = 15.0) -> None:
-    """Return once ``check()`` is true; AssertionError naming ``what`` after ``timeout`` s."""
+    """Return once ``check()`` is true; AssertionError naming ``what`` after ``timeout`` s.
+    A check that reads inputs while they are stale (``StaleInputs``: on a loaded machine the
+    bus may miss cycles, or a test pulls a cable) is not true yet."""
+    from ether_ros.master.bus import StaleInputs
+
     deadline = time.monotonic() + timeout
-    while not check():
+    stale = ""
+    while True:
+        try:
+            if check():
+                return
+        except StaleInputs as exc:
+            stale = f" (last: {exc})"
         if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
+            raise AssertionError(f"timed out waiting for {what}{stale}")
         time.sleep(0.003)

@@ -57,6 +57,10 @@ string slave
 uint16 position
 uint64 cycle
 float64[] values
+# True when these are not fresh inputs: no reply to the slave's frame came back whole (every
+# working counter as expected) within two of its periods, or the bus is down; the values are
+# then the last ones received. Always false for outputs.
+bool stale
 """
 
 PDO_RAW = """\

@@ -311,6 +311,7 @@ class RecordingWriter:
                         "position": slave.position,
                         "cycle": cycle,
                         "values": [float(x) for x in values],
+                        "stale": False,  # the recorder's sources carry no freshness
                     },
                     ns,
                 )
