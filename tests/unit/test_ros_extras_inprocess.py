@@ -109,17 +109,29 @@ def test_bad_set_extras_is_refused_and_writes_nothing(
     assert elbow.extras["outputs"] == before
 
 
-def test_set_extras_with_names_and_values_that_do_not_pair_is_refused(arm: Any) -> None:
-    """The service's parallel arrays are checked before anything is looked up."""
+def test_set_extras_without_the_lease_or_with_unpaired_arrays_is_refused(arm: Any) -> None:
+    """The control lease is checked first (arm6 has it on; the client holds it), then the
+    service's parallel arrays, before anything is looked up; nothing is written."""
     from ether_ros_msgs.srv import SetExtras
 
-    _node, client = arm
-    req = SetExtras.Request(joint="elbow", names=["outputs", "velocity_offset"], values=[1.0])
+    node, client = arm
+    elbow = node._axes["elbow"]
+    before = elbow.extras["outputs"]
+    token = client._token()  # acquires the lease if this test runs alone
+    req = SetExtras.Request(joint="elbow", names=["outputs"], values=[before + 1.0])
+    resp = client._call(client._set_extras, req, 10.0)  # no token
+    assert not resp.success and "set_extras refused: the control lease is held by" in resp.message
+    req = SetExtras.Request(
+        joint="elbow", names=["outputs", "velocity_offset"], values=[1.0], lease=token
+    )
     resp = client._call(client._set_extras, req, 10.0)
     assert not resp.success and "2 extra name(s) but 1 value(s)" in resp.message
-    req = SetExtras.Request(joint="elbow", names=["outputs", "outputs"], values=[1.0, 2.0])
+    req = SetExtras.Request(
+        joint="elbow", names=["outputs", "outputs"], values=[1.0, 2.0], lease=token
+    )
     resp = client._call(client._set_extras, req, 10.0)
     assert not resp.success and "named twice" in resp.message
+    assert elbow.extras["outputs"] == before
 
 
 def test_top_shows_the_extras_under_their_axis(arm: Any) -> None:
