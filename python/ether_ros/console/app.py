@@ -54,6 +54,9 @@ from ether_ros.ros.panic_line import PanicLine
 from ether_ros.ros.values import format_value
 
 SENT_MEMORY_S = 2.0
+# How long a check that needs the node's outputs waits for the first outputs message of a
+# freshly started console (a node publishes them every pdo_out period; `-c` runs at once).
+FIRST_OUTPUTS_WAIT_S = 3.0
 # How long a move waits for the node to refuse it (it answers only refusals).
 MOVE_ANSWER_S = 0.3
 # `states` asks the node for its lifecycle state with this timeout (a dead node never answers).
@@ -147,6 +150,13 @@ class Console:
         """The layout and the last commanded outputs (``pdo_out_timer``; the wire echo when no
         snapshot arrived yet), for checking writes."""
         latest = self.client.latest
+        if latest.layout is not None and not latest.outputs and not latest.commanded:
+            # A console started a moment ago has the layout but no outputs message yet: wait
+            # for the first one (briefly) instead of refusing a write it could check.
+            with contextlib.suppress(EtherRosError):
+                self.client.wait_for(
+                    lambda current: current.outputs or current.commanded, FIRST_OUTPUTS_WAIT_S
+                )
         outputs = {slave: dict(values) for slave, values in latest.outputs.items()}
         for slave, values in latest.commanded.items():
             outputs[slave] = dict(values)

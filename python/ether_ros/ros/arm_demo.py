@@ -10,7 +10,8 @@ the simulator) moved by a joint trajectory sent over ROS 2.
    out and back per joint over four seconds, starting at a stamp half a second ahead) and
    records ``joint_states``.
 4. A summary: per joint the RMS and largest tracking error (measured position against the
-   trajectory, interpolated as the engine does), where it ended, then the bus's counters and loop
+   trajectory, interpolated as the engine does: as ROS 2's JointTrajectoryController, from the
+   state at the trajectory's arrival to its first point), where it ended, then the bus's counters and loop
    timing from the node's diagnostics.
 
 Run: ``ether-ros demo arm`` (root; about 20 s).
@@ -80,14 +81,17 @@ class JointRecorder:
 
 
 def tracking(
-    recorder: JointRecorder, start: float, initial: dict[str, float]
+    recorder: JointRecorder, start: float, initial: dict[str, float], sent: float
 ) -> dict[str, tuple[float, float, float]]:
-    """Per joint: (RMS error, largest error, final position) over the trajectory."""
+    """Per joint: (RMS error, largest error, final position) over the trajectory. The engine
+    goes from the state at the trajectory's arrival (``sent``, wall clock, give or take the
+    message's way to the node) to the first point, as JointTrajectoryController does; a start
+    stamp ahead does not hold the joints still until then."""
     end = start + SHAPE[-1][0]
-    samples = [s for s in recorder.since(start) if s[0] <= end + 0.5]
+    samples = [s for s in recorder.since(sent) if s[0] <= end + 0.5]
     out = {}
     for joint, amplitude in AMPLITUDE.items():
-        times = [0.0] + [t for t, _ in SHAPE]
+        times = [sent - start] + [t for t, _ in SHAPE]
         positions = [initial[joint]] + [initial[joint] + amplitude * k for _, k in SHAPE]
         errors = [
             values[joint] - hermite(times, positions, t - start)
@@ -130,6 +134,7 @@ def run_arm_demo(config: Path = ARM_CONFIG) -> int:
         points = [(t, [initial[j] + AMPLITUDE[j] * k for j in joints]) for t, k in SHAPE]
         start = time.time() + START_AHEAD_S
         before = len(client.joint_results)
+        sent = time.time()
         client.publish_trajectory(joints, points, start=start)
         client.wait_for(lambda _l: len(client.joint_results) > before, 5.0)
         answer = client.joint_results[before]
@@ -138,7 +143,7 @@ def run_arm_demo(config: Path = ARM_CONFIG) -> int:
             return 1
         time.sleep(max(0.0, start + SHAPE[-1][0] + 0.7 - time.time()))
         client.wait_for(lambda latest: latest.counts.get("diagnostics", 0) >= 2, 3.0)
-        result = tracking(recorder, start, initial)
+        result = tracking(recorder, start, initial, sent)
         lines = ["Tracking (joint_states against the trajectory)"]
         for joint, (rms, largest, final) in result.items():
             lines.append(
