@@ -119,3 +119,52 @@ def test_first_frames_matches_each_command_to_the_first_frame_sent_after_it() ->
     ]
     frames = first_frames(sent, changes)
     assert frames == {1: (120, False), 2: (330, True), 3: (330, False)}  # 4 never reached it
+
+
+def test_start_cycles_finds_each_joints_first_move_and_the_skew() -> None:
+    import numpy as np
+
+    from bench_trajectory import start_cycles
+
+    cycles = np.array([100, 101, 102, 103, 105, 106])  # 104 missing from the recording
+    targets = np.array(
+        [
+            [7, -3, 0],
+            [7, -3, 0],
+            [8, -3, 0],  # joint 0 leaves its start at cycle 102
+            [9, -4, 0],  # joint 1 at 103
+            [10, -5, 1],  # joint 2 seen at 105, but 104 was not recorded
+            [7, -3, 0],  # back at the start later: still started
+        ]
+    )
+    s = start_cycles(cycles, targets)
+    assert s.cycles == [102, 103, 105]
+    assert s.exact == [True, True, False]
+    assert s.skew == 3
+    with pytest.raises(ValueError, match="joint 1: its target never leaves -3"):
+        start_cycles(cycles[:3], targets[:3])
+
+
+def test_tracking_is_rms_and_max_of_the_absolute_error_per_joint_and_overall() -> None:
+    import numpy as np
+
+    from bench_trajectory import tracking, trajectory
+
+    t = tracking(np.array([[3.0, 0.0], [-4.0, 0.0], [0.0, 1.0], [0.0, -1.0]]))
+    assert t.rms == pytest.approx([2.5, np.sqrt(0.5)])
+    assert t.max == [4.0, 1.0]
+    assert t.rms_all == pytest.approx(np.sqrt(27 / 8))
+    assert t.max_all == 4.0 and t.samples == 4
+    # The benchmark's trajectory: within ±0.3 rad, moving from its first point, at rest at 0.
+    track = trajectory(3.0)
+    assert len(track) == 6 and all(len(p) == 300 for p in track.values())
+    for points in track.values():
+        assert max(abs(p) for _, p, _ in points) <= 0.3
+        assert points[0][1] != 0.0 and points[-1] == (3.0, 0.0, 0.0)
+
+
+def test_unwrap_counts_cycles_from_frame_numbers_modulo_128() -> None:
+    from bench_trajectory import unwrap
+
+    # 126, 127, 0 (wrapped), 2 (one frame not captured), 2 again (a whole turn later)
+    assert unwrap([126, 127, 0, 2, 2], 128).tolist() == [0, 1, 2, 4, 132]

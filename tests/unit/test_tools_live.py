@@ -270,3 +270,36 @@ def test_axes_from_the_diagnostics() -> None:
     assert text[1].split() == ["elbow", "fault", "csp", "0.2500", "0x2310", "continuous",
                                "over-current"]  # fmt: skip
     assert axes_text(snapshot_from_diagnostics({}, {})) == ""
+
+
+def test_axis_extras_from_the_nodes_joint_extras_are_shown_under_their_axis() -> None:
+    """The node's ``joint_extras`` (parallel arrays) become each axis's extras, shown on one
+    line under the axis: whole numbers (a digital input word) exactly, the rest to 4 digits;
+    an axis without extras has no such line, and a message whose arrays differ in length
+    gives no extras rather than a wrong pairing."""
+    from types import SimpleNamespace
+
+    from ether_ros.tools.live import axes_text, extras_by_joint
+
+    msg = SimpleNamespace(
+        joints=["elbow", "elbow", "elbow"],
+        names=["inputs", "outputs", "velocity_offset"],
+        values=[float(0x0005_0001), float(0x0005_0000), 0.123456],
+    )
+    extras = extras_by_joint(msg)
+    assert extras == {
+        "elbow": {"inputs": 327681.0, "outputs": 327680.0, "velocity_offset": 0.123456}
+    }
+    axes = {
+        name: {"state": "operation_enabled", "mode": "csp", "position": "0",
+               "error_code": "0x0000", "last_fault_code": "0x0000"}
+        for name in ("shoulder", "elbow")
+    }  # fmt: skip
+    snap = snapshot_from_diagnostics({"cycles": "1"}, {}, "arm6", axes, extras=extras)
+    assert [a.extras for a in snap.axes] == [{}, extras["elbow"]]
+    text = axes_text(snap).splitlines()
+    assert len(text) == 4  # header, shoulder, elbow, elbow's extras
+    assert text[1].split()[0] == "shoulder" and text[2].split()[0] == "elbow"
+    assert text[3].split() == ["inputs=327681", "outputs=327680", "velocity_offset=0.1235"]
+    msg.values = [1.0, 2.0]
+    assert extras_by_joint(msg) == {}

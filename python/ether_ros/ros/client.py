@@ -28,13 +28,21 @@ import rclpy
 import rclpy.executors
 from builtin_interfaces.msg import Duration
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from ether_ros_msgs.msg import BusLayout, PdoRaw, SlaveValues, WriteResult, WriteVariable
+from ether_ros_msgs.msg import (
+    BusLayout,
+    JointExtras,
+    PdoRaw,
+    SlaveValues,
+    WriteResult,
+    WriteVariable,
+)
 from ether_ros_msgs.srv import (
     AxisCommand,
     Command,
     Lease,
     SdoRead,
     SdoWrite,
+    SetExtras,
     SetMode,
     WriteVariables,
 )
@@ -115,6 +123,7 @@ class Latest:
     outputs: dict[str, dict[str, float]] = field(default_factory=dict)  # echo of the wire
     commanded: dict[str, dict[str, float]] = field(default_factory=dict)  # pdo_out_timer
     joint_state: JointState | None = None
+    joint_extras: JointExtras | None = None
     diagnostics: DiagnosticArray | None = None
     raw: PdoRaw | None = None
     counts: dict[str, int] = field(default_factory=dict)
@@ -168,6 +177,7 @@ class EtherRosClient:
         self._write_pub = n.create_publisher(WriteVariable, f"{p}pdo_listener", QOS_COMMANDS)
         self._axis = {c: n.create_client(AxisCommand, f"{p}{c}") for c in AXIS_SERVICES}
         self._set_mode = n.create_client(SetMode, f"{p}set_mode")
+        self._set_extras = n.create_client(SetExtras, f"{p}set_extras")
         self._joint_pub = n.create_publisher(JointState, f"{p}joint_commands", QOS_COMMANDS)
         self._trajectory_pub = n.create_publisher(
             JointTrajectory, f"{p}joint_trajectory", QOS_COMMANDS
@@ -194,6 +204,7 @@ class EtherRosClient:
             SlaveValues, f"{p}pdo_out_timer", self._on_values("commanded"), QOS_RELIABLE
         )
         n.create_subscription(JointState, f"{p}joint_states", self._on_joints, QOS_RELIABLE)
+        n.create_subscription(JointExtras, f"{p}joint_extras", self._on_extras, QOS_RELIABLE)
         n.create_subscription(DiagnosticArray, f"{p}diagnostics", self._on_diag, QOS_RELIABLE)
         n.create_subscription(WriteResult, f"{p}write_results", self._on_result, QOS_COMMANDS)
         n.create_subscription(WriteResult, f"{p}joint_results", self._on_joint_result, QOS_COMMANDS)
@@ -273,6 +284,12 @@ class EtherRosClient:
             self._cond.notify_all()
         if self._on_joint_state is not None:
             self._on_joint_state(msg)
+
+    def _on_extras(self, msg: JointExtras) -> None:
+        with self._cond:
+            self.latest.joint_extras = msg
+            self._bump("joint_extras")
+            self._cond.notify_all()
 
     def _on_diag(self, msg: DiagnosticArray) -> None:
         with self._cond:
@@ -411,6 +428,20 @@ class EtherRosClient:
         req = SetMode.Request(joints=list(joints or []), mode=mode, lease=self._token())
         resp = self._call(self._set_mode, req, timeout)
         return _axis_answer(resp)
+
+    def set_extras(
+        self, joint: str, values: dict[str, float], timeout: float = 10.0
+    ) -> tuple[bool, str]:
+        """Command writable extras of one axis in SI units (``set_extras``): (success,
+        message)."""
+        req = SetExtras.Request(
+            joint=joint,
+            names=list(values),
+            values=[float(v) for v in values.values()],
+            lease=self._token(),
+        )
+        resp = self._call(self._set_extras, req, timeout)
+        return bool(resp.success), str(resp.message)
 
     def publish_joint_command(
         self,

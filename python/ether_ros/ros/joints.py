@@ -190,3 +190,21 @@ def axis_joint_values(axes: Mapping[str, Any]) -> list[tuple[str, float, float, 
             continue  # the bus stopped meanwhile: the next message has them again
         out.append((name, float(st["position"]), float(st["velocity"]), float(st["torque"])))
     return out
+
+
+def axis_extra_values(axes: Mapping[str, Any]) -> list[tuple[str, str, float]]:
+    """(joint, extra, value in SI) of every axis's extras (``Axis.extras``), for
+    ``joint_extras``: axes in bus order, each axis's extras in configuration order."""
+    out: list[tuple[str, str, float]] = []
+    for name, axis in axes.items():
+        try:
+            values = axis.extras
+        except EtherRosError:
+            continue  # the bus stopped meanwhile: the next message has them again
+        out.extend((name, extra, float(value)) for extra, value in values.items())
+    return out
+
+
+def has_extras(axes: Mapping[str, Any]) -> bool:
+    """Whether some axis has ``extras:`` configured (``joint_extras`` is published then)."""
+    return any(axis.spec.extras for axis in axes.values())

@@ -37,13 +37,21 @@ from typing import Any
 import rclpy
 import rclpy.executors
 from diagnostic_msgs.msg import DiagnosticArray
-from ether_ros_msgs.msg import BusLayout, PdoRaw, SlaveValues, WriteResult, WriteVariable
+from ether_ros_msgs.msg import (
+    BusLayout,
+    JointExtras,
+    PdoRaw,
+    SlaveValues,
+    WriteResult,
+    WriteVariable,
+)
 from ether_ros_msgs.srv import (
     AxisCommand,
     Command,
     Lease,
     SdoRead,
     SdoWrite,
+    SetExtras,
     SetMode,
     WriteVariables,
 )
@@ -252,6 +260,7 @@ class EtherRosNode(LifecycleNode):
             "pdo_out": self.create_publisher(SlaveValues, "pdo_out", QOS_SENSOR),
             "pdo_out_timer": self.create_publisher(SlaveValues, "pdo_out_timer", QOS_RELIABLE),
             "joint_states": self.create_publisher(JointState, JOINT_STATES_TOPIC, QOS_RELIABLE),
+            "joint_extras": self.create_publisher(JointExtras, "joint_extras", QOS_RELIABLE),
         }
         self._layout_pub = self.create_publisher(BusLayout, "bus_layout", QOS_LATCHED)
         self._diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", QOS_RELIABLE)
@@ -343,6 +352,13 @@ class EtherRosNode(LifecycleNode):
                 callback_group=self._axis_group,
             )
         self.create_service(SetMode, "set_mode", self._on_set_mode, callback_group=self._axis_group)
+        # A write of outputs that never waits: served like write_variables.
+        commands.create_service(
+            SetExtras,
+            "set_extras",
+            self._on_set_extras,
+            callback_group=None if self.command_node else self._writes_group,
+        )
         self._trajectory_action = self._serve_trajectory_action(cfg)
         self.create_service(Command, "ethercat_communicator", self._on_command)
         self.create_service(SdoRead, "sdo_read", self._on_sdo_read)
@@ -503,6 +519,11 @@ class EtherRosNode(LifecycleNode):
             axis_joints=(lambda: joints.axis_joint_values(self._axes)) if self._axes else None,
             axis_slaves={name: axis.spec.slave for name, axis in self._axes.items()},
             feeder_priority=command_priority(self._cfg),
+            axis_extras=(
+                (lambda: joints.axis_extra_values(self._axes))
+                if joints.has_extras(self._axes)
+                else None
+            ),
         )
         self._samples.start()
         self._restart_snapshot_timer(self._param_ms("ros.snapshot_period_ms"))
@@ -1066,6 +1087,41 @@ class EtherRosNode(LifecycleNode):
             resp.success, resp.message = False, f"set_mode refused: {exc}"
         except Exception as exc:
             resp.success, resp.message = False, f"set_mode failed: {exc}"
+        return resp
+
+    def set_extras(self, joint: str, names: list[str], values: list[float]) -> tuple[bool, str]:
+        """Command writable extras of one axis in SI units, all in the same cycle, checked
+        as ``Axis.set_extras`` checks them: (success, message). Like ``joint_command``:
+        refused before the bus lock when not active, written under it."""
+        try:
+            if len(names) != len(values):
+                raise bridge.AxisRejected(f"{len(names)} extra name(s) but {len(values)} value(s)")
+            if len(set(names)) != len(names):
+                raise bridge.AxisRejected("an extra is named twice")
+            if not joint:
+                raise bridge.AxisRejected("set_extras needs the joint (one axis)")
+            self._axes_if_active()
+            with self._bus_lock:
+                (axis,) = bridge.select_axes(self._axes_if_active(), [joint])
+                axis.set_extras(dict(zip(names, values, strict=True)))
+                self._last_command = time.monotonic()
+        except EtherRosError as exc:
+            return False, str(exc)
+        done = ", ".join(f"{n}={v:g}" for n, v in zip(names, values, strict=True))
+        return True, f"{joint}: {done or 'nothing'} written"
+
+    def _on_set_extras(
+        self, req: SetExtras.Request, resp: SetExtras.Response
+    ) -> SetExtras.Response:
+        try:
+            self._lease.check_token(req.lease)
+            resp.success, resp.message = self.set_extras(
+                req.joint, list(req.names), [float(v) for v in req.values]
+            )
+        except LeaseRefused as exc:
+            resp.success, resp.message = False, f"set_extras refused: {exc}"
+        except Exception as exc:  # a service must always answer
+            resp.success, resp.message = False, f"set_extras failed: {exc}"
         return resp
 
     # ------------------------------------------------------------------------ commands

@@ -6,7 +6,8 @@ and publishes
 
 - ``pdo_raw`` every ``raw_decimation`` cycles (the whole image, inputs and outputs),
 - ``pdo_in`` / ``pdo_out`` (decoded values per slave) and ``joint_states`` (the ``joints:``
-  mappings and every CiA 402 axis, SI units) every ``decoded_decimation`` cycles.
+  mappings and every CiA 402 axis, SI units) every ``decoded_decimation`` cycles,
+- ``joint_extras`` (the axes' ``extras:``, SI units) at the same rate, when some axis has extras.
 
 Freshness: each sample says which cyclic frames' inputs are stale (``stale_mask``: no reply came
 back whole within two of the frame's periods). ``pdo_in`` carries it per slave (``stale``, the
@@ -35,7 +36,7 @@ from typing import Any
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from ether_ros_msgs.msg import PdoRaw, SlaveValues
+from ether_ros_msgs.msg import JointExtras, PdoRaw, SlaveValues
 from sensor_msgs.msg import JointState
 
 from ether_ros.config.bus import JointSpec
@@ -83,6 +84,7 @@ class SamplePublisher:
         axis_joints: Callable[[], list[tuple[str, float, float, float]]] | None = None,
         axis_slaves: dict[str, str] | None = None,
         feeder_priority: int = 0,
+        axis_extras: Callable[[], list[tuple[str, str, float]]] | None = None,
     ) -> None:
         self._bus = bus
         self._spec = spec
@@ -92,6 +94,9 @@ class SamplePublisher:
         # status when a joint_states message is built (so at most one cycle newer than the
         # sample it goes with).
         self._axis_joints = axis_joints
+        # (joint, extra, value in SI) of every axis extra, read like the axes' joint_states
+        # part; None when no axis has extras (no joint_extras then).
+        self._axis_extras = axis_extras
         # Frames carrying each slave's data (a bit mask), and each axis joint's slave: what
         # the sample's stale_mask is checked against.
         self._frame_masks = bridge.frame_masks(bus)
@@ -258,7 +263,26 @@ class SamplePublisher:
             joint_state = self._joint_state(stamp, inputs_by_slave, stale_slaves)
             if joint_state.name:  # every joint stale: no message at all
                 self._pub["joint_states"].publish(joint_state)
+        if self._axis_extras is not None:
+            extras = self._joint_extras(stamp, stale_slaves)
+            if extras.joints:  # every axis with extras stale: no message at all
+                self._pub["joint_extras"].publish(extras)
         self.counters.published_decoded += 1
+
+    def _joint_extras(self, stamp: Time, stale: set[str]) -> JointExtras:
+        """The extras of the axes whose slave's inputs are fresh (as ``joint_states``)."""
+        msg = JointExtras()
+        msg.header.stamp = stamp
+        msg.header.frame_id = self._spec.bus
+        entries = [
+            entry
+            for entry in (self._axis_extras() if self._axis_extras is not None else [])
+            if self._axis_slaves.get(entry[0]) not in stale
+        ]
+        msg.joints = [joint for joint, _, _ in entries]
+        msg.names = [name for _, name, _ in entries]
+        msg.values = [value for _, _, value in entries]
+        return msg
 
     def _joint_state(
         self, stamp: Time, inputs: dict[str, list[float]], stale: set[str] | None = None

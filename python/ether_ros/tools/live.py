@@ -51,13 +51,16 @@ class SlaveRow:
 
 @dataclass
 class AxisRow:
-    """A CiA 402 axis: its joint, CiA 402 state, mode, position (SI) and error."""
+    """A CiA 402 axis: its joint, CiA 402 state, mode, position (SI), error and extras."""
 
     joint: str
     state: str
     mode: str
     position: float
     error: str = ""  # "0x2310 continuous over-current" (the last fault, when recovered)
+    # The axis's ``extras:`` in SI (``Axis.extras`` / the node's ``joint_extras``), in
+    # configuration order; empty when it has none.
+    extras: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -165,7 +168,21 @@ def axes_text(s: LiveSnapshot) -> str:
     lines = [f"{'joint':<16} {'state':<24} {'mode':<5} {'position':>10}  error"]
     for a in s.axes:
         lines.append(f"{a.joint:<16} {a.state:<24} {a.mode:<5} {a.position:10.4f}  {a.error}")
+        if a.extras:
+            lines.append(f"{'':<16} {extras_text(a.extras)}")
     return "\n".join(lines)
+
+
+def extras_text(extras: dict[str, float]) -> str:
+    """An axis's extras on one line, ``name=value`` in SI: whole numbers (digital inputs and
+    outputs, counters) exactly, the rest to four significant digits."""
+
+    def shown(value: float) -> str:
+        if math.isfinite(value) and value == int(value) and abs(value) < 2**53:
+            return str(int(value))
+        return f"{value:.4g}"
+
+    return "  ".join(f"{name}={shown(value)}" for name, value in extras.items())
 
 
 def timing_text(s: LiveSnapshot) -> str:
@@ -400,7 +417,10 @@ class BusLiveSource:
             )
         dc = self._columns["dc_diff_ns"]
         return LiveSnapshot(
-            axes=[axis_row(a.name, a.mode, a.status()) for a in getattr(self.bus, "axes", list)()],
+            axes=[
+                axis_row(a.name, a.mode, a.status(), a.extras if a.spec.extras else {})
+                for a in getattr(self.bus, "axes", list)()
+            ],
             bus=str(cfg.name),
             cycle_us=int(cfg.cycle_us),
             cycles=int(stat(stats, "cycles")),
@@ -441,13 +461,17 @@ class BusLiveSource:
             self.bus.close()
 
 
-def axis_row(joint: str, mode: str, status: dict[str, Any]) -> AxisRow:
-    """A row from an ``Axis.status()`` (a standalone bus)."""
+def axis_row(
+    joint: str, mode: str, status: dict[str, Any], extras: dict[str, float] | None = None
+) -> AxisRow:
+    """A row from an ``Axis.status()`` and ``Axis.extras`` (a standalone bus)."""
     from ether_ros._native.protocol import emergency_text
 
     code = int(status["error_code"]) or int(status["last_fault_code"])
     text = f"0x{code:04X} {emergency_text(code)}" if code else ""
-    return AxisRow(joint, str(status["state"]), mode, float(status["position"]), text)
+    return AxisRow(
+        joint, str(status["state"]), mode, float(status["position"]), text, dict(extras or {})
+    )
 
 
 def snapshot_from_diagnostics(
@@ -456,6 +480,7 @@ def snapshot_from_diagnostics(
     bus: str = "",
     axes: dict[str, dict[str, str]] | None = None,
     groups: dict[str, dict[str, str]] | None = None,
+    extras: dict[str, dict[str, float]] | None = None,
 ) -> LiveSnapshot:
     """A snapshot from the node's diagnostics (``ether_ros.ros.diagnostics``).
 
@@ -504,7 +529,14 @@ def snapshot_from_diagnostics(
             joint_position = math.nan
         shown = f"{code} {text}" if code != "0x0000" else ""
         axis_rows.append(
-            AxisRow(joint, kv.get("state", "?"), kv.get("mode", "?"), joint_position, shown)
+            AxisRow(
+                joint,
+                kv.get("state", "?"),
+                kv.get("mode", "?"),
+                joint_position,
+                shown,
+                dict((extras or {}).get(joint, {})),
+            )
         )
     return LiveSnapshot(
         axes=axis_rows,
@@ -584,6 +616,19 @@ class DiagnosticsLiveSource:
         self._bus_name = ""
         self._cycle_us = 0
         self._subscribe_layout(layout_topic)
+        # joint -> extra -> value (SI), from the node's joint_extras beside its diagnostics.
+        self._extras: dict[str, dict[str, float]] = {}
+        self._subscribe_extras(topic[: topic.rfind("/") + 1] + "joint_extras")
+
+    def _subscribe_extras(self, topic: str) -> None:
+        try:
+            from ether_ros_msgs.msg import JointExtras
+        except ImportError:
+            return  # the messages are not built: the view goes without the extras
+        self._node.create_subscription(JointExtras, topic, self._on_extras, 10)
+
+    def _on_extras(self, msg: Any) -> None:
+        self._extras = extras_by_joint(msg)
 
     def _subscribe_layout(self, topic: str) -> None:
         """The node's latched bus layout gives the bus name and cycle time."""
@@ -622,7 +667,12 @@ class DiagnosticsLiveSource:
                 source="ROS 2 diagnostics", error="waiting for the node's diagnostics"
             )
         snap = snapshot_from_diagnostics(
-            self._master, self._slaves, self._bus_name, axes=self._axes, groups=self._groups
+            self._master,
+            self._slaves,
+            self._bus_name,
+            axes=self._axes,
+            groups=self._groups,
+            extras=self._extras,
         )
         snap.cycle_us = self._cycle_us
         snap.source = f"node {self._node_name}, {snap.source}"
@@ -646,6 +696,18 @@ class DiagnosticsLiveSource:
         self._node.destroy_node()
         if self._owns_context and self._rclpy.ok():
             self._rclpy.shutdown()
+
+
+def extras_by_joint(msg: Any) -> dict[str, dict[str, float]]:
+    """joint -> extra -> value from a ``JointExtras`` message (its parallel arrays; a message
+    whose arrays differ in length gives nothing rather than a wrong pairing)."""
+    joints, names, values = list(msg.joints), list(msg.names), list(msg.values)
+    if not len(joints) == len(names) == len(values):
+        return {}
+    out: dict[str, dict[str, float]] = {}
+    for joint, name, value in zip(joints, names, values, strict=True):
+        out.setdefault(joint, {})[name] = float(value)
+    return out
 
 
 def mark_stale(snap: LiveSnapshot, node: str, arrivals: Arrivals) -> None:
