@@ -228,8 +228,12 @@ def test_position_limits_hold_in_every_mode(arm: tuple[Bus, SimProcess]) -> None
             bus.feed_watchdog()
             time.sleep(0.002)
         st = axis.status()
-        # Held inside (the drive's own 0x607D backs the engine up), and close to the limit.
-        assert top <= hi + 0.003, (mode, top)
+        # Held at the limit (the drive's own 0x607D backs the engine up), and close to it. The
+        # margin is a host stall, not the braking: a master that misses cycles near the limit
+        # leaves the drive at its last (braked, small) speed for that long. 20 mrad still tells
+        # a braked approach from an unbraked one: 1.5 rad/s at 20 rad/s² carries the axis
+        # ~0.06 rad past the limit on the drive's own stop alone.
+        assert top <= hi + 0.02, (mode, top)
         assert st["position"] > hi - 0.05, (mode, st["position"])
         assert st["faults"] == 0 and st["state"] == "operation_enabled", (mode, st)
         if mode in ("csv", "pv", "cst"):

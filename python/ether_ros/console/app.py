@@ -55,8 +55,10 @@ from ether_ros.ros.values import format_value
 
 SENT_MEMORY_S = 2.0
 # How long a check that needs the node's outputs waits for the first outputs message of a
-# freshly started console (a node publishes them every pdo_out period; `-c` runs at once).
-FIRST_OUTPUTS_WAIT_S = 3.0
+# freshly started console (a node publishes them every pdo_out period; `-c` runs at once, and
+# on a loaded host the first message can take seconds). The wait ends early when they arrive,
+# and at once when the command is interrupted.
+FIRST_OUTPUTS_WAIT_S = 10.0
 # How long a move waits for the node to refuse it (it answers only refusals).
 MOVE_ANSWER_S = 0.3
 # `states` asks the node for its lifecycle state with this timeout (a dead node never answers).
@@ -153,10 +155,12 @@ class Console:
         if latest.layout is not None and not latest.outputs and not latest.commanded:
             # A console started a moment ago has the layout but no outputs message yet: wait
             # for the first one (briefly) instead of refusing a write it could check.
-            with contextlib.suppress(EtherRosError):
-                self.client.wait_for(
-                    lambda current: current.outputs or current.commanded, FIRST_OUTPUTS_WAIT_S
-                )
+            deadline = time.monotonic() + FIRST_OUTPUTS_WAIT_S
+            while time.monotonic() < deadline:
+                self._check()
+                with contextlib.suppress(EtherRosError):
+                    self.client.wait_for(lambda current: current.outputs or current.commanded, 0.2)
+                    break
         outputs = {slave: dict(values) for slave, values in latest.outputs.items()}
         for slave, values in latest.commanded.items():
             outputs[slave] = dict(values)
