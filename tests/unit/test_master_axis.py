@@ -219,28 +219,19 @@ def test_profile_velocity_and_acceleration_per_command_in_si(drives: Bus) -> Non
     wait_for("pp target reached", lambda: abs(j.position - (start + 0.05)) < 0.002)
 
 
-def _extras_config(tmp_path: Path) -> BusConfig:
-    """arm6 on the drive model, the elbow with extras: inputs, outputs, velocity offset."""
-    text = (REPO / "config" / "arm6.yaml").read_text()
-    text = text.replace("../devices/servo_drive.xml", str(REPO / "devices" / "servo_drive.xml"))
-    text = text.replace(
-        "- {name: elbow, mode: csp,",
-        "- {name: elbow, mode: csp, extras: [{name: inputs, object: '0x60FD'},"
-        " {name: outputs, object: '0x60FE:01'},"
-        " {name: velocity_offset, object: 0x60B1, scale: velocity}],",
-    )
-    path = tmp_path / "arm6.yaml"
-    path.write_text(text)
-    cfg = _config(path)
+def _extras_config() -> BusConfig:
+    """The shipped arm6 on the drive model: its elbow has extras (inputs, outputs, velocity
+    offset)."""
+    cfg = _config(REPO / "config" / "arm6.yaml")
     for s in cfg.slaves:
         s.sim.device = None
     return cfg
 
 
-def test_extras_read_and_command_in_si_on_the_drive_model(tmp_path: Path) -> None:
+def test_extras_read_and_command_in_si_on_the_drive_model() -> None:
     from ether_ros.sim.network import build_network
 
-    cfg = _extras_config(tmp_path)
+    cfg = _extras_config()
     with Bus.open(cfg, link=build_network(cfg), drift_frames=100) as b:
         b.start()
         j = b.axis("elbow")

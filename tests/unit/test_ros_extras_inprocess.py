@@ -22,25 +22,10 @@ REPO = Path(__file__).resolve().parents[2]
 EXTRAS = ["inputs", "outputs", "velocity_offset"]
 
 
-def arm_with_extras(directory: Path) -> Path:
-    """arm6 with the elbow's digital inputs, digital outputs and velocity offset as extras."""
-    text = (REPO / "config" / "arm6.yaml").read_text()
-    text = text.replace("../devices/servo_drive.xml", str(REPO / "devices" / "servo_drive.xml"))
-    text = text.replace(
-        "- {name: elbow, mode: csp,",
-        "- {name: elbow, mode: csp, extras: [{name: inputs, object: '0x60FD'},"
-        " {name: outputs, object: '0x60FE:01'},"
-        " {name: velocity_offset, object: 0x60B1, scale: velocity}],",
-    )
-    path = directory / "arm6_extras.yaml"
-    path.write_text(text)
-    return path
-
-
 @pytest.fixture(scope="module")
-def arm(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Any, EtherRosClient]]:
-    config = arm_with_extras(tmp_path_factory.mktemp("extras"))
-    with running_node(13, config) as (node, client, _net):
+def arm() -> Iterator[tuple[Any, EtherRosClient]]:
+    # The shipped arm6: its elbow maps the drive's inputs, outputs and velocity offset.
+    with running_node(13, REPO / "config" / "arm6.yaml") as (node, client, _net):
         ok, message = node.run_command("start")
         assert ok, message
         yield node, client

@@ -74,9 +74,10 @@ def test_joint_states_has_every_axis_in_si(arm: Any) -> None:
     assert list(msg.name) == JOINTS
     assert len(msg.position) == len(msg.velocity) == len(msg.effort) == len(JOINTS)
     assert all(abs(p) < 3.2 for p in msg.position)  # radians, not encoder counts
-    # No axis of arm6 has extras: no joint_extras (test_ros_extras_inprocess.py has them).
-    client.wait_for(lambda latest: latest.counts.get("joint_states", 0) >= 3)
-    assert client.latest.joint_extras is None
+    # Only the elbow of arm6 has extras: joint_extras names it alone (its values are checked
+    # in test_ros_extras_inprocess.py).
+    extras = client.wait_for(lambda latest: latest.joint_extras)
+    assert set(extras.joints) == {"elbow"}
 
 
 def test_joint_commands_move_the_named_joints_only(arm: Any) -> None:

@@ -276,7 +276,7 @@ class Axis:
         inside its position limits (and not in Fault). The csp, csv, cst, pp and pv modes switch
         at any speed, also while enabled: the new mode starts from the actual state (position
         from the actual position, velocity from the actual velocity or zero, torque from zero;
-        docs/cia402.md, "Mode changes"). To or from hm only while not in Operation Enabled.
+        docs/cia402.md, "Mode changes"). To or from hm only at standstill or while disabled.
         Raises :class:`AxisError` naming what the axis did instead (never a hang)."""
         self._require_running()
         if mode not in MODES:
