@@ -123,3 +123,32 @@ def test_flags_are_counted(rig: Any) -> None:
     c = pub.counters
     assert (c.lost, c.watchdog_cycles, c.last_cycle, c.last_flags) == (30, 10, 39, FLAG_WATCHDOG)
     assert pub._publish_batch(batch(bus, range(0))) == 0
+
+
+def test_axis_joints_carry_the_values_of_their_own_sample(rig: Any) -> None:
+    """A backlog published in one go (the publisher after a stall): each joint_states message
+    has the axis values of the cycle its stamp names, converted as the engine converts them,
+    not the axis's state at publishing time."""
+    from ether_ros.ros.joints import AxisImageJoints
+
+    bus, sinks, pub = rig
+    at = bus.layout.image_len - 12  # 10 spare bytes at the image's end for a made-up axis
+    entry = {"name": "elbow", "map": {"position": at, "velocity": at + 4, "torque": at + 8},
+             "position_scale": 1e-4, "position_offset": 0.5, "velocity_scale": 1e-3,
+             "torque_scale": 0.01}  # fmt: skip
+    pub._axis_joints = AxisImageJoints([entry])
+    samples = batch(bus, range(0, 50))
+    for row, cycle in enumerate(samples.records["cycle"]):
+        samples.images[row, at : at + 10] = np.frombuffer(
+            struct.pack("<iih", 100 * int(cycle), -7 * int(cycle), 3 * int(cycle)), np.uint8
+        )
+    assert pub._publish_batch(samples) == 50
+    messages = sinks["joint_states"].messages
+    assert len(messages) == 5
+    for msg, cycle in zip(messages, range(0, 50, 10), strict=True):
+        k = msg.name.index("elbow")
+        assert msg.position[k] == pytest.approx(100 * cycle * 1e-4 + 0.5)
+        assert msg.velocity[k] == pytest.approx(-7 * cycle * 1e-3)
+        assert msg.effort[k] == pytest.approx(3 * cycle * 0.01)
+    # An object the PDOs do not map reads raw 0 (position: the offset), as in the engine.
+    assert AxisImageJoints([{**entry, "map": {}}])(bytes(16)) == [("elbow", 0.5, 0.0, 0.0)]

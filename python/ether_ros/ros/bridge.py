@@ -137,6 +137,13 @@ def output_bytes(bus: Any) -> int:
     return int(bus.layout.output_bytes) if bus.layout is not None else 0
 
 
+def axis_plan_entries(bus: Any) -> list[dict[str, Any]]:
+    """The running cyclic plan's ``axes`` entries (image offsets, scales; ``axis.plan_entries``)
+    of a started bus; empty before the bus has a plan."""
+    plan = getattr(bus, "plan", None)
+    return list(plan.get("axes", [])) if plan else []
+
+
 def expected_wkc(bus: Any) -> int:
     """What a sample's ``wkc`` is on a healthy bus: the expected working counters of the frames
     that go out every cycle (slave groups at a slower cycle add theirs only in their cycles)."""

@@ -6,7 +6,8 @@ trajectories, and the axes' part of ``joint_states``. Talks to the axes through
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+import struct
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -180,16 +181,41 @@ def _check_approach(axis: Any, first: float, within: float) -> None:
         )
 
 
-def axis_joint_values(axes: Mapping[str, Any]) -> list[tuple[str, float, float, float]]:
-    """(joint, position, velocity, effort) of every axis in SI units, for ``joint_states``."""
-    out = []
-    for name, axis in axes.items():
-        try:
-            st = bridge.axis_status(axis)
-        except EtherRosError:
-            continue  # the bus stopped meanwhile: the next message has them again
-        out.append((name, float(st["position"]), float(st["velocity"]), float(st["torque"])))
-    return out
+class AxisImageJoints:
+    """(joint, position, velocity, effort) of every axis in SI, for ``joint_states``, read from
+    one cycle's process image with the engine plan's offsets and scales, converted as the
+    engine converts them (position = raw × scale + offset, velocity and torque raw × scale; an
+    object the PDOs do not map reads raw 0). Read from the sample rather than from the axis's
+    status now, a message carries the values of the cycle whose stamp it has, also when the
+    publisher works through a backlog after a stall."""
+
+    def __init__(self, plan_axes: Sequence[Mapping[str, Any]]) -> None:
+        self._axes = [
+            (
+                str(e["name"]),
+                e["map"].get("position"),
+                e["map"].get("velocity"),
+                e["map"].get("torque"),
+                float(e["position_scale"]),
+                float(e["position_offset"]),
+                float(e["velocity_scale"]),
+                float(e["torque_scale"]),
+            )
+            for e in plan_axes
+        ]
+
+    def __call__(self, image: bytes) -> list[tuple[str, float, float, float]]:
+        out = []
+        for name, p, v, t, p_scale, p_offset, v_scale, t_scale in self._axes:
+            p_raw = _I32.unpack_from(image, p)[0] if p is not None else 0
+            v_raw = _I32.unpack_from(image, v)[0] if v is not None else 0
+            t_raw = _I16.unpack_from(image, t)[0] if t is not None else 0
+            out.append((name, p_raw * p_scale + p_offset, v_raw * v_scale, t_raw * t_scale))
+        return out
+
+
+_I32 = struct.Struct("<i")  # 0x6064 position / 0x606C velocity actual value (DINT)
+_I16 = struct.Struct("<h")  # 0x6077 torque actual value (INT)
 
 
 def axis_extra_values(axes: Mapping[str, Any]) -> list[tuple[str, str, float]]:

@@ -516,7 +516,13 @@ class EtherRosNode(LifecycleNode):
             self._rates,
             self._feed_watchdog,
             max_backlog=backlog,
-            axis_joints=(lambda: joints.axis_joint_values(self._axes)) if self._axes else None,
+            axis_joints=(
+                joints.AxisImageJoints(
+                    [e for e in bridge.axis_plan_entries(bus) if e["name"] in self._axes]
+                )
+                if self._axes
+                else None
+            ),
             axis_slaves={name: axis.spec.slave for name, axis in self._axes.items()},
             feeder_priority=command_priority(self._cfg),
             axis_extras=(

@@ -81,7 +81,7 @@ class SamplePublisher:
         feed_watchdog: Callable[[], bool],
         max_backlog: int = 5000,
         poll_s: float = 0.002,
-        axis_joints: Callable[[], list[tuple[str, float, float, float]]] | None = None,
+        axis_joints: Callable[[bytes], list[tuple[str, float, float, float]]] | None = None,
         axis_slaves: dict[str, str] | None = None,
         feeder_priority: int = 0,
         axis_extras: Callable[[], list[tuple[str, str, float]]] | None = None,
@@ -90,9 +90,9 @@ class SamplePublisher:
         self._spec = spec
         self._pub = publishers
         self._joints = joints
-        # CiA 402 axes: (joint, position, velocity, effort) in SI, read from the engine's axis
-        # status when a joint_states message is built (so at most one cycle newer than the
-        # sample it goes with).
+        # CiA 402 axes: (joint, position, velocity, effort) in SI, read from the sample's own
+        # process image (joints.AxisImageJoints), so they are the values of the cycle the
+        # message's stamp names.
         self._axis_joints = axis_joints
         # (joint, extra, value in SI) of every axis extra, read like the axes' joint_states
         # part; None when no axis has extras (no joint_extras then).
@@ -260,7 +260,7 @@ class SamplePublisher:
                 msg.stale = topic == "pdo_in" and sl.slave in stale_slaves
                 self._pub[topic].publish(msg)
         if self._joints or self._axis_joints is not None:
-            joint_state = self._joint_state(stamp, inputs_by_slave, stale_slaves)
+            joint_state = self._joint_state(stamp, image, inputs_by_slave, stale_slaves)
             if joint_state.name:  # every joint stale: no message at all
                 self._pub["joint_states"].publish(joint_state)
         if self._axis_extras is not None:
@@ -285,7 +285,11 @@ class SamplePublisher:
         return msg
 
     def _joint_state(
-        self, stamp: Time, inputs: dict[str, list[float]], stale: set[str] | None = None
+        self,
+        stamp: Time,
+        image: bytes,
+        inputs: dict[str, list[float]],
+        stale: set[str] | None = None,
     ) -> JointState:
         """The joints whose slave's inputs are fresh (all of them when ``stale`` is empty)."""
         stale = stale or set()
@@ -310,7 +314,7 @@ class SamplePublisher:
             if with_effort:
                 eff.append(raw(j.slave, j.effort) * j.effort_scale)
         if self._axis_joints is not None:
-            for name, p, v, e in self._axis_joints():
+            for name, p, v, e in self._axis_joints(image):
                 if self._axis_slaves.get(name) in stale:
                     continue
                 names.append(name)
