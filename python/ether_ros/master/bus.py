@@ -72,6 +72,10 @@ log = logging.getLogger(__name__)
 
 # How long stop() gives the drives to leave Operation Enabled after their on_stop command.
 AXIS_STOP_WAIT_S = 0.5
+# A late wake-up of the cyclic thread on a busy host leaves a frame without its whole reply for
+# a few cycles: a read waits this long for a fresh reply before it calls the inputs stale (a
+# cable pulled or a slave cut off stays stale and is reported then).
+STALE_GRACE_S = 0.05
 
 __all__ = ["Bus", "BusEvent", "StaleInputs"]
 
@@ -677,8 +681,8 @@ class Bus:
 
     def read(self, slave: str | int, variable: str, stale_ok: bool = False) -> Value:
         """The latest value of an input (as received) or an output (as commanded). An input
-        that is not fresh raises :class:`StaleInputs` (``stale_ok``: return the last value
-        received anyway)."""
+        that is not fresh, and not fresh again within ``STALE_GRACE_S``, raises
+        :class:`StaleInputs` (``stale_ok``: return the last value received anyway)."""
         s = self.slave(slave)
         var = self._variable(s, variable)
         assert s.layout is not None and s.area is not None
@@ -734,7 +738,11 @@ class Bus:
     def _check_fresh(self, s: Slave) -> None:
         if not self._running:
             raise StaleInputs(f"slave '{s.name}': no inputs, the bus is not running")
-        if not self.inputs_fresh(s.name):
+        deadline = time.monotonic() + STALE_GRACE_S
+        while not self.inputs_fresh(s.name):
+            if time.monotonic() < deadline:
+                time.sleep(0.001)
+                continue
             age = self.input_age(s.name)
             since = "never came back whole" if age == float("inf") else f"{age * 1000:.0f} ms"
             raise StaleInputs(

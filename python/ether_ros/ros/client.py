@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import itertools
+import logging
 import threading
 import time
 from collections import deque
@@ -71,6 +72,7 @@ from ether_ros.ros.node import (
 )
 
 T = TypeVar("T")
+log = logging.getLogger(__name__)
 
 # Transitions ``ethercat_communicator`` runs by name, with the lease: the lifecycle
 # transition -> the command (the three shutdowns are one command, from whatever state).
@@ -197,6 +199,7 @@ class EtherRosClient:
         self._lease_ttl_granted = 0.0
         self._keeper: threading.Thread | None = None
         self._keeper_stop = threading.Event()
+        self._closing = threading.Event()  # close() has begun: the spin thread ends
         n.create_subscription(BusLayout, f"{p}bus_layout", self._on_layout, QOS_LATCHED)
         n.create_subscription(SlaveValues, f"{p}pdo_in", self._on_values("inputs"), QOS_HIGH_RATE)
         n.create_subscription(SlaveValues, f"{p}pdo_out", self._on_values("outputs"), QOS_HIGH_RATE)
@@ -216,10 +219,23 @@ class EtherRosClient:
         self._thread.start()
 
     def _spin(self) -> None:
-        with contextlib.suppress(Exception):  # the context was shut down while spinning
-            self._executor.spin()
+        """Spin until the client closes or the context shuts down. One wait at a time, so that
+        an error in one (an entity destroyed from another thread while the executor waited on
+        it, e.g. an action client's ``destroy()``) does not end the thread: every message after
+        it would be lost and the client would wait for the node in vain."""
+        while not self._closing.is_set() and self._executor.context.ok():
+            try:
+                self._executor.spin_once(timeout_sec=0.2)
+            except (
+                rclpy.executors.ShutdownException,
+                rclpy.executors.ExternalShutdownException,
+            ):
+                return
+            except Exception as exc:  # see above; closing or a shut-down context ends the loop
+                log.debug("client executor: %s (spinning on)", exc)
 
     def close(self) -> None:
+        self._closing.set()
         self._keeper_stop.set()
         if self._keeper is not None:
             self._keeper.join(timeout=2)
