@@ -211,3 +211,22 @@ def test_a_fresh_leg_is_told_to_set_the_centre_first(laelaps: BusSpec) -> None:
     assert parse_command(
         "set all y_cntr_traj1000=599 b_ellipse100=4", ConsoleContext(laelaps, fresh)
     )
+
+
+def test_a_fresh_console_knows_the_outputs_only_once_every_slave_has_them() -> None:
+    """pdo_out comes one slave per message: a console that has heard from one leg must not
+    check a write to all of them against outputs it does not have yet (it waits for the rest;
+    console/app.py). The branched bus's couplers have no outputs and are not waited for."""
+    from ether_ros.console.app import Console
+    from ether_ros.ros.client import Latest
+
+    layout = spec_of("branched.yaml")
+    with_outputs = [s.name for s in layout.slaves if s.outputs]
+    assert 1 < len(with_outputs) < len(layout.slaves)  # the test needs both kinds
+    latest = Latest(layout=layout, outputs={with_outputs[0]: {}})
+    assert not Console._outputs_known(latest)
+    latest.outputs = {name: {} for name in with_outputs[:-1]}
+    assert not Console._outputs_known(latest)
+    latest.commanded = {with_outputs[-1]: {}}  # the node's pdo_out_timer counts too
+    assert Console._outputs_known(latest)
+    assert not Console._outputs_known(Latest())

@@ -48,7 +48,7 @@ from ether_ros.console.commands import (
 from ether_ros.console.keys import LINE_LIMIT
 from ether_ros.console.sequence import Step, load_sequence
 from ether_ros.errors import EtherRosError
-from ether_ros.ros.client import EtherRosClient, make_write
+from ether_ros.ros.client import EtherRosClient, Latest, make_write
 from ether_ros.ros.freshness import describe_age
 from ether_ros.ros.panic_line import PanicLine
 from ether_ros.ros.values import format_value
@@ -152,15 +152,17 @@ class Console:
         """The layout and the last commanded outputs (``pdo_out_timer``; the wire echo when no
         snapshot arrived yet), for checking writes."""
         latest = self.client.latest
-        if latest.layout is not None and not latest.outputs and not latest.commanded:
-            # A console started a moment ago has the layout but no outputs message yet: wait
-            # for the first one (briefly) instead of refusing a write it could check.
+        if latest.layout is not None and not self._outputs_known(latest):
+            # A console started a moment ago has the layout but not yet every slave's outputs
+            # (pdo_out comes a slave per message): wait for them (briefly) instead of refusing
+            # a write it could check.
             deadline = time.monotonic() + FIRST_OUTPUTS_WAIT_S
             while time.monotonic() < deadline:
                 self._check()
                 with contextlib.suppress(EtherRosError):
-                    self.client.wait_for(lambda current: current.outputs or current.commanded, 0.2)
+                    self.client.wait_for(self._outputs_known, 0.2)
                     break
+            latest = self.client.latest
         outputs = {slave: dict(values) for slave, values in latest.outputs.items()}
         for slave, values in latest.commanded.items():
             outputs[slave] = dict(values)
@@ -171,6 +173,19 @@ class Console:
             else:
                 outputs.setdefault(slave, {})[variable] = value
         return ConsoleContext(latest.layout, outputs, self._joints())
+
+    @staticmethod
+    def _outputs_known(latest: Latest) -> bool:
+        """Every slave of the layout that has outputs has them in the console's view (the
+        node's pdo_out or pdo_out_timer)."""
+        layout = latest.layout
+        if layout is None:
+            return False
+        return all(
+            s.name in latest.outputs or s.name in latest.commanded
+            for s in layout.slaves
+            if s.outputs
+        )
 
     def _joints(self) -> dict[str, JointLimits]:
         """The axes with their limits (the node's ``axes.*`` parameters, read once) and each
