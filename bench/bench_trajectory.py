@@ -130,6 +130,7 @@ class Tracking:
     rms_all: float
     max_all: float
     samples: int
+    p99_all: float = 0.0  # 99th percentile of |error| over all joints
 
 
 def tracking(errors: npt.NDArray[Any]) -> Tracking:
@@ -143,6 +144,7 @@ def tracking(errors: npt.NDArray[Any]) -> Tracking:
         rms_all=float(np.sqrt((e**2).mean())),
         max_all=float(e.max()),
         samples=int(e.shape[0]),
+        p99_all=float(np.percentile(e, 99)),
     )
 
 
@@ -509,6 +511,10 @@ def run(report: Report) -> None:
     cycle_ms = fields[0].cycle_ns * 1e-6
     worst = {key: worst_at(runs) for key, runs in (("API", api), ("FJT", fjt))}
     report.text(
+        f"99th percentile of |error| over all joints: API {_mrad(t_api.p99_all)} mrad, FJT "
+        f"{_mrad(t_fjt.p99_all)} mrad (FJT / API {t_fjt.p99_all / t_api.p99_all:.2f})."
+    )
+    report.text(
         "Largest error: "
         + "; ".join(
             f"{key} {t.max_all * 1e3:.2f} mrad at {at * cycle_ms:.0f} ms after the start "
@@ -519,3 +525,4 @@ def run(report: Report) -> None:
     )
     report.value("ratio_rms", t_fjt.rms_all / t_api.rms_all)
     report.value("ratio_max", t_fjt.max_all / t_api.max_all)
+    report.value("ratio_p99", t_fjt.p99_all / t_api.p99_all)

@@ -155,6 +155,7 @@ def test_tracking_is_rms_and_max_of_the_absolute_error_per_joint_and_overall() -
     assert t.max == [4.0, 1.0]
     assert t.rms_all == pytest.approx(np.sqrt(27 / 8))
     assert t.max_all == 4.0 and t.samples == 4
+    assert 3.0 < t.p99_all <= 4.0  # between the two largest |errors|
     # The benchmark's trajectory: within ±0.9 rad, from rest at 0 (its first point, at time 0),
     # moving from the next point on, at rest at 0 at the end.
     track = trajectory(3.0)
