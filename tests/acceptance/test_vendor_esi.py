@@ -261,7 +261,7 @@ def test_ethercrab_brings_a_representative_bus_of_each_file_to_op(
     ):
         result = run_ethercrab(probe, veth.master, cfg, cycles=1000)
     summary = {k: result.get(k) for k in ("exit", "error", "op", "cycles", "wkc_errors",
-                                          "tx_rx_errors", "wkc_first")}  # fmt: skip
+                                          "tx_rx_errors", "wkc_first", "wkc_wrong")}  # fmt: skip
     assert result["exit"] == 0 and result["error"] is None, summary
     assert result["op"] and result["wkc_errors"] == 0, summary
     for seen, s in zip(result["slaves"], bus_order(cfg), strict=True):

@@ -1484,6 +1484,19 @@ impl Esc {
     /// the ESC's digital output registers (0x0F00..0x0F03) drives them too; a one-buffer SM is
     /// emptied in SAFEOP as well.
     pub fn latch_outputs(&mut self) {
+        self.latch_output_sms(false);
+    }
+
+    /// The one-buffer output SMs only. The slave reads such a buffer as soon as the master has
+    /// filled it: its PDI gets an event for every write, which is what one-buffer mode is for.
+    /// The frame empties them even where SYNC0 or the firmware's own step latches the buffered
+    /// ones; left full until then, the master's next write would be refused (a full one-buffer
+    /// SM does not take a write: working counter −2) whenever two frames fall in one period.
+    fn latch_one_buffer_outputs(&mut self) {
+        self.latch_output_sms(true);
+    }
+
+    fn latch_output_sms(&mut self, one_buffer_only: bool) {
         let op = self.al_state == ether_ros_protocol::al::OP;
         if !op && self.al_state != ether_ros_protocol::al::SAFEOP {
             return;
@@ -1493,6 +1506,9 @@ impl Esc {
                 continue;
             }
             let s = &mut self.sm[p.number];
+            if one_buffer_only && !s.is_mailbox() {
+                continue;
+            }
             let start = s.start as usize;
             if s.is_mailbox() {
                 // One buffer: the slave reads it once the master has filled it, so the master
@@ -1788,6 +1804,8 @@ impl Esc {
         }
         if self.frame_latches() {
             self.latch_outputs();
+        } else {
+            self.latch_one_buffer_outputs();
         }
         self.resolve_pending_op();
         self.service_mailbox();
@@ -2078,6 +2096,28 @@ mod tests {
         assert!(esc.ecat_write(0x0F00, &[0xA5]));
         esc.latch_outputs();
         assert_eq!(esc.memory()[0x0F00], 0xA5);
+    }
+
+    #[test]
+    fn a_one_buffer_output_sm_takes_every_frame_while_sync0_latches() {
+        // SMC EX250: outputs in one-buffer mode (ControlByte 0x46) on 0x0F00. With SYNC0
+        // latching the buffered SMs, a master whose frames jitter sends two in one SYNC0
+        // period: the slave has read the first (its PDI event), so the second is taken too.
+        let mut esc = slave(0x01, &[(0x0F00, 1, 0x46, 0x09, 3)]);
+        esc.request_state(ether_ros_protocol::al::PREOP as u16);
+        esc.request_state(ether_ros_protocol::al::SAFEOP as u16);
+        configure_sm(&mut esc, 0, 0x0F00, 1, 0x46);
+        esc.request_state(ether_ros_protocol::al::OP as u16);
+        esc.sync0_next = Some(u64::MAX); // SYNC0 runs and has not fired yet
+        assert!(!esc.frame_latches());
+        for v in [0xA5, 0x5A, 0x3C] {
+            assert!(
+                esc.ecat_write(0x0F00, &[v]),
+                "the write of {v:#04x} was refused"
+            );
+            esc.after_frame();
+            assert_eq!(esc.memory()[0x0F00], v);
+        }
     }
 
     #[test]

@@ -31,13 +31,14 @@ from typing import Any
 import yaml
 
 from ether_ros.config.yamlsrc import KeyPath, format_path
+from ether_ros.tools.vendor_corpus import vendor_dir
 
 ROOT = Path(__file__).resolve().parents[3]
 #: The shipped bus configurations the config mutants start from.
 CONFIG_DIR = ROOT / "config"
 #: The project's ESI files and its corpus; the vendor files are read where they are shared.
 ESI_DIRS = (ROOT / "devices", ROOT / "tests" / "data" / "esi")
-VENDOR_ESI_DIR = Path("/work/shared/esi-vendor")
+VENDOR_ESI_DIR: Path | None = vendor_dir()  # ../shared/esi-vendor, found as the tests find it
 
 
 @dataclass(frozen=True)
@@ -307,7 +308,8 @@ def _esi_bad_numbers(tag: str) -> list[str]:
 def esi_files(include_vendor: bool = True, max_bytes: int | None = None) -> list[Path]:
     """The ESI files the mutators start from: the project's, its corpus, and (when present)
     the shared vendor files, read in place."""
-    dirs = list(ESI_DIRS) + ([VENDOR_ESI_DIR] if include_vendor else [])
+    vendor = [VENDOR_ESI_DIR] if include_vendor and VENDOR_ESI_DIR is not None else []
+    dirs = list(ESI_DIRS) + vendor
     files = sorted(
         p
         for d in dirs

@@ -110,6 +110,9 @@ struct Report {
     cycles: u32,
     wkc_first: u16,
     wkc_errors: u32,
+    /// The first wrong working counters: (cycle, working counter), to tell a slave that
+    /// missed one cycle from one that left OP.
+    wkc_wrong: Vec<(u32, u16)>,
     tx_rx_errors: u32,
     inputs: Vec<String>,
     outputs: Vec<String>,
@@ -124,12 +127,17 @@ impl Report {
         };
         format!(
             "{{\"slaves\":[{}],\"op\":{},\"cycles\":{},\"wkc_first\":{},\"wkc_errors\":{},\
-             \"tx_rx_errors\":{},\"inputs\":{},\"outputs\":{},\"error\":{}}}",
+             \"wkc_wrong\":[{}],\"tx_rx_errors\":{},\"inputs\":{},\"outputs\":{},\"error\":{}}}",
             self.slaves.join(","),
             self.op,
             self.cycles,
             self.wkc_first,
             self.wkc_errors,
+            self.wkc_wrong
+                .iter()
+                .map(|(c, w)| format!("[{c},{w}]"))
+                .collect::<Vec<_>>()
+                .join(","),
             self.tx_rx_errors,
             list(&self.inputs),
             list(&self.outputs),
@@ -227,6 +235,9 @@ macro_rules! cycle_loop {
                     let expected = args.expect_wkc.unwrap_or(report.wkc_first);
                     if r.working_counter != expected {
                         report.wkc_errors += 1;
+                        if report.wkc_wrong.len() < 10 {
+                            report.wkc_wrong.push((n, r.working_counter));
+                        }
                     }
                 }
                 Err(_) => report.tx_rx_errors += 1,
