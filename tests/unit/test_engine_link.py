@@ -484,17 +484,29 @@ def _fds() -> int:
 
 
 def _engine_threads() -> int:
-    """The engine's own threads (named ether_ros-*). Counting every thread of the pytest process
-    would also count threads other tests left winding down (rclpy executors, responders) on a
-    loaded host, which come and go independently of the engine under test."""
-    count = 0
-    for tid in os.listdir("/proc/self/task"):
-        try:
-            if Path(f"/proc/self/task/{tid}/comm").read_text().startswith("ether_ros"):
-                count += 1
-        except FileNotFoundError:
-            continue
-    return count
+    """The engine's RT threads (ether_ros-rt) still in this process. Counting every thread of
+    the pytest process would also count threads other tests left winding down (rclpy
+    executors, responders, command receivers) on a loaded host. A thread that has been joined
+    can still be listed for a moment: the kernel wakes the joiner when the thread's tid is
+    cleared, a little before it removes the task; so the count is taken once it stops falling,
+    for up to 2 s."""
+
+    def count() -> int:
+        n = 0
+        for tid in os.listdir("/proc/self/task"):
+            try:
+                if Path(f"/proc/self/task/{tid}/comm").read_text().strip() == "ether_ros-rt":
+                    n += 1
+            except FileNotFoundError:
+                continue
+        return n
+
+    deadline = time.monotonic() + 2.0
+    n = count()
+    while n and time.monotonic() < deadline:
+        time.sleep(0.01)
+        n = count()
+    return n
 
 
 def test_start_stop_and_open_close_leak_nothing(veth: VethPair) -> None:
