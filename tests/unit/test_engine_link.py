@@ -126,11 +126,16 @@ class VethResponder:
                 continue
             if addr[2] == PACKET_OUTGOING:
                 continue
-            while self.extra:
-                self.sock.send(self.extra.pop())
             reply = self.esc.process_frame(frame)
-            if reply is not None:
-                self.sock.send(reply)
+            try:
+                while self.extra:
+                    self.sock.send(self.extra.pop())
+                if reply is not None:
+                    self.sock.send(reply)
+            except OSError:
+                # A pulled cable (link down) makes the send fail (ENOBUFS, ENETDOWN): that
+                # reply is lost, as on a real wire, and the responder goes on for the next.
+                continue
 
     def close(self) -> None:
         self.stopped.set()
