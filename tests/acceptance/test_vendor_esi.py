@@ -23,6 +23,7 @@ import pytest
 from ether_ros.config.bus import load_bus_config
 from ether_ros.config.esi import load_esi, load_esi_file
 from ether_ros.config.from_esi import bus_yaml_for_devices
+from ether_ros.errors import ConfigError
 from ether_ros.master import Bus
 from ether_ros.sim.proof import OP, SimProcess, SoemBus
 from ether_ros.sim.spec import bus_order
@@ -76,11 +77,47 @@ def test_every_vendor_file_loads_with_hundreds_of_devices() -> None:
         assert esi.devices, f"{f}: {esi.warnings}"
         assert esi.skipped_devices == (), esi.skipped_devices
         for w in esi.warnings:
-            # A warning is one line naming file, line and element.
-            assert re.match(rf"^{re.escape(str(f))}:\d+: <[^>]+>: ", str(w)), w
+            # A warning is one line naming file, line and element: the ESI file, or a
+            # dictionary file in its folder that one of its devices names.
+            named = Path(w.file)
+            assert named == f or f.parent in named.parents, w
+            assert re.match(rf"^{re.escape(w.file)}:\d+: <[^>]+>: ", str(w)), w
             assert "\n" not in str(w)
         total += len(esi.devices)
     assert total >= 400, total
+
+
+@needs_corpus
+def test_a_vendor_folder_s_dictionary_files_are_read_for_the_devices_that_name_them() -> None:
+    """Beckhoff's AX5000 ESI names each device's IDN dictionary in a file of its own
+    (``<DictionaryFile>Beckhoff AX5xxx\\Beckhoff AX5101-xxxx-0210 Dict.xml``, a Windows
+    path; root ``<EtherCATDict>``). The corpus holds two of the 155: those two devices get
+    their dictionary, every other device one warning naming the missing file, and the
+    dictionary files are no ESI files of their own."""
+    root = _corpus()
+    files = vendor_files(root)
+    assert not [f for f in files if f.name.endswith(" Dict.xml")], files
+    (ax,) = [f for f in files if f.name == "Beckhoff AX5xxx.xml"]
+    esi = load_esi_file(ax)
+    present = {p.name for p in (ax.parent / "Beckhoff AX5xxx").glob("*Dict.xml")}
+    assert len(present) == 2, present
+    by_type = {d.type_name: d for d in esi.devices}
+    drive = by_type["AX5101-0000-0210"]
+    assert drive.mailbox is not None and drive.mailbox.soe and not drive.mailbox.coe
+    # Sercos drive: the dictionary is its IDNs (S-0-0001 TNcyc, P-0-0010 = 0x800A ...),
+    # kept apart from the CoE dictionary it does not have.
+    idns = {o.index: o for o in drive.idns}
+    assert drive.objects == ()
+    assert len(idns) > 500, len(idns)
+    assert "TNcyc" in idns[1].name
+    assert 0x800A in idns  # P-0-0010, the init command's feature flags
+    missing = [w for w in esi.warnings if "DictionaryFile not found" in w.message]
+    named = [d for d in esi.devices if d.idns]
+    assert len(named) == 2, [d.type_name for d in named]
+    assert len(missing) == len(esi.devices) - len(named), len(missing)
+    assert all(Path(w.file) == ax and " Dict.xml" in w.message for w in missing)
+    with pytest.raises(ConfigError, match=r"a dictionary file, not an ESI file"):
+        load_esi_file(ax.parent / "Beckhoff AX5xxx" / sorted(present)[0])
 
 
 @needs_corpus
@@ -163,10 +200,15 @@ def test_every_device_reaches_op_under_our_master(group: str, tmp_path: Path) ->
             # counter above shows their inputs are read.
             checks = echo_checks(cfg)
             assert checks or group == "beckhoff_el1"
+            commands: dict[str | int, dict[str, object]] = {}
             for c in checks:
-                bus.write(c.slave, c.output.key, c.value)
+                commands.setdefault(c.slave, {})[c.output.key] = c.value
 
             def echoed() -> list[str]:
+                # Commanded as an application does, every time: the bus's command watchdog
+                # (100 ms) puts the safe outputs back when the commands stop, and reading a
+                # big bus's inputs one by one can take longer than that on a loaded host.
+                bus.write_slaves(commands)
                 return [
                     f"{c.slave}.{c.input.key}"
                     for c in checks

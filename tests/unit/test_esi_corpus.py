@@ -11,7 +11,7 @@ import pytest
 
 from ether_ros.config import ProcessLayout, load_bus_config, load_esi
 from ether_ros.config import types as dt
-from ether_ros.config.esi import EsiDevice, load_esi_file
+from ether_ros.config.esi import EsiDevice, esi_files, is_dictionary_file, load_esi_file
 from ether_ros.errors import ConfigError
 
 CORPUS = Path(__file__).resolve().parents[1] / "data" / "esi"
@@ -136,6 +136,89 @@ def test_dictionary_from_a_dictionary_file() -> None:
     assert counter.od_entry(0x1018, 2) is not None
 
 
+SOE_DRIVE = """<?xml version="1.0"?>
+<EtherCATInfo><Vendor><Id>2</Id></Vendor><Descriptions><Devices>
+<Device><Type ProductCode="#x13ed6012" RevisionNo="1">SoeDrive</Type>
+<Profile><DictionaryFile>{ref}</DictionaryFile></Profile>
+<Sm MinSize="128" MaxSize="128" DefaultSize="128" StartAddress="#x1800" ControlByte="#x26"
+ Enable="1">MBoxOut</Sm>
+<Sm MinSize="128" MaxSize="128" DefaultSize="128" StartAddress="#x1a00" ControlByte="#x22"
+ Enable="1">MBoxIn</Sm>
+<Mailbox><SoE/></Mailbox>
+</Device></Devices></Descriptions></EtherCATInfo>
+"""
+
+# Beckhoff's dictionary files: root <EtherCATDict>; enumerations and display variants as
+# <DataType>s with only a name and a BitSize.
+IDN_DICTIONARY = """<?xml version="1.0" encoding="utf-8"?>
+<EtherCATDict><Dictionary><DataTypes>
+<DataType><Name>UINT</Name><BitSize>16</BitSize></DataType>
+<DataType><Name>UINT_IDN</Name><BitSize>16</BitSize></DataType>
+<DataType><Name>DT_Mode</Name><BitSize>16</BitSize>
+ <EnumInfo><Text>Cancel</Text><Enum>0</Enum></EnumInfo></DataType>
+<DataType><Name>DT_Flag</Name><BitSize>1</BitSize></DataType>
+<DataType><Name>DT_Bits</Name><BitSize>16</BitSize>
+ <SubItem><Name>Bit 0</Name><Type>DT_Flag</Type><BitSize>1</BitSize><BitOffs>0</BitOffs></SubItem>
+ <SubItem><Name>Bit 1</Name><Type>DT_Flag</Type><BitSize>1</BitSize><BitOffs>1</BitOffs></SubItem>
+</DataType>
+</DataTypes><Objects>
+<Object><Index>1</Index><Name>Control unit cycle time (TNcyc)</Name><Type>UINT</Type>
+ <BitSize>16</BitSize></Object>
+<Object><Index>16</Index><Name>AT configuration</Name><Type>UINT_IDN</Type>
+ <BitSize>16</BitSize></Object>
+<Object><Index>32789</Index><Name>Procedure</Name><Type>DT_Mode</Type><BitSize>16</BitSize></Object>
+<Object><Index>11</Index><Name>Class 1 diagnostic</Name><Type>DT_Bits</Type>
+ <BitSize>16</BitSize></Object>
+</Objects></Dictionary></EtherCATDict>
+"""
+
+
+@pytest.mark.parametrize(
+    "ref",
+    [
+        "Drives\\Soe Drive Dict.xml",  # as the vendor writes it: a Windows path
+        "drives/SOE DRIVE DICT.XML",  # another case: the vendor's tools ignore case
+    ],
+)
+def test_a_dictionary_file_in_a_sub_folder_named_with_a_windows_path(
+    tmp_path: Path, ref: str
+) -> None:
+    (tmp_path / "Drives").mkdir()
+    (tmp_path / "Drives" / "Soe Drive Dict.xml").write_text(IDN_DICTIONARY)
+    esi_path = tmp_path / "Drives.xml"
+    esi_path.write_text(SOE_DRIVE.format(ref=ref))
+    esi = load_esi_file(esi_path)
+    assert esi.warnings == ()
+    (drive,) = esi.devices
+    # A Sercos drive's dictionary is its IDNs, apart from the CoE dictionary it lacks.
+    assert drive.objects == ()
+    idns = {o.index: o for o in drive.idns}
+    assert sorted(idns) == [1, 11, 16, 32789]
+    # Size-only types: unsigned integers of their BitSize (enumerations included).
+    assert idns[16].entries[0].data_type == dt.UINT16.code
+    assert idns[32789].entries[0].data_type == dt.UINT16.code
+    assert [(e.name, e.bit_length) for e in idns[11].entries] == [("Bit 0", 1), ("Bit 1", 1)]
+    # The folder's ESI files leave the dictionary out; loading it directly says what it is.
+    assert esi_files(tmp_path) == [esi_path]
+    assert is_dictionary_file(tmp_path / "Drives" / "Soe Drive Dict.xml")
+    with pytest.raises(ConfigError, match=r"Dict\.xml:2: <EtherCATDict>: a dictionary file"):
+        load_esi_file(tmp_path / "Drives" / "Soe Drive Dict.xml")
+
+
+def test_a_missing_or_escaping_dictionary_file_is_a_warning_naming_it(tmp_path: Path) -> None:
+    for ref, why in [
+        ("Drives\\Other Dict.xml", r"not found in the ESI's folder \(not read\): 'Drives/Other"),
+        ("..\\outside.xml", r"must name a file in the ESI's folder"),
+        ("C:\\TwinCAT\\Dict.xml", r"must name a file in the ESI's folder"),
+    ]:
+        esi_path = tmp_path / "Drive.xml"
+        esi_path.write_text(SOE_DRIVE.format(ref=ref))
+        esi = load_esi_file(esi_path)
+        (warning,) = esi.warnings
+        assert re.search(why, str(warning)), warning
+        assert esi.devices[0].idns == ()
+
+
 HEADER = '<?xml version="1.0"?>\n'
 SHELL = (
     "<EtherCATInfo><Vendor><Id>1</Id></Vendor><Descriptions><Devices><Device>"
@@ -212,7 +295,7 @@ HOSTILE = [
     ),
     pytest.param(
         SHELL.format(body="<Profile><DictionaryFile>../../etc/passwd</DictionaryFile></Profile>"),
-        r"<DictionaryFile>: DictionaryFile must name a file next to the ESI",
+        r"<DictionaryFile>: DictionaryFile must name a file in the ESI's folder",
         id="dictionary-file-outside",
     ),
 ]

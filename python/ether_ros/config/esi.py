@@ -333,6 +333,10 @@ class EsiDevice:
     tx_pdos: tuple[Pdo, ...]
     objects: tuple[OdObject, ...]
     eeprom: EepromDesc
+    # The IDN dictionary of a Sercos-profile drive (SoE in its mailbox, no CoE: Beckhoff's
+    # AX5000): its dictionary's <Index> values are IDNs (S-0-nnnn below 0x8000, P-0-nnnn from
+    # it; the parameter set in bits 12..14), never CoE objects, so it is kept apart.
+    idns: tuple[OdObject, ...] = ()
     # Device profile numbers (``<Profile><ProfileNo>``, one per ``<ChannelInfo>`` of a
     # multi-channel device): 402 is a CiA 402 drive, 5001 a modular device (MDP).
     profile_numbers: tuple[int, ...] = ()
@@ -809,6 +813,13 @@ def _recover(path: Path, data: bytes, exc: etree.XMLSyntaxError, ctx: _Ctx | Non
 def _parse_file(p: Path) -> EsiFile:
     ctx = _Ctx(p)
     root = _parse_xml(p, ctx)
+    if _local(root) in DICTIONARY_ROOTS:
+        raise ctx.error(
+            root,
+            "a dictionary file, not an ESI file: it is read for the devices whose"
+            " <Profile><DictionaryFile> names it (load the ESI file beside it)",
+            _local(root),
+        )
     if _local(root) != "EtherCATInfo":
         raise ctx.error(root, "root element must be <EtherCATInfo>", _local(root))
     vendor = _child(root, "Vendor")
@@ -963,8 +974,8 @@ def default_modules(device: EsiDevice) -> list[int | None]:
 
 def load_esi_paths(paths: Iterable[str | Path]) -> list[EsiDevice]:
     """All devices of the given ESI files and directories (``*.xml`` in them, sorted; a
-    directory's dictionary files — root ``<Dictionary>``, referenced by a ``DictionaryFile`` —
-    are not ESI files of their own and are passed over)."""
+    directory's dictionary files (:func:`is_dictionary_file`) are not ESI files of their own
+    and are passed over)."""
     out: list[EsiDevice] = []
     for item in paths:
         p = Path(item)
@@ -980,10 +991,20 @@ def load_esi_paths(paths: Iterable[str | Path]) -> list[EsiDevice]:
 
 def esi_files(directory: Path) -> list[Path]:
     """The ESI files of a directory: ``*.xml`` sorted (regular files), without dictionary
-    files (root ``<Dictionary>``, referenced by a device's ``DictionaryFile``)."""
-    return [
-        f for f in sorted(directory.glob("*.xml")) if f.is_file() and _root_name(f) != "Dictionary"
-    ]
+    files (see :func:`is_dictionary_file`)."""
+    return [f for f in sorted(directory.glob("*.xml")) if f.is_file() and not is_dictionary_file(f)]
+
+
+# Root elements of the files a device's ``<Profile><DictionaryFile>`` names: ``<EtherCATDict>``
+# (ETG.2000's EtherCATDict.xsd, as Beckhoff ships them) or a bare ``<Dictionary>``. Such a file
+# describes no device of its own: it is read for the devices that name it.
+DICTIONARY_ROOTS = ("EtherCATDict", "Dictionary")
+
+
+def is_dictionary_file(path: Path) -> bool:
+    """Whether ``path`` is a dictionary file (root element one of ``DICTIONARY_ROOTS``), read
+    for the devices that name it and never loaded as an ESI file of its own."""
+    return _root_name(path) in DICTIONARY_ROOTS
 
 
 def _root_name(path: Path) -> str:
@@ -1090,6 +1111,9 @@ def _parse_device(
 
     dc_modes = _parse_dc(ctx, dev)
     objects = _parse_dictionary(ctx, dev, _dictionary_file_of(ctx, dev))
+    idns: list[OdObject] = []
+    if mailbox is not None and mailbox.soe and not mailbox.coe:
+        idns, objects = objects, []
     od = {(e.index, e.subindex): e for o in objects for e in o.entries}
     _count(dev, "RxPdo", MAX_PDOS, ctx, "RxPDOs")
     _count(dev, "TxPdo", MAX_PDOS, ctx, "TxPDOs")
@@ -1108,6 +1132,7 @@ def _parse_device(
         rx_pdos=tuple(rx),
         tx_pdos=tuple(tx),
         objects=tuple(objects),
+        idns=tuple(idns),
         eeprom=_parse_eeprom(ctx, dev),
         profile_numbers=_profile_numbers(ctx, dev),
         timeouts=_parse_timeouts(ctx, info),
@@ -1458,23 +1483,29 @@ def _check_duplicate_pdos(ctx: _Ctx, rx: list[Pdo], tx: list[Pdo]) -> None:
 
 
 def _dictionary_file_of(ctx: _Ctx, dev: etree._Element) -> tuple[_Ctx, etree._Element] | None:
-    """A ``<Profile><DictionaryFile>``: the dictionary kept in a file of its own, next to the
-    ESI (its first ``<Dictionary>`` element is used). A bad reference is a warning: the device
-    loads without a dictionary."""
+    """A ``<Profile><DictionaryFile>``: the dictionary kept in a file of its own, in the ESI's
+    folder or below it (its first ``<Dictionary>`` element is used). Vendors write the path
+    as Windows does (``Beckhoff AX5xxx\\Beckhoff AX5101-xxxx-0210 Dict.xml``): a backslash
+    separates folders, and a name that differs from the file's only in case is the file (the
+    tools these files are made for run on a case-insensitive file system). A bad reference is
+    a warning naming it: the device loads without a dictionary."""
     for prof in _children(dev, "Profile"):
         ref = _child(prof, "DictionaryFile")
         if ref is None:
             continue
         name = _text(ref)
-        target = (ctx.path.parent / name).resolve()
-        if not name or ctx.path.parent.resolve() not in target.parents:
-            ctx.warn(ref, "DictionaryFile must name a file next to the ESI (not read)", name)
+        folder = ctx.path.parent.resolve()
+        target = _dictionary_path(folder, name)
+        if target is None:
+            ctx.warn(ref, "DictionaryFile must name a file in the ESI's folder (not read)", name)
             return None
         if not target.is_file():
-            ctx.warn(ref, "DictionaryFile not found (not read)", str(target))
+            # Named as the ESI names it (in the ESI's folder), short enough to read whole.
+            shown = str(target.relative_to(folder))
+            ctx.warn(ref, "DictionaryFile not found in the ESI's folder (not read)", shown)
             return None
         try:
-            root = _parse_xml(target)
+            root = _parse_dictionary_xml(target)
         except ConfigError as exc:
             ctx.warn(ref, f"DictionaryFile not read: {exc}")
             return None
@@ -1491,6 +1522,52 @@ def _dictionary_file_of(ctx: _Ctx, dev: etree._Element) -> tuple[_Ctx, etree._El
             return None
         return _Ctx(target), found
     return None
+
+
+def _dictionary_path(folder: Path, name: str) -> Path | None:
+    """The file a ``DictionaryFile`` reference names, relative to the ESI's ``folder``; None
+    when the reference is empty, absolute or leaves the folder."""
+    parts = [p for p in name.replace("\\", "/").split("/") if p not in ("", ".")]
+    if not name or name.startswith(("/", "\\")) or ":" in name or ".." in parts or not parts:
+        return None
+    target = folder.joinpath(*parts)
+    if not target.exists():
+        target = _case_insensitive(folder, parts) or target
+    resolved = target.resolve()
+    return resolved if folder in resolved.parents else None
+
+
+def _case_insensitive(folder: Path, parts: list[str]) -> Path | None:
+    """``folder/parts...`` matched one name at a time without regard to case, or None."""
+    here = folder
+    for part in parts:
+        try:
+            match = next((c for c in here.iterdir() if c.name.casefold() == part.casefold()), None)
+        except OSError:
+            return None
+        if match is None:
+            return None
+        here = match
+    return here
+
+
+# A dictionary file is parsed once per (path, modification time, size) in a process: a vendor
+# file names one from many devices, and one is over a megabyte.
+_dictionary_xml_cache: dict[tuple[str, int, int], etree._Element] = {}
+
+
+def _parse_dictionary_xml(path: Path) -> etree._Element:
+    st = path.stat()
+    key = (str(path), st.st_mtime_ns, st.st_size)
+    with _cache_lock:
+        root = _dictionary_xml_cache.get(key)
+    if root is None:
+        root = _parse_xml(path)
+        with _cache_lock:
+            if len(_dictionary_xml_cache) > 16:
+                _dictionary_xml_cache.clear()
+            _dictionary_xml_cache[key] = root
+    return root
 
 
 def _parse_dictionary(
@@ -1661,9 +1738,12 @@ def _parse_object(ctx: _Ctx, o: etree._Element, typedefs: dict[str, _TypeDef]) -
     if td is None or (not td.subitems and td.array is None):
         # A plain variable (VAR) of a basic type, possibly declared as a <DataType> too.
         t = dt.esi_type(type_name) or (dt.esi_type(td.base_type) if td is not None else None)
+        sized = _sized_alias(td) if t is None and td is not None else None
+        t = t or sized
         if t is None:
             raise ctx.error(type_el, "unknown data type", type_name)
-        bits = bit_size or t.bit_length or (td.bit_size if td is not None else 0)
+        own_bits = td.bit_size if td is not None else 0
+        bits = bit_size or (own_bits if sized else t.bit_length) or own_bits
         entry = OdEntry(
             index=index,
             subindex=0,
@@ -1776,7 +1856,26 @@ def _entry_type(
         return 0, size
     if inner.subitems:
         return 0, size
-    base = dt.esi_type(inner.base_type)
+    base = dt.esi_type(inner.base_type) or _sized_alias(inner)
     if base is None:
         raise ctx.error(el, "unknown data type", tname)
     return base.code, size or base.bit_length
+
+
+def _sized_alias(td: _TypeDef) -> dt.DataType | None:
+    """The type of a ``<DataType>`` that gives only a name and a BitSize (an enumeration with
+    ``<EnumInfo>`` values, or a display variant such as Beckhoff's ``UINT_IDN``, ``UDINT_hex``,
+    ``UINT10``): ETG.2000 enumerations are unsigned integers of their BitSize, and so is a
+    sized alias. The smallest unsigned type that holds BitSize, which the entry's own bit
+    length then narrows; None without a BitSize or with a BaseType of its own."""
+    if td.base_type or td.subitems or td.array is not None or not 0 < td.bit_size <= 64:
+        return None
+    bits = td.bit_size
+    name = (
+        f"BIT{bits}"
+        if bits <= 8
+        else next(
+            n for w, n in ((16, "UINT"), (24, "UINT24"), (32, "UDINT"), (64, "ULINT")) if bits <= w
+        )
+    )
+    return dt.esi_type(name)

@@ -30,6 +30,7 @@ from typing import Any
 
 import yaml
 
+from ether_ros.config.esi import is_dictionary_file
 from ether_ros.config.yamlsrc import KeyPath, format_path
 from ether_ros.tools.vendor_corpus import vendor_dir
 
@@ -311,11 +312,7 @@ def esi_files(include_vendor: bool = True, max_bytes: int | None = None) -> list
     vendor = [VENDOR_ESI_DIR] if include_vendor and VENDOR_ESI_DIR is not None else []
     dirs = list(ESI_DIRS) + vendor
     files = sorted(
-        p
-        for d in dirs
-        if d.is_dir()
-        for p in d.rglob("*.xml")
-        if "dictionary" not in p.name.lower()
+        p for d in dirs if d.is_dir() for p in d.rglob("*.xml") if not is_dictionary_file(p)
     )
     if max_bytes is not None:
         files = [p for p in files if p.stat().st_size <= max_bytes]

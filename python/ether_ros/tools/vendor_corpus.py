@@ -23,7 +23,7 @@ from typing import Any
 
 from ether_ros.config import types as dt
 from ether_ros.config.bus import BusConfig, SlaveConfig, default_sim_device
-from ether_ros.config.esi import EsiDevice, load_esi_file
+from ether_ros.config.esi import EsiDevice, is_dictionary_file, load_esi_file
 from ether_ros.config.process import ProcessLayout, ProcessVariable
 from ether_ros.sim.spec import ESC_REGISTER_OBJECTS, bus_order, loopback_pairs, slave_spec
 
@@ -35,6 +35,8 @@ VENDOR_SUBDIR = Path("shared") / "esi-vendor"
 BUS_GROUPS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("beckhoff_el1", ("Beckhoff EL1xxx.xml",)),
     ("beckhoff_el2", ("Beckhoff EL2xxx.xml",)),
+    # 147 Sercos drives, their dictionaries in the folder beside the file.
+    ("beckhoff_ax5", ("Beckhoff AX5xxx.xml",)),
     (
         "beckhoff_other",
         (
@@ -82,8 +84,10 @@ def no_vendor_dir_reason(start: Path | None = None) -> str:
 
 
 def vendor_files(root: Path) -> list[Path]:
-    """Every ESI file of the corpus, sorted by path."""
-    return sorted(p for p in root.rglob("*.xml") if p.is_file())
+    """Every ESI file of the corpus, sorted by path: dictionary files (Beckhoff's AX5000
+    keeps its dictionaries in a folder beside the ESI) are read for the devices that name
+    them, not as files of their own."""
+    return sorted(p for p in root.rglob("*.xml") if p.is_file() and not is_dictionary_file(p))
 
 
 def bus_devices(files: Iterable[Path]) -> list[EsiDevice]:
@@ -173,6 +177,11 @@ def echo_checks(cfg: BusConfig) -> list[Echo]:
             continue
         layout = s.layout
         for out_i, out_s, in_i, in_s in loopback_pairs(s.esi):
+            if _repeated(s.esi, out_i, out_s) or _repeated(s.esi, in_i, in_s):
+                # One object in several PDOs (the channels of a two-axis Sercos drive map
+                # the same IDNs): the model keeps one value per object, so which channel's
+                # output comes back is not defined.
+                continue
             out = _variable(layout.outputs, out_i, out_s)
             inp = _variable(layout.inputs, in_i, in_s)
             if out is None or inp is None or out.dtype.kind not in ("bool", "int", "uint"):
@@ -180,6 +189,12 @@ def echo_checks(cfg: BusConfig) -> list[Echo]:
             checks.append(Echo(s.name, out, inp, _value(out)))
             break
     return checks
+
+
+def _repeated(device: EsiDevice, index: int, sub: int) -> bool:
+    """Whether entry ``index:sub`` is mapped by more than one (non-virtual) PDO."""
+    pdos = [p for p in (*device.rx_pdos, *device.tx_pdos) if not p.virtual]
+    return sum(any((e.index, e.subindex) == (index, sub) for e in p.entries) for p in pdos) > 1
 
 
 def _variable(vs: Sequence[ProcessVariable], index: int, sub: int) -> ProcessVariable | None:
