@@ -78,10 +78,10 @@ def run_ours(devices: list[EsiDevice], yml: Path) -> list[str]:
 def run_pysoem(devices: list[EsiDevice], yml: Path) -> list[str]:
     cfg = load_bus_config(yml)
     with (
-        VethPair.create(netns=True) as veth,
+        VethPair.create(netns=True, master_netns=True) as veth,
         SimProcess(yml, veth.slave, veth.netns, ready_timeout=SIM_READY_S),
     ):
-        soem = SoemBus(cfg, veth.master)
+        soem = SoemBus(cfg, veth.master, netns=veth.master_netns)
         try:
             soem.scan()
             soem.set_watchdog(2000)
@@ -101,10 +101,10 @@ def run_pysoem(devices: list[EsiDevice], yml: Path) -> list[str]:
 def run_ethercrab_bus(devices: list[EsiDevice], yml: Path, probe: Path) -> list[str]:
     cfg = load_bus_config(yml)
     with (
-        VethPair.create(netns=True) as veth,
+        VethPair.create(netns=True, master_netns=True) as veth,
         SimProcess(yml, veth.slave, veth.netns, ready_timeout=SIM_READY_S),
     ):
-        result = run_ethercrab(probe, veth.master, cfg, cycles=500)
+        result = run_ethercrab(probe, veth.master, cfg, cycles=500, netns=veth.master_netns)
     if result.get("exit") == 0 and result.get("op") and not result.get("wkc_errors"):
         sizes = []
         for out, inp, s in zip(result["outputs"], result["inputs"], bus_order(cfg), strict=True):

@@ -42,6 +42,17 @@ def veth_ns(veth_allowed: bool) -> Iterator[VethPair]:
         yield pair
 
 
+@pytest.fixture
+def veth_apart(veth_allowed: bool) -> Iterator[VethPair]:
+    """A fresh veth pair with each end in a network namespace of its own: for a master that is
+    not ours (pysoem, ethercrab), whose raw socket would otherwise see the EtherCAT frames of
+    every other bus on the host before it is bound (``ether_ros.netns``)."""
+    if not veth_allowed:
+        pytest.fail("creating a network namespace needs root; run the tests as root")
+    with VethPair.create(netns=True, master_netns=True) as pair:
+        yield pair
+
+
 @pytest.fixture(scope="module")
 def sim_iface(veth_allowed: bool) -> Iterator[str]:
     """The master-side interface of the simulated Laelaps bus (config/laelaps.yaml), run in its

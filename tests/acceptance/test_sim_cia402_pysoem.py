@@ -43,11 +43,11 @@ def key(axis: int, index: int) -> str:
 
 
 @pytest.fixture
-def drive(veth_ns: VethPair) -> Iterator[tuple[SimProcess, SoemBus]]:
+def drive(veth_apart: VethPair) -> Iterator[tuple[SimProcess, SoemBus]]:
     args = ["--esi", str(SERVO), "--device", "ServoDrive2"]
-    with SimProcess(None, veth_ns.slave, veth_ns.netns, args) as sim:
-        cfg = bus_config_for_esi(SERVO, "ServoDrive2", 1, interface=veth_ns.master)
-        bus = SoemBus(cfg, veth_ns.master, receive_timeout_us=RECEIVE_TIMEOUT_US)
+    with SimProcess(None, veth_apart.slave, veth_apart.netns, args) as sim:
+        cfg = bus_config_for_esi(SERVO, "ServoDrive2", 1, interface=veth_apart.master)
+        bus = SoemBus(cfg, veth_apart.master, RECEIVE_TIMEOUT_US, netns=veth_apart.master_netns)
         try:
             yield sim, bus
         finally:

@@ -24,7 +24,7 @@ from ether_ros.config import BusConfig, ProcessLayout, load_bus_config
 from ether_ros.config.from_esi import bus_config_for_esi
 from ether_ros.sim.proof import SimProcess
 from ether_ros.sim.spec import bus_order
-from ether_ros.testing.netns import VethPair
+from ether_ros.testing.netns import VethPair, netns_command
 
 pytestmark = pytest.mark.netns
 
@@ -70,11 +70,15 @@ def expected_wkc(cfg: BusConfig) -> int:
     return wkc
 
 
-def run_probe(probe: Path, iface: str, cfg: BusConfig, *extra: str) -> dict[str, Any]:
+def run_probe(
+    probe: Path, iface: str, cfg: BusConfig, *extra: str, netns: str | None = None
+) -> dict[str, Any]:
     argv = [str(probe), "--interface", iface, "--cycles", str(CYCLES),
             "--expect-slaves", str(len(cfg.slaves)), "--expect-wkc", str(expected_wkc(cfg)),
             *extra]  # fmt: skip
-    done = subprocess.run(argv, capture_output=True, text=True, timeout=240, check=False)
+    done = subprocess.run(
+        netns_command(netns, argv), capture_output=True, text=True, timeout=240, check=False
+    )
     lines = [ln for ln in done.stdout.splitlines() if ln.startswith("{")]
     assert lines, f"probe printed no result (exit {done.returncode}): {done.stderr[-2000:]}"
     result: dict[str, Any] = json.loads(lines[-1])
@@ -101,8 +105,11 @@ def check_identity_and_sizes(result: dict[str, Any], cfg: BusConfig) -> None:
 
 def _run_config(probe: Path, config: Path, *extra: str) -> tuple[dict[str, Any], BusConfig]:
     cfg = load_bus_config(config)
-    with VethPair.create(netns=True) as veth, SimProcess(config, veth.slave, veth.netns):
-        result = run_probe(probe, veth.master, cfg, *extra)
+    with (
+        VethPair.create(netns=True, master_netns=True) as veth,
+        SimProcess(config, veth.slave, veth.netns),
+    ):
+        result = run_probe(probe, veth.master, cfg, *extra, netns=veth.master_netns)
     check_identity_and_sizes(result, cfg)
     return result, cfg
 
@@ -157,8 +164,11 @@ def test_esi_corpus_device(probe: Path, file: str, device: str, dc: bool) -> Non
     cfg = bus_config_for_esi(esi, device, 2, interface="unused0")
     extra = ["--cycle-us", "1000", *(["--dc", "--shift-us", "0"] if dc else [])]
     sim_args = ["--esi", str(esi), "--device", device, "--count", "2"]
-    with VethPair.create(netns=True) as veth, SimProcess(None, veth.slave, veth.netns, sim_args):
-        result = run_probe(probe, veth.master, cfg, *extra)
+    with (
+        VethPair.create(netns=True, master_netns=True) as veth,
+        SimProcess(None, veth.slave, veth.netns, sim_args),
+    ):
+        result = run_probe(probe, veth.master, cfg, *extra, netns=veth.master_netns)
     check_identity_and_sizes(result, cfg)
     if dc:
         assert all(s["dc"] not in ("RefOnly", "None") for s in result["slaves"])

@@ -40,14 +40,14 @@ RECEIVE_TIMEOUT_US = 50_000
 
 
 def _bus(cfg: BusConfig, veth: VethPair) -> SoemBus:
-    return SoemBus(cfg, veth.master, receive_timeout_us=RECEIVE_TIMEOUT_US)
+    return SoemBus(cfg, veth.master, RECEIVE_TIMEOUT_US, netns=veth.master_netns)
 
 
 @pytest.fixture
-def laelaps(veth_ns: VethPair) -> Iterator[tuple[SimProcess, SoemBus]]:
+def laelaps(veth_apart: VethPair) -> Iterator[tuple[SimProcess, SoemBus]]:
     cfg = load_bus_config(LAELAPS)
-    with SimProcess(LAELAPS, veth_ns.slave, veth_ns.netns) as sim:
-        bus = _bus(cfg, veth_ns)
+    with SimProcess(LAELAPS, veth_apart.slave, veth_apart.netns) as sim:
+        bus = _bus(cfg, veth_apart)
         try:
             yield sim, bus
         finally:
@@ -233,11 +233,11 @@ def test_refuse_op(laelaps: tuple[SimProcess, SoemBus]) -> None:
     assert [s & 0x0F for s, _ in (states[0], states[1], states[3])] == [OP] * 3
 
 
-def test_generic_io_loopback(veth_ns: VethPair) -> None:
+def test_generic_io_loopback(veth_apart: VethPair) -> None:
     cfg = load_bus_config(GENERIC)
-    with SimProcess(GENERIC, veth_ns.slave, veth_ns.netns) as sim:
+    with SimProcess(GENERIC, veth_apart.slave, veth_apart.netns) as sim:
         assert sim.ready_line.startswith("ether-ros sim: 2 slaves")
-        bus = _bus(cfg, veth_ns)
+        bus = _bus(cfg, veth_apart)
         try:
             assert bus.scan() == 2
             assert [s.name for s in bus.slaves] == ["GenericIO", "GenericIO"]
@@ -260,16 +260,16 @@ def test_generic_io_loopback(veth_ns: VethPair) -> None:
             bus.close()
 
 
-def test_sim_command_faults_from_the_command_line_and_clean_exit(veth_ns: VethPair) -> None:
+def test_sim_command_faults_from_the_command_line_and_clean_exit(veth_apart: VethPair) -> None:
     import json
     import subprocess
     import sys
 
-    sim = SimProcess(GENERIC, veth_ns.slave, veth_ns.netns).start()
+    sim = SimProcess(GENERIC, veth_apart.slave, veth_apart.netns).start()
     try:
-        assert sim.ready_line == f"ether-ros sim: 2 slaves on {veth_ns.slave} ready"
+        assert sim.ready_line == f"ether-ros sim: 2 slaves on {veth_apart.slave} ready"
         assert sim.control.exists()
-        cli = [sys.executable, "-m", "ether_ros.cli.main", "sim-fault", "-i", veth_ns.slave]
+        cli = [sys.executable, "-m", "ether_ros.cli.main", "sim-fault", "-i", veth_apart.slave]
         done = subprocess.run([*cli, "refuse-op", "io_b"], capture_output=True, text=True)
         assert done.returncode == 0, done.stderr
         info = json.loads(subprocess.run([*cli, "slave-info", "io_b"], capture_output=True,
@@ -328,11 +328,11 @@ def test_link_down_and_stalled_mailbox(laelaps: tuple[SimProcess, SoemBus]) -> N
     assert bus.slaves[2].sdo_read(0x1018, 1) == (0x0A12).to_bytes(4, "little")
 
 
-def test_mixed_bus_legs_and_generic_io(veth_ns: VethPair) -> None:
+def test_mixed_bus_legs_and_generic_io(veth_apart: VethPair) -> None:
     mixed = REPO / "config" / "mixed.yaml"
     cfg = load_bus_config(mixed)
-    with SimProcess(mixed, veth_ns.slave, veth_ns.netns):
-        bus = _bus(cfg, veth_ns)
+    with SimProcess(mixed, veth_apart.slave, veth_apart.netns):
+        bus = _bus(cfg, veth_apart)
         try:
             assert bus.scan() == 5
             assert [s.name for s in bus.slaves] == ["LaelapsII_Leg"] * 4 + ["GenericIO"]
@@ -348,15 +348,15 @@ def test_mixed_bus_legs_and_generic_io(veth_ns: VethPair) -> None:
             bus.close()
 
 
-def test_branched_bus_delays_agree_with_soem(veth_ns: VethPair) -> None:
+def test_branched_bus_delays_agree_with_soem(veth_apart: VethPair) -> None:
     """SOEM scans the branched bus (config/branched.yaml: a coupler, a junction, 7 slaves) and
     its ``config_dc`` writes each slave's propagation delay (0x0928). Our ``tree_delays`` on the
     receive times that same measurement latched, with the tree rebuilt from DL status, must
     agree: two independent implementations of the spec's delay measurement on a tree. Both
     must also equal the simulated links (where the frame enters each slave)."""
     cfg = load_bus_config(BRANCHED)
-    with SimProcess(BRANCHED, veth_ns.slave, veth_ns.netns):
-        bus = _bus(cfg, veth_ns)
+    with SimProcess(BRANCHED, veth_apart.slave, veth_apart.netns):
+        bus = _bus(cfg, veth_apart)
         try:
             assert bus.scan() == 7
             assert [s.id for s in bus.slaves] == [c.product_code for c in cfg.by_position()]

@@ -233,10 +233,10 @@ def test_pysoem_brings_a_representative_bus_of_each_file_to_op(index: int, tmp_p
     yml = bus_yaml_for_devices(devices, tmp_path / f"{name}.yaml")  # type: ignore[arg-type]
     cfg = load_bus_config(yml)
     with (
-        VethPair.create(netns=True) as veth,
+        VethPair.create(netns=True, master_netns=True) as veth,
         SimProcess(yml, veth.slave, veth.netns, ready_timeout=SIM_READY_S),
     ):
-        soem = SoemBus(cfg, veth.master)
+        soem = SoemBus(cfg, veth.master, netns=veth.master_netns)
         try:
             assert soem.scan() == len(devices)
             soem.set_watchdog(2000)
@@ -298,10 +298,10 @@ def test_ethercrab_brings_a_representative_bus_of_each_file_to_op(
     yml = bus_yaml_for_devices(devices, tmp_path / f"{name}.yaml")  # type: ignore[arg-type]
     cfg = load_bus_config(yml)
     with (
-        VethPair.create(netns=True) as veth,
+        VethPair.create(netns=True, master_netns=True) as veth,
         SimProcess(yml, veth.slave, veth.netns, ready_timeout=SIM_READY_S),
     ):
-        result = run_ethercrab(probe, veth.master, cfg, cycles=1000)
+        result = run_ethercrab(probe, veth.master, cfg, cycles=1000, netns=veth.master_netns)
     summary = {k: result.get(k) for k in ("exit", "error", "op", "cycles", "wkc_errors",
                                           "tx_rx_errors", "wkc_first", "wkc_wrong")}  # fmt: skip
     assert result["exit"] == 0 and result["error"] is None, summary
@@ -398,10 +398,10 @@ def test_mixed_real_bus_under_pysoem(tmp_path: Path) -> None:
     yml = _mixed_config(tmp_path)
     cfg = load_bus_config(yml)
     with (
-        VethPair.create(netns=True) as veth,
+        VethPair.create(netns=True, master_netns=True) as veth,
         SimProcess(yml, veth.slave, veth.netns, ready_timeout=SIM_READY_S),
     ):
-        soem = SoemBus(cfg, veth.master)
+        soem = SoemBus(cfg, veth.master, netns=veth.master_netns)
         try:
             assert soem.scan() == 5
             soem.set_watchdog(2000)
@@ -422,9 +422,9 @@ def test_mixed_real_bus_under_ethercrab(tmp_path: Path, probe: Path) -> None:
     yml = _mixed_config(tmp_path)
     cfg = load_bus_config(yml)
     with (
-        VethPair.create(netns=True) as veth,
+        VethPair.create(netns=True, master_netns=True) as veth,
         SimProcess(yml, veth.slave, veth.netns, ready_timeout=SIM_READY_S),
     ):
-        result = run_ethercrab(probe, veth.master, cfg, cycles=1000)
+        result = run_ethercrab(probe, veth.master, cfg, cycles=1000, netns=veth.master_netns)
     summary = {k: result.get(k) for k in ("exit", "error", "op", "cycles", "wkc_errors")}
     assert result["exit"] == 0 and result["op"] and result["wkc_errors"] == 0, summary

@@ -13,7 +13,7 @@ import pytest
 
 from ether_ros._native import SimNetwork
 from ether_ros._native.protocol import sii_checksum
-from ether_ros.testing.netns import VethPair
+from ether_ros.testing.netns import VethPair, thread_in_netns
 
 MASTER_MAC = bytes([0x02, 0, 0, 0, 0, 1])
 APRD, APWR, FPRD, FPWR, BRD, BWR, LRW = 1, 2, 4, 5, 7, 8, 12
@@ -193,15 +193,20 @@ def test_faults_and_bad_input_are_reported() -> None:
 
 
 @pytest.mark.netns
-def test_soem_reads_the_sii_and_reaches_safeop_over_veth(veth: VethPair) -> None:
+def test_soem_reads_the_sii_and_reaches_safeop_over_veth(veth_apart: VethPair) -> None:
+    # Each end in a namespace of its own: SOEM's socket sees every EtherCAT frame of its
+    # namespace until it is bound (ether_ros.netns), and other tests' buses run beside this one.
+    veth = veth_apart
     pysoem = pytest.importorskip("pysoem")
     net = SimNetwork()
     net.add_slave(spec(alias=0x0042))
     net.add_slave(spec())
-    net.run_on_interface(veth.slave)
+    with thread_in_netns(veth.netns):
+        net.run_on_interface(veth.slave)
     try:
         master = pysoem.Master()
-        master.open(veth.master)
+        with thread_in_netns(veth.master_netns):
+            master.open(veth.master)
         try:
             assert master.config_init() == 2
             s0 = master.slaves[0]

@@ -3,7 +3,9 @@
 ``sii-read``, ``xml``, ``graph``, ``master``. Every one takes ``--json``. ``graph`` renders
 PNG/SVG with Graphviz's ``dot`` (installed by scripts/bootstrap.sh).
 
-They scan without resetting the bus; do not point them at an interface a running master uses.
+They scan without resetting the bus. Beside a running master they ask that master (through its
+claim on the interface, ``ether_ros.claim`` and ``master/service.py``) instead of opening the
+interface; without one they open it and hold it while they run.
 """
 
 from __future__ import annotations
@@ -24,8 +26,8 @@ from ether_ros.master.link import add_link_argument
 Handler = Callable[[Any, argparse.Namespace], Any]
 
 _STANDALONE = (
-    "\n\nIt opens the interface itself and scans without resetting the bus: do not point it "
-    "at an interface a running master uses."
+    "\n\nBeside a running master (ether-ros run, a node) it asks that master and never opens "
+    "the interface; otherwise it opens the interface itself and scans without resetting the bus."
 )
 _OBJECT_HELP = (
     "object: index:subindex, both hexadecimal with or without 0x (0x1600:0a is 0x1600:0x0a; "

@@ -2,7 +2,8 @@
 slaves``): position, station address, AL state, vendor, product, name.
 
 The listing does not change AL states or reset the bus; it (re)assigns the station addresses
-0x1001+position, which a running ether_ros master uses too.
+0x1001+position, which a running ether_ros master uses too. Beside a running master it asks
+that master (``ether_ros.claim``) and does not touch the interface.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import sys
 from typing import Any
 
 from ether_ros.cli.common import add_interface_argument, add_parser, resolve_interface
-from ether_ros.master.link import add_link_argument, open_engine
+from ether_ros.master.link import add_link_argument
 
 
 def register(subparsers: Any) -> None:
@@ -104,32 +105,26 @@ def details(entry: dict[str, Any]) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ether_ros.master.al import AlStateMachine, SlaveRef
-    from ether_ros.master.datagrams import DatagramService
-    from ether_ros.master.scan import Expected, match_configuration, scan
+    from types import SimpleNamespace
 
-    names: dict[int, str] = {}
+    from ether_ros.tools.bus_inspect import Inspector
+
     groups: dict[str, str] = {}
-    expected: list[Expected] = []
     if args.config:
         from ether_ros.config import load_bus_config
-        from ether_ros.master.bus import _expected
 
         cfg = load_bus_config(args.config)
-        expected = [_expected(s, i) for i, s in enumerate(cfg.slaves)]
         groups = {s.name: g.name for g in cfg.groups for s in cfg.slaves if s.name in g.slaves}
     interface = resolve_interface(args, None, "slaves")
-    engine = open_engine(interface, args.link or "packet")
-    try:
-        dg = DatagramService(engine)
-        found = scan(dg, reset=False)
-        if expected:
-            positions = match_configuration(found, expected)
-            names = {pos: exp.name for pos, exp in zip(positions, expected, strict=True)}
-        refs = [SlaveRef(f.position, f.station, names.get(f.position, "")) for f in found]
-        statuses = AlStateMachine(dg).read(refs)
-    finally:
-        engine.close()
+    # Beside a running master the listing comes from that master (it never opens the
+    # interface a second time); otherwise it scans the interface itself.
+    with Inspector.open(interface, config=args.config, link_kind=args.link) as ins:
+        found = ins.found
+        names = {f.position: ins.names[f.position] for f in found if f.position in ins.names}
+        statuses = [
+            SimpleNamespace(name=e["state"], error=e["error"], code=e["al_status_code"])
+            for e in ins.states()
+        ]
     entries = [
         describe(f, st, names.get(f.position), groups.get(names.get(f.position, "")))
         for f, st in zip(found, statuses, strict=True)

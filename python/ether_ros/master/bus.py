@@ -25,6 +25,7 @@ from types import TracebackType
 from typing import Any
 
 from ether_ros._native.protocol import reg
+from ether_ros.claim import InterfaceClaim
 from ether_ros.config import types as dt
 from ether_ros.config.bus import DEFAULT_GROUP
 from ether_ros.config.cia402 import AxisSpec
@@ -63,6 +64,7 @@ from ether_ros.master.scan import (
     match_topology,
     scan,
 )
+from ether_ros.master.service import serve_bus
 from ether_ros.master.shared_frames import run_in_parallel
 from ether_ros.master.slave import Slave
 from ether_ros.master.supervisor import Supervisor
@@ -139,6 +141,12 @@ class Bus:
         self._closed = False
         self._listeners: list[Callable[[BusEvent], None]] = []
         self.supervisor: Supervisor | None = None
+        # The interface claimed for this master (None on an in-process link): the inspection
+        # tools of other processes reach the bus through it (master/service.py).
+        self.claim: InterfaceClaim | None = None
+        # Why a write from another process (an SDO download through the claim) is refused
+        # now, or None: the ROS node sets it to its control lease's rule.
+        self.remote_write_refusal: Callable[[], str | None] = lambda: None
         # Image byte → axis name of the output bytes the engine's axis stage owns (lazily).
         self._axis_owned: dict[int, str] | None = None
         # Per engine axis index, for this cyclic run: the mode last commanded and the number of
@@ -160,21 +168,34 @@ class Bus:
         cfg = _load_config(config)
         from ether_ros import _native
 
+        claim = None
         if link is not None:
             engine = _native.Engine.open_sim(link)
         else:
             ifname = interface or getattr(cfg.bus, "interface", None)
             if not ifname:
                 raise LinkError("no network interface: give --interface or bus.interface")
-            engine = open_engine(
-                ifname, cfg.bus.link, cfg.bus.busy_poll_us, qdisc_bypass=not cfg.bus.capture
-            )
+            # One master per interface: a second one would take the running one's slaves
+            # down to INIT under it (docs/master.md, "One master per interface").
+            claim = InterfaceClaim.take(ifname, "master")
+            try:
+                engine = open_engine(
+                    ifname, cfg.bus.link, cfg.bus.busy_poll_us, qdisc_bypass=not cfg.bus.capture
+                )
+            except BaseException:
+                claim.release()
+                raise
         bus = cls(cfg, engine, drift_frames=drift_frames)
         try:
             bus._discover()
         except BaseException:
             engine.close()
+            if claim is not None:
+                claim.release()
             raise
+        if claim is not None:
+            bus.claim = claim
+            serve_bus(claim, bus)
         return bus
 
     def master_time(self) -> int:
@@ -531,6 +552,8 @@ class Bus:
         finally:
             self._closed = True
             self.engine.close()
+            if self.claim is not None:
+                self.claim.release()
 
     def __enter__(self) -> Bus:
         return self
@@ -815,6 +838,12 @@ class Bus:
                 self._outputs = bytearray(self._safe)
 
     # ---------------------------------------------------------------------------- acyclic
+    def acyclic(self) -> threading.RLock:
+        """The lock every acyclic exchange holds (bring-up, supervision, SDO and register
+        access from the API, the ROS node and the tools through the claim), so that two of
+        them never interleave their datagrams or a slave's mailbox messages."""
+        return self._acyclic
+
     def states(self) -> list[SlaveState]:
         """Each slave's AL state and status code (read now, over the acyclic path)."""
         with self._acyclic:

@@ -462,6 +462,29 @@ class EtherRosNode(LifecycleNode):
                 self._windows = diagnostics.Windows(int(p.value) / 1000.0)
         return SetParametersResult(successful=True)
 
+    def _describe_claim(self, bus: Any) -> None:
+        """Name this node in the bus's interface claim (a second master is refused naming
+        it), and let other processes' writes through the claim (the inspection tools'
+        ``download``) pass only while the control lease is off: with the lease on, writes go
+        through this node's services with the holder's token."""
+        claim = getattr(bus, "claim", None)
+        if claim is not None:
+            claim.info["node"] = self.get_fully_qualified_name()
+        lease = self._lease
+
+        def refusal() -> str | None:
+            if not lease.enabled:
+                return None
+            holder = lease.holder()
+            return (
+                "the control lease is on"
+                + (f" (held by {holder})" if holder else "")
+                + ": write through the node's sdo service with the lease token"
+            )
+
+        if hasattr(bus, "remote_write_refusal"):
+            bus.remote_write_refusal = refusal
+
     def _param_ms(self, name: str) -> int:
         return int(self.get_parameter(name).value)
 
@@ -474,6 +497,7 @@ class EtherRosNode(LifecycleNode):
                 bus = self._bus_opener(cfg, interface=interface, link=self._link)
                 self._cfg, self._bus = cfg, bus
                 self._spec = bridge.bus_spec(bus)
+                self._describe_claim(bus)
             self._update_mirror(cfg)
             self._rates.raw_decimation = self._param_ms("ros.raw_decimation")
             self._rates.decoded_decimation = self._param_ms("ros.decoded_decimation")

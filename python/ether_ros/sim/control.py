@@ -24,7 +24,6 @@ import contextlib
 import json
 import os
 import socket
-import tempfile
 import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -47,39 +46,24 @@ def socket_path(interface: str) -> Path:
 
 
 class InterfaceLock:
-    """One simulator per interface: an exclusive lock (``flock``) on a file named after the
-    network namespace and the interface, held for the simulator's life. A second simulator on
-    the same link would answer every frame twice; it is refused instead. The kernel drops the
-    lock when the process ends, however it ends."""
+    """One simulator per interface: the simulator's claim on it (``ether_ros.claim``, an
+    abstract socket in the interface's network namespace), held for the simulator's life. A
+    second simulator on the same link would answer every frame twice; it is refused, naming
+    the running one. The kernel drops the claim when the process ends, however it ends, and
+    leaves no file behind."""
 
     def __init__(self, interface: str) -> None:
-        import fcntl
+        from ether_ros.claim import InterfaceBusy, InterfaceClaim
 
         try:
-            netns = os.stat("/proc/self/ns/net").st_ino
-        except OSError:
-            netns = 0
-        name = f"sim-{netns}-{interface}.lock"
-        directory = RUN_DIR
-        try:
-            directory.mkdir(parents=True, exist_ok=True)
-            self.path = directory / name
-            self._fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
-        except OSError:
-            self.path = Path(tempfile.gettempdir()) / f"ether_ros-{name}"
-            self._fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
-        try:
-            fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            os.close(self._fd)
-            raise ControlError(
-                f"another simulator is already running on {interface} (lock {self.path})"
-            ) from None
+            self._claim: Any = InterfaceClaim.take(interface, "sim")
+        except InterfaceBusy as exc:
+            raise ControlError(str(exc)) from None
 
     def release(self) -> None:
-        if self._fd >= 0:
-            os.close(self._fd)
-            self._fd = -1
+        if self._claim is not None:
+            self._claim.release()
+            self._claim = None
 
 
 REQUIRED = object()  # an argument without default

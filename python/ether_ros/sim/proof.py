@@ -28,9 +28,9 @@ from ether_ros._native.protocol import coe
 from ether_ros.config.bus import BusConfig, SlaveConfig
 from ether_ros.config.process import ProcessLayout
 from ether_ros.errors import BusError, EtherRosError
+from ether_ros.netns import netns_command, thread_in_netns
 from ether_ros.sim.control import request, socket_path
 from ether_ros.sim.spec import bus_order
-from ether_ros.testing.netns import netns_command
 from ether_ros.tools.trot_table import TROT_A_CM, TROT_B_CM, leg_outputs
 
 INIT, PREOP, SAFEOP, OP = 1, 2, 4, 8
@@ -136,9 +136,16 @@ class CycleStats:
 
 
 class SoemBus:
-    """A pysoem master on ``interface`` for the slaves of ``cfg``."""
+    """A pysoem master on ``interface`` for the slaves of ``cfg``; ``netns``: the network
+    namespace the interface lives in (its socket is opened there, ``ether_ros.netns``)."""
 
-    def __init__(self, cfg: BusConfig, interface: str, receive_timeout_us: int = 2000) -> None:
+    def __init__(
+        self,
+        cfg: BusConfig,
+        interface: str,
+        receive_timeout_us: int = 2000,
+        netns: str | None = None,
+    ) -> None:
         import pysoem
 
         self.pysoem = pysoem
@@ -146,7 +153,8 @@ class SoemBus:
         self.slaves_cfg = bus_order(cfg)
         self.layouts: list[ProcessLayout] = [s.layout for s in self.slaves_cfg]
         self.master = pysoem.Master()
-        self.master.open(interface)
+        with thread_in_netns(netns):
+            self.master.open(interface)
         self.stats = CycleStats()
         self.cycle_s = cfg.bus.cycle_us / 1e6
         self.receive_timeout_us = receive_timeout_us

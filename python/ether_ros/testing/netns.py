@@ -15,6 +15,9 @@ from dataclasses import dataclass, field
 from types import TracebackType
 
 from ether_ros.errors import LinkError
+from ether_ros.netns import netns_command, thread_in_netns
+
+__all__ = ["VethPair", "can_create_veth", "netns_command", "thread_in_netns", "unique_name"]
 
 _counter = itertools.count()
 
@@ -51,7 +54,9 @@ def _quiet_interface(name: str, netns: str | None) -> None:
 
 @dataclass
 class VethPair:
-    """A veth pair ``master`` <-> ``slave``; ``slave`` optionally lives in namespace ``netns``.
+    """A veth pair ``master`` <-> ``slave``; ``slave`` optionally lives in namespace ``netns``,
+    ``master`` optionally in a namespace of its own, ``master_netns`` (for a master that is not
+    ours: see ``ether_ros.netns``).
 
     Use as a context manager::
 
@@ -63,41 +68,48 @@ class VethPair:
     master: str
     slave: str
     netns: str | None = None
+    master_netns: str | None = None
     _removed: bool = field(default=False, repr=False)
 
     @classmethod
-    def create(cls, netns: bool = False, mtu: int = 1500) -> VethPair:
+    def create(cls, netns: bool = False, mtu: int = 1500, master_netns: bool = False) -> VethPair:
         master, slave = unique_name("erm"), unique_name("ers")
         ns = unique_name("erns") if netns else None
-        if ns:
-            _ip("netns", "add", ns)
+        mns = unique_name("ermns") if master_netns else None
+        for name in (ns, mns):
+            if name:
+                _ip("netns", "add", name)
         try:
             _ip("link", "add", master, "type", "veth", "peer", "name", slave)
-            if ns:
-                _ip("link", "set", slave, "netns", ns)
-            for name, where in ((master, None), (slave, ns)):
+            for end, where in ((slave, ns), (master, mns)):
+                if where:
+                    _ip("link", "set", end, "netns", where)
+            for name, where in ((master, mns), (slave, ns)):
                 _quiet_interface(name, where)
                 _ip("link", "set", name, "mtu", str(mtu), "up", netns=where)
-            if ns:
-                _ip("link", "set", "lo", "up", netns=ns)
+            for where in (ns, mns):
+                if where:
+                    _ip("link", "set", "lo", "up", netns=where)
         except Exception:
-            _ip("link", "del", master, check=False)
-            if ns:
-                _ip("netns", "del", ns, check=False)
+            _ip("link", "del", master, check=False, netns=mns)
+            for name in (ns, mns):
+                if name:
+                    _ip("netns", "del", name, check=False)
             raise
-        return cls(master=master, slave=slave, netns=ns)
+        return cls(master=master, slave=slave, netns=ns, master_netns=mns)
 
     def set_link(self, up: bool) -> None:
         """Pull or plug the cable (both ends see carrier loss, as with a real cable)."""
-        _ip("link", "set", self.master, "up" if up else "down")
+        _ip("link", "set", self.master, "up" if up else "down", netns=self.master_netns)
 
     def remove(self) -> None:
         if self._removed:
             return
         self._removed = True
-        _ip("link", "del", self.master, check=False)
-        if self.netns:
-            _ip("netns", "del", self.netns, check=False)
+        _ip("link", "del", self.master, check=False, netns=self.master_netns)
+        for name in (self.netns, self.master_netns):
+            if name:
+                _ip("netns", "del", name, check=False)
 
     def __enter__(self) -> VethPair:
         return self
@@ -109,11 +121,6 @@ class VethPair:
         tb: TracebackType | None,
     ) -> None:
         self.remove()
-
-
-def netns_command(netns: str | None, argv: list[str]) -> list[str]:
-    """Prefix ``argv`` so that it runs inside ``netns`` (or unchanged when None)."""
-    return ["ip", "netns", "exec", netns, *argv] if netns else list(argv)
 
 
 def can_create_veth() -> bool:

@@ -21,9 +21,10 @@ from typing import Any
 
 from ether_ros._native.protocol import coe as coe_facts
 from ether_ros._native.protocol import esi_type_name, format_address, parse_address, reg
+from ether_ros.claim import InterfaceClaim, OwnerClient, describe_owner, hex_bytes
 from ether_ros.config import types as dt
 from ether_ros.config.esi import EsiDevice
-from ether_ros.config.sii import SiiInfo
+from ether_ros.config.sii import SiiInfo, parse_sii
 from ether_ros.errors import BusError, EtherRosError, LinkError, MailboxTimeout
 from ether_ros.master.al import AlState, AlStateMachine, AlStatus, SlaveRef, al_code_text
 from ether_ros.master.datagrams import DatagramService
@@ -108,6 +109,7 @@ class Inspector:
         self.found: list[FoundSlave] = scan(self.dg, reset=False)
         self.names = names or {}
         self._sdo: dict[int, Any] = {}
+        self.claim: InterfaceClaim | None = None
 
     @classmethod
     def open(
@@ -131,6 +133,7 @@ class Inspector:
             interface = interface or cfg.bus.interface
         if esi:
             devices.extend(load_esi_paths(esi))
+        claim = None
         if link is not None:
             engine = _native.Engine.open_sim(link)
         else:
@@ -138,24 +141,39 @@ class Inspector:
                 raise LinkError(
                     "no network interface: give --interface (or --config with bus.interface)"
                 )
+            running = OwnerClient.find(interface, "master")
+            if running is not None:
+                # A master runs on it: ask that master, never open the interface beside it.
+                remote = RemoteInspector(running, devices, names, interface)
+                if cfg is not None:
+                    remote.names = _configured_names(remote.found, cfg)
+                return remote
+            # Inspecting, this process is the interface's master: no other may start meanwhile.
+            claim = InterfaceClaim.take(interface, "master")
             kind = link_kind or (cfg.bus.link if cfg is not None else "packet")
-            engine = open_engine(interface, kind, cfg.bus.busy_poll_us if cfg is not None else 0)
+            try:
+                engine = open_engine(
+                    interface, kind, cfg.bus.busy_poll_us if cfg is not None else 0
+                )
+            except BaseException:
+                claim.release()
+                raise
         try:
             inspector = cls(engine, devices, names, interface or "in-process")
+            inspector.claim = claim
             if cfg is not None:
-                from ether_ros.master.bus import _expected
-                from ether_ros.master.scan import match_configuration
-
-                expected = [_expected(s, i) for i, s in enumerate(cfg.slaves)]
-                positions = match_configuration(inspector.found, expected)
-                inspector.names = {p: e.name for p, e in zip(positions, expected, strict=True)}
+                inspector.names = _configured_names(inspector.found, cfg)
         except BaseException:
             engine.close()
+            if claim is not None:
+                claim.release()
             raise
         return inspector
 
     def close(self) -> None:
         self.engine.close()
+        if self.claim is not None:
+            self.claim.release()
 
     def __enter__(self) -> Inspector:
         return self
@@ -584,19 +602,7 @@ class Inspector:
             t0 = time.perf_counter_ns()
             self.dg.brd(reg.TYPE, 2)
             rtts.append((time.perf_counter_ns() - t0) / 1000.0)
-        sys_stats: dict[str, Any] = {}
-        base = Path("/sys/class/net") / self.interface
-        if base.is_dir():
-            for name in ("operstate", "mtu", "address", "speed"):
-                try:
-                    sys_stats[name] = (base / name).read_text().strip()
-                except OSError:
-                    continue
-            for counter in sorted((base / "statistics").glob("*")):
-                try:
-                    sys_stats[counter.name] = int(counter.read_text())
-                except (OSError, ValueError):
-                    continue
+        sys_stats = _interface_counters(self.interface)
         engine_stats = {}
         get = getattr(self.engine, "stats", None)
         if get is not None:
@@ -616,6 +622,172 @@ class Inspector:
             "interface_stats": sys_stats,
             "engine": engine_stats,
         }
+
+
+def _configured_names(found: Sequence[FoundSlave], cfg: Any) -> dict[int, str]:
+    """Position → configured name, the found slaves matched against the configuration."""
+    from ether_ros.master.bus import _expected
+    from ether_ros.master.scan import match_configuration
+
+    expected = [_expected(s, i) for i, s in enumerate(cfg.slaves)]
+    positions = match_configuration(found, expected)
+    return {p: e.name for p, e in zip(positions, expected, strict=True)}
+
+
+class RemoteInspector(Inspector):
+    """Inspection beside a running master: every request goes to that master (``ether_ros
+    .claim``, ``master/service.py``), which carries it out on its own acyclic path and its own
+    mailbox clients; nothing here touches the wire. What would disturb the running bus — a
+    state change, a register write, an SDO download while its control lease refuses it — is
+    refused with the reason."""
+
+    def __init__(
+        self,
+        client: OwnerClient,
+        devices: Sequence[EsiDevice] = (),
+        names: dict[int, str] | None = None,
+        interface: str = "",
+    ) -> None:
+        self.client = client
+        self.engine = None
+        self.interface = interface
+        self.devices = list(devices)
+        self._sdo = {}
+        self.claim = None
+        self.found = []
+        running: dict[int, str] = {}
+        for entry in client.request("found"):
+            image = bytes.fromhex(entry["sii"])
+            self.found.append(
+                FoundSlave(
+                    position=entry["position"],
+                    station=entry["station"],
+                    alias=entry["alias"],
+                    esc_type=entry["esc_type"],
+                    esc_features=entry["esc_features"],
+                    sii=image,
+                    header=parse_sii(image),
+                    dl_status=entry["dl_status"],
+                )
+            )
+            running[entry["position"]] = entry["name"]
+        # The running master's names unless the user gave a configuration of their own.
+        self.names = names or running
+
+    @property
+    def owner(self) -> str:
+        return describe_owner(self.client.owner)
+
+    def close(self) -> None:
+        self.client.close()
+
+    def states(self, which: str | int | None = None) -> list[dict[str, Any]]:
+        wanted = {f.position for f in self.selected(which)}
+        out = []
+        for st in self.client.request("states"):
+            if st["position"] not in wanted:
+                continue
+            f = self.slave(st["position"])
+            out.append(
+                {
+                    "position": f.position,
+                    "name": self.name_of(f),
+                    "state": st["state"],
+                    "error": bool(st["error"]),
+                    "al_status_code": st["code"],
+                    "al_status_text": st["text"],
+                }
+            )
+        return out
+
+    def request_state(self, state: str, which: str | int | None = None) -> list[dict[str, Any]]:
+        raise InspectError(
+            f"{self.interface} is driven by a running master ({self.owner}): its slaves' states "
+            "are that master's to change (stop it first, or use its node's services)"
+        )
+
+    def reg_read(self, which: str | int, address: int, length: int) -> bytes:
+        f = self.slave(which)
+        _check_register(address, length)
+        return hex_bytes(
+            self.client.request("reg_read", position=f.position, address=address, length=length)
+        )
+
+    def reg_write(self, which: str | int, address: int, data: bytes) -> None:
+        raise InspectError(
+            f"{self.interface} is driven by a running master ({self.owner}): register writes "
+            "beside it are refused (they would change what that master configured)"
+        )
+
+    def sdo_client(self, which: str | int) -> Any:
+        return _RemoteSdo(self.client, self.slave(which).position)
+
+    def _dictionary_by_sdo_info(self, which: str | int) -> list[dict[str, Any]]:
+        raise InspectError("the SDO information service is not asked beside a running master")
+
+    def _describe_on_slave(self, f: FoundSlave, index: int, sub: int) -> ObjectRef:
+        """Name and type as the running master's ESI describes the entry, else from the SII."""
+        e = self.client.request("entry", position=f.position, index=index, subindex=sub)
+        if e is not None and e["data_type"] in dt.BY_CODE:
+            return ObjectRef(index, sub, e["name"], dt.BY_CODE[e["data_type"]], e["bit_length"])
+        return super()._describe_on_slave(f, index, sub)
+
+    def link_statistics(self, probes: int = 100) -> dict[str, Any]:
+        """The running master's own counters (no probe frames are sent beside it)."""
+        stats = self.client.request("stats")
+        rtt = stats.get("rtt") or {}
+        return {
+            "interface": self.interface,
+            "slaves": len(self.found),
+            "master": self.client.owner,
+            "round_trip_us": {
+                "probes": int(rtt.get("count", 0)),
+                "min": float(rtt.get("min", 0)) / 1000.0,
+                "median": float(rtt.get("p50", 0)) / 1000.0,
+                "max": float(rtt.get("max", 0)) / 1000.0,
+            },
+            "interface_stats": _interface_counters(self.interface),
+            "engine": {k: v for k, v in stats.items() if isinstance(v, int | float)},
+        }
+
+
+class _RemoteSdo:
+    """SDO upload and download of one slave, carried out by the running master."""
+
+    def __init__(self, client: OwnerClient, position: int) -> None:
+        self.client = client
+        self.position = position
+
+    def upload(self, index: int, subindex: int) -> bytes:
+        return hex_bytes(
+            self.client.request("upload", position=self.position, index=index, subindex=subindex)
+        )
+
+    def download(self, index: int, subindex: int, data: bytes) -> None:
+        self.client.request(
+            "download", position=self.position, index=index, subindex=subindex, data=data.hex()
+        )
+
+    def entry_description(self, index: int, subindex: int) -> Any:
+        raise InspectError("the SDO information service is not asked beside a running master")
+
+
+def _interface_counters(interface: str) -> dict[str, Any]:
+    """The interface's state and counters from /sys/class/net."""
+    sys_stats: dict[str, Any] = {}
+    base = Path("/sys/class/net") / interface
+    if base.is_dir():
+        for name in ("operstate", "mtu", "address", "speed"):
+            try:
+                sys_stats[name] = (base / name).read_text().strip()
+            except OSError:
+                continue
+        for counter in sorted((base / "statistics").glob("*")):
+            try:
+                sys_stats[counter.name] = int(counter.read_text())
+            except (OSError, ValueError):
+                continue
+    return sys_stats
 
 
 def _sync_mailbox_counter(probe: Any) -> None:

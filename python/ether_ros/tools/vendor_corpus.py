@@ -25,6 +25,7 @@ from ether_ros.config import types as dt
 from ether_ros.config.bus import BusConfig, SlaveConfig, default_sim_device
 from ether_ros.config.esi import EsiDevice, is_dictionary_file, load_esi_file
 from ether_ros.config.process import ProcessLayout, ProcessVariable
+from ether_ros.netns import netns_command
 from ether_ros.sim.spec import ESC_REGISTER_OBJECTS, bus_order, loopback_pairs, slave_spec
 
 #: Where the corpus is when ``ETHER_ROS_VENDOR_ESI`` does not say: ``shared/esi-vendor`` in a
@@ -281,17 +282,25 @@ def ethercrab_expected_wkc(cfg: BusConfig) -> int:
 
 
 def run_ethercrab(
-    probe: Path, interface: str, cfg: BusConfig, cycles: int = 2000, timeout_s: float = 240
+    probe: Path,
+    interface: str,
+    cfg: BusConfig,
+    cycles: int = 2000,
+    timeout_s: float = 240,
+    netns: str | None = None,
 ) -> dict[str, Any]:
-    """Run the ethercrab probe on ``interface`` for the bus ``cfg``; its JSON report (with
-    ``error`` set, and ``exit`` its status, when something failed)."""
+    """Run the ethercrab probe on ``interface`` (in network namespace ``netns``: see
+    ``ether_ros.netns``) for the bus ``cfg``; its JSON report (with ``error`` set, and
+    ``exit`` its status, when something failed)."""
     argv = [str(probe), "--interface", interface, "--cycles", str(cycles),
             "--cycle-us", str(cfg.bus.cycle_us),
             "--expect-slaves", str(len(cfg.slaves)),
             "--expect-wkc", str(ethercrab_expected_wkc(cfg))]  # fmt: skip
     if cfg.bus.dc.enabled:
         argv += ["--dc", "--shift-us", str(int(cfg.bus.dc.sync0_shift_us))]
-    done = subprocess.run(argv, capture_output=True, text=True, timeout=timeout_s, check=False)
+    done = subprocess.run(
+        netns_command(netns, argv), capture_output=True, text=True, timeout=timeout_s, check=False
+    )
     lines = [ln for ln in done.stdout.splitlines() if ln.startswith("{")]
     if not lines:
         return {"error": f"no report (exit {done.returncode}): {done.stderr[-500:]}",
