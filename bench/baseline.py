@@ -410,7 +410,13 @@ def one_lrw_plan(
         "initial_image": image,
         "safe_image": image,
         "dc": {"mode": "ref_follows_master", "time_offset_ns": 0, "sync0_shift_ns": sync0_shift_ns},
-        "rt": {"policy": "fifo", "priority": priority, "cpu": None, "lock_memory": True},
+        "rt": {
+            "policy": "fifo",
+            "priority": priority,
+            "cpu": None,
+            "runtime_ns": 0,
+            "lock_memory": True,
+        },
         "watchdog_ns": 0,
         "ring_capacity": 65536,
     }

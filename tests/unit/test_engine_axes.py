@@ -147,7 +147,13 @@ def plan(**axis_overrides: Any) -> dict[str, Any]:
         "initial_image": bytes(IMAGE),
         "safe_image": bytes(IMAGE),
         "dc": {"mode": "off"},
-        "rt": {"policy": "other"},
+        "rt": {
+            "policy": "other",
+            "priority": 0,
+            "cpu": None,
+            "runtime_ns": 0,
+            "lock_memory": False,
+        },
         "watchdog_ns": 0,
         "ring_capacity": 65536,
         "axes": [axis(**axis_overrides)],
@@ -329,6 +335,14 @@ def test_bad_axis_plans_name_the_key() -> None:
         p["axes"][0]["map"]["statusword"] = 2
         with pytest.raises(ValueError, match="statusword at byte 2 must lie in an input range"):
             engine.start_cyclic(p)
+        # A misspelt limit is refused, never taken for an absent one (an unlimited velocity).
+        with pytest.raises(ValueError, match=r"plan\['axes\[0\]\.velocty_max'\]: unknown key"):
+            engine.start_cyclic(plan(velocty_max=1.0))
+        p = plan()
+        p["axes"][0]["map"]["target_postion"] = 4
+        with pytest.raises(ValueError, match=r"plan\['axes\[0\]\.map\.target_postion'\]"):
+            engine.start_cyclic(p)
+        assert not engine.is_running
     finally:
         engine.close()
 

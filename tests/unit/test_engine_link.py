@@ -306,7 +306,16 @@ def test_writes_outside_the_output_ranges_are_refused(sim: tuple[_native.Engine,
         ({"datagrams": [{"kind": "lrw", "address": 0}]}, "missing 'datagrams\\[0\\].length'"),
         ({"output_ranges": [(10, 4)]}, "output_ranges\\[0\\]"),
         ({"dc": {"mode": "off"}}, "dc_write_ref but dc.mode is not ref_follows_master"),
-        ({"rt": {"policy": "fifo", "priority": 0}}, "rt.priority = 0"),
+        (
+            {"rt": {"policy": "fifo", "priority": 0, "runtime_ns": 0, "lock_memory": False}},
+            "rt.priority = 0",
+        ),
+        ({"rt": {"policy": "fifo", "priority": 80}}, "missing 'rt.runtime_ns'"),
+        ({"watchdog": 5}, "plan\\['watchdog'\\]: unknown key \\(known here: cycle_ns"),
+        (
+            {"dc": {"mode": "ref_follows_master", "sync0_shift": 5}},
+            "plan\\['dc.sync0_shift'\\]: unknown key",
+        ),
     ],
 )
 def test_bad_plans_name_the_key(
@@ -350,7 +359,8 @@ def test_rt_thread_runs_sched_fifo_pinned_with_locked_memory(
 
 def test_sched_deadline_runs_or_is_refused_clearly(sim: tuple[_native.Engine, FakeEsc]) -> None:
     engine, _esc = sim
-    rt = {"policy": "deadline", "runtime_ns": 200_000, "cpu": None, "lock_memory": False}
+    rt = {"policy": "deadline", "priority": 0, "runtime_ns": 200_000, "cpu": None,
+          "lock_memory": False}  # fmt: skip
     try:
         engine.start_cyclic(plan(rt=rt))
     except _native.EngineError as e:

@@ -59,7 +59,8 @@ def dc_plan(mode: str, order: str, rt: dict[str, Any] | None = None) -> dict[str
         "initial_image": bytes(8),
         "safe_image": bytes(8),
         "dc": {"mode": mode, "time_offset_ns": 0, "sync0_shift_ns": 0},
-        "rt": rt or {"policy": "other"},
+        "rt": rt
+        or {"policy": "other", "priority": 0, "cpu": None, "runtime_ns": 0, "lock_memory": False},
         "watchdog_ns": 0,
         "ring_capacity": 100_000,
     }
@@ -111,7 +112,7 @@ def test_veth_acyclic_and_cyclic_with_the_simulator(sim_on_veth: tuple[Any, Any]
     [(_data, wkc)] = engine.transact([("BRD", 0, 2)], timeout_us=200_000)
     assert wkc == 2
     address_slaves(engine, 2)
-    rt = {"policy": "fifo", "priority": 30, "cpu": None, "lock_memory": False}
+    rt = {"policy": "fifo", "priority": 30, "cpu": None, "runtime_ns": 0, "lock_memory": False}
     engine.start_cyclic(dc_plan("ref_follows_master", "send_at_wake", rt))
     wait_for(lambda: engine.stats()["rtt"]["count"] >= 50, "50 answered cycles")
     # SDO-style acyclic traffic while cyclic goes through the RT thread's mailbox.

@@ -176,6 +176,90 @@ fn opt<'py, T: for<'a> FromPyObject<'a, 'py>>(
     }
 }
 
+/// Refuse a key of `d` that is not in `keys`: a misspelt field (`velocty_max`) must not pass as
+/// an absent one and take its default (an unlimited velocity), so the plan is a closed
+/// contract. The message names the key where it is and the keys that are known there.
+fn known_keys(d: &Bound<'_, PyDict>, path: &str, keys: &[&str]) -> PyResult<()> {
+    for k in d.keys() {
+        let name: String = k.extract().map_err(|_| {
+            PyValueError::new_err(format!("plan['{path}']: keys must be str, got {k}"))
+        })?;
+        if !keys.contains(&name.as_str()) {
+            return Err(PyValueError::new_err(format!(
+                "plan['{path}{name}']: unknown key (known here: {})",
+                keys.join(", ")
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// The plan's top-level keys (`datagrams` alone for a one-frame plan, else `frames`).
+const PLAN_KEYS: &[&str] = &[
+    "cycle_ns",
+    "order",
+    "frames",
+    "datagrams",
+    "image_len",
+    "output_ranges",
+    "initial_image",
+    "safe_image",
+    "dc",
+    "rt",
+    "watchdog_ns",
+    "ring_capacity",
+    "axes",
+    "trajectory_capacity",
+];
+const FRAME_KEYS: &[&str] = &["datagrams", "every", "watchdog_ns"];
+const DC_KEYS: &[&str] = &["mode", "time_offset_ns", "sync0_shift_ns"];
+const RT_KEYS: &[&str] = &["policy", "priority", "cpu", "runtime_ns", "lock_memory"];
+const DC_DATAGRAM_KEYS: &[&str] = &["kind", "station"];
+const LOGICAL_DATAGRAM_KEYS: &[&str] = &[
+    "kind",
+    "address",
+    "length",
+    "image_offset",
+    "expected_wkc",
+];
+const AXIS_KEYS: &[&str] = &[
+    "name",
+    "map",
+    "mode",
+    "position_scale",
+    "position_offset",
+    "velocity_scale",
+    "torque_scale",
+    "position_min",
+    "position_max",
+    "velocity_max",
+    "torque_max",
+    "deceleration",
+    "mode_change_velocity",
+    "restart",
+    "following_error_window",
+    "on_stop",
+    "fault_reset",
+    "fault_retries",
+    "fault_backoff_ns",
+    "interpolation_max_ns",
+];
+/// The axis map's roles: the CiA 402 objects of `python/ether_ros/config/cia402.py` OBJECTS.
+const AXIS_MAP_KEYS: &[&str] = &[
+    "controlword",
+    "statusword",
+    "mode",
+    "mode_display",
+    "target_position",
+    "target_velocity",
+    "target_torque",
+    "position",
+    "velocity",
+    "torque",
+    "error_code",
+    "following_error",
+];
+
 fn sub_dict<'py>(d: &Bound<'py, PyDict>, key: &str) -> PyResult<Bound<'py, PyDict>> {
     let v = get(d, "", key)?;
     v.cast_into::<PyDict>()
@@ -196,6 +280,12 @@ fn parse_datagrams(d: &Bound<'_, PyDict>, path: &str) -> PyResult<Vec<CyclicData
             .cast_into::<PyDict>()
             .map_err(|_| PyValueError::new_err(format!("plan['{at}'] must be a dict")))?;
         let kind: String = req(&item, &path, "kind", "a str")?;
+        let keys = if kind.starts_with("dc_") {
+            DC_DATAGRAM_KEYS
+        } else {
+            LOGICAL_DATAGRAM_KEYS
+        };
+        known_keys(&item, &path, keys)?;
         let logical = |command| -> PyResult<CyclicDatagram> {
             Ok(CyclicDatagram::Logical {
                 command,
@@ -227,6 +317,7 @@ fn parse_datagrams(d: &Bound<'_, PyDict>, path: &str) -> PyResult<Vec<CyclicData
 }
 
 fn parse_plan(d: &Bound<'_, PyDict>) -> PyResult<Plan> {
+    known_keys(d, "", PLAN_KEYS)?;
     let order = match req::<String>(d, "", "order", "a str")?.as_str() {
         "send_at_wake" => Order::SendAtWake,
         "send_then_wait" => Order::SendThenWait,
@@ -249,6 +340,7 @@ fn parse_plan(d: &Bound<'_, PyDict>) -> PyResult<Plan> {
                 let item = item.cast_into::<PyDict>().map_err(|_| {
                     PyValueError::new_err(format!("plan['frames'][{k}] must be a dict"))
                 })?;
+                known_keys(&item, &path, FRAME_KEYS)?;
                 frames.push(FramePlan {
                     datagrams: parse_datagrams(&item, &path)?,
                     every: opt(&item, &path, "every", "an int 1..=10000", 1)?,
@@ -264,6 +356,7 @@ fn parse_plan(d: &Bound<'_, PyDict>) -> PyResult<Plan> {
         }],
     };
     let dc = sub_dict(d, "dc")?;
+    known_keys(&dc, "dc.", DC_KEYS)?;
     let mode = match req::<String>(&dc, "dc.", "mode", "a str")?.as_str() {
         "off" => DcMode::Off,
         "ref_follows_master" => DcMode::RefFollowsMaster,
@@ -275,6 +368,7 @@ fn parse_plan(d: &Bound<'_, PyDict>) -> PyResult<Plan> {
         }
     };
     let rt = sub_dict(d, "rt")?;
+    known_keys(&rt, "rt.", RT_KEYS)?;
     let policy = match req::<String>(&rt, "rt.", "policy", "a str")?.as_str() {
         "fifo" => Policy::Fifo,
         "deadline" => Policy::Deadline,
@@ -304,15 +398,17 @@ fn parse_plan(d: &Bound<'_, PyDict>) -> PyResult<Plan> {
             time_offset_ns: opt(&dc, "dc.", "time_offset_ns", "an int", 0)?,
             sync0_shift_ns: opt(&dc, "dc.", "sync0_shift_ns", "an int", 0)?,
         },
+        // No defaults here for what Python's plan.py decides (RtPlan, build_plan): a default
+        // in two places is two defaults, and they had drifted apart (priority 80 vs 0, ...).
         rt: RtPlan {
             policy,
-            priority: opt(&rt, "rt.", "priority", "an int", 0)?,
+            priority: req(&rt, "rt.", "priority", "an int")?,
             cpu: opt(&rt, "rt.", "cpu", "an int or None", None)?,
-            runtime_ns: opt(&rt, "rt.", "runtime_ns", "a non-negative int", 0)?,
-            lock_memory: opt(&rt, "rt.", "lock_memory", "a bool", false)?,
+            runtime_ns: req(&rt, "rt.", "runtime_ns", "a non-negative int")?,
+            lock_memory: req(&rt, "rt.", "lock_memory", "a bool")?,
         },
-        watchdog_ns: opt(d, "", "watchdog_ns", "a non-negative int", 0)?,
-        ring_capacity: opt(d, "", "ring_capacity", "a positive int", 4096)?,
+        watchdog_ns: req(d, "", "watchdog_ns", "a non-negative int")?,
+        ring_capacity: req(d, "", "ring_capacity", "a positive int")?,
         axes: parse_axes(d)?,
         trajectory_capacity: opt(
             d,
@@ -369,12 +465,14 @@ fn parse_axes(d: &Bound<'_, PyDict>) -> PyResult<Vec<AxisPlan>> {
         let a = item
             .cast_into::<PyDict>()
             .map_err(|_| PyValueError::new_err(format!("plan['axes'][{i}] must be a dict")))?;
+        known_keys(&a, &path, AXIS_KEYS)?;
         let m = a
             .get_item("map")?
             .ok_or_else(|| PyValueError::new_err(format!("plan is missing '{path}map'")))?
             .cast_into::<PyDict>()
             .map_err(|_| PyValueError::new_err(format!("plan['{path}map'] must be a dict")))?;
         let mp = format!("{path}map.");
+        known_keys(&m, &mp, AXIS_MAP_KEYS)?;
         let off = "a byte offset or None";
         let map = AxisMap {
             controlword: req(&m, &mp, "controlword", "a byte offset")?,
