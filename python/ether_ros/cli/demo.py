@@ -109,8 +109,8 @@ def run_demo(args: argparse.Namespace) -> int:
 
 def run_pysoem_demo(args: argparse.Namespace) -> int:
     from ether_ros.config import load_bus_config
+    from ether_ros.netns import VethPair
     from ether_ros.sim.proof import SimProcess, SoemBus, TrackStats, table_6_1
-    from ether_ros.testing.netns import VethPair
 
     if os.geteuid() != 0:
         raise EtherRosError("the demo creates a veth pair and a network namespace: run as root")

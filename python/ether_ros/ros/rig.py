@@ -29,8 +29,8 @@ import rclpy
 from rclpy.context import Context
 
 from ether_ros.errors import EtherRosError
+from ether_ros.netns import VethPair
 from ether_ros.ros.client import EtherRosClient
-from ether_ros.testing.netns import VethPair
 
 
 class RigError(EtherRosError):
