@@ -14,6 +14,18 @@ REPO = Path(__file__).resolve().parent.parent
 LAELAPS = REPO / "config" / "laelaps.yaml"
 
 
+# Fixtures that create veth pairs or network namespaces: a test that uses one (directly or
+# through another fixture) needs root, and carries the `netns` marker whether or not its module
+# says so (`pytest -m "not netns"` runs what an unprivileged user can).
+ROOT_FIXTURES = frozenset({"veth", "veth_ns", "veth_apart", "sim_iface"})
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        if ROOT_FIXTURES & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.netns)
+
+
 @pytest.fixture(scope="session")
 def repo() -> Path:
     return REPO
