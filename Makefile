@@ -17,10 +17,12 @@ build: bootstrap
 	@VIRTUAL_ENV=$(CURDIR)/$(VENV) $(VENV)/bin/maturin develop --release > $(VENV)/build.log 2>&1 || (tail -40 $(VENV)/build.log; exit 1)
 	@$(PY) -c "import ether_ros._native as n; print('[build] ether_ros._native', n.__version__)"
 
-lint: bootstrap
+# The stub of the extension is checked against the built module (stubtest), so lint builds it.
+lint: build
 	$(VENV)/bin/ruff check --no-cache python tests bench scripts
 	$(VENV)/bin/ruff format --no-cache --check python tests bench scripts
 	$(VENV)/bin/mypy
+	$(PY) -m mypy.stubtest ether_ros._native
 	cargo fmt --all -- --check
 	cargo clippy --workspace --all-targets -q -- -D warnings
 	cd tests/ethercrab_probe && cargo fmt -- --check && cargo clippy --release --locked -q -- -D warnings

@@ -7,10 +7,28 @@ which Python's import takes before a folder without ``__init__.py``.)"""
 
 from collections.abc import Sequence
 from types import TracebackType
-from typing import Any
+from typing import Any, Self, final
 
 from ether_ros._native import protocol as protocol
 from ether_ros.errors import LinkError
+
+__all__ = [
+    "PANIC_KEYS",
+    "SAMPLE_FLAGS",
+    "SAMPLE_RECORD_LEN",
+    "CommandReceiver",
+    "CommandTable",
+    "Engine",
+    "EngineError",
+    "EngineTimeout",
+    "JointTable",
+    "LeaseGate",
+    "PanicKeys",
+    "SimNetwork",
+    "__version__",
+    "check_command_message",
+    "protocol",
+]
 
 __version__: str
 SAMPLE_RECORD_LEN: int
@@ -19,16 +37,19 @@ SAMPLE_FLAGS: dict[str, int]
 class EngineError(LinkError): ...
 class EngineTimeout(EngineError): ...
 
+@final
 class SimNetwork:
     """A line of virtual EtherCAT slave controllers (see docs/simulator.md)."""
 
-    def __init__(self, seed: int = 1, manual_clock_ns: int | None = None) -> None: ...
+    def __new__(cls, seed: int = 1, manual_clock_ns: int | None = None) -> Self: ...
     def add_slave(self, spec: dict[str, Any]) -> int: ...
     def __len__(self) -> int: ...
     def process_frame(self, frame: bytes) -> bytes | None: ...
     def poll(self) -> None: ...
     def advance_clock(self, ns: int) -> None: ...
-    def run_on_interface(self, ifname: str, link: str = "packet") -> None: ...
+    def run_on_interface(
+        self, ifname: str, link: str = "packet", threads: int | None = None, timing: str = "fast"
+    ) -> None: ...
     def stop(self) -> None: ...
     @property
     def running(self) -> bool: ...
@@ -40,6 +61,7 @@ class SimNetwork:
     def memory(self, pos: int, address: int, length: int) -> bytes: ...
     def stats(self) -> dict[str, Any]: ...
 
+@final
 class Engine:
     """The master's engine: link, datagram service, cyclic RT thread (see docs/engine.md)."""
 
@@ -71,7 +93,7 @@ class Engine:
     def clear_panic(self) -> None: ...
     def feed_watchdog(self) -> None: ...
     def axis_names(self) -> list[str]: ...
-    def axis_enable(self, axis: int, on: bool) -> None: ...
+    def axis_enable(self, axis: int, enable: bool) -> None: ...
     def axis_reset_fault(self, axis: int) -> None: ...
     def axis_set_mode(self, axis: int, mode: str) -> None: ...
     def axis_home(self, axis: int) -> None: ...
@@ -103,36 +125,39 @@ class Engine:
     ) -> None: ...
 
 # (name, index, subindex, image bit offset, bit length, kind, minimum, maximum, deferred)
-VariableRow = tuple[str, int, int, int, int, str, float, float, bool]
+_VariableRow = tuple[str, int, int, int, int, str, float, float, bool]
 
 def check_command_message(message: str, data: bytes) -> None:
     """The native decoder's check of a serialized ``write_variable``, ``joint_state`` or
     ``joint_trajectory``: ValueError naming the field when it refuses it (a NUL inside a
     string, not UTF-8, truncated)."""
 
+@final
 class CommandTable:
     """The bus's output variables for the native command path (crates/commands)."""
 
-    def __init__(self, slaves: Sequence[tuple[str, int, Sequence[VariableRow]]]) -> None: ...
+    def __new__(cls, slaves: Sequence[tuple[str, int, Sequence[_VariableRow]]]) -> Self: ...
     def resolve(self, data: bytes) -> tuple[list[tuple[int, int, int]], str] | None: ...
 
 # (joint, engine axis index, position min, position max, velocity limit, torque limit, kind)
-JointRow = tuple[str, int, float, float, float, float, str | None]
+_JointRow = tuple[str, int, float, float, float, float, str | None]
 
+@final
 class JointTable:
     """The bus's CiA 402 axes for the native joint_commands path (crates/commands)."""
 
-    def __init__(self, joints: Sequence[JointRow]) -> None: ...
+    def __new__(cls, joints: Sequence[_JointRow]) -> Self: ...
     def set_kind(self, joint: int, kind: str | None) -> None: ...
     def resolve(self, data: bytes) -> list[tuple[int, str, float]] | None: ...
     def refusal(self, data: bytes) -> str | None: ...
 
+@final
 class LeaseGate:
     """The control lease as every command entry point checks it (crates/commands/lease.rs)."""
 
     MAX_WRITERS: int
     GID_LEN: int
-    def __init__(self) -> None: ...
+    def __new__(cls) -> Self: ...
     def set_enabled(self, enabled: bool) -> None: ...
     def grant(self, holder: str, token: int, gids: Sequence[bytes], expires_ns: int) -> None: ...
     def renew(self, expires_ns: int) -> None: ...
@@ -141,6 +166,7 @@ class LeaseGate:
     def check_token(self, token: int, now_ns: int | None = None) -> tuple[str, str]: ...
     def check_gid(self, gid: bytes, now_ns: int | None = None) -> tuple[str, str]: ...
 
+@final
 class CommandReceiver:
     """The native thread serving pdo_listener or joint_commands (see docs/ros.md, "The command
     path")."""
@@ -149,8 +175,8 @@ class CommandReceiver:
     ANSWER_BUDGETS: int
     PUBLISHER_LIMIT: int
 
-    def __init__(
-        self,
+    def __new__(
+        cls,
         *,
         librcl: str,
         librcutils: str,
@@ -158,10 +184,10 @@ class CommandReceiver:
         subscription: int,
         results: int,
         priority: int,
-        cpus: Sequence[int] = (),
+        cpus: Sequence[int] = ...,
         message: str = "write_variable",
         lease: LeaseGate | None = None,
-    ) -> None: ...
+    ) -> Self: ...
     def attach(self, engine: Engine, table: CommandTable | JointTable) -> None: ...
     def detach(self) -> None: ...
     def stop(self) -> None: ...
@@ -177,12 +203,13 @@ class CommandReceiver:
 # Ctrl-P and F1 as terminals send them: the keys that panic (crates/commands/src/panic_keys.rs).
 PANIC_KEYS: list[bytes]
 
+@final
 class PanicKeys:
     """The console's terminal reader that sends the node's panic request itself, without
     Python (ether_ros.console.keys)."""
 
-    def __init__(
-        self,
+    def __new__(
+        cls,
         *,
         librcl: str,
         librcutils: str,
@@ -191,7 +218,7 @@ class PanicKeys:
         terminal: int,
         forward: int,
         priority: int = 0,
-    ) -> None: ...
+    ) -> Self: ...
     def take_sent(self) -> list[tuple[int | None, int, int, str]]: ...
     def presses(self) -> int: ...
     def dropped(self) -> int: ...

@@ -4,7 +4,73 @@ crate's tables; ``tests/unit/test_protocol.py`` checks this stub against the mod
 ``scripts/gen_protocol_stub.py`` rewrites the namespace part from it."""
 
 from collections.abc import Sequence
-from typing import Final
+from typing import Final, Self, final
+
+__all__ = [
+    "AL_STATES",
+    "AL_STATUS_TEXTS",
+    "CIA402_MODES",
+    "CIA402_STATES",
+    "EMERGENCY_TEXTS",
+    "PORT_ORDER",
+    "SDO_ABORT_TEXTS",
+    "AreaDecoder",
+    "ValueCheckError",
+    "__doc__",
+    "al",
+    "al_code",
+    "al_state_name",
+    "al_status_text",
+    "auto_increment_address",
+    "check_value",
+    "cia402",
+    "cia402_state",
+    "cmd",
+    "coe",
+    "config_type",
+    "cw",
+    "data_types",
+    "dc",
+    "dc_time_difference",
+    "decode_int",
+    "dl",
+    "dtype",
+    "emergency_text",
+    "encode_int",
+    "esc_config",
+    "esi_type",
+    "esi_type_name",
+    "features",
+    "fixed_address",
+    "fmmu",
+    "format_address",
+    "format_pdo_address",
+    "forwarding_ports",
+    "frame",
+    "mailbox",
+    "mailbox_error",
+    "mailbox_error_text",
+    "mailbox_header",
+    "mailbox_type_name",
+    "mode",
+    "object_code_name",
+    "open_ports",
+    "parse_address",
+    "parse_mailbox_header",
+    "parse_pdo_address",
+    "port_desc",
+    "reg",
+    "sdo_abort",
+    "sdo_abort_text",
+    "sii",
+    "sii_category",
+    "sii_checksum",
+    "sii_syncm",
+    "sii_word",
+    "sm",
+    "sw",
+    "value_range",
+]
 
 PORT_ORDER: tuple[int, int, int, int]
 AL_STATES: tuple[int, ...]
@@ -19,8 +85,9 @@ class ValueCheckError(ValueError):
     minimum: float | None
     maximum: float | None
 
+@final
 class AreaDecoder:
-    def __init__(self, fields: Sequence[tuple[int, int, str]]) -> None: ...
+    def __new__(cls, fields: Sequence[tuple[int, int, str]]) -> Self: ...
     def __len__(self) -> int: ...
     def decode(self, area: bytes) -> list[float]: ...
 

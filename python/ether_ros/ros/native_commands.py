@@ -120,7 +120,7 @@ def command_table(bus: Any, spec: BusSpec) -> Any:
     """The bus's output variables as ``_native.CommandTable`` rows: where each one is in the
     process image (from the bus's layout) and the range the node accepts (from ``spec``, the
     same ``VariableSpec`` the Python path checks against)."""
-    rows: list[tuple[str, int, list[_native.VariableRow]]] = []
+    rows: list[tuple[str, int, list[_native._VariableRow]]] = []
     for s, slave in zip(spec.slaves, bus.slaves, strict=True):
         if s.name != slave.name:
             raise CommandPathError(f"layout order differs: {s.name} vs {slave.name}")
