@@ -20,6 +20,7 @@ use crate::od::ObjectDictionary;
 use crate::pdo::PdoMap;
 use crate::sii::{self, Sii};
 use crate::sm::{SyncManager, ACT_ENABLE, ACT_REPEAT, WATCHDOG_TRIGGER};
+use crate::soe::SoeServer;
 use crate::spec::{MailboxSpec, SlaveSpec};
 
 pub const MEM_SIZE: usize = 0x1_0000;
@@ -136,6 +137,8 @@ pub struct Esc {
     pdram_end: usize,
     pub od: ObjectDictionary,
     coe: CoeServer,
+    /// The SoE server, for a slave whose SII announces SoE (word 0x1C bit 4).
+    soe: Option<SoeServer>,
     pub device: Option<Box<dyn DeviceApp>>,
     pub mailbox: Option<MailboxSpec>,
     boot_mailbox: Option<MailboxSpec>,
@@ -218,6 +221,8 @@ impl Esc {
                 None
             };
         let (pd_sms, mbx_sms) = process_sync_managers(&sii.image, mailbox.is_some());
+        let soe = (w(sii_word::MBX_PROTOCOL) & mailbox::PROTOCOL_SOE != 0)
+            .then(|| SoeServer::new(&spec.idns, &sii.image));
         let partial_mappings = default_partial_mappings(&od, &sii.image);
         let chip = spec.esc.profile();
         let pdram_kib = if spec.pdram_kib == 0 {
@@ -236,6 +241,7 @@ impl Esc {
             pdram_end: REGISTER_END + pdram_kib as usize * 1024,
             od,
             coe: CoeServer::new(),
+            soe,
             device: None,
             mailbox,
             boot_mailbox,
@@ -1153,6 +1159,9 @@ impl Esc {
             self.mbx_rx_pending = false;
             self.mbx_last_rx_counter = 0;
             self.coe = CoeServer::new();
+            if let Some(soe) = self.soe.as_mut() {
+                soe.abandon_transfer();
+            }
             for k in 0..N_SM {
                 if self.sm[k].is_mailbox() {
                     self.sm[k].full = false;
@@ -1424,6 +1433,22 @@ impl Esc {
                     .handle(&request, &mut self.od, self.al_state, max_payload, &mut out);
                 for p in out {
                     self.queue_mailbox(mailbox::TYPE_COE, p);
+                }
+            } else if kind == mailbox::TYPE_SOE && self.soe.is_some() {
+                let mut out = Vec::new();
+                let max_payload = (self.sm[1].len as usize).saturating_sub(mailbox::HEADER_LEN);
+                let data_start = start + mailbox::HEADER_LEN;
+                let request = self.mem[data_start..data_start + msg_len].to_vec();
+                let handled = self.soe.as_mut().map_or(Ok(()), |soe| {
+                    soe.handle(&request, self.al_state, max_payload, &mut out)
+                });
+                match handled {
+                    Ok(()) => {
+                        for p in out {
+                            self.queue_mailbox(mailbox::TYPE_SOE, p);
+                        }
+                    }
+                    Err(code) => self.mailbox_error(code),
                 }
             } else {
                 self.mailbox_error(mailbox::ERR_UNSUPPORTED_PROTOCOL);
