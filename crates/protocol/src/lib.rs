@@ -3,11 +3,11 @@
 //! Everything a master, a slave or a tool must agree on lives here and nowhere else: the frame
 //! and datagram layout (`frame`, re-exported at the root), the ESC register map with its bit
 //! fields (`reg`, `al`, `sii`, `sm`, `fmmu`, `dl`, `dc`, `esc`), the SII EEPROM layout and its
-//! CRC-8 (`sii`), mailbox and CoE facts with the SDO abort and emergency code texts (`mailbox`,
-//! `coe`, `emergency`), the AL status codes with their texts (`al`), the CoE data types and the
-//! value checks of process variables and SDO values (`dtype`, `value`), the object address
-//! grammar (`address`), the CiA 402 words, states and modes (`cia402`) and the port order
-//! (`topology`).
+//! CRC-8 (`sii`), mailbox, CoE and SoE facts with the SDO abort, SoE error and emergency code
+//! texts (`mailbox`, `coe`, `soe`, `emergency`), the AL status codes with their texts (`al`),
+//! the CoE data types and the value checks of process variables and SDO values (`dtype`,
+//! `value`), the object address grammar (`address`), the CiA 402 words, states and modes
+//! (`cia402`) and the port order (`topology`).
 //!
 //! The engine, the simulator and the native command path use it directly; Python reaches it as
 //! `ether_ros._native.protocol` (crates/py/src/protocol_bindings.rs exports every table below
@@ -71,6 +71,7 @@ pub mod frame;
 pub mod mailbox;
 pub mod reg;
 pub mod sii;
+pub mod soe;
 pub mod topology;
 pub mod value;
 

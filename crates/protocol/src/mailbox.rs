@@ -28,6 +28,18 @@ crate::named_constants! {
     pub const MAX_COUNTER: u8 = 7;
     /// The `type` word of a mailbox error reply's body (followed by the error code).
     pub const ERROR_REPLY_TYPE: u16 = 0x0001;
+    /// SII word 0x1C (mailbox protocols) bit: AoE.
+    pub const PROTOCOL_AOE: u16 = 0x0001;
+    /// SII word 0x1C bit: EoE.
+    pub const PROTOCOL_EOE: u16 = 0x0002;
+    /// SII word 0x1C bit: CoE.
+    pub const PROTOCOL_COE: u16 = 0x0004;
+    /// SII word 0x1C bit: FoE.
+    pub const PROTOCOL_FOE: u16 = 0x0008;
+    /// SII word 0x1C bit: SoE.
+    pub const PROTOCOL_SOE: u16 = 0x0010;
+    /// SII word 0x1C bit: VoE.
+    pub const PROTOCOL_VOE: u16 = 0x0020;
 }
 
 /// The name of a mailbox type (`"CoE"`), `None` when the type is not assigned.

@@ -412,7 +412,7 @@ pub fn register(parent: &Bound<'_, PyModule>) -> PyResult<()> {
         .iter()
         .map(|c| (c.name(), *c as u64))
         .collect();
-    let namespaces: [(&str, &str, Vec<Table<'_>>); 25] = [
+    let namespaces: [(&str, &str, Vec<Table<'_>>); 27] = [
         ("frame", "Frame and datagram layout.", vec![p::frame::TABLE]),
         ("cmd", "Datagram command codes.", vec![&commands]),
         ("reg", "ESC register addresses.", vec![p::reg::TABLE]),
@@ -485,6 +485,12 @@ pub fn register(parent: &Bound<'_, PyModule>) -> PyResult<()> {
             vec![p::coe::TABLE],
         ),
         ("sdo_abort", "SDO abort codes.", vec![p::coe::ABORTS]),
+        (
+            "soe",
+            "SoE header, opcodes, element flags, IDN and attribute fields.",
+            vec![p::soe::TABLE],
+        ),
+        ("soe_error", "SoE error codes.", vec![p::soe::ERRORS]),
         ("dtype", "CoE data type codes.", vec![p::dtype::TABLE]),
         (
             "cw",

@@ -14,6 +14,7 @@
 //! | `sii` | bytes | the SII EEPROM image |
 //! | `objects` | list[(index, name, object_code)] | CoE objects |
 //! | `entries` | list[(index, subindex, name, data_type, bit_length, access, pdo_mappable, default)] | CoE entries; `access` is 'ro', 'rw' or 'wo'; `default` is little-endian bytes or None (zeros) |
+//! | `idns` | list[(idn, name, data_type, bit_length, default)] | IDN dictionary of a drive with SoE (the same for each of its drives); the attribute follows from the ETG.1000.6 data type and bit length; `default` is little-endian bytes or None (zeros), a list IDN's the whole element (current length, maximum length, items) |
 //! | `device` | str | firmware model for `devices::create` ("none" default, "laelaps_leg", "generic_io", "cia402", "loopback") |
 //! | `params` | dict[str, float] | device parameters |
 //! | `drift_ppm` | float | clock drift of the slave's local clock (default 0) |
@@ -45,6 +46,7 @@ use ether_ros_sim::network::lock;
 use ether_ros_sim::od::{Access, Entry, Object};
 use ether_ros_sim::pi_mutex::PiGuard;
 use ether_ros_sim::runner::{Runner, RunnerOptions, Timing};
+use ether_ros_sim::soe::IdnSpec;
 use ether_ros_sim::{MailboxSpec, Network, SlaveSpec};
 
 /// Most firmware worker threads `run_on_interface` starts.
@@ -91,6 +93,7 @@ fn parse_spec(spec: &Bound<'_, PyDict>) -> PyResult<SlaveSpec> {
         "sii",
         "objects",
         "entries",
+        "idns",
         "device",
         "params",
         "drift_ppm",
@@ -181,6 +184,21 @@ fn parse_spec(spec: &Bound<'_, PyDict>) -> PyResult<SlaveSpec> {
                 pdo_mappable,
                 value,
             });
+        }
+    }
+    if let Some(list) = spec.get_item("idns")? {
+        let what = "a list of (idn, name, data_type, bit_length, default)";
+        for item in list.try_iter().map_err(|_| bad_key("idns", what))? {
+            let (idn, name, data_type, bit_length, default): (
+                u16,
+                String,
+                u16,
+                u16,
+                Bound<'_, PyAny>,
+            ) = item?.extract().map_err(|_| bad_key("idns", what))?;
+            let value = bytes_of(&default, "idns")?;
+            s.idns
+                .push(IdnSpec::typed(idn, name, data_type, bit_length, value));
         }
     }
     if let Some(v) = get::<String>(spec, "device", "str")? {

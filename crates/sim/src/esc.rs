@@ -20,6 +20,7 @@ use crate::od::ObjectDictionary;
 use crate::pdo::PdoMap;
 use crate::sii::{self, Sii};
 use crate::sm::{SyncManager, ACT_ENABLE, ACT_REPEAT, WATCHDOG_TRIGGER};
+use crate::soe::SoeServer;
 use crate::spec::{MailboxSpec, SlaveSpec};
 
 pub const MEM_SIZE: usize = 0x1_0000;
@@ -136,6 +137,8 @@ pub struct Esc {
     pdram_end: usize,
     pub od: ObjectDictionary,
     coe: CoeServer,
+    /// The SoE server, for a slave whose SII announces SoE (word 0x1C bit 4).
+    soe: Option<SoeServer>,
     pub device: Option<Box<dyn DeviceApp>>,
     pub mailbox: Option<MailboxSpec>,
     boot_mailbox: Option<MailboxSpec>,
@@ -168,6 +171,9 @@ pub struct Esc {
     pub port_return_ns: [Option<u64>; 4],
     pub sync0_next: Option<u64>,
     sync0_cycle: u64,
+    /// A SYNC0 event has fired since SYNC0 was last activated: the application runs on its
+    /// sync signal (SSC's `bDcRunning`).
+    sync0_fired: bool,
     app_next_step: u64,
     wd_last_trigger: u64,
     pub watchdog_expired: bool,
@@ -218,6 +224,8 @@ impl Esc {
                 None
             };
         let (pd_sms, mbx_sms) = process_sync_managers(&sii.image, mailbox.is_some());
+        let soe = (w(sii_word::MBX_PROTOCOL) & mailbox::PROTOCOL_SOE != 0)
+            .then(|| SoeServer::new(&spec.idns, &sii.image));
         let partial_mappings = default_partial_mappings(&od, &sii.image);
         let chip = spec.esc.profile();
         let pdram_kib = if spec.pdram_kib == 0 {
@@ -236,6 +244,7 @@ impl Esc {
             pdram_end: REGISTER_END + pdram_kib as usize * 1024,
             od,
             coe: CoeServer::new(),
+            soe,
             device: None,
             mailbox,
             boot_mailbox,
@@ -257,6 +266,7 @@ impl Esc {
             port_return_ns: [None; 4],
             sync0_next: None,
             sync0_cycle: 0,
+            sync0_fired: false,
             app_next_step: 0,
             wd_last_trigger: now,
             watchdog_expired: false,
@@ -890,6 +900,7 @@ impl Esc {
         let act = self.mem[reg::DC_ACTIVATION as usize];
         let cycle = self.get32(reg::DC_SYNC0_CYCLE) as u64;
         let sync0 = dc::ACTIVATE_CYCLIC | dc::ACTIVATE_SYNC0;
+        self.sync0_fired = false;
         if !self.spec.dc_supported || act & sync0 != sync0 || cycle == 0 {
             self.sync0_next = None;
             self.sync0_cycle = 0;
@@ -1083,11 +1094,11 @@ impl Esc {
             self.update_al_registers();
             return;
         }
-        if (cur, requested) == (SAFEOP, OP) && !self.refuse_op && self.waits_for_outputs() {
+        if (cur, requested) == (SAFEOP, OP) && !self.refuse_op && self.op_waits() {
             // As real slave stacks do: the request stays pending (AL status SAFEOP, no error)
-            // until the first valid outputs arrive or the ESI's SAFEOP->OP timeout runs out.
-            // Masters that request OP first and start the cyclic exchange afterwards
-            // (ethercrab) depend on this.
+            // until the first valid outputs arrive and, with SYNC0 active, the first SYNC0
+            // event has fired, or the ESI's SAFEOP->OP timeout runs out. Masters that request
+            // OP first and start the cyclic exchange afterwards (ethercrab) depend on this.
             self.op_pending_since = Some(was_pending.unwrap_or(self.now));
             self.update_al_registers();
             return;
@@ -1153,6 +1164,9 @@ impl Esc {
             self.mbx_rx_pending = false;
             self.mbx_last_rx_counter = 0;
             self.coe = CoeServer::new();
+            if let Some(soe) = self.soe.as_mut() {
+                soe.abandon_transfer();
+            }
             for k in 0..N_SM {
                 if self.sm[k].is_mailbox() {
                     self.sm[k].full = false;
@@ -1333,13 +1347,29 @@ impl Esc {
         outputs && !self.outputs_since_safeop
     }
 
+    /// A slave synchronised to SYNC0 whose SYNC0 has not fired yet (its start time lies
+    /// ahead). Its application runs on the sync signal: until the first event it has neither
+    /// taken outputs nor written inputs, so a one-buffer input SM stays empty and the master's
+    /// read of it fails (working counter −1). The Beckhoff slave stack code (SSC,
+    /// `StartOutputHandler`) keeps SAFEOP->OP pending while DC synchronisation is active
+    /// until its PLL runs on the SYNC0 events; the OP it confirms is one with input data.
+    fn waits_for_sync(&self) -> bool {
+        self.sync0_active() && !self.sync0_fired
+    }
+
+    /// What a SAFEOP->OP request waits for: outputs, or the first SYNC0 event.
+    fn op_waits(&self) -> bool {
+        self.waits_for_outputs() || self.waits_for_sync()
+    }
+
     /// Is a SAFEOP->OP request waiting for outputs? (for tests and `slave_info`)
     pub fn op_request_pending(&self) -> bool {
         self.op_pending_since.is_some()
     }
 
-    /// A pending SAFEOP->OP request: go to OP once outputs arrived, refuse it when the
-    /// timeout ran out (AL status 0x0019 "no valid outputs", emergency 0xA001).
+    /// A pending SAFEOP->OP request: go to OP once outputs arrived (and SYNC0 runs, if active),
+    /// refuse it when the timeout ran out (AL status 0x0019 "no valid outputs", or 0x002D "no
+    /// SYNC error" when only SYNC0 is missing; emergency 0xA001).
     fn resolve_pending_op(&mut self) {
         let Some(since) = self.op_pending_since else {
             return;
@@ -1348,7 +1378,7 @@ impl Esc {
             self.op_pending_since = None;
             return;
         }
-        if !self.waits_for_outputs() {
+        if !self.op_waits() {
             self.op_pending_since = None;
             self.enter_state(ether_ros_protocol::al::OP);
             return;
@@ -1356,10 +1386,14 @@ impl Esc {
         let timeout = u64::from(self.spec.safeop_op_timeout_ms) * 1_000_000;
         if self.now.saturating_sub(since) > timeout {
             self.op_pending_since = None;
-            self.fail_with_emergency(
-                ether_ros_protocol::al::NO_VALID_OUTPUTS,
-                EMERGENCY_SAFEOP_TO_OP,
-            );
+            // No outputs is the usual reason; with outputs but a SYNC0 that never fired the
+            // slave saw no sync signal (AL status 0x002D).
+            let code = if self.waits_for_outputs() {
+                ether_ros_protocol::al::NO_VALID_OUTPUTS
+            } else {
+                ether_ros_protocol::al::NO_SYNC_ERROR
+            };
+            self.fail_with_emergency(code, EMERGENCY_SAFEOP_TO_OP);
         }
     }
 
@@ -1424,6 +1458,22 @@ impl Esc {
                     .handle(&request, &mut self.od, self.al_state, max_payload, &mut out);
                 for p in out {
                     self.queue_mailbox(mailbox::TYPE_COE, p);
+                }
+            } else if kind == mailbox::TYPE_SOE && self.soe.is_some() {
+                let mut out = Vec::new();
+                let max_payload = (self.sm[1].len as usize).saturating_sub(mailbox::HEADER_LEN);
+                let data_start = start + mailbox::HEADER_LEN;
+                let request = self.mem[data_start..data_start + msg_len].to_vec();
+                let handled = self.soe.as_mut().map_or(Ok(()), |soe| {
+                    soe.handle(&request, self.al_state, max_payload, &mut out)
+                });
+                match handled {
+                    Ok(()) => {
+                        for p in out {
+                            self.queue_mailbox(mailbox::TYPE_SOE, p);
+                        }
+                    }
+                    Err(code) => self.mailbox_error(code),
                 }
             } else {
                 self.mailbox_error(mailbox::ERR_UNSUPPORTED_PROTOCOL);
@@ -1721,6 +1771,7 @@ impl Esc {
                 self.latch_inputs();
                 self.mem[reg::DC_SYNC0_STATUS as usize] = 1;
                 self.counters.sync0_events += 1;
+                self.sync0_fired = true;
                 sync_local = Some(next_sync.saturating_add(cycle));
             } else {
                 if step_latches {
@@ -2068,6 +2119,85 @@ mod tests {
         let mut b = [0u8; 1];
         assert!(esc.ecat_read(0x1000, &mut b, false));
         assert_eq!(b, [0x5A]);
+    }
+
+    /// A slave with one input byte (0x6000:1 = 0x5A, PDO 0x1A00 assigned to SM0) in an SM
+    /// with the given control byte at 0x1000, in SAFEOP.
+    fn input_slave_in_safeop(control: u8) -> Esc {
+        let mut esc = slave(0x00, &[(0x1000, 1, control, 0x01, 4)]);
+        let mut add = |index: u16, subindex: u8, bits: u16, value: Vec<u8>| {
+            esc.od.add_entry(crate::od::Entry {
+                index,
+                subindex,
+                name: format!("{index:04x}:{subindex}"),
+                data_type: crate::od::dtype::UINT32,
+                bit_length: bits,
+                access: crate::od::Access::ReadOnly,
+                pdo_mappable: index == 0x6000,
+                value,
+            });
+        };
+        add(0x6000, 1, 8, vec![0x5A]);
+        add(0x1C10, 0, 8, vec![1]);
+        add(0x1C10, 1, 16, 0x1A00u16.to_le_bytes().to_vec());
+        add(0x1A00, 0, 8, vec![1]);
+        add(0x1A00, 1, 32, 0x6000_0108u32.to_le_bytes().to_vec());
+        esc.request_state(ether_ros_protocol::al::PREOP as u16);
+        configure_sm(&mut esc, 0, 0x1000, 1, control);
+        esc.request_state(ether_ros_protocol::al::SAFEOP as u16);
+        assert_eq!(
+            (esc.al_state, esc.al_code),
+            (ether_ros_protocol::al::SAFEOP, 0)
+        );
+        esc
+    }
+
+    #[test]
+    fn a_sync0_slave_confirms_op_once_its_sync0_has_fired() {
+        // Beckhoff AX5000 under ethercrab: SYNC0 starts 50 ms after the master configured
+        // it, the master requests OP and exchanges process data at once. The drive's inputs
+        // are in a one-buffer SM (ControlByte 0x22), written on SYNC0: a slave that entered
+        // OP before its first SYNC0 had nothing in it, and each LRW missed the input read
+        // (working counter -1) until SYNC0 started.
+        let mut esc = input_slave_in_safeop(0x22);
+        let start = esc.system_time() + 50_000_000;
+        esc.ecat_write(reg::DC_SYNC0_CYCLE as usize, &1_000_000u32.to_le_bytes());
+        esc.ecat_write(reg::DC_START_TIME as usize, &start.to_le_bytes());
+        esc.ecat_write(
+            reg::DC_ACTIVATION as usize,
+            &[dc::ACTIVATE_CYCLIC | dc::ACTIVATE_SYNC0],
+        );
+        assert!(esc.sync0_active());
+        esc.request_state(ether_ros_protocol::al::OP as u16);
+        // Pending in SAFEOP: no SYNC0 yet, so no inputs either.
+        assert_eq!(esc.al_state, ether_ros_protocol::al::SAFEOP);
+        assert!(esc.op_request_pending() && !esc.al_error);
+        let mut b = [0u8; 1];
+        assert!(!esc.ecat_read(0x1000, &mut b, false));
+        esc.advance(esc.now + 49_000_000);
+        assert_eq!(esc.al_state, ether_ros_protocol::al::SAFEOP);
+        // The first SYNC0 fills the input buffer and lets OP be confirmed.
+        esc.advance(esc.now + 2_000_000);
+        assert_eq!(esc.al_state, ether_ros_protocol::al::OP);
+        assert!(esc.ecat_read(0x1000, &mut b, false));
+        assert_eq!(b, [0x5A]);
+    }
+
+    #[test]
+    fn a_sync0_that_never_fires_refuses_op_with_no_sync_error() {
+        let mut esc = input_slave_in_safeop(0x22);
+        let start = esc.system_time() + 60_000_000_000;
+        esc.ecat_write(reg::DC_SYNC0_CYCLE as usize, &1_000_000u32.to_le_bytes());
+        esc.ecat_write(reg::DC_START_TIME as usize, &start.to_le_bytes());
+        esc.ecat_write(
+            reg::DC_ACTIVATION as usize,
+            &[dc::ACTIVATE_CYCLIC | dc::ACTIVATE_SYNC0],
+        );
+        esc.request_state(ether_ros_protocol::al::OP as u16);
+        let timeout = u64::from(esc.spec.safeop_op_timeout_ms) * 1_000_000;
+        esc.advance(esc.now + timeout + 1_000_000);
+        assert!(esc.al_error);
+        assert_eq!(esc.al_code, ether_ros_protocol::al::NO_SYNC_ERROR);
     }
 
     #[test]

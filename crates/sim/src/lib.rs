@@ -17,6 +17,7 @@ pub mod pi_mutex;
 pub mod runner;
 pub mod sii;
 pub mod sm;
+pub mod soe;
 pub mod spec;
 pub mod topology;
 

@@ -5,6 +5,7 @@ use ether_ros_protocol::sii::syncm;
 
 use crate::chip::EscChip;
 use crate::od::{Entry, Object};
+use crate::soe::IdnSpec;
 
 /// Standard (or bootstrap) mailbox placement.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -27,6 +28,9 @@ pub struct SlaveSpec {
     pub sii: Vec<u8>,
     pub objects: Vec<Object>,
     pub entries: Vec<Entry>,
+    /// The IDN dictionary of a drive with SoE (the same for each of its drives); the SoE
+    /// server adds the configuration lists and the IDNs the PDOs map.
+    pub idns: Vec<IdnSpec>,
     pub device: String,
     pub params: Vec<(String, f64)>,
     pub drift_ppm: f64,
@@ -66,6 +70,7 @@ impl Default for SlaveSpec {
             sii: Vec::new(),
             objects: Vec::new(),
             entries: Vec::new(),
+            idns: Vec::new(),
             device: "none".into(),
             params: Vec::new(),
             drift_ppm: 0.0,

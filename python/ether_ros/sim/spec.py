@@ -4,18 +4,18 @@ The keys are the contract with ``SimNetwork.add_slave`` (documented at the top o
 ``crates/py/src/sim_bindings.rs``): identity, the SII EEPROM image, the CoE dictionary
 (objects and entries with their default values), the firmware model and its parameters, clock
 drift and propagation delay, where the slave is connected (``upstream``), DC capability, and
-the standard mailbox.
+the standard mailbox, and a Sercos drive's IDN dictionary (SoE).
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from ether_ros._native.protocol import coe
+from ether_ros._native.protocol import coe, soe
 from ether_ros.config import types as dt
 from ether_ros.config.bus import BusConfig, SlaveConfig
 from ether_ros.config.cia402 import AXIS_STRIDE, MAX_AXES, MODES, SUPPORTED_MODES, offered_modes
-from ether_ros.config.esi import EsiDevice, Pdo, PdoEntry
+from ether_ros.config.esi import EsiDevice, OdObject, Pdo, PdoEntry
 from ether_ros.config.process import pdo_sync_manager
 from ether_ros.config.sii import SM_TYPE, build_sii
 from ether_ros.errors import ConfigError
@@ -366,6 +366,54 @@ _DICTIONARIES: dict[
     tuple[int, str], tuple[EsiDevice, list[tuple[Any, ...]], list[tuple[Any, ...]]]
 ] = {}
 
+def idn_rows(device: EsiDevice) -> list[tuple[Any, ...]]:
+    """The ``idns`` of the spec of a drive with SoE: its IDN dictionary (``EsiDevice.idns``)
+    as rows ``(idn, name, data_type, bit_length, default)``, and every IDN its PDOs map that
+    the dictionary lacks (most AX5000 ESIs name a dictionary file that is not at hand), typed
+    as the PDO entry. The simulator derives each IDN's attribute from type and length and adds
+    the configuration lists S-0-0016/S-0-0024 from the PDOs. A device without SoE has none."""
+    if device.mailbox is None or not device.mailbox.soe:
+        return []
+    cached = _IDNS.get(id(device))
+    if cached is not None and cached[0] is device:
+        return cached[1]
+    rows: list[tuple[Any, ...]] = []
+    for obj in device.idns:
+        rows.append(_idn_row(obj))
+    known = {o.index for o in device.idns}
+    pdos = tuple(p for p in (*device.rx_pdos, *device.tx_pdos) if not p.virtual)
+    for e in _pdo_entries(pdos):
+        if e.index not in known:
+            known.add(e.index)
+            rows.append((e.index, e.name, e.data_type, e.bit_length, None))
+    _IDNS[id(device)] = (device, rows)
+    return rows
+
+
+def _idn_row(obj: OdObject) -> tuple[Any, ...]:
+    """One IDN of a Sercos dictionary: a VAR is its one entry; an ARRAY is a Sercos list
+    (subindex 0 the current length, 1 the maximum length in bytes, then the items), its value
+    the whole list element, the maximum at least what the object's size holds (Beckhoff's
+    dictionaries give 0 there); a RECORD (bit fields, structures) is operation data of the
+    object's size, zero (its members' bit offsets are not kept)."""
+    entries = sorted(obj.entries, key=lambda e: e.subindex)
+    if obj.object_code == coe.OBJECT_VAR and entries:
+        e = entries[0]
+        return (obj.index, obj.name, e.data_type, e.bit_length, bytes(e.default))
+    if obj.object_code == coe.OBJECT_ARRAY and len(entries) >= 2:
+        items = b"".join(bytes(e.default).ljust((e.bit_length + 7) // 8, b"\0")
+                         for e in entries[2:])  # fmt: skip
+        current = int.from_bytes(bytes(entries[0].default)[:2], "little")
+        maximum = int.from_bytes(bytes(entries[1].default)[:2], "little")
+        room = max(maximum, obj.bit_size // 8 - soe.LIST_HEADER_LEN, current)
+        value = current.to_bytes(2, "little") + room.to_bytes(2, "little") + items[:current]
+        return (obj.index, obj.name, 0, obj.bit_size, value)
+    return (obj.index, obj.name, 0, obj.bit_size, None)
+
+
+# id(device) -> (device, rows), as _DICTIONARIES.
+_IDNS: dict[int, tuple[EsiDevice, list[tuple[Any, ...]]]] = {}
+
 # The identity object's serial number (0x1018:4): the ESI can't know it, each slave has its own.
 _SERIAL_ENTRY = (coe.IDENTITY, 4)
 
@@ -399,6 +447,7 @@ def device_spec(
         "sii": build_sii(device, alias=alias, serial=serial),
         "objects": list(objects),
         "entries": entries,
+        "idns": idn_rows(device),
         "device": sim_device,
         "params": {k: float(v) for k, v in (params or {}).items()},
         "drift_ppm": float(drift_ppm),
