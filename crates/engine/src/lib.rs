@@ -500,6 +500,9 @@ impl Engine {
     }
 
     /// Write output bytes at image `offset`; the range must lie inside the plan's outputs.
+    /// A command: feeds the watchdogs of the frames it touches. After a watchdog trip or a
+    /// clear_panic only these bytes go live; the rest stays at the safe image's values until
+    /// written (`command_write`).
     pub fn write_outputs(&self, offset: usize, data: &[u8]) -> Result<()> {
         let ex = self.exchange()?;
         let end = offset.saturating_add(data.len());
@@ -569,7 +572,9 @@ impl Engine {
     /// write over the byte span they cover) and bits outside the fields keep their value, so
     /// writers of different variables never undo each other. Every field must lie inside the
     /// plan's output ranges and be well formed (bit_length 1..=64, raw fits), else nothing is
-    /// written (Error::Invalid naming the bad field). Feeds the watchdog like write_outputs.
+    /// written (Error::Invalid naming the bad field). Feeds the watchdog like write_outputs,
+    /// and like it makes only its own bits live after a stop (the other bits of the span are
+    /// read after the reset a stop owes the buffer, so they keep their safe values).
     pub fn write_output_fields(&self, fields: &[OutputField]) -> Result<()> {
         if fields.is_empty() {
             return Ok(());
