@@ -28,13 +28,13 @@ from ether_ros.config import BusConfig, load_bus_config
 from ether_ros.master import Bus
 from ether_ros.ros.rig import RosRig
 from ether_ros.sim.proof import SimProcess
+from ether_ros.testing.configs import config_with_watchdog
 from ether_ros.testing.netns import VethPair
 from ether_ros.testing.wait import wait_for
 
 pytestmark = [pytest.mark.netns]
 
 REPO = Path(__file__).resolve().parents[2]
-LAELAPS = REPO / "config" / "laelaps.yaml"
 ARM6 = REPO / "config" / "arm6.yaml"
 # Slave positions of the legs in config/laelaps.yaml.
 LEGS = {"hind_right_leg": 0, "hind_left_leg": 1, "front_left_leg": 2, "front_right_leg": 3}
@@ -75,12 +75,7 @@ def rig(veth_allowed: bool, tmp_path_factory: pytest.TempPathFactory) -> Iterato
     # feeder can stall that long, and a trip (which also voids the commands before it) would
     # be taken for what this test looks for. The watchdog's own reset is covered by the
     # engine's tests and tests/acceptance/test_ros_node.py.
-    text = LAELAPS.read_text()
-    assert "watchdog_ms: 100" in text and "esi: [../devices]" in text
-    text = text.replace("watchdog_ms: 100", "watchdog_ms: 0")
-    text = text.replace("esi: [../devices]", f"esi: [{REPO / 'devices'}]")
-    config = tmp_path_factory.mktemp("laelaps") / "laelaps.yaml"
-    config.write_text(text)
+    config = config_with_watchdog("laelaps.yaml", tmp_path_factory.mktemp("laelaps"), 0)
     with RosRig(config) as rig:
         assert rig.client.wait_for_node() == "active"
         rig.client.layout(timeout=10)

@@ -17,6 +17,7 @@ import pytest
 
 from ether_ros.ros.client import ClientError, EtherRosClient, Latest, make_write
 from ether_ros.ros.rig import RosRig, domain_for
+from ether_ros.testing.configs import config_with_watchdog
 
 pytestmark = [pytest.mark.netns, pytest.mark.ros, pytest.mark.slow]
 
@@ -35,10 +36,13 @@ STANDING = {
 
 
 @pytest.fixture(scope="module")
-def rig(veth_allowed: bool) -> Iterator[RosRig]:
+def rig(veth_allowed: bool, tmp_path_factory: pytest.TempPathFactory) -> Iterator[RosRig]:
     if not veth_allowed:
         pytest.fail("the ROS acceptance tests need root (veth pairs)")
-    with RosRig(REPO / "config" / "laelaps.yaml", raw=True, netns=True) as rig:
+    # A 1 s engine watchdog instead of 100 ms: a trip voids the commands before it, and the
+    # node's feeder can stall 100 ms on a loaded VM (testing/configs.py).
+    config = config_with_watchdog("laelaps.yaml", tmp_path_factory.mktemp("node"), 1000)
+    with RosRig(config, raw=True, netns=True) as rig:
         assert rig.client.wait_for_node() == "active"
         rig.client.layout(timeout=10)
         yield rig
@@ -235,7 +239,7 @@ def test_command_watchdog_puts_safe_outputs_on_the_wire(rig: RosRig) -> None:
     ok, reason = c.set_parameter("command_timeout_ms", 300)
     assert ok, reason
     try:
-        # No command for 300 ms (+ the configured 100 ms engine watchdog): safe outputs.
+        # No command for 300 ms (+ the rig's 1 s engine watchdog): safe outputs.
         echo(c, "front_right_leg", "Kp100_hip", 0.0)
         c.wait_for(lambda _l: c.master_status().get("ros_watchdog_active") == "1", timeout=5)
 
