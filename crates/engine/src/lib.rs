@@ -526,9 +526,11 @@ impl Engine {
     /// for it arrives.
     ///
     /// The feed comes first: a watchdog that trips after it would void this very command. If
-    /// one tripped all the same (the writer was preempted for a whole watchdog period, or the
-    /// RT thread read the old command time an instant before), the reset and the write are
-    /// done again, so the command still wins over the stop it arrived after.
+    /// a trip's reset bit shows up all the same before the write is done (the writer was
+    /// preempted for a whole watchdog period, or the RT thread read the old command time an
+    /// instant before), the reset and the write are done again, so the command wins over the
+    /// stop it arrived after. A bit the RT thread publishes after this check (a trip decided
+    /// in the same instant as the feed) voids the command with the trip: the safe side.
     fn command_write(
         &self,
         ex: &Exchange,
