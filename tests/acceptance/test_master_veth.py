@@ -218,6 +218,34 @@ def test_slave_reset_is_reported_and_recovered(mixed_bus: tuple[Bus, SimProcess]
     assert sim.request({"op": "slave_info", "slave": 1})["sync0_active"]
 
 
+def test_a_recovered_slave_starts_from_its_safe_outputs(mixed_bus: tuple[Bus, SimProcess]) -> None:
+    # Resetting a stop does not restart (ISO 13850): a slave that dropped out and is brought
+    # back to OP does not resume what was commanded before; the others keep their commands.
+    bus, sim = mixed_bus
+    rec = Recorder()
+    bus.on_event(rec)
+
+    def received(slave: int, key: str) -> float:
+        return float(sim.request({"op": "probe", "slave": slave})[key])
+
+    bus.write_many("hind_left_leg", {"Kp100_knee": 1234, "Transition_time": 1})
+    bus.write("front_left_leg", "Kp100_knee", 777)
+    wait_for("hind_left_leg commanded", lambda: received(1, "cmd_kp_knee") == pytest.approx(12.34))
+    wait_for("front_left_leg commanded", lambda: received(2, "cmd_kp_knee") == pytest.approx(7.77))
+    sim.fault("reset", slave="hind_left_leg")
+    wait_for("recovery", lambda: "slave_recovered" in rec.kinds("hind_left_leg"))
+    assert bus.outputs("hind_left_leg")["Kp100_knee"] == 0
+    # A new command for it changes what it writes, and only that: once the firmware has it,
+    # the gain commanded before the reset is still at its safe value (0).
+    bus.write("hind_left_leg", "Transition_time", 2)
+    wait_for("the new command", lambda: received(1, "cmd_transition_time_s") == 2.0)
+    assert received(1, "cmd_kp_knee") == 0.0
+    assert bus.outputs("hind_left_leg")["Kp100_knee"] == 0
+    # The other slaves were not touched by the recovery.
+    assert received(2, "cmd_kp_knee") == pytest.approx(7.77)
+    assert bus.outputs("front_left_leg")["Kp100_knee"] == 777
+
+
 def test_refused_op_keeps_retrying_until_allowed(mixed_bus: tuple[Bus, SimProcess]) -> None:
     bus, sim = mixed_bus
     rec = Recorder()

@@ -388,8 +388,12 @@ def test_panic_reaches_the_wire_from_the_next_frame(
     wait_for(lambda: esc.last() == SAFE[:8], "safe outputs")
     time.sleep(0.01)
     t_clear = Engine.now_ns()
-    engine.write_outputs(0, b"\x05\x05\x05\x05")
+    # A write while panicked is voided by the clear (it does not restart, docs/engine.md
+    # "Safety"); a command after it goes live.
+    engine.write_outputs(0, b"\x06\x06\x06\x06")
     engine.clear_panic()
+    assert engine.outputs()[:4] == SAFE[:4]
+    engine.write_outputs(0, b"\x05\x05\x05\x05")
     wait_for(lambda: esc.last()[:4] == b"\x05\x05\x05\x05", "live outputs again")
     engine.stop_cyclic()
     r = drain(engine).records

@@ -83,7 +83,11 @@ def test_start_write_echo_and_panic(setup: tuple[EtherRosNode, EtherRosClient, o
     assert not ok and "not an integer" in message
     assert client.panic()[0]
     echo(client, 0.0)
-    assert client.command("clear_panic")[0]
+    ok, message = client.command("clear_panic")
+    assert ok and "stay at their safe values" in message, message
+    # Clearing does not restart: the outputs stay safe until commanded again.
+    echo(client, 0.0)
+    assert client.write("hind_right_leg", "Kp100_knee", 8000)[0]
     echo(client, 8000.0)
     assert net.slave_info(0)["al_state_name"] == "OP"  # type: ignore[attr-defined]
     assert client.command("stop")[0] and node.lifecycle_state() == "inactive"

@@ -24,6 +24,12 @@ const CYCLIC_INDICES: usize = 128;
 /// At most this many frames are read per receive pass beyond the cycle's own, so a flood cannot
 /// hold the loop.
 const MAX_EXTRA_FRAMES_PER_CYCLE: usize = 32;
+/// Reset bit (beside the frame bits 0..32 of `Exchange::reset_pending`/`reset_done`): every
+/// output range of the image.
+pub const RESET_ALL: u64 = 1 << 32;
+/// Copies of the output buffer tried per cycle when a write overlaps: a writer's copy takes
+/// well under a microsecond, so a second try almost always gets a whole version.
+const OUTPUT_READ_ATTEMPTS: usize = 3;
 
 /// State shared by the engine and its RT thread for the engine's whole life.
 #[derive(Default)]
@@ -67,6 +73,18 @@ pub struct Exchange {
     /// Bit k: cyclic frame k's inputs in the image are stale (the last cycle's
     /// `SampleRecord::stale_mask`); all set until the first whole replies.
     pub stale_mask: AtomicU32,
+    /// Resets owed to the output buffer (bit k: frame k's output bytes; `RESET_ALL`: every
+    /// output range). The RT thread sets a bit when a watchdog trips; the next writer (under
+    /// the output writer lock) puts the safe image's bytes there before its own write and
+    /// clears the bit. Until then the RT thread sends the safe bytes for those frames: a
+    /// command after a stop must not bring back what was commanded before it (ISO 13850:
+    /// resetting a stop does not restart the machine), and a partial write to one slave must
+    /// not re-activate the others.
+    pub reset_pending: AtomicU64,
+    /// Resets the writers applied since the RT thread last looked (same bits): the RT thread
+    /// stops trusting its copy of the output buffer for those frames until it has read a
+    /// version written after them.
+    pub reset_done: AtomicU64,
 }
 
 impl Exchange {
@@ -84,6 +102,34 @@ impl Exchange {
         for c in self.frame_commands.iter() {
             c.store(now_ns, Ordering::Release);
         }
+    }
+
+    /// Put the safe image's bytes over the output ranges of the pending resets and of `extra`
+    /// (same bits as `reset_pending`), then tell the RT thread. Only under the output writer
+    /// lock (the buffer's single writer). The bits are cleared only after the bytes are
+    /// written, so no cycle takes the buffer as it was before the reset.
+    pub fn apply_resets(&self, extra: u64) {
+        let pending = self.reset_pending.load(Ordering::Acquire);
+        let mask = pending | extra;
+        if mask == 0 {
+            return;
+        }
+        let safe = &self.plan.safe_image;
+        if mask & RESET_ALL != 0 {
+            for &(o, l) in &self.output_runs {
+                self.outputs.write(o, &safe[o..o + l]);
+            }
+        } else {
+            for (k, runs) in self.frame_outputs.iter().enumerate() {
+                if mask & (1 << k) != 0 {
+                    for &(o, l) in runs {
+                        self.outputs.write(o, &safe[o..o + l]);
+                    }
+                }
+            }
+        }
+        self.reset_done.fetch_or(mask, Ordering::AcqRel);
+        self.reset_pending.fetch_and(!pending, Ordering::AcqRel);
     }
 
     /// Ok when image bytes `begin..end` lie inside one output run, else the refusal naming
@@ -114,6 +160,8 @@ impl Exchange {
             axes: AxisExchange::new(&plan.axes, plan.trajectory_capacity),
             run: 0,
             stale_mask: AtomicU32::new(u32::MAX),
+            reset_pending: AtomicU64::new(0),
+            reset_done: AtomicU64::new(0),
             plan,
         }
     }
@@ -214,6 +262,12 @@ pub struct Cyclic {
     live_out: Vec<u8>,
     scratch: Vec<u8>,
     out_version: u64,
+    /// Bit k: `live_out` may hold frame k's output bytes as commanded before a stop (panic,
+    /// a watchdog, a reset of the buffer): frame k carries the safe image's bytes until a copy
+    /// of the buffer taken after the reset (and with no reset pending) replaces them.
+    untrusted: u32,
+    /// Every frame's bit.
+    all_frames: u32,
     /// The axis stage (CiA 402 drives), run on the image before the frame is filled.
     axes: Axes,
     /// Cyclic frames whose reply is awaited, by index (low 7 bits): in send_at_wake the
@@ -292,6 +346,8 @@ impl Cyclic {
             scratch: image.clone(),
             image,
             out_version: u64::MAX,
+            untrusted: 0,
+            all_frames: ((1u64 << layout.frames.len()) - 1) as u32,
             axes,
             layout,
             shared,
@@ -611,6 +667,9 @@ impl Cyclic {
                 .counters
                 .watchdog_trips
                 .fetch_add(1, Ordering::Relaxed);
+            // The commands from before the trip are void: the next writer resets the buffer
+            // to the safe image before its own write (an atomic flag: no lock, no syscall).
+            self.ex.reset_pending.fetch_or(RESET_ALL, Ordering::AcqRel);
         }
         self.watchdog_tripped = stale;
         if panic {
@@ -619,14 +678,46 @@ impl Cyclic {
         if stale {
             self.flags |= flags::WATCHDOG;
         }
-        if !panic && !stale {
+        // Resets owed or done since the last cycle: `live_out` is not to be trusted for those
+        // frames until it is refreshed. Pending first, then done: a writer marks a reset done
+        // before it clears the pending bit, so one of the two is seen.
+        let frames_of = |bits: u64, all: u32| {
+            if bits & RESET_ALL != 0 {
+                all
+            } else {
+                bits as u32 & all
+            }
+        };
+        let pending = frames_of(
+            self.ex.reset_pending.load(Ordering::Acquire),
+            self.all_frames,
+        );
+        let done = frames_of(
+            self.ex.reset_done.swap(0, Ordering::AcqRel),
+            self.all_frames,
+        );
+        self.untrusted |= pending | done;
+        if panic || stale {
+            // The buffer is not read while stopped: what `live_out` holds is from before.
+            self.untrusted = self.all_frames;
+        } else {
             let v = self.ex.outputs.version();
             if v != self.out_version {
                 // A write in progress leaves the previous complete version in place.
-                if let Some(v) = self.ex.outputs.try_read(&mut self.scratch) {
-                    std::mem::swap(&mut self.live_out, &mut self.scratch);
-                    self.out_version = v;
+                for _ in 0..OUTPUT_READ_ATTEMPTS {
+                    if let Some(v) = self.ex.outputs.try_read(&mut self.scratch) {
+                        std::mem::swap(&mut self.live_out, &mut self.scratch);
+                        self.out_version = v;
+                        // Read after every reset whose bit was seen above: only the resets
+                        // still owed keep their frames on the safe image.
+                        self.untrusted = pending;
+                        break;
+                    }
                 }
+            } else {
+                // Unchanged since the copy was taken: every reset seen above (a write) came
+                // before that copy.
+                self.untrusted = pending;
             }
         }
         let source = if panic || stale {
@@ -636,6 +727,15 @@ impl Cyclic {
         };
         for &(o, l) in &self.layout.outputs {
             self.image[o..o + l].copy_from_slice(&source[o..o + l]);
+        }
+        if !(panic || stale) && self.untrusted != 0 {
+            for (k, layout) in self.layout.frames.iter().enumerate() {
+                if self.untrusted & (1 << k) != 0 {
+                    for &(o, l) in &layout.outputs {
+                        self.image[o..o + l].copy_from_slice(&plan.safe_image[o..o + l]);
+                    }
+                }
+            }
         }
         // The groups' own watchdogs, decided before the axis stage so that the axes of a
         // stale group get their stop: its output bytes from the safe image (in the image too,
@@ -653,6 +753,8 @@ impl Cyclic {
                     self.ex.frames[k]
                         .watchdog_trips
                         .fetch_add(1, Ordering::Relaxed);
+                    // This group's commands from before the trip are void (see above).
+                    self.ex.reset_pending.fetch_or(bit as u64, Ordering::AcqRel);
                 }
                 self.flags |= flags::WATCHDOG;
                 for &(o, l) in &layout.outputs {

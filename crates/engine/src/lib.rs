@@ -27,7 +27,7 @@ use std::time::Duration;
 use cia402::AxisCommand;
 pub use cia402::{AxisStatus, Mode, Point, SetpointKind};
 pub use clock::now_ns;
-use cyclic::{Cyclic, Exchange, Shared};
+use cyclic::{Cyclic, Exchange, Shared, RESET_ALL};
 pub use fields::OutputField;
 pub use frames::Request;
 use frames::{build_request_frame, reply_datagrams, reply_matches};
@@ -500,6 +500,9 @@ impl Engine {
     }
 
     /// Write output bytes at image `offset`; the range must lie inside the plan's outputs.
+    /// A command: feeds the watchdogs of the frames it touches. After a watchdog trip or a
+    /// clear_panic only these bytes go live; the rest stays at the safe image's values until
+    /// written (`command_write`).
     pub fn write_outputs(&self, offset: usize, data: &[u8]) -> Result<()> {
         let ex = self.exchange()?;
         let end = offset.saturating_add(data.len());
@@ -509,14 +512,61 @@ impl Engine {
             &format!("write of {} byte(s) at image offset {offset}", data.len()),
         )
         .map_err(Error::Invalid)?;
-        {
-            let _w = lock(&self.output_writer);
-            ex.outputs.write(offset, data);
+        let mut scratch = lock(&self.output_writer);
+        self.command_write(&ex, offset, end, &mut scratch, |ex, _| {
+            ex.outputs.write(offset, data)
+        });
+        Ok(())
+    }
+
+    /// A command's write into the output buffer, under the output writer lock (`scratch`):
+    /// feed the watchdogs of the bytes `begin..end`, put the safe image back where a stop
+    /// voided the commands (`Exchange::apply_resets`), then `write`. A write changes only what
+    /// it writes: after a stop every other output stays at its safe value until a command
+    /// for it arrives.
+    ///
+    /// The feed comes first: a watchdog that trips after it would void this very command. If
+    /// a trip's reset bit shows up all the same before the write is done (the writer was
+    /// preempted for a whole watchdog period, or the RT thread read the old command time an
+    /// instant before), the reset and the write are done again, so the command wins over the
+    /// stop it arrived after. A bit the RT thread publishes after this check (a trip decided
+    /// in the same instant as the feed) voids the command with the trip: the safe side.
+    fn command_write(
+        &self,
+        ex: &Exchange,
+        begin: usize,
+        end: usize,
+        scratch: &mut Vec<u8>,
+        mut write: impl FnMut(&Exchange, &mut Vec<u8>),
+    ) {
+        let now = now_ns();
+        self.shared.last_command_ns.store(now, Ordering::Release);
+        ex.note_command(begin, end, now);
+        for _ in 0..3 {
+            ex.apply_resets(0);
+            write(ex, scratch);
+            if ex.reset_pending.load(Ordering::Acquire) == 0 {
+                break;
+            }
         }
-        self.shared
-            .last_command_ns
-            .store(now_ns(), Ordering::Release);
-        ex.note_command(offset, end, now_ns());
+    }
+
+    /// Put the configured safe values (the plan's `safe_image`) into the output buffer at
+    /// image bytes `offset..offset + len` (inside one output range), e.g. for a slave that
+    /// comes back to OP after it dropped out: it starts from its safe values, not from what
+    /// was commanded before. Not a command: it feeds no watchdog.
+    pub fn reset_outputs(&self, offset: usize, len: usize) -> Result<()> {
+        let ex = self.exchange()?;
+        let end = offset.saturating_add(len);
+        ex.check_output_span(
+            offset,
+            end,
+            &format!("reset of {len} byte(s) at image offset {offset}"),
+        )
+        .map_err(Error::Invalid)?;
+        let _w = lock(&self.output_writer);
+        ex.apply_resets(0);
+        ex.outputs.write(offset, &ex.plan.safe_image[offset..end]);
         Ok(())
     }
 
@@ -524,7 +574,9 @@ impl Engine {
     /// write over the byte span they cover) and bits outside the fields keep their value, so
     /// writers of different variables never undo each other. Every field must lie inside the
     /// plan's output ranges and be well formed (bit_length 1..=64, raw fits), else nothing is
-    /// written (Error::Invalid naming the bad field). Feeds the watchdog like write_outputs.
+    /// written (Error::Invalid naming the bad field). Feeds the watchdog like write_outputs,
+    /// and like it makes only its own bits live after a stop (the other bits of the span are
+    /// read after the reset a stop owes the buffer, so they keep their safe values).
     pub fn write_output_fields(&self, fields: &[OutputField]) -> Result<()> {
         if fields.is_empty() {
             return Ok(());
@@ -551,22 +603,18 @@ impl Engine {
             first = first.min(a);
             end = end.max(b);
         }
-        {
-            // Holding the writer lock makes us the buffer's only writer, so the bytes read here
-            // are current and nobody changes them before the write below.
-            let mut scratch = lock(&self.output_writer);
+        // Holding the writer lock makes us the buffer's only writer, so the bytes read here
+        // are current (a reset owed already applied) and nobody changes them before the write.
+        let mut scratch = lock(&self.output_writer);
+        self.command_write(&ex, first, end, &mut scratch, |ex, scratch| {
             scratch.clear();
             scratch.resize(end - first, 0);
-            ex.outputs.read_as_writer(first, &mut scratch);
+            ex.outputs.read_as_writer(first, scratch);
             for f in fields {
-                f.apply(&mut scratch, first);
+                f.apply(scratch, first);
             }
-            ex.outputs.write(first, &scratch);
-        }
-        self.shared
-            .last_command_ns
-            .store(now_ns(), Ordering::Release);
-        ex.note_command(first, end, now_ns());
+            ex.outputs.write(first, scratch);
+        });
         Ok(())
     }
 
@@ -799,9 +847,13 @@ impl Engine {
         }
     }
 
-    /// The output buffer as Python wrote it (what goes on the wire unless panic/watchdog).
+    /// The output buffer as commanded (what goes on the wire unless panic/watchdog), with the
+    /// resets a watchdog trip owes it applied: after a stop it shows the safe values.
     pub fn outputs(&self) -> Result<Vec<u8>> {
-        Ok(self.exchange()?.outputs.read())
+        let ex = self.exchange()?;
+        let _w = lock(&self.output_writer);
+        ex.apply_resets(0);
+        Ok(ex.outputs.read())
     }
 
     /// Move up to `max` samples out: (records, images), `RECORD_LEN` and image_len bytes each.
@@ -886,9 +938,26 @@ impl Engine {
         }
     }
 
-    /// Back to the output buffer (rewrite it first). Also feeds the watchdog.
+    /// End the panic without restarting anything (ISO 13850): the output buffer is reset to
+    /// the safe image first, so every slave's outputs stay at their safe values until a new
+    /// command for them arrives (a partial write changes only what it writes), and CiA 402
+    /// axes stay stopped as their `restart` rule says. Also feeds the watchdog.
+    ///
+    /// Order: under the output writer lock, the watchdogs are fed, the buffer reset (and the
+    /// RT thread told so, `Exchange::reset_done`), and only then the panic flag cleared: the
+    /// first cycle that sees the flag cleared also sees the reset, and sends the safe image
+    /// for any frame whose copy of the buffer predates it.
     pub fn clear_panic(&self) {
-        self.feed_watchdog();
+        let Ok(ex) = self.exchange() else {
+            self.feed_watchdog();
+            self.shared.panic.store(false, Ordering::Release);
+            return;
+        };
+        let _w = lock(&self.output_writer);
+        let now = now_ns();
+        self.shared.last_command_ns.store(now, Ordering::Release);
+        ex.note_command_all(now);
+        ex.apply_resets(RESET_ALL);
         self.shared.panic.store(false, Ordering::Release);
     }
 
@@ -896,12 +965,17 @@ impl Engine {
         self.shared.panic.load(Ordering::Acquire)
     }
 
-    /// Count as a fresh command for the watchdog without writing outputs.
+    /// Count as a fresh command for the watchdog without writing outputs. Not a command for
+    /// any output: after a watchdog trip the outputs stay at their safe values (the reset it
+    /// owes the buffer is applied here, so `outputs()` shows them) until written again.
     pub fn feed_watchdog(&self) {
         let now = now_ns();
         self.shared.last_command_ns.store(now, Ordering::Release);
-        if let Some(ex) = lock(&self.exchange).as_ref() {
+        let ex = lock(&self.exchange).clone();
+        if let Some(ex) = ex {
             ex.note_command_all(now);
+            let _w = lock(&self.output_writer);
+            ex.apply_resets(0);
         }
     }
 }

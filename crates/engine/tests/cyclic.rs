@@ -453,8 +453,9 @@ fn panic_puts_the_safe_image_on_the_wire_within_two_frames() {
     );
     assert!(seen[before + first_safe..].iter().all(|o| *o == [0xEE; 8]));
     assert_eq!(counter(&e, "panics"), 1);
-    e.write_outputs(0, &[5, 5, 5, 5]).unwrap();
+    // Clearing does not restart: a new command brings live outputs back.
     e.clear_panic();
+    e.write_outputs(0, &[5, 5, 5, 5]).unwrap();
     wait_for(
         || bus.lock().unwrap().outputs_seen.last().map(|o| o[0]) == Some(5),
         "live outputs again",
@@ -475,9 +476,9 @@ fn watchdog_switches_to_safe_outputs_when_commands_stop() {
         "watchdog safe image",
     );
     assert!(counter(&e, "watchdog_trips") >= 1);
-    // Feeding brings the commanded outputs back. With a 20 ms watchdog a test thread held off
+    // A new command brings live outputs back. With a 20 ms watchdog a test thread held off
     // by a loaded host may find them already replaced by the safe image again, so any frame
-    // since the feed counts, not only the latest.
+    // since the write counts, not only the latest.
     let fed_at = bus.lock().unwrap().outputs_seen.len();
     e.write_outputs(0, &[7, 7, 7, 7]).unwrap();
     wait_for(
@@ -490,6 +491,175 @@ fn watchdog_switches_to_safe_outputs_when_commands_stop() {
     );
     e.stop_cyclic();
     assert!(records(&e).iter().any(|r| r.flags & flags::WATCHDOG != 0));
+}
+
+/// Frames seen on the bus from `from` on.
+fn seen_since(bus: &Arc<Mutex<Bus>>, from: usize) -> Vec<[u8; 8]> {
+    bus.lock().unwrap().outputs_seen[from..].to_vec()
+}
+
+const A: [u8; 4] = [1, 2, 3, 4];
+const B: [u8; 4] = [9, 9, 9, 9];
+const SAFE: [u8; 4] = [0xEE; 4];
+
+/// Output ranges A (image 0..4) and B (6..10) live on the wire.
+fn live_a_and_b(e: &Engine, bus: &Arc<Mutex<Bus>>) {
+    e.write_outputs(0, &A).unwrap();
+    e.write_outputs(6, &B).unwrap();
+    wait_for(
+        || bus.lock().unwrap().outputs_seen.last() == Some(&[1, 2, 3, 4, 9, 9, 9, 9]),
+        "live outputs A and B",
+    );
+}
+
+#[test]
+fn clearing_a_panic_keeps_the_safe_image_until_a_new_command() {
+    // ISO 13850: resetting the stop does not restart. The outputs commanded before the panic
+    // never come back; a later partial write changes only what it writes.
+    let (e, bus) = engine();
+    e.start_cyclic(plan(Order::SendAtWake, DcMode::Off))
+        .unwrap();
+    live_a_and_b(&e, &bus);
+    e.panic();
+    wait_for(
+        || bus.lock().unwrap().outputs_seen.last() == Some(&[0xEE; 8]),
+        "safe image",
+    );
+    e.clear_panic();
+    let cleared = bus.lock().unwrap().outputs_seen.len();
+    assert!(!e.is_panicked());
+    let mut expected = vec![1u8; 12];
+    expected[..4].copy_from_slice(&SAFE);
+    expected[6..10].copy_from_slice(&SAFE);
+    assert_eq!(
+        e.outputs().unwrap(),
+        expected,
+        "the buffer is back at the safe image"
+    );
+    wait_for(
+        || bus.lock().unwrap().outputs_seen.len() >= cleared + 20,
+        "twenty frames after the clear",
+    );
+    // The frame being built when the clear came may still be the panic's: safe either way.
+    assert!(seen_since(&bus, cleared.saturating_sub(1))
+        .iter()
+        .all(|o| *o == [0xEE; 8]));
+    // A command for A: A live, B stays safe (its old value never returns).
+    let written = bus.lock().unwrap().outputs_seen.len();
+    e.write_outputs(0, &[5, 5, 5, 5]).unwrap();
+    wait_for(
+        || bus.lock().unwrap().outputs_seen.last() == Some(&[5, 5, 5, 5, 0xEE, 0xEE, 0xEE, 0xEE]),
+        "A live, B safe",
+    );
+    for o in seen_since(&bus, written) {
+        assert_eq!(o[4..], SAFE, "B re-activated by a write to A: {o:?}");
+        assert!(o[..4] == SAFE || o[..4] == [5; 4], "{o:?}");
+    }
+    e.stop_cyclic();
+}
+
+#[test]
+fn a_watchdog_trip_voids_the_commands_before_it() {
+    let (e, bus) = engine();
+    let mut p = plan(Order::SendAtWake, DcMode::Off);
+    p.watchdog_ns = 50_000_000;
+    e.start_cyclic(p).unwrap();
+    live_a_and_b(&e, &bus);
+    wait_for(
+        || bus.lock().unwrap().outputs_seen.last() == Some(&[0xEE; 8]),
+        "watchdog safe image",
+    );
+    let tripped = bus.lock().unwrap().outputs_seen.len();
+    assert!(counter(&e, "watchdog_trips") >= 1);
+    // A feed is no command for any output: the buffer shows the safe values, and they stay.
+    e.feed_watchdog();
+    let mut expected = vec![1u8; 12];
+    expected[..4].copy_from_slice(&SAFE);
+    expected[6..10].copy_from_slice(&SAFE);
+    assert_eq!(e.outputs().unwrap(), expected);
+    // A command for A only: A live, B stays safe.
+    e.write_outputs(0, &[7, 7, 7, 7]).unwrap();
+    wait_for(
+        || seen_since(&bus, tripped).iter().any(|o| o[..4] == [7; 4]),
+        "A live after the trip",
+    );
+    for o in seen_since(&bus, tripped) {
+        assert_eq!(
+            o[4..],
+            SAFE,
+            "B's command from before the trip came back: {o:?}"
+        );
+        assert!(o[..4] == SAFE || o[..4] == [7; 4], "{o:?}");
+    }
+    // A field write after the next trip merges into the safe bytes, not the old command.
+    wait_for(
+        || bus.lock().unwrap().outputs_seen.last() == Some(&[0xEE; 8]),
+        "tripped again",
+    );
+    let tripped = bus.lock().unwrap().outputs_seen.len();
+    e.write_output_fields(&[field(6 * 8, 8, 0x42)]).unwrap();
+    wait_for(
+        || seen_since(&bus, tripped).iter().any(|o| o[4] == 0x42),
+        "the field live",
+    );
+    for o in seen_since(&bus, tripped) {
+        assert_eq!(
+            o[..4],
+            SAFE,
+            "A's command from before the trip came back: {o:?}"
+        );
+        assert!(
+            o[4..] == SAFE || o[4..] == [0x42, 0xEE, 0xEE, 0xEE],
+            "{o:?}"
+        );
+    }
+    e.stop_cyclic();
+}
+
+#[test]
+fn no_cycle_sends_a_voided_command_while_another_writer_races_the_stops() {
+    // B is commanded once; a writer thread keeps commanding A while the main thread panics
+    // and clears, again and again, and starves nothing. After the first clear, B's old value
+    // must never reach the wire again, whatever the interleaving.
+    let (e, bus) = engine();
+    let e = Arc::new(e);
+    let mut p = plan(Order::SendAtWake, DcMode::Off);
+    p.cycle_ns = 100_000;
+    e.start_cyclic(p).unwrap();
+    live_a_and_b(&e, &bus);
+    let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let writer = {
+        let (e, stop) = (e.clone(), stop.clone());
+        std::thread::spawn(move || {
+            let mut k = 0u8;
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                k = k.wrapping_add(1) % 100;
+                e.write_output_fields(&[field(0, 8, k as u64)]).unwrap();
+            }
+        })
+    };
+    e.panic();
+    wait_for(
+        || bus.lock().unwrap().outputs_seen.last().map(|o| o[4]) == Some(0xEE),
+        "safe image",
+    );
+    e.clear_panic();
+    let cleared = bus.lock().unwrap().outputs_seen.len();
+    for _ in 0..200 {
+        e.panic();
+        std::thread::sleep(std::time::Duration::from_micros(150));
+        e.clear_panic();
+        std::thread::sleep(std::time::Duration::from_micros(150));
+    }
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    writer.join().unwrap();
+    let seen = seen_since(&bus, cleared.saturating_sub(1));
+    assert!(seen.len() > 100, "only {} frames", seen.len());
+    for o in &seen {
+        assert_eq!(o[4..], SAFE, "B's voided command on the wire: {o:?}");
+        assert!(o[1..4] == SAFE[1..], "A's voided bytes on the wire: {o:?}");
+    }
+    e.stop_cyclic();
 }
 
 #[test]

@@ -419,11 +419,26 @@ fn a_groups_own_watchdog_puts_only_its_frame_on_safe_outputs() {
         "the bus watchdog is off"
     );
     assert!(records(&e).iter().any(|r| r.flags & flags::WATCHDOG != 0));
-    // A write to one of its slaves brings the group's live outputs back.
+    // A write to one of its slaves brings that slave's live outputs back; the trip voided
+    // the group's commands from before it, so the other slave of the group stays safe until
+    // it is commanded again (and frame 0 was never touched).
     e.write_outputs(3 * 2 * AREA, &live(3)).unwrap();
     wait_for(
         || b.lock().unwrap().slaves[3].out == live(3),
-        "frame 1 live again",
+        "slave 3 live again",
+    );
+    {
+        let bus = b.lock().unwrap();
+        assert_eq!(
+            bus.slaves[2].out, [0xEE; AREA],
+            "slave 2's old command came back"
+        );
+        assert_eq!(bus.slaves[1].out, live(1), "frame 0 keeps its live outputs");
+    }
+    e.write_outputs(2 * 2 * AREA, &live(2)).unwrap();
+    wait_for(
+        || b.lock().unwrap().slaves[2].out == live(2),
+        "slave 2 live once commanded",
     );
     e.stop_cyclic();
 }

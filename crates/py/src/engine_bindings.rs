@@ -1030,9 +1030,13 @@ impl PyEngine {
         Ok(PyBytes::new(py, &image))
     }
 
-    /// The output buffer as written (what goes on the wire unless panic or watchdog).
+    /// The output buffer as commanded (what goes on the wire unless panic or watchdog; after
+    /// a watchdog trip the safe values until written again).
     fn outputs<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyBytes>> {
-        let out = self.inner.outputs().map_err(|e| to_py(py, e))?;
+        let engine = self.inner.clone();
+        let out = py
+            .detach(move || engine.outputs())
+            .map_err(|e| to_py(py, e))?;
         Ok(PyBytes::new(py, &out))
     }
 
@@ -1090,14 +1094,29 @@ impl PyEngine {
         self.inner.panic();
     }
 
-    /// Back to the output buffer (rewrite it first).
-    fn clear_panic(&self) {
-        self.inner.clear_panic();
+    /// End the panic without restarting: the output buffer is reset to the safe image first,
+    /// so every slave's outputs stay at their safe values until a new command for them (a
+    /// partial write changes only what it writes); CiA 402 axes follow their `restart` rule.
+    /// Feeds the watchdog. Waits for the output writer mutex (GIL released).
+    fn clear_panic(&self, py: Python<'_>) {
+        let engine = self.inner.clone();
+        py.detach(move || engine.clear_panic());
     }
 
-    /// Count as a fresh command for the watchdog without writing outputs.
-    fn feed_watchdog(&self) {
-        self.inner.feed_watchdog();
+    /// Count as a fresh command for the watchdog without writing outputs (after a watchdog
+    /// trip the outputs stay at their safe values until written again).
+    fn feed_watchdog(&self, py: Python<'_>) {
+        let engine = self.inner.clone();
+        py.detach(move || engine.feed_watchdog());
+    }
+
+    /// Put the safe image's bytes into the output buffer at image bytes `offset..offset+len`
+    /// (inside one output range): a slave back in OP starts from its safe values. Not a
+    /// command (feeds no watchdog).
+    fn reset_outputs(&self, py: Python<'_>, offset: usize, len: usize) -> PyResult<()> {
+        let engine = self.inner.clone();
+        py.detach(move || engine.reset_outputs(offset, len))
+            .map_err(|e| to_py(py, e))
     }
 
     #[getter]

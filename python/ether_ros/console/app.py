@@ -67,7 +67,10 @@ STATE_TIMEOUT_S = 2.0
 # machine may take seconds; a panic never waits for it).
 WRITE_TIMEOUT_S = 10.0
 # What a successful panic answer adds: the console command that clears it.
-CLEAR_HINT = "type 'clear' to resume the commanded outputs"
+CLEAR_HINT = "type 'clear' to end it (outputs stay safe until you command them again)"
+# What the console adds to the node's answer to a clear: nothing commanded before the panic
+# comes back by itself (ISO 13850), whatever node version answered.
+CLEARED_NOTE = "panic cleared: outputs stay at their safe values until you command them again"
 
 
 class Outcome(enum.Enum):
@@ -245,6 +248,13 @@ class Console:
         ok, message = self.client.command(command)
         if command in ("start", "stop", "restart"):
             self._lifecycle_at = time.monotonic()
+        if command == "clear_panic" and ok:
+            # The node reset every output to its safe value: what this console sent before,
+            # and the node's snapshots from before the clear, no longer describe the outputs.
+            self._sent.clear()
+            self.client.forget_commanded()
+            if "safe values" not in message:
+                message = f"{message} — {CLEARED_NOTE}" if message else CLEARED_NOTE
         if self.panic_line.last_press > sent:
             # A panic key was pressed while this command (a clear, a start) was on its way:
             # the node may have served the panic first. The panic stands: send it again.

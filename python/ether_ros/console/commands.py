@@ -59,7 +59,7 @@ HELP: dict[str, str] = {
     "stop": "stop                       safe outputs, bus to SAFEOP",
     "restart": "restart                    stop, then start",
     "panic": "panic                      safe outputs on the wire now (also: Ctrl-P or F1)",
-    "clear": "clear                      clear a panic (outputs resume the commanded values)",
+    "clear": "clear                      clear a panic (outputs stay safe until commanded again)",
     "set": "set TARGET VAR=VALUE ...   write outputs; TARGET is a slave, a position or 'all'",
     "get": "get SLAVE [VAR]            latest input and output values",
     "states": "states                     lifecycle state and each slave's AL state",
@@ -219,6 +219,11 @@ class ConsoleContext:
     outputs: dict[str, dict[str, float]] = field(default_factory=dict)
     # CiA 402 axes by joint name (from the node's axes.* parameters and axis diagnostics).
     joints: dict[str, JointLimits] = field(default_factory=dict)
+
+    def cleared(self) -> ConsoleContext:
+        """The context after a clear_panic: no output value known (the node reset them to
+        their safe values)."""
+        return replace(self, outputs={})
 
     def after(self, write: Write) -> ConsoleContext:
         """The context as it will be once ``write`` is applied (for checking sequences)."""

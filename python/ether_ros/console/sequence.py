@@ -102,6 +102,11 @@ def parse_sequence(data: Any, name: str, ctx: ConsoleContext) -> Sequence:
             )
         if isinstance(command, Write):
             ctx = ctx.after(command)
+        elif isinstance(command, Control) and command.command == "clear_panic":
+            # A clear resets every output to its safe value (the image starts zeroed; the
+            # console does not know the configured safe values, so the later steps are
+            # checked against zeros, as on a fresh bus).
+            ctx = ctx.cleared()
         steps.append(Step(number, line, command))
     if not steps:
         raise CommandError(f"{name}: the sequence has no steps")

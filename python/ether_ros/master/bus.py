@@ -818,7 +818,26 @@ class Bus:
         self.engine.panic()
 
     def clear_panic(self) -> None:
-        self.engine.clear_panic()
+        """End the panic without restarting anything (ISO 13850): the engine resets its output
+        buffer to the safe image before it clears the latch, so every slave's outputs stay at
+        their configured safe values until a new command for them arrives (a write changes
+        only what it writes); CiA 402 axes follow their ``restart`` rule (manual: they wait
+        for an explicit enable)."""
+        with self._output_lock:
+            self.engine.clear_panic()
+            self._outputs = bytearray(self._safe)
+
+    def reset_slave_outputs(self, s: Slave) -> None:
+        """Slave ``s``'s outputs back to their configured safe values in the engine's buffer
+        (not a command: no watchdog is fed). A slave that comes back to OP after it dropped
+        out starts from them, not from what was commanded before it left."""
+        area = s.area
+        if not self._running or area is None or not area.output_bytes:
+            return
+        begin, end = area.output_offset, area.output_offset + area.output_bytes
+        with self._output_lock:
+            self.engine.reset_outputs(begin, end - begin)
+            self._outputs[begin:end] = self._safe[begin:end]
 
     def feed_watchdog(self) -> None:
         self.engine.feed_watchdog()
@@ -907,8 +926,13 @@ class Bus:
                 log.exception("bus event listener failed")
 
     def recover_slave(self, s: Slave) -> None:
-        """Bring one slave back to OP after it dropped out (called by the supervisor)."""
+        """Bring one slave back to OP after it dropped out (called by the supervisor). Its
+        outputs start again from their safe values: what was commanded before it dropped out
+        is not resumed by the recovery (a new command for it is)."""
         with self._acyclic:
+            # First, so the cyclic frames carry the safe values for many cycles before the
+            # slave reaches SAFEOP and OP (an ESC keeps the last output buffer it received).
+            self.reset_slave_outputs(s)
             status = self.al.read([s.ref])[0]
             if not status.answered:
                 self._readdress(s)

@@ -293,6 +293,14 @@ class EtherRosClient:
 
         return handle
 
+    def forget_commanded(self) -> None:
+        """Drop the commanded outputs received so far (``pdo_out_timer``): after a clear_panic
+        the node has reset them to the safe values, and a snapshot from before it must not
+        be taken for the current state; the next snapshots bring them again."""
+        with self._cond:
+            self.latest.commanded.clear()
+            self._cond.notify_all()
+
     def _on_joints(self, msg: JointState) -> None:
         with self._cond:
             self.latest.joint_state = msg

@@ -159,6 +159,13 @@ def load_config(path: str, interface: str | None, link: str | None = None) -> An
     return load_bus_config(path, interface=interface or None, link=link)
 
 
+#: The answer to clear_panic: clearing a stop does not restart anything (ISO 13850).
+CLEARED_MESSAGE = (
+    "panic cleared: outputs stay at their safe values until you command them again "
+    "(CiA 402 axes follow their restart rule: by default they wait for an explicit enable)"
+)
+
+
 class EtherRosNode(LifecycleNode):
     """The lifecycle node on one bus configuration (see the module doc and docs/ros.md).
 
@@ -1222,7 +1229,7 @@ class EtherRosNode(LifecycleNode):
         if bus is not None and getattr(bus, "running", False):
             bus.clear_panic()
         self._last_command = time.monotonic()
-        return True, "panic cleared: outputs follow the commands again"
+        return True, CLEARED_MESSAGE
 
     def _on_panic(self, req: Trigger.Request, resp: Trigger.Response) -> Trigger.Response:
         try:

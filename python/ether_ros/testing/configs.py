@@ -15,9 +15,24 @@ def config_without_lease(name: str, into: Path) -> Path:
     ESI files relative to themselves)."""
     data = yaml.safe_load((REPO / "config" / name).read_text())
     data.setdefault("ros", {})["lease"] = {"enabled": False}
+    return _write(data, into, name.replace(".yaml", "_open.yaml"))
+
+
+def config_with_watchdog(name: str, into: Path, watchdog_ms: int) -> Path:
+    """A copy of config/NAME with the engine's command watchdog at ``watchdog_ms`` (0: off),
+    written like ``config_without_lease``. A watchdog trip voids the commands before it (a
+    stop's reset does not restart, docs/security.md); the node feeds the watchdog from a
+    Python thread, which a loaded 2-core VM can stall for longer than the shipped 100 ms of
+    config/laelaps.yaml, so tests that are not about the watchdog give it more room."""
+    data = yaml.safe_load((REPO / "config" / name).read_text())
+    data["bus"]["watchdog_ms"] = int(watchdog_ms)
+    return _write(data, into, name.replace(".yaml", f"_watchdog{int(watchdog_ms)}.yaml"))
+
+
+def _write(data: object, into: Path, filename: str) -> Path:
     (into / "config").mkdir(exist_ok=True)
     if not (into / "devices").exists():
         (into / "devices").symlink_to(REPO / "devices")
-    path = into / "config" / name.replace(".yaml", "_open.yaml")
+    path = into / "config" / filename
     path.write_text(yaml.safe_dump(data))
     return path
