@@ -84,10 +84,7 @@ def test_a_panic_is_named_before_what_it_did_to_the_drive() -> None:
 
 @dataclass
 class FakeEngine:
-    panicked: bool = False
-
-    def is_panicked(self) -> bool:
-        return self.panicked
+    is_panicked: bool = False  # a property of the native Engine
 
 
 @dataclass
@@ -125,7 +122,7 @@ def test_a_joints_own_reason_comes_before_stopped_with_its_trajectory() -> None:
     # The flag of a trajectory before this one (not replaced in the engine yet) is none.
     old = [status(trajectory_stopped=True, command_seq=6)] * 2
     assert bridge.trajectory_stop_reason([shoulder, elbow], old) is None
-    shoulder.bus.engine.panicked = True
+    shoulder.bus.engine.is_panicked = True
     halted = [status(halted=True), status(halted=True)]
     assert bridge.trajectory_stop_reason([shoulder, elbow], halted) == (
         "panic (joint 'shoulder' stopped)"

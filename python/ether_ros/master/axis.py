@@ -522,7 +522,7 @@ class Axis:
         if start is None:
             return None
         st = self.status() if st is None else st
-        panicked = bool(self._bus.engine.is_panicked())
+        panicked = bool(self._bus.engine.is_panicked)
         own = self.own_stop_reason(st, panicked)
         if own is not None or not self.stopped_with_trajectory(st):
             return own

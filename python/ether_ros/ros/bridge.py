@@ -494,7 +494,7 @@ def trajectory_stop_reason(
 
     if not axes:
         return None
-    panicked = bool(axes[0].bus.engine.is_panicked())
+    panicked = bool(axes[0].bus.engine.is_panicked)
     for axis, st in zip(axes, statuses, strict=True):
         why = axis.own_stop_reason(st, panicked)
         if why is not None:
