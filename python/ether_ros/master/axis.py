@@ -362,8 +362,18 @@ class Axis:
         if homing_change and st["state"] == "operation_enabled" and not st["idle"]:
             raise AxisCommandError(f"axis {self.name}: switch from {self.mode} to {mode} only "
                                    "at standstill or while disabled (homing)")  # fmt: skip
-        self._bus.engine.axis_set_mode(self._index, mode)
+        # The mode is known as commanded before the engine can act on it: whoever sees the
+        # engine end a trajectory for the change (trajectory_stop_reason) sees the new mode.
+        previous = self._bus.axis_modes.get(self._index)
         self._bus.axis_modes[self._index] = mode
+        try:
+            self._bus.engine.axis_set_mode(self._index, mode)
+        except BaseException:
+            if previous is None:
+                self._bus.axis_modes.pop(self._index, None)
+            else:
+                self._bus.axis_modes[self._index] = previous
+            raise
         lo, hi = self.spec.config.position_limits
 
         def problem(st: dict[str, Any]) -> str | None:
