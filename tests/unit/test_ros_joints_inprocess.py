@@ -374,8 +374,9 @@ def test_a_joint_trajectory_that_stops_early_says_why(arm: Any, event: str) -> N
     client.wait_for(lambda _l: len(client.joint_results) > before, timeout=30)
     assert client.joint_results[before].success, client.joint_results[before].message
     wait_for(
-        "the trajectory moving",
-        lambda: abs(node._axes["wrist_2"].position - start["wrist_2"]) > 0.005,
+        "the trajectory running",
+        lambda: all(node._axes[j].status()["trajectory_active"] for j in ("wrist_2", "wrist_3")),
+        timeout=30,
     )
     after = len(client.joint_results)
     try:
