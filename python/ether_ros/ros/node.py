@@ -364,13 +364,15 @@ class EtherRosNode(LifecycleNode):
         )
         self._trajectory_action = self._serve_trajectory_action(cfg)
         # A joint_trajectory that cannot end (a joint left its mode, was disabled, stopped) is
-        # reported on joint_results within a period of the node seeing it: a group of its own,
-        # so a long diagnostics round never delays it.
-        self._trajectory_watch_timer = self.create_timer(
-            PERIOD_S,
-            self._watch_topic_trajectory,
-            callback_group=MutuallyExclusiveCallbackGroup(),
+        # reported on joint_results within a period of the node seeing it, by a thread of its
+        # own that sleeps while no trajectory runs: no executor timer (100 Hz of executor
+        # rounds cost every other callback), and a long diagnostics round never delays it.
+        self._topic_watch_wake = threading.Event()
+        self._topic_watch_stop = False
+        self._topic_watcher = threading.Thread(
+            target=self._topic_watch_loop, name="ether_ros-traj-watch", daemon=True
         )
+        self._topic_watcher.start()
         self.create_service(Command, "ethercat_communicator", self._on_command)
         self.create_service(SdoRead, "sdo_read", self._on_sdo_read)
         self.create_service(SdoWrite, "sdo_write", self._on_sdo_write)
@@ -610,6 +612,9 @@ class EtherRosNode(LifecycleNode):
         return str(self._state_machine.current_state[1])
 
     def destroy_node(self) -> None:
+        self._topic_watch_stop = True
+        self._topic_watch_wake.set()
+        self._topic_watcher.join(1.0)
         self._lease.close()
         self._release()
         if self._trajectory_action is not None:
@@ -996,6 +1001,7 @@ class EtherRosNode(LifecycleNode):
                 seq = bridge.follow_plan(plan)
                 with self._topic_lock:
                     self._topic_trajectory = joints.TrajectoryWatch(plan, seq)
+                self._topic_watch_wake.set()
         except EtherRosError as exc:
             return False, str(exc)
         starts = (plan.start_ns - bridge.engine_now_ns(axes)) * 1e-9
@@ -1016,6 +1022,20 @@ class EtherRosNode(LifecycleNode):
                 return
         text = f"joint_trajectory: {message}" if ok else f"joint_trajectory refused: {message}"
         self._joint_result_pub.publish(WriteResult(success=ok, message=text))
+
+    def _topic_watch_loop(self) -> None:
+        """Every PERIOD_S while a joint_trajectory runs (``_watch_topic_trajectory``); asleep
+        otherwise."""
+        while not self._topic_watch_stop:
+            if self._topic_trajectory is None:
+                self._topic_watch_wake.wait()
+                self._topic_watch_wake.clear()
+                continue
+            try:
+                self._watch_topic_trajectory()
+            except Exception as exc:  # the watch must outlive a bad round (a closing bus)
+                self.get_logger().warning(f"joint_trajectory watch: {exc}")
+            time.sleep(PERIOD_S)
 
     def _watch_topic_trajectory(self) -> None:
         """The running ``joint_trajectory``: once it cannot end by itself (a joint of it left
