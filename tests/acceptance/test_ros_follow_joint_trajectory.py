@@ -7,8 +7,9 @@ Covers: a goal for all six joints succeeds with feedback (desired, actual, error
 more; a path tolerance and a goal tolerance violated give their result codes and leave the arm
 standing without a fault; a cancel and a preemption stop the running goal smoothly (the axes'
 position targets, read back as the feedback's desired positions, never jump); bad goals are
-refused with the standard code and a message, and nothing moves. Timing is never asserted
-beyond the feedback's rate over a whole goal.
+refused with the standard code and a message, and nothing moves; a goal whose joint leaves it
+(another mode, disabled, a fault, a panic) ends aborted with the reason, and its other joint
+stops. Timing is never asserted beyond the feedback's rate over a whole goal.
 """
 
 from __future__ import annotations
@@ -198,6 +199,77 @@ def test_a_new_goal_preempts_the_running_one_without_a_jump(
     assert desired_speed(new) < MAX_SPEED
     now = settled(client)
     assert abs(now["elbow"] - 0.1) < 0.01 and abs(now["wrist_1"] + 0.1) < 0.01, now
+
+
+@pytest.mark.parametrize(
+    ("event", "reason"),
+    [
+        ("set_mode", "joint 'wrist_1' left csp (now csv)"),
+        ("disable", "joint 'wrist_1' disabled"),
+        ("fault", "joint 'wrist_1' fault 0x7305 (incremental encoder 1 fault)"),
+        ("panic", "panic (joint 'elbow' stopped)"),
+    ],
+)
+def test_a_goal_whose_joint_leaves_it_aborts_with_the_reason(
+    rig: RosRig, fjt: TrajectoryActionClient, event: str, reason: str
+) -> None:
+    """Issue 24: a goal whose joint is switched to another mode, disabled, faulted, or
+    panicked ends aborted (INVALID_JOINTS) with the joint and what happened, and the goal's
+    other joint makes a quiet stop instead of going on alone. The goal lasts 12 s: its result
+    within the wait, with the elbow standing far short of its target, proves it ended early
+    (no timing is asserted)."""
+    client = rig.client
+    home(fjt, client)
+    run = fjt.send(make_goal(["elbow", "wrist_1"], [(12.0, [1.0, -1.0])]))
+    deadline = time.monotonic() + 30
+    # The goal runs: its own feedback shows the elbow on its way.
+    while not (run.outcome.feedback and run.outcome.feedback[-1][1].actual.positions[0] > 0.01):
+        assert time.monotonic() < deadline, f"the goal did not start: {run.outcome}"
+        time.sleep(0.01)
+    try:
+        if event == "set_mode":
+            ok, message, _ = client.set_mode("csv", ["wrist_1"])
+            assert ok, message
+        elif event == "disable":
+            ok, message, _ = client.axis_command("disable", ["wrist_1"])
+            assert ok, message
+        elif event == "fault":
+            rig.sim("fault", kind="drive_fault", slave=1, axis=2, error="encoder")  # wrist_1
+        else:
+            ok, message = client.panic()
+            assert ok, message
+        outcome = run.wait(timeout=8)
+        assert (outcome.status, outcome.error_code) == (ABORTED, Result.INVALID_JOINTS), outcome
+        assert outcome.error_string.startswith(reason), outcome.error_string
+        if event != "panic":  # the elbow's own stop is the engine's quiet stop: no jump
+            assert desired_speed(outcome) < MAX_SPEED
+        # Where the elbow stands a second after the end (its stop takes milliseconds), from a
+        # joint_states stamped then: on a loaded host the topic may lag the action's result.
+        after = time.time() + 1.0
+
+        def stamped_after(latest: object) -> object:
+            msg = latest.joint_state  # type: ignore[attr-defined]
+            if msg is None or msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9 < after:
+                return None
+            return msg
+
+        msg = client.wait_for(stamped_after, timeout=30)
+        stopped = dict(zip(msg.name, msg.position, strict=True))["elbow"]  # type: ignore[attr-defined]
+        assert 0.0 < stopped < 0.8, stopped
+    finally:
+        if event == "panic":
+            ok, message = client.command("clear_panic")
+            assert ok, message
+        ok, message, _ = client.set_mode("csp", ["wrist_1"])
+        assert ok, message
+        if event == "fault":  # reset automatically (fault_reset: auto), waits for an enable
+            client.wait_for(
+                lambda _l: client.axis_states().get("wrist_1", {}).get("state") != "fault",
+                timeout=10,
+            )
+        ok, message, _ = client.axis_command("enable")
+        assert ok, message
+    home(fjt, client)
 
 
 @pytest.mark.parametrize(

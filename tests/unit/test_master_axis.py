@@ -339,3 +339,55 @@ def test_a_trajectory_for_an_axis_out_of_operation_enabled_is_refused() -> None:
         wrist.follow(track)
         seq = b.axis_trajectories[wrist.index]
         wait_for("the trajectory taken", lambda: wrist.status()["command_seq"] >= seq)
+
+
+@pytest.mark.parametrize("event", ["set_mode", "disable", "fault", "panic"])
+def test_a_trajectory_that_stops_early_raises_its_reason(event: str) -> None:
+    """Issue 24: a trajectory for two axes, one of which leaves it (switched to csv, disabled,
+    faulted, or the bus panics). ``wait_trajectories`` raises ``TrajectoryStopped`` naming the
+    joint and what happened, for either axis (the one that did not leave it names the other's
+    reason), instead of waiting for an end that never comes; the other axis makes a quiet stop
+    far short of the trajectory's end (10 s: waiting for less proves the early end)."""
+    from ether_ros.master.axis import TrajectoryStopped
+    from ether_ros.sim.network import build_network
+
+    cfg = _config()
+    for s in cfg.slaves:
+        s.sim.device = None
+        for a in s.axes:
+            a.fault_reset = "manual"
+    net = build_network(cfg)
+    with Bus.open(cfg, link=net, drift_frames=100) as b:
+        b.start()
+        elbow, wrist = b.axis("elbow"), b.axis("wrist_1")
+        for a in (elbow, wrist):
+            a.enable(timeout=5)
+        e0, w0 = elbow.position, wrist.position
+        b.follow({"elbow": [(10.0, e0 + 1.0, 0.0)], "wrist_1": [(10.0, w0 + 1.0, 0.0)]})
+        # Taken over by the engine on both axes (no speed is asked of a loaded machine).
+        wait_for(
+            "the trajectory running",
+            lambda: all(a.status()["trajectory_active"] for a in (elbow, wrist)),
+            timeout=30,
+        )
+        if event == "set_mode":
+            wrist.set_mode("csv")
+            reason = r"joint 'wrist_1' left csp \(now csv\)"
+        elif event == "disable":
+            wrist.disable()
+            reason = "joint 'wrist_1' disabled"
+        elif event == "fault":
+            net.fault("drive_fault", slave=1, error="encoder", axis=2)  # elbow_drive axis 2
+            reason = r"joint 'wrist_1' fault 0x7305 \(incremental encoder 1 fault\)"
+        else:
+            b.panic()
+            reason = r"panic \(joint '(elbow|wrist_1)' stopped\)"
+        for names in (["elbow"], ["wrist_1"], ["elbow", "wrist_1"]):
+            with pytest.raises(TrajectoryStopped, match=reason):
+                b.wait_trajectories(names, timeout=8.0)
+        if event == "panic":
+            b.clear_panic()
+        wait_for("elbow at rest", lambda: abs(elbow.velocity) < 1e-3 and elbow.status()["idle"])
+        st = elbow.status()
+        assert st["trajectory_stopped"] and not st["trajectory_done"], st
+        assert abs(elbow.position - e0) < 0.8, (e0, elbow.position)

@@ -20,6 +20,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from ether_ros.ros.client import EtherRosClient
 from ether_ros.ros.node import QOS_COMMANDS, EtherRosNode
+from ether_ros.testing.wait import wait_for
 
 pytestmark = [pytest.mark.ros]
 
@@ -355,4 +356,52 @@ def test_a_trajectory_for_a_disabled_axis_is_refused_with_the_reason(arm: Any) -
         assert command_seq(node) == seq
     finally:
         ok, message, _ = client.axis_command("enable", ["wrist_3"])
+        assert ok, message
+
+
+@pytest.mark.parametrize("event", ["set_mode", "disable", "lease"])
+def test_a_joint_trajectory_that_stops_early_says_why(arm: Any, event: str) -> None:
+    """Issue 24: a joint_trajectory whose joint leaves it (another mode, disabled, or the
+    control lease lapses: the lease thread's call) is reported on joint_results with the joint
+    and what happened, and the other joint of it stops instead of going on alone. 10 s long:
+    stopping long before its end proves it."""
+    node, client, _net = arm
+    start = joint_positions(client)
+    before = len(client.joint_results)
+    client.publish_trajectory(
+        ["wrist_2", "wrist_3"], [(10.0, [start["wrist_2"] + 1.0, start["wrist_3"] + 1.0])]
+    )
+    client.wait_for(lambda _l: len(client.joint_results) > before, timeout=30)
+    assert client.joint_results[before].success, client.joint_results[before].message
+    wait_for(
+        "the trajectory running",
+        lambda: all(node._axes[j].status()["trajectory_active"] for j in ("wrist_2", "wrist_3")),
+        timeout=30,
+    )
+    after = len(client.joint_results)
+    try:
+        if event == "set_mode":
+            ok, message, _ = client.set_mode("csv", ["wrist_3"])
+            reason = "joint 'wrist_3' left csp (now csv)"
+        elif event == "disable":
+            ok, message, _ = client.axis_command("disable", ["wrist_3"])
+            reason = "joint 'wrist_3' disabled"
+        else:
+            node._stop_motion("the control lease lapsed (test)")
+            ok, message, reason = True, "", "control lease lapsed"
+        assert ok, message
+        client.wait_for(lambda _l: len(client.joint_results) > after, timeout=30)
+        result = client.joint_results[after]
+        assert not result.success
+        assert result.message == f"joint_trajectory aborted: {reason} (wrist_2, wrist_3)", [
+            r.message for r in client.joint_results[before:]
+        ]
+        wrist_2 = node._axes["wrist_2"]
+        wait_for("wrist_2 at rest", lambda: wrist_2.status()["idle"])
+        assert wrist_2.status()["trajectory_stopped"]
+        assert abs(wrist_2.position - start["wrist_2"]) < 0.8
+    finally:
+        ok, message, _ = client.set_mode("csp", ["wrist_3"])
+        assert ok, message
+        ok, message, _ = client.axis_command("enable")
         assert ok, message

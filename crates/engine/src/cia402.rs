@@ -355,6 +355,13 @@ pub struct AxisController {
     trajectory_running: bool,
     /// The last trajectory ran to its end (until the next command).
     trajectory_done: bool,
+    /// The trajectory `stopped_seq` ended before its end without a newer command (until the
+    /// next command): `status_flags::TRAJECTORY_STOPPED`.
+    trajectory_stopped: bool,
+    stopped_seq: u64,
+    /// This cycle ended the trajectory with this seq early (for `Axes::step`, which stops the
+    /// other axes it was given together with).
+    stop_event: Option<u64>,
     cursor: usize,
     interpolator: Interpolator,
     /// The quiet stop a mode change or an enable starts with (until the first command).
@@ -411,6 +418,9 @@ impl AxisController {
             trajectory_start: 0,
             trajectory_running: false,
             trajectory_done: false,
+            trajectory_stopped: false,
+            stopped_seq: 0,
+            stop_event: None,
             cursor: 0,
             interpolator: Interpolator::default(),
             ramp: None,
@@ -723,6 +733,24 @@ impl AxisController {
         }
     }
 
+    /// Another axis of the trajectory `seq` left the state it needs (`stop_event`): this one
+    /// must not go on with it alone. Running it: a quiet stop from the state it is commanded to
+    /// have (never a jump). Not started yet: it never starts (a quiet stop ends whatever ran
+    /// before it, as the new command would have).
+    fn stop_with_peer(&mut self, seq: u64) {
+        if self.trajectory_running && self.seq_seen == seq {
+            self.quiet_stop();
+        } else if self.pending_trajectory() == Some(seq) {
+            self.seq_seen = seq;
+            self.staged_seq = None;
+            self.quiet_stop();
+        } else {
+            return;
+        }
+        self.trajectory_stopped = true;
+        self.stopped_seq = seq;
+    }
+
     /// One cycle: read the drive from `io` (inputs last received), write controlword, mode and
     /// targets into `io`'s outputs. `halt`: panic or watchdog, the stop is forced. `start_ok`:
     /// a pending trajectory may start (its points, and those of every axis that shares it,
@@ -730,6 +758,10 @@ impl AxisController {
     pub fn step(&mut self, io: &mut [u8], now: i64, cycle_ns: i64, halt: bool, start_ok: bool) {
         let fb = self.read_feedback(io);
         let cmd = self.command;
+        // The trajectory running or waiting to start before this cycle: if this cycle ends it
+        // without its end or a newer command, the axes it was given with must stop too.
+        let running_seq = self.trajectory_running.then_some(self.seq_seen);
+        let pending_seq = self.pending_trajectory();
         let dt = cycle_ns as f64 * 1e-9;
         let vmax = self.plan.limits.velocity_max;
         // Where the axis will be when the drive takes a target written now (moving, it is
@@ -1055,6 +1087,25 @@ impl AxisController {
             io[o..o + 2].copy_from_slice(&raw.to_le_bytes());
         }
 
+        // A trajectory ended early: running, it stopped without reaching its end while no newer
+        // command came (a mode change, the drive leaving Operation Enabled, a disable, a halt);
+        // pending, it was dropped because the axis could not run.
+        self.stop_event = match (running_seq, pending_seq) {
+            (Some(s), _)
+                if !self.trajectory_running && !self.trajectory_done && self.seq_seen == s =>
+            {
+                Some(s)
+            }
+            (_, Some(s)) if !running && self.seq_seen == s => Some(s),
+            _ => None,
+        };
+        if let Some(s) = self.stop_event {
+            self.trajectory_stopped = true;
+            self.stopped_seq = s;
+        } else if self.seq_seen != self.stopped_seq {
+            self.trajectory_stopped = false;
+        }
+
         // Status.
         let st = &mut self.status;
         let torque_raw = map.torque.map_or(0, |o| read_i16(io, o));
@@ -1112,6 +1163,7 @@ impl AxisController {
             (limit_active, status_flags::LIMIT_ACTIVE),
             (!running || idle && !self.homing_active, status_flags::IDLE),
             (self.homing_active, status_flags::HOMING_ACTIVE),
+            (self.trajectory_stopped, status_flags::TRAJECTORY_STOPPED),
             (
                 in_homing && !self.homing_active && fb.statusword & sw::MODE_12 != 0,
                 status_flags::HOMING_ATTAINED,
@@ -1225,6 +1277,25 @@ impl Axes {
             if c.status.flags & status_flags::TRAJECTORY_ACTIVE != 0 && frame < 32 {
                 active |= 1 << frame;
             }
+        }
+        // A trajectory given to several axes is one motion: when one of them leaves it early
+        // (a mode change, a disable, a fault...), the others make a quiet stop from the next
+        // cycle on instead of going on alone (issue 24). No allocation: a pass per event, and
+        // events are rare.
+        for i in 0..self.controllers.len() {
+            if let Some(seq) = self.controllers[i].stop_event {
+                for (j, c) in self.controllers.iter_mut().enumerate() {
+                    if j != i {
+                        c.stop_with_peer(seq);
+                        if c.stopped_seq == seq && c.trajectory_stopped {
+                            c.status.flags = (c.status.flags & !status_flags::TRAJECTORY_ACTIVE)
+                                | status_flags::TRAJECTORY_STOPPED;
+                        }
+                    }
+                }
+            }
+        }
+        for (i, c) in self.controllers.iter_mut().enumerate() {
             c.status.cycle = self.cycle;
             c.status
                 .encode(&mut self.status_bytes[i * STATUS_LEN..(i + 1) * STATUS_LEN]);
@@ -2168,6 +2239,181 @@ mod tests {
         }
         let (a, b) = (&axes.controllers[0].status, &axes.controllers[1].status);
         assert_eq!(a.target_position_raw, b.target_position_raw);
+    }
+
+    /// Two axes in csp (deceleration 10 rad/s²) on one trajectory from 0 to 2 rad over 1 s,
+    /// half-way through (3 rad/s): the commands, the image and the time.
+    fn two_axes_half_way() -> (Axes, AxisExchange, Vec<u8>, [AxisCommand; 2], i64) {
+        let (mut axes, ex, mut io) = two_axes();
+        for c in &mut axes.controllers {
+            c.plan.deceleration = 10.0;
+        }
+        let mut now = 1_000_000_000;
+        let mut cmds = [AxisCommand::initial(Mode::CyclicPosition); 2];
+        for c in &mut cmds {
+            c.enable = true;
+            c.enable_count = 1;
+        }
+        send_two(&ex, &cmds);
+        axes.step(&mut io, now, CYCLE, false, 0, &ex);
+        let pts = [
+            Point {
+                t_ns: 0,
+                position: 0.0,
+                velocity: 0.0,
+            },
+            Point {
+                t_ns: 1_000_000_000,
+                position: 2.0,
+                velocity: 0.0,
+            },
+        ];
+        for c in &mut cmds {
+            c.seq = 7;
+            c.setpoint_kind = 0;
+            c.t_ns = now;
+            c.trajectory_len = 2;
+        }
+        write_points(&ex, 0, 7, &pts);
+        write_points(&ex, 1, 7, &pts);
+        send_two(&ex, &cmds);
+        for _ in 0..500 {
+            now += CYCLE;
+            axes.step(&mut io, now, CYCLE, false, 0, &ex);
+        }
+        for c in &axes.controllers {
+            assert_ne!(c.status.flags & status_flags::TRAJECTORY_ACTIVE, 0);
+            assert_eq!(c.status.flags & status_flags::TRAJECTORY_STOPPED, 0);
+        }
+        (axes, ex, io, cmds, now)
+    }
+
+    fn send_two(ex: &AxisExchange, cmds: &[AxisCommand; 2]) {
+        let mut b = vec![0u8; 2 * COMMAND_LEN];
+        cmds[0].encode(&mut b[..COMMAND_LEN]);
+        cmds[1].encode(&mut b[COMMAND_LEN..]);
+        ex.commands.write(0, &b);
+    }
+
+    /// The second axis's position targets (raw) over `n` more cycles.
+    fn second_axis_targets(
+        axes: &mut Axes,
+        ex: &AxisExchange,
+        io: &mut [u8],
+        now: &mut i64,
+        n: usize,
+    ) -> Vec<i32> {
+        (0..n)
+            .map(|_| {
+                *now += CYCLE;
+                axes.step(io, *now, CYCLE, false, 0, ex);
+                read_i32(io, TPOS + IMG)
+            })
+            .collect()
+    }
+
+    /// The other axis of the trajectory decelerates from the motion it had (3 rad/s, 3 raw a
+    /// cycle) at 10 rad/s² to rest and holds: no step larger than before, none backwards.
+    fn assert_quiet_stop(targets: &[i32]) {
+        let steps: Vec<i32> = targets.windows(2).map(|w| w[1] - w[0]).collect();
+        assert!(steps[0] <= 3 && steps[0] >= 2, "{steps:?}");
+        assert!(steps.iter().all(|&d| d >= 0), "{steps:?}");
+        assert!(steps.windows(2).all(|w| w[1] <= w[0] + 1), "{steps:?}");
+        assert!(
+            steps[steps.len() - 50..].iter().all(|&d| d == 0),
+            "holds: {steps:?}"
+        );
+        // 3 rad/s to rest at 10 rad/s²: 0.45 rad.
+        let travelled = targets[targets.len() - 1] - targets[0];
+        assert!((400..500).contains(&travelled), "{travelled}");
+    }
+
+    #[test]
+    fn a_mode_change_of_one_axis_stops_the_others_of_its_trajectory() {
+        let (mut axes, ex, mut io, mut cmds, mut now) = two_axes_half_way();
+        let before = read_i32(&io, TPOS + IMG);
+        cmds[0].mode = Mode::CyclicVelocity;
+        send_two(&ex, &cmds);
+        let targets = second_axis_targets(&mut axes, &ex, &mut io, &mut now, 400);
+        for c in &axes.controllers {
+            assert_eq!(c.status.flags & status_flags::TRAJECTORY_ACTIVE, 0);
+            assert_eq!(c.status.flags & status_flags::TRAJECTORY_DONE, 0);
+            assert_ne!(c.status.flags & status_flags::TRAJECTORY_STOPPED, 0);
+            assert_eq!(c.status.command_seq, 7);
+        }
+        let mut all = vec![before];
+        all.extend(targets);
+        assert_quiet_stop(&all);
+        // The next command clears the flag.
+        cmds[1].seq = 8;
+        cmds[1].setpoint_kind = SetpointKind::Position as u8;
+        cmds[1].value = 0.5;
+        cmds[1].t_ns = now;
+        send_two(&ex, &cmds);
+        second_axis_targets(&mut axes, &ex, &mut io, &mut now, 2);
+        let flags = axes.controllers[1].status.flags;
+        assert_eq!(flags & status_flags::TRAJECTORY_STOPPED, 0);
+        assert_ne!(
+            axes.controllers[0].status.flags & status_flags::TRAJECTORY_STOPPED,
+            0
+        );
+    }
+
+    #[test]
+    fn a_disabled_or_halted_axis_stops_the_others_of_its_trajectory() {
+        for how in ["disable", "fault", "halt"] {
+            let (mut axes, ex, mut io, mut cmds, mut now) = two_axes_half_way();
+            let before = read_i32(&io, TPOS + IMG);
+            let mut all = vec![before];
+            match how {
+                "disable" => {
+                    cmds[0].enable = false;
+                    send_two(&ex, &cmds);
+                }
+                "fault" => {
+                    io[SW..SW + 2].copy_from_slice(&statusword(DriveState::Fault).to_le_bytes());
+                }
+                _ => {
+                    // Only the first axis's frame is stale (its group's watchdog).
+                    axes.set_frames(&[1, 0]);
+                    now += CYCLE;
+                    axes.step(&mut io, now, CYCLE, false, 0b10, &ex);
+                    all.push(read_i32(&io, TPOS + IMG));
+                }
+            }
+            all.extend(second_axis_targets(&mut axes, &ex, &mut io, &mut now, 400));
+            for c in &axes.controllers {
+                assert_ne!(
+                    c.status.flags & status_flags::TRAJECTORY_STOPPED,
+                    0,
+                    "{how}"
+                );
+                assert_eq!(c.status.flags & status_flags::TRAJECTORY_ACTIVE, 0, "{how}");
+            }
+            assert_quiet_stop(&all);
+        }
+    }
+
+    #[test]
+    fn a_trajectory_that_ends_or_is_replaced_is_not_stopped() {
+        let (mut axes, ex, mut io, mut cmds, mut now) = two_axes_half_way();
+        second_axis_targets(&mut axes, &ex, &mut io, &mut now, 600);
+        for c in &axes.controllers {
+            assert_ne!(c.status.flags & status_flags::TRAJECTORY_DONE, 0);
+            assert_eq!(c.status.flags & status_flags::TRAJECTORY_STOPPED, 0);
+        }
+        // A quiet stop asked for (a newer command) is no early end either.
+        let (mut axes, ex, mut io, _, mut now) = two_axes_half_way();
+        for c in &mut cmds {
+            c.seq = 8;
+            c.setpoint_kind = STOP_COMMAND;
+        }
+        send_two(&ex, &cmds);
+        second_axis_targets(&mut axes, &ex, &mut io, &mut now, 10);
+        for c in &axes.controllers {
+            assert_eq!(c.status.flags & status_flags::TRAJECTORY_STOPPED, 0);
+            assert_eq!(c.status.command_seq, 8);
+        }
     }
 
     #[test]

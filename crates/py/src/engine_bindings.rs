@@ -604,6 +604,7 @@ fn axis_status_dict<'py>(py: Python<'py>, s: &AxisStatus) -> PyResult<Bound<'py,
         ("homing_attained", status_flags::HOMING_ATTAINED),
         ("homing_error", status_flags::HOMING_ERROR),
         ("homing_active", status_flags::HOMING_ACTIVE),
+        ("trajectory_stopped", status_flags::TRAJECTORY_STOPPED),
     ] {
         d.set_item(name, s.flags & bit != 0)?;
     }

@@ -45,6 +45,68 @@ class AxisCommandError(AxisError, ValueError):
     """A command refused before anything was written (bad value, mode, state)."""
 
 
+class TrajectoryStopped(AxisError):
+    """A trajectory ended before its end because an axis of it left the state it needs (mode
+    change, disable, fault, quick stop, panic, watchdog): ``reason`` says which and what."""
+
+    def __init__(self, reason: str) -> None:
+        super().__init__(f"trajectory stopped: {reason}")
+        self.reason = reason
+
+
+@dataclass(frozen=True)
+class TrajectoryStart:
+    """A trajectory as handed to one axis: its command number, the mode the axis ran it in and
+    the axis's fault count then (a fault reset automatically since still ended it)."""
+
+    seq: int
+    mode: str
+    faults: int
+
+
+def trajectory_stop_reason(
+    name: str,
+    mode: str,
+    current_mode: str,
+    st: Mapping[str, Any],
+    panicked: bool,
+    faults_before: int | None = None,
+) -> str | None:
+    """Why axis ``name`` cannot go on with a trajectory given to it in ``mode``, from its
+    status ``st`` (``Axis.status()``), the mode now commanded, whether the bus is in panic and
+    the fault count when the trajectory was handed over; None while it can. Each of these ends
+    the trajectory in the engine (which stops the other axes of it quietly, docs/cia402.md
+    "Trajectories"), so reporting it at once is no guess."""
+    state = str(st["state"])
+    if st["halted"]:
+        # The engine forces the stop on every axis of the bus (panic) or of a frame (watchdog).
+        return f"panic (joint {name!r} stopped)" if panicked else (
+            f"watchdog stop (joint {name!r}: no command within the watchdog time)")  # fmt: skip
+    faulted = faults_before is not None and int(st["faults"]) > faults_before
+    if state in ("fault", "fault_reaction_active") or faulted:
+        # A fault the drive was reset from already (fault_reset: auto) still ended it.
+        code = int(st["error_code"]) or int(st["last_fault_code"])
+        return f"joint {name!r} fault 0x{code:04X} ({emergency_text(code)})"
+    if current_mode != mode:
+        return f"joint {name!r} left {mode} (now {current_mode})"
+    if not st["enable_wanted"]:
+        return f"joint {name!r} disabled"
+    if state == "quick_stop_active":
+        return f"joint {name!r} quick stop"
+    if state != "operation_enabled":
+        return f"joint {name!r} left operation_enabled (now {state})"
+    if not st["mode_reached"]:
+        return f"joint {name!r} left {mode} (the drive shows {st['mode_display']})"
+    return None
+
+
+def stopped_with_trajectory(name: str) -> str:
+    """The reason when only the engine's flag ``trajectory_stopped`` tells: another axis of
+    the trajectory left it (its own reason is found on that axis while it lasts), or this one
+    did for a moment too short to be seen."""
+    return f"joint {name!r} stopped with its trajectory (another joint of it left it)"
+
+
 @dataclass(frozen=True)
 class TrajectoryPoint:
     """``t`` seconds after the trajectory's start; position (SI) and velocity (SI/s)."""
@@ -130,6 +192,7 @@ def hand_over(bus: Bus, checked: Mapping[Axis, Sequence[TrajectoryPoint]], start
     for axis in checked:
         axis._require_running()
         axis._require_enabled("a trajectory")
+    faults_before = [int(axis.status()["faults"]) for axis in checked]
     try:
         seq = int(
             bus.engine.axis_follow_many(
@@ -143,8 +206,9 @@ def hand_over(bus: Bus, checked: Mapping[Axis, Sequence[TrajectoryPoint]], start
     except ValueError as exc:
         names = ", ".join(a.name for a in checked)
         raise AxisCommandError(f"axes {names}: {exc}") from None
-    for axis in checked:
+    for axis, faults in zip(checked, faults_before, strict=True):
         bus.axis_trajectories[axis.index] = seq
+        bus.axis_trajectory_starts[axis.index] = TrajectoryStart(seq, axis.mode, faults)
     return seq
 
 
@@ -298,8 +362,18 @@ class Axis:
         if homing_change and st["state"] == "operation_enabled" and not st["idle"]:
             raise AxisCommandError(f"axis {self.name}: switch from {self.mode} to {mode} only "
                                    "at standstill or while disabled (homing)")  # fmt: skip
-        self._bus.engine.axis_set_mode(self._index, mode)
+        # The mode is known as commanded before the engine can act on it: whoever sees the
+        # engine end a trajectory for the change (trajectory_stop_reason) sees the new mode.
+        previous = self._bus.axis_modes.get(self._index)
         self._bus.axis_modes[self._index] = mode
+        try:
+            self._bus.engine.axis_set_mode(self._index, mode)
+        except BaseException:
+            if previous is None:
+                self._bus.axis_modes.pop(self._index, None)
+            else:
+                self._bus.axis_modes[self._index] = previous
+            raise
         lo, hi = self.spec.config.position_limits
 
         def problem(st: dict[str, Any]) -> str | None:
@@ -433,20 +507,67 @@ class Axis:
 
     def wait_trajectory(self, timeout: float) -> None:
         """Until the trajectory last started on this axis has run to its end (or a later
-        command replaced it); feeds the command watchdog while it waits."""
+        command replaced it); feeds the command watchdog while it waits. Raises
+        :class:`TrajectoryStopped` with the reason as soon as the trajectory cannot end by
+        itself: this axis or another one of it left the state it needs (mode change, disable,
+        fault, quick stop, panic, watchdog; the engine has stopped every axis of it)."""
         seq = self._bus.axis_trajectories.get(self._index, 0)
-        self._wait(
-            lambda st: (
-                st["command_seq"] > seq
-                or (
-                    st["command_seq"] == seq
-                    and st["trajectory_done"]
-                    and not st["trajectory_active"]
-                )
-            ),
-            timeout,
-            "finish its trajectory",
+
+        def done(st: dict[str, Any]) -> bool:
+            if st["command_seq"] > seq:
+                return True
+            if st["command_seq"] == seq and st["trajectory_done"] and not st["trajectory_active"]:
+                return True
+            why = self.trajectory_stop_reason(st) if seq and st["command_seq"] == seq else None
+            if why is not None:
+                raise TrajectoryStopped(why)
+            return False
+
+        self._wait(done, timeout, "finish its trajectory")
+
+    def trajectory_stop_reason(self, st: Mapping[str, Any] | None = None) -> str | None:
+        """Why the trajectory last started on this axis cannot go on (``TrajectoryStopped``'s
+        reason), or None while it can (or none was started); ``st``: a status just read."""
+        start = self._bus.axis_trajectory_starts.get(self._index)
+        if start is None:
+            return None
+        st = self.status() if st is None else st
+        panicked = bool(self._bus.engine.is_panicked)
+        own = self.own_stop_reason(st, panicked)
+        if own is not None or not self.stopped_with_trajectory(st):
+            return own
+        # Stopped because another axis of the same trajectory left it: name that one's reason.
+        for peer in self._bus.axes():
+            peer_start = self._bus.axis_trajectory_starts.get(peer.index)
+            if (
+                peer.index != self._index
+                and peer_start is not None
+                and (peer_start.seq == start.seq)
+            ):
+                why = peer.own_stop_reason(peer.status(), panicked)
+                if why is not None:
+                    return why
+        return stopped_with_trajectory(self.name)
+
+    def stopped_with_trajectory(self, st: Mapping[str, Any]) -> bool:
+        """The engine ended the trajectory last started on this axis early (its flag
+        ``trajectory_stopped``, for this trajectory: not one before it that the engine has not
+        replaced yet)."""
+        start = self._bus.axis_trajectory_starts.get(self._index)
+        return (
+            start is not None
+            and bool(st["trajectory_stopped"])
+            and int(st["command_seq"]) == start.seq
         )
+
+    def own_stop_reason(self, st: Mapping[str, Any], panicked: bool) -> str | None:
+        """This axis's own reason to leave the trajectory last started on it (not "stopped
+        with its trajectory", which the engine's flag ``trajectory_stopped`` says when another
+        axis of it left it), from a status just read; None: none (or no trajectory)."""
+        start = self._bus.axis_trajectory_starts.get(self._index)
+        if start is None:
+            return None
+        return trajectory_stop_reason(self.name, start.mode, self.mode, st, panicked, start.faults)
 
     # ------------------------------------------------------------------------ extras
     @property

@@ -150,9 +150,11 @@ class Bus:
         # Image byte → axis name of the output bytes the engine's axis stage owns (lazily).
         self._axis_owned: dict[int, str] | None = None
         # Per engine axis index, for this cyclic run: the mode last commanded and the number of
-        # the last trajectory started (shared by every Axis object of the axis).
+        # the last trajectory started, and how it started (shared by every Axis object of the
+        # axis).
         self.axis_modes: dict[int, str] = {}
         self.axis_trajectories: dict[int, int] = {}
+        self.axis_trajectory_starts: dict[int, axis_mod.TrajectoryStart] = {}
 
     # ---------------------------------------------------------------------------- opening
     @classmethod
@@ -353,6 +355,7 @@ class Bus:
             return
         self.axis_modes.clear()
         self.axis_trajectories.clear()
+        self.axis_trajectory_starts.clear()
         with self._acyclic:
             self._reset_and_verify()
             refs = [s.ref for s in self.slaves]
@@ -485,7 +488,9 @@ class Bus:
 
     def wait_trajectories(self, names: Iterable[str] | None = None, timeout: float = 10.0) -> None:
         """Until the trajectory last started on each axis named (every axis by default) has run
-        to its end; feeds the command watchdog while it waits."""
+        to its end; feeds the command watchdog while it waits. Raises ``TrajectoryStopped``
+        naming the axis and why when one of them left the trajectory early (``Axis.
+        wait_trajectory``)."""
         chosen = [self.axis(n) for n in names] if names is not None else self.axes()
         deadline = time.monotonic() + timeout
         for a in chosen:

@@ -9,7 +9,7 @@ so a change in the master's API shows up here only.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -481,6 +481,28 @@ def follow_plan(plan: Any) -> int:
         bus, {axis: [TrajectoryPoint(*p) for p in track] for axis, track in plan.tracks},
         plan.start_ns,
     )  # fmt: skip
+
+
+def trajectory_stop_reason(
+    axes: Sequence[Any], statuses: Sequence[Mapping[str, Any]]
+) -> str | None:
+    """Why the trajectory last handed to ``axes`` cannot go on, from their statuses just read,
+    or None while it can (``Axis.own_stop_reason``: mode change, disable, fault, quick stop,
+    panic, watchdog). A joint's own reason comes before "stopped with its trajectory", which
+    only says that another joint of it left it."""
+    from ether_ros.master.axis import stopped_with_trajectory
+
+    if not axes:
+        return None
+    panicked = bool(axes[0].bus.engine.is_panicked)
+    for axis, st in zip(axes, statuses, strict=True):
+        why = axis.own_stop_reason(st, panicked)
+        if why is not None:
+            return why
+    for axis, st in zip(axes, statuses, strict=True):
+        if axis.stopped_with_trajectory(st):
+            return stopped_with_trajectory(axis.name)
+    return None
 
 
 def engine_now_ns(axes: Mapping[str, Any]) -> int:

@@ -11,7 +11,10 @@ with JointTrajectoryController; the replaced goal ends aborted with INVALID_GOAL
 saying it was replaced. While it runs, feedback (desired, actual, error) goes out at 100 Hz and
 the path tolerances are checked; after its end the goal tolerances, for up to
 goal_time_tolerance. A cancel or a violated tolerance stops the joints with a quiet stop at
-their configured deceleration.
+their configured deceleration. Every goal ends: one whose joint leaves the state the trajectory
+needs (mode change, disable, fault, quick stop, panic, watchdog; the lease lapsing; the bus
+stopping) ends aborted with ``STOPPED`` and the reason, the period after the server sees it (the
+engine has already stopped the goal's other joints quietly).
 
 While the node's control lease is on (docs/security.md), a goal is the holder's when the client
 that sent it is (its goal-reply reader is one the holder registered, or belongs to one of its
@@ -44,6 +47,17 @@ Result = FollowJointTrajectory.Result
 PERIOD_S = 0.01
 # A tolerance given as this means: not checked for this joint (control_msgs/JointTolerance).
 ERASED = -1.0
+# The result code of a goal that ends because a joint of it can no longer follow it: mode
+# change, disable, fault, quick stop, panic, watchdog, the control lease lapsing, the bus stopping
+# (the reason goes into error_string). control_msgs has no generic failure code, only these.
+# MoveIt's simple controller manager treats every aborted goal alike (it logs the code's name
+# and error_string, ends the execution ABORTED, move_group reports CONTROL_FAILED and does not
+# replan), so the code is for people and other clients: INVALID_GOAL would say the goal was
+# wrong (resending it after the joint is back is right), PATH_/GOAL_TOLERANCE_VIOLATED that
+# the motion deviated (widening a tolerance would be the wrong fix), OLD_HEADER_TIMESTAMP is
+# about time. INVALID_JOINTS -- the goal's joints are not joints this controller can drive --
+# is what it is while a joint is out of its mode, disabled or stopped (docs/ros.md).
+STOPPED = Result.INVALID_JOINTS
 
 
 # Who may command: raises EtherRosError (naming the lease's holder) unless the client that sent
@@ -94,6 +108,8 @@ class GoalRun:
     # The engine's number of the goal's trajectory (its axes' command_seq while it runs).
     seq: int = 0
     replaced: bool = False
+    # Ended by the node (``FollowJointTrajectoryServer.end_goals``): the reason.
+    ended: str | None = None
 
 
 def duration_s(d: Any) -> float:
@@ -233,6 +249,14 @@ class FollowJointTrajectoryServer:
     def destroy(self) -> None:
         self.server.destroy()
 
+    def end_goals(self, reason: str) -> None:
+        """End the running goal (aborted, ``STOPPED``) for ``reason``, which the axes' status
+        cannot tell (the control lease lapsed): called before the node stops the motion, so the
+        goal names the cause rather than what it did to the joints."""
+        with self._lock:
+            if self._active is not None:
+                self._active.ended = reason
+
     # ------------------------------------------------------------------ goals
     def _accepted(self, handle: Any) -> None:
         """Every goal is accepted, so that a refusal carries its code and message; a valid one
@@ -298,26 +322,29 @@ class FollowJointTrajectoryServer:
                 handle.abort()
                 return Result(error_code=Result.INVALID_GOAL,
                               error_string="replaced by a newer goal")  # fmt: skip
+            if run.ended is not None:
+                handle.abort()
+                return Result(error_code=STOPPED, error_string=run.ended)
             try:
                 statuses = [bridge.axis_status(a) for a in axes]
                 now = bridge.engine_now_ns({a.name: a for a in axes})
             except EtherRosError as exc:
                 handle.abort()
-                return Result(error_code=Result.PATH_TOLERANCE_VIOLATED,
-                              error_string=f"the bus stopped: {exc}")  # fmt: skip
+                return Result(error_code=STOPPED, error_string=f"the bus stopped: {exc}")
             for name, st in zip(names, statuses, strict=True):
                 if int(st["command_seq"]) > seq:
                     handle.abort()
                     return Result(error_code=Result.INVALID_GOAL, error_string=(
                         f"joint {name!r} was given another command (joint_trajectory, "
                         "joint_commands or a service): the goal ends"))  # fmt: skip
-                if st["state"] != "operation_enabled" or st["halted"]:
-                    handle.abort()
-                    return Result(error_code=Result.PATH_TOLERANCE_VIOLATED, error_string=(
-                        f"joint {name!r} stopped: {st['state']}"
-                        + (" (panic or watchdog)" if st["halted"] else "")
-                        + (f", error code 0x{st['error_code']:04X}" if st["error_code"] else "")
-                    ))  # fmt: skip
+            why = bridge.trajectory_stop_reason(axes, statuses)
+            if why is not None:
+                # No stop from here: the engine ended the trajectory on every joint of it
+                # already (a quiet stop, or the joint's own stop), and a stop sent now could
+                # land after a command the joint was given in its new mode.
+                handle.abort()
+                # A lapse noted meanwhile is the cause of what the joints show.
+                return Result(error_code=STOPPED, error_string=run.ended or why)
             self._publish_feedback(handle, feedback, statuses, max(now - plan.start_ns, 0))
             # Until the engine has taken the trajectory over (command_seq) and run it to its end.
             running = now <= plan.end_ns or not all(

@@ -45,6 +45,36 @@ class TrajectoryPlan:
         return [axis.name for axis, _ in self.tracks]
 
 
+@dataclass
+class TrajectoryWatch:
+    """A trajectory handed to the engine (``bridge.follow_plan``: its command number ``seq``),
+    watched until it ends."""
+
+    plan: TrajectoryPlan
+    seq: int
+
+    # ``outcome``: it ended well, or a newer command replaced it (nothing to report).
+    OVER = ""
+
+    @property
+    def axes(self) -> list[Any]:
+        return [axis for axis, _ in self.plan.tracks]
+
+    def outcome(self, statuses: Sequence[Mapping[str, Any]]) -> str | None:
+        """From its joints' statuses just read: None while it runs; ``OVER`` once it ran to its
+        end or a joint was given a newer command; else why it cannot end
+        (``bridge.trajectory_stop_reason``)."""
+        if any(int(st["command_seq"]) > self.seq for st in statuses):
+            return self.OVER
+        if all(
+            int(st["command_seq"]) == self.seq and st["trajectory_done"]
+            and not st["trajectory_active"]
+            for st in statuses
+        ):  # fmt: skip
+            return self.OVER
+        return bridge.trajectory_stop_reason(self.axes, statuses)
+
+
 def duration_s(d: Any) -> float:
     return float(d.sec) + float(d.nanosec) * 1e-9
 

@@ -78,7 +78,7 @@ from ether_ros.config.bus import check_node_name
 from ether_ros.errors import EtherRosError
 from ether_ros.ros import bridge, command_watchdog, diagnostics, joints, security
 from ether_ros.ros.convert import layout_msg
-from ether_ros.ros.follow_joint_trajectory import FollowJointTrajectoryServer
+from ether_ros.ros.follow_joint_trajectory import PERIOD_S, FollowJointTrajectoryServer
 from ether_ros.ros.layout import BusSpec, LayoutError
 from ether_ros.ros.lease import (
     ControlLease,
@@ -260,6 +260,9 @@ class EtherRosNode(LifecycleNode):
         self._axis_group = MutuallyExclusiveCallbackGroup()
         # CiA 402 axes by joint name while the node is active (bridge.bus_axes).
         self._axes: dict[str, Any] = {}
+        # The last joint_trajectory handed to the engine, watched until it ends (None: none).
+        self._topic_trajectory: joints.TrajectoryWatch | None = None
+        self._topic_lock = threading.Lock()
 
         self._pub: dict[str, Any] = {
             "pdo_raw": self.create_publisher(PdoRaw, "pdo_raw", QOS_HIGH_RATE),
@@ -367,6 +370,16 @@ class EtherRosNode(LifecycleNode):
             callback_group=None if self.command_node else self._writes_group,
         )
         self._trajectory_action = self._serve_trajectory_action(cfg)
+        # A joint_trajectory that cannot end (a joint left its mode, was disabled, stopped) is
+        # reported on joint_results within a period of the node seeing it, by a thread of its
+        # own that sleeps while no trajectory runs: no executor timer (100 Hz of executor
+        # rounds cost every other callback), and a long diagnostics round never delays it.
+        self._topic_watch_wake = threading.Event()
+        self._topic_watch_stop = False
+        self._topic_watcher = threading.Thread(
+            target=self._topic_watch_loop, name="ether_ros-traj-watch", daemon=True
+        )
+        self._topic_watcher.start()
         self.create_service(Command, "ethercat_communicator", self._on_command)
         self.create_service(SdoRead, "sdo_read", self._on_sdo_read)
         self.create_service(SdoWrite, "sdo_write", self._on_sdo_write)
@@ -630,6 +643,9 @@ class EtherRosNode(LifecycleNode):
         return str(self._state_machine.current_state[1])
 
     def destroy_node(self) -> None:
+        self._topic_watch_stop = True
+        self._topic_watch_wake.set()
+        self._topic_watcher.join(1.0)
         self._lease.close()
         self._release()
         if self._trajectory_action is not None:
@@ -1013,7 +1029,10 @@ class EtherRosNode(LifecycleNode):
                     bridge.engine_now_ns(axes),
                 )
                 self._last_command = time.monotonic()
-                bridge.follow_plan(plan)
+                seq = bridge.follow_plan(plan)
+                with self._topic_lock:
+                    self._topic_trajectory = joints.TrajectoryWatch(plan, seq)
+                self._topic_watch_wake.set()
         except EtherRosError as exc:
             return False, str(exc)
         starts = (plan.start_ns - bridge.engine_now_ns(axes)) * 1e-9
@@ -1034,6 +1053,49 @@ class EtherRosNode(LifecycleNode):
                 return
         text = f"joint_trajectory: {message}" if ok else f"joint_trajectory refused: {message}"
         self._joint_result_pub.publish(WriteResult(success=ok, message=text))
+
+    def _topic_watch_loop(self) -> None:
+        """Every PERIOD_S while a joint_trajectory runs (``_watch_topic_trajectory``); asleep
+        otherwise."""
+        while not self._topic_watch_stop:
+            if self._topic_trajectory is None:
+                self._topic_watch_wake.wait()
+                self._topic_watch_wake.clear()
+                continue
+            try:
+                self._watch_topic_trajectory()
+            except Exception as exc:  # the watch must outlive a bad round (a closing bus)
+                self.get_logger().warning(f"joint_trajectory watch: {exc}")
+            time.sleep(PERIOD_S)
+
+    def _watch_topic_trajectory(self) -> None:
+        """The running ``joint_trajectory``: once it cannot end by itself (a joint of it left
+        the state it needs; the engine has stopped the others quietly), say why on
+        ``joint_results`` and in the log; forget it once it ended or a newer command replaced
+        it."""
+        watch = self._topic_trajectory
+        if watch is None:
+            return
+        try:
+            why = watch.outcome([bridge.axis_status(a) for a in watch.axes])
+        except EtherRosError:
+            why = joints.TrajectoryWatch.OVER  # the bus stopped: deactivate says so
+        if why is not None:
+            self._end_topic_trajectory(watch, why)
+
+    def _end_topic_trajectory(self, watch: joints.TrajectoryWatch | None, why: str) -> None:
+        """Stop watching ``watch`` (None: whichever runs), reporting ``why`` unless it ended
+        well (``TrajectoryWatch.OVER``)."""
+        with self._topic_lock:
+            watch = watch or self._topic_trajectory
+            if watch is None or self._topic_trajectory is not watch:
+                return  # a newer trajectory is watched meanwhile
+            self._topic_trajectory = None
+        if why == joints.TrajectoryWatch.OVER:
+            return
+        text = f"joint_trajectory aborted: {why} ({', '.join(watch.plan.names)})"
+        self.get_logger().warning(text)
+        self._joint_result_pub.publish(WriteResult(success=False, message=text))
 
     def _serve_trajectory_action(self, cfg: Any) -> FollowJointTrajectoryServer | None:
         """The FollowJointTrajectory action server (``ros.trajectory_action``; empty: none), on
@@ -1325,7 +1387,13 @@ class EtherRosNode(LifecycleNode):
         return resp
 
     def _stop_motion(self, why: str) -> None:
-        """The lease lapsed: stop as ``on_stop`` says (bridge.stop_motion)."""
+        """The lease lapsed: stop as ``on_stop`` says (bridge.stop_motion). The running goal and
+        topic trajectory end first with the cause, which their joints' state cannot tell."""
+        action = getattr(self, "_trajectory_action", None)
+        if action is not None:
+            action.end_goals("control lease lapsed")
+        if getattr(self, "_topic_trajectory", None) is not None:
+            self._end_topic_trajectory(None, "control lease lapsed")
         try:
             bridge.stop_motion(self._bus)
         except EtherRosError as exc:

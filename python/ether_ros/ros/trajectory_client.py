@@ -75,12 +75,15 @@ def make_goal(
 @dataclass
 class Outcome:
     """How a goal ended: its status (``action_msgs/GoalStatus``: 4 succeeded, 5 canceled, 6
-    aborted), the result code and text, and every feedback received, with its arrival time."""
+    aborted), the result code and text, every feedback received with its arrival time, and when
+    the result arrived."""
 
     status: int = 0
     error_code: int = 0
     error_string: str = ""
     feedback: list[tuple[float, Any]] = field(default_factory=list)
+    # When the result arrived (time.monotonic(), this process): for latency measurements.
+    ended_at: float = 0.0
 
 
 class GoalRun:
@@ -137,6 +140,7 @@ class TrajectoryActionClient:
             outcome.status = int(response.status)
             outcome.error_code = int(response.result.error_code)
             outcome.error_string = str(response.result.error_string)
+            outcome.ended_at = time.monotonic()
             done.set()
 
         handle.get_result_async().add_done_callback(on_result)

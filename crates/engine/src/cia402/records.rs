@@ -143,6 +143,11 @@ pub mod status_flags {
     pub const HOMING_ERROR: u16 = 1 << 12;
     /// Homing was started and is in progress (neither attained nor error yet).
     pub const HOMING_ACTIVE: u16 = 1 << 13;
+    /// The last trajectory ended before its end without a newer command: the axis left the
+    /// state it needs (mode change, disable, fault, quick stop, panic, watchdog) or another
+    /// axis of the same trajectory did (this one then makes a quiet stop). Until the next
+    /// command, so a caller waiting for the trajectory learns it will not end by itself.
+    pub const TRAJECTORY_STOPPED: u16 = 1 << 14;
 }
 
 /// What the RT thread publishes about an axis every cycle.
