@@ -215,13 +215,8 @@ const FRAME_KEYS: &[&str] = &["datagrams", "every", "watchdog_ns"];
 const DC_KEYS: &[&str] = &["mode", "time_offset_ns", "sync0_shift_ns"];
 const RT_KEYS: &[&str] = &["policy", "priority", "cpu", "runtime_ns", "lock_memory"];
 const DC_DATAGRAM_KEYS: &[&str] = &["kind", "station"];
-const LOGICAL_DATAGRAM_KEYS: &[&str] = &[
-    "kind",
-    "address",
-    "length",
-    "image_offset",
-    "expected_wkc",
-];
+const LOGICAL_DATAGRAM_KEYS: &[&str] =
+    &["kind", "address", "length", "image_offset", "expected_wkc"];
 const AXIS_KEYS: &[&str] = &[
     "name",
     "map",
