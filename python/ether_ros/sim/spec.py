@@ -366,6 +366,7 @@ _DICTIONARIES: dict[
     tuple[int, str], tuple[EsiDevice, list[tuple[Any, ...]], list[tuple[Any, ...]]]
 ] = {}
 
+
 def idn_rows(device: EsiDevice) -> list[tuple[Any, ...]]:
     """The ``idns`` of the spec of a drive with SoE: its IDN dictionary (``EsiDevice.idns``)
     as rows ``(idn, name, data_type, bit_length, default)``, and every IDN its PDOs map that
