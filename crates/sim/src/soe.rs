@@ -476,9 +476,11 @@ mod tests {
     use super::*;
     use ether_ros_protocol::mailbox::{ERR_SERVICE_NOT_SUPPORTED, ERR_SIZE_TOO_SHORT};
 
-    /// An SII image (64 header words, then the categories) with PDOs
-    /// `(category, index, sm, entries (idn, bits))`.
-    fn sii(pdos: &[(u16, u16, u8, &[(u16, u8)])]) -> Vec<u8> {
+    /// A PDO of the SII: category, index, SyncManager, entries (IDN, bits).
+    type Pdo<'a> = (u16, u16, u8, &'a [(u16, u8)]);
+
+    /// An SII image (64 header words, then the categories) with `pdos`.
+    fn sii(pdos: &[Pdo<'_>]) -> Vec<u8> {
         let mut image = vec![0u8; 128];
         for &(category, index, sm, entries) in pdos {
             let mut data = Vec::new();
