@@ -14,6 +14,7 @@ import pytest
 from ether_ros._native import SimNetwork
 from ether_ros._native.protocol import sii_checksum
 from ether_ros.testing.netns import VethPair, thread_in_netns
+from ether_ros.testing.wait import wait_for
 
 MASTER_MAC = bytes([0x02, 0, 0, 0, 0, 1])
 APRD, APWR, FPRD, FPWR, BRD, BWR, LRW = 1, 2, 4, 5, 7, 8, 12
@@ -208,7 +209,9 @@ def test_soem_reads_the_sii_and_reaches_safeop_over_veth(veth_apart: VethPair) -
         with thread_in_netns(veth.master_netns):
             master.open(veth.master)
         try:
-            assert master.config_init() == 2
+            # The simulator's frame thread may still be starting on a loaded host (SOEM's
+            # first broadcast read then gets no answer, config_init -1): scan until it answers.
+            wait_for("SOEM to find both slaves", lambda: master.config_init() == 2, timeout=20)
             s0 = master.slaves[0]
             assert (s0.man, s0.id) == (VENDOR, PRODUCT)
             assert master.state_check(pysoem.PREOP_STATE, 200_000) == pysoem.PREOP_STATE
