@@ -110,8 +110,21 @@ def trot(
         legs[s.name] = leg_of(s.name)
     if not legs:
         raise ExperimentError("no slave has the Laelaps II trajectory outputs (a_ellipse100)")
-    for name, leg in legs.items():
-        bus.write_many(name, leg_outputs(leg, 0, 0, plan.transition_s))
+    # The whole command of every leg, sent at every step: a watchdog trip (a stall of this
+    # process longer than bus.watchdog_ms) voids what was commanded before it (docs/security.md,
+    # "A reset does not restart"), so a step never relies on what an earlier one wrote.
+    ellipse = {"a_ellipse100": 0, "b_ellipse100": 0}
+
+    def command() -> None:
+        bus.write_slaves(
+            {
+                name: leg_outputs(
+                    leg, ellipse["a_ellipse100"], ellipse["b_ellipse100"], plan.transition_s
+                )
+                for name, leg in legs.items()
+            }
+        )
+
     recorder = None
     writer = None
     if record is not None:
@@ -135,8 +148,9 @@ def trot(
     def step(name: str, variable: str | None, value: int, seconds: float) -> None:
         start = time.monotonic() - t0
         if variable is not None:
-            bus.write_all(variable, value)
+            ellipse[variable] = value
             log(f"{start:6.1f} s  {name}")
+        command()
         _wait(bus, seconds)
         phases.append(Phase(name, start, time.monotonic() - t0))
 
