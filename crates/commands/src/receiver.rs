@@ -87,6 +87,10 @@ pub const PUBLISHER_LIMIT: usize = 64;
 /// that a publisher's refused requests are only counted (`refusals_unanswered`): answering
 /// every message of a flood would cost the node more than the flood itself.
 pub const REFUSAL_ANSWERS_PER_S: u32 = 20;
+/// Refusals answered by one thread in all, whatever the number of publishers: the answers of
+/// every client share the results topic, so many flooding publishers must not crowd a client's
+/// own answer out of its reader's history (`QOS_RESULTS` in `ros/node.py` holds 20 s of this).
+pub const REFUSAL_ANSWERS_TOTAL_PER_S: u32 = 50;
 /// Requests per publisher handed to Python: a burst of this many, then this many per second.
 /// Beyond that they are refused here (`throttled`): a flood of requests only Python can answer
 /// (values beyond the limits, text) would otherwise keep the node's Python busy, and with it the
@@ -587,7 +591,8 @@ impl Worker {
     /// Answer the request as refused with `self.message`'s prefix and `scratch.why`, unless
     /// `publisher` has spent its budget of refusal answers.
     fn refuse(&self, publisher: &Gid, request_id: u32, scratch: &mut Scratch) {
-        if !scratch.budgets.spend(publisher, now_ns()) {
+        let now = now_ns();
+        if !scratch.budgets.spend(publisher, now) || !scratch.total.spend(now) {
             self.shared
                 .counters
                 .refusals_unanswered
@@ -812,6 +817,8 @@ struct Scratch {
     setpoints: Vec<Setpoint>,
     /// Refusal answers left per publisher.
     budgets: AnswerBudgets,
+    /// Refusal answers left in all.
+    total: TokenBucket<{ REFUSAL_ANSWERS_TOTAL_PER_S as u64 }>,
     /// Requests for Python left per publisher.
     deferrals: DeferralBudgets,
     /// The joint names of the message being handled borrow from it; between messages the
@@ -862,6 +869,40 @@ impl<const PER_S: u64> Budgets<PER_S> {
         *last = now;
         if *tokens >= Self::ONE {
             *tokens -= Self::ONE;
+            true
+        } else {
+            false
+        }
+    }
+}
+
+/// One token bucket of `PER_S` per second (a burst of `PER_S`), full at first.
+struct TokenBucket<const PER_S: u64> {
+    /// Tokens × 1e9 (token-nanoseconds) and the last refill, ns (None: never spent, full).
+    tokens: u64,
+    last: Option<i64>,
+}
+
+impl<const PER_S: u64> Default for TokenBucket<PER_S> {
+    fn default() -> Self {
+        Self {
+            tokens: PER_S * 1_000_000_000,
+            last: None,
+        }
+    }
+}
+
+impl<const PER_S: u64> TokenBucket<PER_S> {
+    /// Take one token: false when the bucket is empty.
+    fn spend(&mut self, now: i64) -> bool {
+        let elapsed = self.last.map_or(0, |last| (now - last).max(0) as u64);
+        self.tokens = self
+            .tokens
+            .saturating_add(elapsed.saturating_mul(PER_S))
+            .min(PER_S * 1_000_000_000);
+        self.last = Some(now);
+        if self.tokens >= 1_000_000_000 {
+            self.tokens -= 1_000_000_000;
             true
         } else {
             false
@@ -958,6 +999,19 @@ mod tests {
         );
         assert_eq!((q.total, q.publishers()), (0, 0));
         assert!(!q.done());
+    }
+
+    #[test]
+    fn refusal_answers_are_bounded_in_all() {
+        let mut b = TokenBucket::<{ REFUSAL_ANSWERS_TOTAL_PER_S as u64 }>::default();
+        let burst = REFUSAL_ANSWERS_TOTAL_PER_S as usize;
+        assert_eq!((0..burst * 2).filter(|_| b.spend(0)).count(), burst);
+        // Refilled at REFUSAL_ANSWERS_TOTAL_PER_S: one more answer after 1/rate s.
+        let step = 1_000_000_000 / REFUSAL_ANSWERS_TOTAL_PER_S as i64;
+        assert!(!b.spend(step - 1));
+        // 2 × step after the burst: two tokens back, never more than the burst.
+        assert!(b.spend(2 * step) && b.spend(2 * step));
+        assert!(!b.spend(2 * step));
     }
 
     #[test]

@@ -10,6 +10,7 @@ use std::sync::Arc;
 use ether_ros_commands::lease::{refusal_text, GID_LEN, MAX_WRITERS};
 use ether_ros_commands::receiver::{
     MessageKind, Resolver, ANSWER_BUDGETS, PUBLISHER_LIMIT, REFUSAL_ANSWERS_PER_S,
+    REFUSAL_ANSWERS_TOTAL_PER_S,
 };
 use ether_ros_commands::{
     check_joint_trajectory, decode_joint_state, decode_write_variable, CommandReceiver,
@@ -326,6 +327,9 @@ impl PyCommandReceiver {
     /// flooding publisher's refusals are counted, not answered.
     #[classattr]
     const REFUSAL_ANSWERS_PER_S: u32 = REFUSAL_ANSWERS_PER_S;
+    /// Refusals answered per second in all, by one thread, whatever the number of publishers.
+    #[classattr]
+    const REFUSAL_ANSWERS_TOTAL_PER_S: u32 = REFUSAL_ANSWERS_TOTAL_PER_S;
     /// Publishers whose answer budget is kept.
     #[classattr]
     const ANSWER_BUDGETS: usize = ANSWER_BUDGETS;

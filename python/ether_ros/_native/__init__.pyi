@@ -173,6 +173,7 @@ class CommandReceiver:
     path")."""
 
     REFUSAL_ANSWERS_PER_S: int
+    REFUSAL_ANSWERS_TOTAL_PER_S: int
     ANSWER_BUDGETS: int
     PUBLISHER_LIMIT: int
 

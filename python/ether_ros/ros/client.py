@@ -69,6 +69,7 @@ from ether_ros.ros.node import (
     QOS_HIGH_RATE,
     QOS_LATCHED,
     QOS_RELIABLE,
+    QOS_RESULTS,
 )
 
 T = TypeVar("T")
@@ -209,8 +210,8 @@ class EtherRosClient:
         n.create_subscription(JointState, f"{p}joint_states", self._on_joints, QOS_RELIABLE)
         n.create_subscription(JointExtras, f"{p}joint_extras", self._on_extras, QOS_RELIABLE)
         n.create_subscription(DiagnosticArray, f"{p}diagnostics", self._on_diag, QOS_RELIABLE)
-        n.create_subscription(WriteResult, f"{p}write_results", self._on_result, QOS_COMMANDS)
-        n.create_subscription(WriteResult, f"{p}joint_results", self._on_joint_result, QOS_COMMANDS)
+        n.create_subscription(WriteResult, f"{p}write_results", self._on_result, QOS_RESULTS)
+        n.create_subscription(WriteResult, f"{p}joint_results", self._on_joint_result, QOS_RESULTS)
         if raw:
             n.create_subscription(PdoRaw, f"{p}pdo_raw", self._on_raw, QOS_HIGH_RATE)
         self._executor = rclpy.executors.SingleThreadedExecutor(context=context)

@@ -194,11 +194,15 @@ class RefusalBudget:
     """Refusals answered per publisher (by GID), as the native threads budget theirs: a burst
     of ``CommandReceiver.REFUSAL_ANSWERS_PER_S``, then that many a second; beyond it a flooding
     publisher's refusals are counted, not answered, so the flood does not turn into as many
-    answers. Kept for the ``ANSWER_BUDGETS`` publishers refused most recently."""
+    answers. Kept for the ``ANSWER_BUDGETS`` publishers refused most recently. In all, at most
+    ``REFUSAL_ANSWERS_TOTAL_PER_S`` answers a second, however many publishers flood: every
+    client's answers share the results topic (``QOS_RESULTS``)."""
 
     def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
         self.rate = float(_native.CommandReceiver.REFUSAL_ANSWERS_PER_S)
         self.size = int(_native.CommandReceiver.ANSWER_BUDGETS)
+        self.total_rate = float(_native.CommandReceiver.REFUSAL_ANSWERS_TOTAL_PER_S)
+        self._total: tuple[float, float] | None = None  # (tokens, last), None: full
         self._clock = clock
         self._lock = threading.Lock()
         self._budgets: dict[bytes, tuple[float, float]] = {}
@@ -215,6 +219,11 @@ class RefusalBudget:
             tokens = min(self.rate, tokens + (now - last) * self.rate)
             ok = tokens >= 1.0
             self._budgets[publisher] = (tokens - 1.0 if ok else tokens, now)
+            if ok:
+                total, last_total = self._total or (self.total_rate, now)
+                total = min(self.total_rate, total + (now - last_total) * self.total_rate)
+                ok = total >= 1.0
+                self._total = (total - 1.0 if ok else total, now)
             if len(self._budgets) > self.size:  # forget the least recently refused
                 del self._budgets[next(iter(self._budgets))]
             if not ok:

@@ -118,6 +118,14 @@ QOS_RELIABLE = QoSProfile(
 QOS_COMMANDS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE
 )
+# The answers on write_results/joint_results: every client's answers share each topic, so a
+# client's reader must hold more than the others' refusals that arrive while it is busy. The
+# refusals are bounded (crates/commands/src/receiver.rs: REFUSAL_ANSWERS_PER_S per publisher,
+# REFUSAL_ANSWERS_TOTAL_PER_S per topic): 1000 answers are 20 s of the worst flood's refusals,
+# where 100 were 2.5 s, which a client stalled on a loaded host overran and lost its own answer.
+QOS_RESULTS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE
+)
 QOS_LATCHED = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
     depth=1,
@@ -274,9 +282,9 @@ class EtherRosNode(LifecycleNode):
         }
         self._layout_pub = self.create_publisher(BusLayout, "bus_layout", QOS_LATCHED)
         self._diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", QOS_RELIABLE)
-        self._result_pub = self.create_publisher(WriteResult, "write_results", QOS_COMMANDS)
+        self._result_pub = self.create_publisher(WriteResult, "write_results", QOS_RESULTS)
         # Refused joint_commands and every joint_trajectory's answer (request_id 0).
-        self._joint_result_pub = self.create_publisher(WriteResult, "joint_results", QOS_COMMANDS)
+        self._joint_result_pub = self.create_publisher(WriteResult, "joint_results", QOS_RESULTS)
 
         commands: Node = self.command_node or self
         # pdo_listener: the native path (see ether_ros.ros.native_commands); the Python

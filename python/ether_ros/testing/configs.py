@@ -29,6 +29,17 @@ def config_with_watchdog(name: str, into: Path, watchdog_ms: int) -> Path:
     return _write(data, into, name.replace(".yaml", f"_watchdog{int(watchdog_ms)}.yaml"))
 
 
+def config_with_lease_ttl(name: str, into: Path, ttl_s: float) -> Path:
+    """A copy of config/NAME with the control lease on and its time to live at ``ttl_s``,
+    written like ``config_without_lease``. The holder must renew within the time to live or
+    lose the lease (and motion stops): on a 2-core VM under the load of a flood test the
+    renewals of the test's client can stall past the shipped 3 s, which is the lease working,
+    not what a test about floods checks."""
+    data = yaml.safe_load((REPO / "config" / name).read_text())
+    data.setdefault("ros", {})["lease"] = {"enabled": True, "ttl_s": float(ttl_s)}
+    return _write(data, into, name.replace(".yaml", f"_ttl{int(ttl_s)}.yaml"))
+
+
 def _write(data: object, into: Path, filename: str) -> Path:
     (into / "config").mkdir(exist_ok=True)
     if not (into / "devices").exists():
