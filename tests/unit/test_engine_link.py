@@ -241,7 +241,6 @@ def test_bad_datagrams_are_value_errors_naming_the_problem(
         engine.transact([("FPRD", 0, 1000), ("FPRD", 0, 1000)])
 
 
-@pytest.mark.netns  # a raw socket: CAP_NET_RAW
 def test_open_interface_errors_are_link_errors_naming_the_interface() -> None:
     with pytest.raises(LinkError, match="no network interface named 'nosuchif0'"):
         Engine.open_interface("nosuchif0")

@@ -150,7 +150,6 @@ def test_frames_bring_a_slave_to_op_and_exchange_process_data() -> None:
     assert stats["frames_answered"] == stats["frames_seen"]
 
 
-@pytest.mark.netns  # run_on_interface opens a raw socket
 def test_faults_and_bad_input_are_reported() -> None:
     net = SimNetwork(seed=7, manual_clock_ns=1)
     net.add_slave(spec())
