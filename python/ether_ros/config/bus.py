@@ -28,6 +28,7 @@ from pydantic import (
     model_validator,
 )
 
+from ether_ros._native import protocol
 from ether_ros._native.protocol import format_address
 from ether_ros.config import cia402
 from ether_ros.config import types as dt
@@ -41,7 +42,7 @@ from ether_ros.config.esi import (
 from ether_ros.config.files import MAX_PATH_CHARS
 from ether_ros.config.process import ProcessLayout, ProcessValueError
 from ether_ros.config.urdf import MOVABLE_TYPES, apply_urdf_limits, load_urdf_joints
-from ether_ros.config.yamlsrc import KeyPath, SourceMap, load_yaml, shown
+from ether_ros.config.yamlsrc import BareInt, KeyPath, SourceMap, load_yaml, shown
 from ether_ros.errors import ConfigError
 from ether_ros.topology import Link, visit_order
 
@@ -155,8 +156,42 @@ def _pair(value: Any) -> Any:
     return tuple(value) if isinstance(value, list) else value
 
 
+def _bare_index(value: Any, parse: Any) -> Any:
+    """An index or subindex from the configuration: the one rule of the protocol crate
+    (``protocol.parse_index``): hexadecimal with or without ``0x`` — ``"6040"``, ``6040``
+    (bare digits in YAML) and ``0x6040`` are all 0x6040; ``#x6040`` (the ESI's spelling) too.
+    A number given from Python (not from YAML text) is taken as it is."""
+    if isinstance(value, bool):
+        raise ValueError("expected an index, not true/false")
+    if isinstance(value, BareInt):
+        value = value.text
+    if isinstance(value, str):
+        text = value.strip()
+        if text[:2].lower() == "#x":
+            text = "0x" + text[2:]
+        return parse(text)
+    return value
+
+
+def _parse_index(value: Any) -> Any:
+    return _bare_index(value, protocol.parse_index)
+
+
+def _parse_subindex(value: Any) -> Any:
+    return _bare_index(value, protocol.parse_subindex)
+
+
+def _extra_object(value: Any) -> Any:
+    """An extra's ``object``: an address or an index as text; bare YAML digits stay text, so
+    they are read by the same rule as ``"6040"`` (hexadecimal)."""
+    return value.text if isinstance(value, BareInt) else value
+
+
 HexInt = Annotated[int, BeforeValidator(_parse_int)]
-PdoIndex = Annotated[HexInt, Field(ge=0x0001, le=0xFFFF)]
+#: An object index (0x6040), PDO index or subindex: hexadecimal with or without 0x.
+ObjectIndex = Annotated[int, BeforeValidator(_parse_index)]
+Subindex = Annotated[int, BeforeValidator(_parse_subindex)]
+PdoIndex = Annotated[ObjectIndex, Field(ge=0x0001, le=0xFFFF)]
 LinkName = Literal["packet", "xdp", "auto"]
 Identifier = Annotated[str, Field(pattern=IDENTIFIER_PATTERN, max_length=MAX_IDENTIFIER_CHARS)]
 Text = Annotated[str, Field(min_length=1, max_length=MAX_TEXT_CHARS), AfterValidator(_plain_text)]
@@ -281,8 +316,8 @@ class PdoAssign(_Model):
 
 
 class SdoInit(_Model):
-    index: HexInt = Field(ge=0x0001, le=0xFFFF)
-    subindex: HexInt = Field(default=0, ge=0, le=255)
+    index: ObjectIndex = Field(ge=0x0001, le=0xFFFF)
+    subindex: Subindex = Field(default=0, ge=0, le=255)
     value: int | float | bool | PathText
     type: Text | None = None  # uint8, int16, ... (default: the dictionary's type)
     _data: bytes = PrivateAttr(default=b"")
@@ -315,7 +350,7 @@ class AxisExtra(_Model):
     ``torque`` take the axis's scales, a number is its own."""
 
     name: Identifier
-    object: int | str
+    object: Annotated[int | str, BeforeValidator(_extra_object)]
     scale: Literal["position", "velocity", "torque"] | float = 1.0
 
 
