@@ -13,9 +13,7 @@ import pytest
 from bus_specs import spec_of
 from ether_ros._native import protocol
 from ether_ros.config import load_bus_config
-from ether_ros.config.bus import AxisExtra
 from ether_ros.config.cia402 import extra_address
-from ether_ros.config.yamlsrc import BareInt
 from ether_ros.console.commands import CommandError, ConsoleContext, SdoRead, parse_command
 from ether_ros.errors import ConfigError, EtherRosError
 from ether_ros.ros import bridge
@@ -57,10 +55,10 @@ def test_the_protocol_rule() -> None:
 @pytest.mark.parametrize(
     ("rx", "index", "sub"),
     [
-        ("0x1600", "0x7010", "1"),  # the prefixed spelling
-        ("1600", "7010", "01"),  # bare digits in YAML: hexadecimal, not 1600 or 7010 decimal
-        ('"1600"', '"7010"', '"1"'),  # the same as text
+        ("0x1600", "0x7010", "1"),  # the prefixed spelling (a YAML number)
+        ('"1600"', '"7010"', '"1"'),  # text without prefix: hexadecimal, never decimal
         ('"#x1600"', '"#x7010"', '"0x01"'),  # the ESI's spelling
+        ("5632", "28688", "1"),  # a YAML number as yaml.safe_dump writes 0x1600 and 0x7010
     ],
 )
 def test_yaml_indices_are_hexadecimal(tmp_path: Path, rx: str, index: str, sub: str) -> None:
@@ -70,18 +68,19 @@ def test_yaml_indices_are_hexadecimal(tmp_path: Path, rx: str, index: str, sub: 
 
 
 def test_yaml_subindex_10_is_sixteen(tmp_path: Path) -> None:
-    """``subindex: 10`` is 0x10, as in the address ``0x7010:10``; GenericIO's 0x7010 has no
-    subindex 16, so the load names the address it looked for."""
+    """``subindex: "10"`` is 0x10, as in the address ``0x7010:10``; GenericIO's 0x7010 has
+    no subindex 16, so the load names the address it looked for."""
     with pytest.raises(ConfigError, match="0x7010:10"):
-        load_bus_config(io_bus(tmp_path, "0x1600", "0x7010", "10"))
+        load_bus_config(io_bus(tmp_path, "0x1600", "0x7010", '"10"'))
 
 
 @pytest.mark.parametrize(
     ("rx", "index", "why"),
     [
-        ("0x1600", "10000", "index out of range"),
+        ("0x1600", '"10000"', "index out of range"),
         ("0x1600", "banana", "is not an index"),
         ("16G0", "0x7010", "is not an index"),
+        ("0x1600", '"1_000"', "is not an index"),
     ],
 )
 def test_yaml_indices_refused_name_the_field(tmp_path: Path, rx: str, index: str, why: str) -> None:
@@ -92,9 +91,7 @@ def test_yaml_indices_refused_name_the_field(tmp_path: Path, rx: str, index: str
 def test_extras_objects_read_the_same() -> None:
     assert extra_address("60FD", 0) == extra_address("0x60FD", 0) == (0x60FD, 0)
     assert extra_address("60FE:01", 1) == (0x68FE, 1)
-    # Bare digits from YAML stay text, so they are read by the same rule.
-    extra = AxisExtra(name="din", object=BareInt(2000, "2000"))
-    assert extra.object == "2000" and extra_address(extra.object, 0) == (0x2000, 0)
+    assert extra_address("2000", 0) == (0x2000, 0)  # was int("2000", 0): 0x07D0
     assert extra_address("sixty", 0) is None
 
 

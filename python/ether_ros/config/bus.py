@@ -42,7 +42,7 @@ from ether_ros.config.esi import (
 from ether_ros.config.files import MAX_PATH_CHARS
 from ether_ros.config.process import ProcessLayout, ProcessValueError
 from ether_ros.config.urdf import MOVABLE_TYPES, apply_urdf_limits, load_urdf_joints
-from ether_ros.config.yamlsrc import BareInt, KeyPath, SourceMap, load_yaml, shown
+from ether_ros.config.yamlsrc import KeyPath, SourceMap, load_yaml, shown
 from ether_ros.errors import ConfigError
 from ether_ros.topology import Link, visit_order
 
@@ -157,14 +157,13 @@ def _pair(value: Any) -> Any:
 
 
 def _bare_index(value: Any, parse: Any) -> Any:
-    """An index or subindex from the configuration: the one rule of the protocol crate
-    (``protocol.parse_index``): hexadecimal with or without ``0x`` — ``"6040"``, ``6040``
-    (bare digits in YAML) and ``0x6040`` are all 0x6040; ``#x6040`` (the ESI's spelling) too.
-    A number given from Python (not from YAML text) is taken as it is."""
+    """An index or subindex from the configuration. Text follows the one rule of the protocol
+    crate (``protocol.parse_index``): hexadecimal with or without ``0x`` — ``"6040"`` and
+    ``"0x6040"`` are 0x6040, ``"#x6040"`` (the ESI's spelling) too. A YAML number is the
+    number YAML read (``0x6040``; unquoted bare digits are YAML's decimal: what
+    ``yaml.safe_dump`` writes for any int, so a dumped configuration reads back the same)."""
     if isinstance(value, bool):
         raise ValueError("expected an index, not true/false")
-    if isinstance(value, BareInt):
-        value = value.text
     if isinstance(value, str):
         text = value.strip()
         if text[:2].lower() == "#x":
@@ -179,12 +178,6 @@ def _parse_index(value: Any) -> Any:
 
 def _parse_subindex(value: Any) -> Any:
     return _bare_index(value, protocol.parse_subindex)
-
-
-def _extra_object(value: Any) -> Any:
-    """An extra's ``object``: an address or an index as text; bare YAML digits stay text, so
-    they are read by the same rule as ``"6040"`` (hexadecimal)."""
-    return value.text if isinstance(value, BareInt) else value
 
 
 HexInt = Annotated[int, BeforeValidator(_parse_int)]
@@ -350,7 +343,7 @@ class AxisExtra(_Model):
     ``torque`` take the axis's scales, a number is its own."""
 
     name: Identifier
-    object: Annotated[int | str, BeforeValidator(_extra_object)]
+    object: int | str
     scale: Literal["position", "velocity", "torque"] | float = 1.0
 
 

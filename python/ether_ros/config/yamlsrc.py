@@ -20,7 +20,6 @@ Bounds (each refused with a :class:`ConfigError` naming file and line, never a t
 
 from __future__ import annotations
 
-import re
 import unicodedata
 from pathlib import Path
 from typing import Any
@@ -116,26 +115,6 @@ def text_problem(text: str) -> str | None:
         if category == "Cs":
             return f"lone surrogate {ch!r} at character {i}"
     return None
-
-
-class BareInt(int):
-    """An integer written as bare digits (``7000``, ``010``: no ``0x``). YAML reads those as
-    decimal (or octal); where the field is an object index, subindex or PDO index the one rule
-    for a bare index reads ``text`` as hexadecimal instead (``ether_ros.config.bus.ObjectIndex``,
-    docs/configuration.md "Numbers"). Everywhere else it is the int YAML read."""
-
-    text: str
-
-    def __new__(cls, value: int, text: str) -> BareInt:
-        out = super().__new__(cls, value)
-        out.text = text
-        return out
-
-    def __reduce__(self) -> tuple[Any, ...]:
-        return BareInt, (int(self), self.text)
-
-
-_BARE_DIGITS = re.compile(r"[+]?[0-9_]+")
 
 
 class _Refused(Exception):
@@ -317,8 +296,6 @@ class _Builder:
                 raise self.smap.error(
                     path, f"integer wider than {MAX_INT_BITS} bits", show_value=False
                 )
-            if _BARE_DIGITS.fullmatch(str(node.value).strip()):
-                return BareInt(value, str(node.value).strip())
             return value
         if isinstance(value, str):
             problem = text_problem(value)
