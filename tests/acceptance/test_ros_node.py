@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+from ether_ros._native import protocol
 from ether_ros.ros.client import ClientError, EtherRosClient, Latest, make_write
 from ether_ros.ros.rig import RosRig, domain_for
 from ether_ros.testing.configs import config_with_watchdog
@@ -275,11 +276,19 @@ def test_sdo_services(rig: RosRig) -> None:
     assert raw.success and int.from_bytes(bytes(raw.data), "little") == 0x00A986FD
     missing = c.sdo_read("front_left_leg", 0x5FFF, 0, "uint8")
     assert not missing.success and missing.message
-    ok, message = c.sdo_write("front_left_leg", 0x1018, 1, "uint32", "5")
+    # The abort code arrives as data (docs/ros.md, "Error codes"), not only in the text.
+    assert (missing.error, missing.code) == ("SdoAbort", protocol.sdo_abort.ABORT_NO_OBJECT)
+    assert missing.code == 0x06020000
+    assert (raw.error, raw.code) == ("", 0)
+    answer = c.sdo_write("front_left_leg", 0x1018, 1, "uint32", "5")
+    ok, message = answer
     assert not ok and message  # the identity object is read-only
-    ok, message = c.sdo_write("front_left_leg", 0x1018, 1, "uint8", "300")
-    assert not ok and "outside 0..255" in message
-    assert not c.sdo_read("nobody", 0x1018, 1).success
+    assert (answer.error, answer.code) == ("SdoAbort", protocol.sdo_abort.ABORT_READ_ONLY)
+    answer = c.sdo_write("front_left_leg", 0x1018, 1, "uint8", "300")
+    assert not answer.success and "outside 0..255" in answer.message
+    assert answer.error and answer.code == 0  # refused before the wire: no abort code
+    nobody = c.sdo_read("nobody", 0x1018, 1)
+    assert not nobody.success and nobody.error and nobody.code == 0
 
 
 def test_parameters_mirror_the_configuration(rig: RosRig) -> None:
@@ -309,9 +318,13 @@ def test_a_failed_activation_is_reported_and_recoverable(rig: RosRig) -> None:
     assert c.command("stop")[0] and c.get_state() == "inactive"
     rig.sim("fault", kind="refuse_op", slave="hind_left_leg")
     try:
-        ok, message = c.command("start")
+        answer = c.command("start")
+        ok, message = answer
         assert not ok
         assert "activate failed" in message and "hind_left_leg" in message, message
+        # The slave's AL status code as data (the simulator refuses OP with 0x001A).
+        assert answer.code == protocol.al_code.SYNCHRONIZATION_ERROR, (answer.error, answer.code)
+        assert answer.error == "AlStateRefused"
         assert c.get_state() == "inactive"
     finally:
         rig.sim("fault", kind="refuse_op", slave="hind_left_leg", on=False)

@@ -34,7 +34,8 @@ def test_top_shows_the_running_nodes_slaves(
     import rclpy
     from textual.widgets import DataTable, Static
 
-    from ether_ros.tools.live import DiagnosticsLiveSource, TopApp
+    from ether_ros.ros.top_source import DiagnosticsLiveSource
+    from ether_ros.tools.live import TopApp
 
     if rclpy.ok():
         pytest.skip("rclpy already initialised in this process (another ROS domain)")

@@ -100,6 +100,7 @@ def test_requests_are_checked_and_errors_carry_their_type_and_code() -> None:
 
 
 @pytest.mark.skipif(os.geteuid() != 0, reason="dropping to another user needs root")
+@pytest.mark.netns  # switches user: needs root
 def test_only_the_owner_s_user_or_root_is_served() -> None:
     iface = _interface()
     with InterfaceClaim.take(iface):

@@ -109,6 +109,7 @@ def test_supported_modes_from_the_dictionary_when_6502_is_a_placeholder(tmp_path
     assert offered_modes(drive, 0) == ("pp", "csp")
 
 
+@pytest.mark.netns  # the bus runs SCHED_FIFO with locked memory (default realtime)
 def test_the_master_writes_the_esi_assignment_and_runs_the_init_commands(tmp_path: Path) -> None:
     """The drive stores 0x1601 in 0x1C12, the ESI assigns 0x1600 by default: the master reads
     the slave's assignment and writes the ESI's (TwinCAT and IgH do), so SAFEOP is accepted; the
@@ -131,6 +132,7 @@ def test_the_master_writes_the_esi_assignment_and_runs_the_init_commands(tmp_pat
         assert net.od_read(0, 0x6060, 0) == b"\x08"
 
 
+@pytest.mark.netns  # the bus runs SCHED_FIFO with locked memory (default realtime)
 def test_a_bus_without_process_data_reaches_op(tmp_path: Path) -> None:
     cfg = load_bus_config(
         _config(
@@ -150,6 +152,7 @@ def test_a_bus_without_process_data_reaches_op(tmp_path: Path) -> None:
         assert bus.stats()["frames"][0]["wkc_errors"] == 0
 
 
+@pytest.mark.netns  # the bus runs SCHED_FIFO with locked memory (default realtime)
 def test_modules_go_into_slots_by_default_and_by_config(tmp_path: Path) -> None:
     esi = _esi(tmp_path, MODULAR, modules=MODULES)
     (dev,) = load_esi(esi)

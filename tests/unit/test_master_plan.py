@@ -171,6 +171,7 @@ def test_a_groups_watchdog_goes_to_each_of_its_frames() -> None:
     assert by_group == [("default", 0), ("io", 50_000_000), ("io", 50_000_000)]
 
 
+@pytest.mark.netns  # the RT thread locks memory
 def test_the_engine_accepts_every_plan_the_builder_makes() -> None:
     from ether_ros._native import Engine, SimNetwork
 

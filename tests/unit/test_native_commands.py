@@ -295,6 +295,7 @@ def rig() -> Iterator[tuple[Rig, list[WriteVariable]]]:
         r.close()
 
 
+@pytest.mark.netns  # SCHED_FIFO threads, a bus with locked memory
 def test_a_published_write_reaches_the_engine_without_python(
     rig: tuple[Rig, list[WriteVariable]],
 ) -> None:
@@ -321,6 +322,7 @@ def test_a_published_write_reaches_the_engine_without_python(
     wait_until(lambda: r.bus.read("front_left_leg", "Kp100_hip") == 4321)
 
 
+@pytest.mark.netns  # SCHED_FIFO threads, a bus with locked memory
 def test_deferred_requests_keep_their_order(rig: tuple[Rig, list[WriteVariable]]) -> None:
     r, deferred = rig
     r.path.attach(r.bus, r.spec)
@@ -335,6 +337,7 @@ def test_deferred_requests_keep_their_order(rig: tuple[Rig, list[WriteVariable]]
     assert r.path.counters()["applied"] == 1 and len(deferred) == 2
 
 
+@pytest.mark.netns  # SCHED_FIFO threads, a bus with locked memory
 def test_a_flooding_publisher_does_not_hold_up_another(
     rig: tuple[Rig, list[WriteVariable]],
 ) -> None:
@@ -360,6 +363,7 @@ def test_a_flooding_publisher_does_not_hold_up_another(
     wait_until(lambda: r.output("front_left_leg", "Kp100_knee") == 109)
 
 
+@pytest.mark.netns  # SCHED_FIFO threads, a bus with locked memory
 def test_the_lease_is_checked_by_publisher_on_the_native_thread() -> None:
     from ether_ros import _native
 
@@ -392,6 +396,7 @@ def test_the_lease_is_checked_by_publisher_on_the_native_thread() -> None:
         r.close()
 
 
+@pytest.mark.netns  # SCHED_FIFO threads, a bus with locked memory
 def test_detached_every_request_goes_to_python(rig: tuple[Rig, list[WriteVariable]]) -> None:
     r, deferred = rig
     before = r.output("front_left_leg", "Kp100_hip")

@@ -27,7 +27,8 @@ from ether_ros.ros import bridge
 from ether_ros.ros.native_commands import joint_table
 from ether_ros.sim.network import build_network
 
-pytestmark = [pytest.mark.ros]
+# netns: the bus runs with its configuration's realtime section (SCHED_FIFO, locked memory).
+pytestmark = [pytest.mark.ros, pytest.mark.netns]
 
 REPO = Path(__file__).resolve().parents[2]
 VALUES = (0.0, 0.1, -0.5, 1.9, 2.0, 2.4, -2.5, 3.0, 3.05, 3.2, 4.5, 9.0, math.nan, math.inf)

@@ -24,7 +24,8 @@ from ether_ros.ros.client import EtherRosClient, make_write
 from ether_ros.ros.node import QOS_COMMANDS, EtherRosNode
 from ether_ros.testing.configs import config_without_lease
 
-pytestmark = [pytest.mark.ros]
+# netns: the bus runs with its configuration's realtime section (SCHED_FIFO, locked memory).
+pytestmark = [pytest.mark.ros, pytest.mark.netns]
 
 LEG = "front_left_leg"
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from ether_ros.ros.demo import bus_info, sparse_share
+from ether_ros.demo.trot import bus_info, sparse_share
 from ether_ros.ros.layout import BusSpec, SlaveSpec, VariableSpec
 from ether_ros.tools.recording import RecordingWriter, read_recording
 

@@ -16,7 +16,8 @@ from test_ros_node_inprocess import running_node
 
 from ether_ros.ros.client import EtherRosClient
 
-pytestmark = [pytest.mark.ros]
+# netns: the bus runs with its configuration's realtime section (SCHED_FIFO, locked memory).
+pytestmark = [pytest.mark.ros, pytest.mark.netns]
 
 REPO = Path(__file__).resolve().parents[2]
 EXTRAS = ["inputs", "outputs", "velocity_offset"]

@@ -12,7 +12,8 @@ from typing import Any
 import pytest
 from test_ros_node_inprocess import running_node
 
-pytestmark = [pytest.mark.ros]
+# netns: the bus runs with its configuration's realtime section (SCHED_FIFO, locked memory).
+pytestmark = [pytest.mark.ros, pytest.mark.netns]
 
 
 def master(latest: Any) -> Any:

@@ -22,7 +22,8 @@ from ether_ros.ros.client import EtherRosClient
 from ether_ros.ros.node import QOS_COMMANDS, EtherRosNode
 from ether_ros.testing.wait import wait_for
 
-pytestmark = [pytest.mark.ros]
+# netns: the bus runs with its configuration's realtime section (SCHED_FIFO, locked memory).
+pytestmark = [pytest.mark.ros, pytest.mark.netns]
 
 ARM = Path(__file__).resolve().parents[2] / "config" / "arm6.yaml"
 JOINTS = ["shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3"]

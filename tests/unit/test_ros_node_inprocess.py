@@ -24,7 +24,8 @@ from ether_ros.ros.rig import domain_for
 from ether_ros.sim.network import build_network
 from ether_ros.testing.configs import config_without_lease
 
-pytestmark = [pytest.mark.ros]
+# netns: the bus runs with its configuration's realtime section (SCHED_FIFO, locked memory).
+pytestmark = [pytest.mark.ros, pytest.mark.netns]
 
 CONFIG = Path(__file__).resolve().parents[2] / "config" / "laelaps.yaml"
 BRANCHED = CONFIG.with_name("branched.yaml")

@@ -176,7 +176,7 @@ def test_diagnostics_source_reads_the_nodes_statuses() -> None:
     from diagnostic_msgs.msg import DiagnosticArray
 
     from ether_ros.ros import diagnostics
-    from ether_ros.tools.live import DiagnosticsLiveSource
+    from ether_ros.ros.top_source import DiagnosticsLiveSource
 
     topic = f"/test_diag_{uuid.uuid4().hex[:8]}"
     source = DiagnosticsLiveSource(topic)
@@ -279,7 +279,8 @@ def test_axis_extras_from_the_nodes_joint_extras_are_shown_under_their_axis() ->
     gives no extras rather than a wrong pairing."""
     from types import SimpleNamespace
 
-    from ether_ros.tools.live import axes_text, extras_by_joint
+    from ether_ros.ros.top_source import extras_by_joint
+    from ether_ros.tools.live import axes_text
 
     msg = SimpleNamespace(
         joints=["elbow", "elbow", "elbow"],

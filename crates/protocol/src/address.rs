@@ -20,6 +20,16 @@
 //! names), it is looked up as a name. Text with the shape but out of range is an error that
 //! says so. The canonical form, used for keys and messages, is `0x7000:01` (`format`).
 //!
+//! An index on its own (a PDO index, an `sdo_init` index, a CiA 402 extra's object, an ESC
+//! register address) and a subindex on its own follow the same rule: hexadecimal, with or
+//! without `0x`. A bare `6040` is 0x6040 wherever an index is read from text (`parse_index`,
+//! `parse_subindex`); there is no decimal form for either.
+//!
+//! ```text
+//! index    = ["0x" | "0X"] hexdigit+     value 0x0000..=0xFFFF
+//! subindex = ["0x" | "0X"] hexdigit+     value 0x00..=0xFF
+//! ```
+//!
 //! A process-data entry that one slave maps more than once (EtherBerry maps 0x0005:01 in an
 //! RxPDO and in a TxPDO) is named with the PDO in front:
 //!
@@ -89,6 +99,19 @@ pub fn parse(text: &str) -> Result<(u16, u8), AddressError> {
     Ok((index, subindex))
 }
 
+/// Parse an index on its own (`0x6040`, `6040`: hexadecimal either way; see the module
+/// documentation).
+pub fn parse_index(text: &str) -> Result<u16, AddressError> {
+    let value = hex_part(text.trim()).ok_or(AddressError::NotAnAddress)?;
+    u16::try_from(value).map_err(|_| AddressError::IndexTooLarge)
+}
+
+/// Parse a subindex on its own (`0x0a`, `a`, `10` = 0x10: hexadecimal either way).
+pub fn parse_subindex(text: &str) -> Result<u8, AddressError> {
+    let value = hex_part(text.trim()).ok_or(AddressError::NotAnAddress)?;
+    u8::try_from(value).map_err(|_| AddressError::SubindexTooLarge)
+}
+
 /// Parse an address with an optional PDO in front (`0x1600/0x0005:01`): `(pdo, index,
 /// subindex)`, the PDO `None` when there is none.
 pub fn parse_in_pdo(text: &str) -> Result<(Option<u16>, u16, u8), AddressError> {
@@ -145,6 +168,20 @@ mod tests {
             Ok((0x1600, 0x10)),
             "the subindex is hex too"
         );
+    }
+
+    #[test]
+    fn a_bare_index_is_hexadecimal() {
+        for text in ["6040", "0x6040", "0X6040", " 6040 ", "06040"] {
+            assert_eq!(parse_index(text), Ok(0x6040), "{text}");
+        }
+        assert_eq!(parse_subindex("10"), Ok(0x10));
+        assert_eq!(parse_subindex("0x0a"), Ok(0x0A));
+        assert_eq!(parse_index("1_000"), Err(AddressError::NotAnAddress));
+        assert_eq!(parse_index("-1"), Err(AddressError::NotAnAddress));
+        assert_eq!(parse_index(""), Err(AddressError::NotAnAddress));
+        assert_eq!(parse_index("10000"), Err(AddressError::IndexTooLarge));
+        assert_eq!(parse_subindex("100"), Err(AddressError::SubindexTooLarge));
     }
 
     #[test]

@@ -150,6 +150,30 @@ fn parse_address(text: &str) -> PyResult<Option<(u16, u8)>> {
     }
 }
 
+/// Parse an index on its own (`6040`, `0x6040`: hexadecimal either way, the one rule for a
+/// bare index): PDO and `sdo_init` indices, extras' objects, register addresses. Raises
+/// `ValueError` naming the text when it is not hexadecimal or larger than 0xFFFF.
+#[pyfunction]
+fn parse_index(text: &str) -> PyResult<u16> {
+    p::address::parse_index(text).map_err(|e| index_error(text, e, "an index"))
+}
+
+/// Parse a subindex on its own (`10` = 0x10, `0x0a`: hexadecimal either way); `ValueError`
+/// when it is not hexadecimal or larger than 0xFF.
+#[pyfunction]
+fn parse_subindex(text: &str) -> PyResult<u8> {
+    p::address::parse_subindex(text).map_err(|e| index_error(text, e, "a subindex"))
+}
+
+fn index_error(text: &str, e: p::address::AddressError, what: &str) -> PyErr {
+    match e {
+        p::address::AddressError::NotAnAddress => PyValueError::new_err(format!(
+            "{text:?} is not {what} (hexadecimal, with or without 0x: 6040 is 0x6040)"
+        )),
+        e => PyValueError::new_err(format!("{text:?}: {e}")),
+    }
+}
+
 /// The canonical form of an object address: `0x7000:01`.
 #[pyfunction]
 fn format_address(index: u16, subindex: u8) -> String {
@@ -548,6 +572,8 @@ pub fn register(parent: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(object_code_name, &m)?)?;
     m.add_function(wrap_pyfunction!(sii_checksum, &m)?)?;
     m.add_function(wrap_pyfunction!(parse_address, &m)?)?;
+    m.add_function(wrap_pyfunction!(parse_index, &m)?)?;
+    m.add_function(wrap_pyfunction!(parse_subindex, &m)?)?;
     m.add_function(wrap_pyfunction!(format_address, &m)?)?;
     m.add_function(wrap_pyfunction!(parse_pdo_address, &m)?)?;
     m.add_function(wrap_pyfunction!(format_pdo_address, &m)?)?;

@@ -2,11 +2,11 @@
 on a simulated bus.
 
 ``ether-ros demo arm`` moves the arm of config/arm6.yaml with a joint trajectory sent over
-ROS 2 and prints the tracking error per joint (see ``ether_ros.ros.arm_demo``).
+ROS 2 and prints the tracking error per joint (see ``ether_ros.demo.arm``).
 
 By default the trot is driven through the ROS 2 node (``--via ros``): the simulator and
 ``ether-ros run`` each run in their own process on a veth pair, and the trot of thesis Table 6.1
-is published over ROS 2 only (see ``ether_ros.ros.demo``). What the ROS 2 client received is
+is published over ROS 2 only (see ``ether_ros.demo.trot``). What the ROS 2 client received is
 left in ``--output`` (default ``demo-output/`` in the current directory): ``trot.mcap`` and the
 thesis's Figs. 6.5-6.11 of this run as PNG, with the share of time at the PWM limit per leg and
 joint printed. ``--via pysoem`` drives the same simulated bus with pysoem (SOEM) instead, a check
@@ -94,14 +94,14 @@ def register(subparsers: Any) -> None:
 
 def run_demo(args: argparse.Namespace) -> int:
     if args.robot == "arm":
-        from ether_ros.ros.arm_demo import run_arm_demo
+        from ether_ros.demo.arm import run_arm_demo
 
         if args.via != "ros":
             raise EtherRosError("the arm demo runs through the ROS 2 node only (no --via pysoem)")
         return run_arm_demo(args.config or ARM_CONFIG)
     args.config = args.config or DEFAULT_CONFIG
     if args.via == "ros":
-        from ether_ros.ros.demo import run_demo as run_ros_demo
+        from ether_ros.demo.trot import run_demo as run_ros_demo
 
         return run_ros_demo(args.config, output=args.output)
     return run_pysoem_demo(args)

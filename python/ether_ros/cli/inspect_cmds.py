@@ -147,7 +147,7 @@ def register(subparsers: Any) -> None:
         ["ether-ros reg-read -i eth1 -p 0 0x0130 2", "ether-ros reg-read -i eth1 -p 0 0x0910 "
          "--type uint64"],
     )  # fmt: skip
-    p.add_argument("address", help="register address (0x0130)")
+    p.add_argument("address", help="register address, hexadecimal (0x0130 or 0130)")
     p.add_argument("length", nargs="?", help="bytes to read (default: the type's size, or 1)")
     p.add_argument("--type", help="decode as this type (uint16, int32, ...)")
     p = add(
@@ -159,7 +159,7 @@ def register(subparsers: Any) -> None:
         ["ether-ros reg-write -i eth1 -p 0 0x0120 0200", "ether-ros reg-write -i eth1 -p 0 "
          "0x0120 2 --type uint16"],
     )  # fmt: skip
-    p.add_argument("address", help="register address (0x0120)")
+    p.add_argument("address", help="register address, hexadecimal (0x0120 or 0120)")
     p.add_argument("data", help="hex bytes in wire order (0102), or a value with --type")
     p.add_argument("--type", help="encode the data as this type (uint16, ...)")
     p = add(
@@ -352,10 +352,10 @@ def _register_type(args: argparse.Namespace) -> Any:
 
 def cmd_reg_read(ins: Any, args: argparse.Namespace) -> Any:
     from ether_ros.config import types as dt
-    from ether_ros.tools.bus_inspect import InspectError, parse_int
+    from ether_ros.tools.bus_inspect import InspectError, parse_int, parse_register
 
     dtype = _register_type(args)
-    address = parse_int(args.address, "address")
+    address = parse_register(args.address)
     if args.length is not None:
         length = parse_int(args.length, "length")
     elif dtype is not None:
@@ -380,10 +380,14 @@ def cmd_reg_read(ins: Any, args: argparse.Namespace) -> Any:
 
 def cmd_reg_write(ins: Any, args: argparse.Namespace) -> Any:
     from ether_ros.config import types as dt
-    from ether_ros.tools.bus_inspect import InspectError, parse_int, parse_value
+    from ether_ros.tools.bus_inspect import (
+        InspectError,
+        parse_register,
+        parse_value,
+    )
 
     dtype = _register_type(args)
-    address = parse_int(args.address, "address")
+    address = parse_register(args.address)
     if dtype is None:
         text = args.data.replace(" ", "").removeprefix("0x")
         try:

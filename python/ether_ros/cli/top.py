@@ -41,7 +41,6 @@ def run(args: argparse.Namespace) -> int:
     from ether_ros.errors import EtherRosError
     from ether_ros.tools.live import (
         BusLiveSource,
-        DiagnosticsLiveSource,
         LiveSource,
         TopApp,
         run_top,
@@ -74,6 +73,8 @@ def run(args: argparse.Namespace) -> int:
                 "-i/--interface needs --config (a bus of its own); without them 'ether-ros top' "
                 "shows the running node"
             )
+        from ether_ros.ros.top_source import DiagnosticsLiveSource
+
         source = DiagnosticsLiveSource(args.topic)
     run_top(TopApp(source, interval=args.interval))
     return 0

@@ -28,6 +28,7 @@ from pydantic import (
     model_validator,
 )
 
+from ether_ros._native import protocol
 from ether_ros._native.protocol import format_address
 from ether_ros.config import cia402
 from ether_ros.config import types as dt
@@ -155,8 +156,35 @@ def _pair(value: Any) -> Any:
     return tuple(value) if isinstance(value, list) else value
 
 
+def _bare_index(value: Any, parse: Any) -> Any:
+    """An index or subindex from the configuration. Text follows the one rule of the protocol
+    crate (``protocol.parse_index``): hexadecimal with or without ``0x`` — ``"6040"`` and
+    ``"0x6040"`` are 0x6040, ``"#x6040"`` (the ESI's spelling) too. A YAML number is the
+    number YAML read (``0x6040``; unquoted bare digits are YAML's decimal: what
+    ``yaml.safe_dump`` writes for any int, so a dumped configuration reads back the same)."""
+    if isinstance(value, bool):
+        raise ValueError("expected an index, not true/false")
+    if isinstance(value, str):
+        text = value.strip()
+        if text[:2].lower() == "#x":
+            text = "0x" + text[2:]
+        return parse(text)
+    return value
+
+
+def _parse_index(value: Any) -> Any:
+    return _bare_index(value, protocol.parse_index)
+
+
+def _parse_subindex(value: Any) -> Any:
+    return _bare_index(value, protocol.parse_subindex)
+
+
 HexInt = Annotated[int, BeforeValidator(_parse_int)]
-PdoIndex = Annotated[HexInt, Field(ge=0x0001, le=0xFFFF)]
+#: An object index (0x6040), PDO index or subindex: hexadecimal with or without 0x.
+ObjectIndex = Annotated[int, BeforeValidator(_parse_index)]
+Subindex = Annotated[int, BeforeValidator(_parse_subindex)]
+PdoIndex = Annotated[ObjectIndex, Field(ge=0x0001, le=0xFFFF)]
 LinkName = Literal["packet", "xdp", "auto"]
 Identifier = Annotated[str, Field(pattern=IDENTIFIER_PATTERN, max_length=MAX_IDENTIFIER_CHARS)]
 Text = Annotated[str, Field(min_length=1, max_length=MAX_TEXT_CHARS), AfterValidator(_plain_text)]
@@ -281,8 +309,8 @@ class PdoAssign(_Model):
 
 
 class SdoInit(_Model):
-    index: HexInt = Field(ge=0x0001, le=0xFFFF)
-    subindex: HexInt = Field(default=0, ge=0, le=255)
+    index: ObjectIndex = Field(ge=0x0001, le=0xFFFF)
+    subindex: Subindex = Field(default=0, ge=0, le=255)
     value: int | float | bool | PathText
     type: Text | None = None  # uint8, int16, ... (default: the dictionary's type)
     _data: bytes = PrivateAttr(default=b"")

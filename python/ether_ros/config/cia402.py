@@ -249,8 +249,8 @@ def extra_address(obj: int | str, axis: int) -> tuple[int, int] | None:
         except ValueError:
             return None
         if parsed is None:
-            try:
-                parsed = (int(obj, 0), 0)
+            try:  # an index alone: hexadecimal with or without 0x, the one rule (protocol)
+                parsed = (protocol.parse_index(obj), 0)
             except ValueError:
                 return None
         index, subindex = parsed

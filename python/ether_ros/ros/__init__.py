@@ -10,7 +10,6 @@
 - :mod:`~ether_ros.ros.convert` — layout to and from ``ether_ros_msgs``;
 - :mod:`~ether_ros.ros.client` — a ROS 2 client of the node (console, demo, tests, benchmarks);
 - :mod:`~ether_ros.ros.rig` — simulator + node + client on a veth pair;
-- :mod:`~ether_ros.ros.demo` — the trot of thesis Table 6.1 over ROS 2.
 
 Importing this package does not import rclpy; the modules that need it do.
 """

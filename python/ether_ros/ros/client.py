@@ -102,6 +102,32 @@ class ClientError(EtherRosError):
     """The node did not answer (not running, wrong name or namespace, timeout)."""
 
 
+class Answer(tuple[bool, str]):
+    """A service's answer: unpacks as ``(success, message)`` as before, and carries the
+    ``error`` and ``code`` fields of the response (docs/ros.md, "Error codes"): the typed
+    error's class and its code as data — SDO abort code, AL status code, mailbox error code."""
+
+    error: str
+    code: int
+
+    def __new__(cls, success: bool, message: str, error: str = "", code: int = 0) -> Answer:
+        answer = super().__new__(cls, (success, message))
+        answer.error, answer.code = error, code
+        return answer
+
+    @classmethod
+    def of(cls, resp: Any) -> Answer:
+        return cls(bool(resp.success), str(resp.message), str(resp.error), int(resp.code))
+
+    @property
+    def success(self) -> bool:
+        return self[0]
+
+    @property
+    def message(self) -> str:
+        return self[1]
+
+
 # A diagnostic status level as the word every tool prints (diagnostic_msgs/DiagnosticStatus).
 LEVEL_WORDS = {
     int.from_bytes(DiagnosticStatus.OK, "little"): "OK",
@@ -396,25 +422,26 @@ class EtherRosClient:
             raise ClientError(f"service {client.srv_name} did not answer within {timeout:g} s")
         return future.result()
 
-    def command(self, command: str, timeout: float = 30.0) -> tuple[bool, str]:
+    def command(self, command: str, timeout: float = 30.0) -> Answer:
+        """(success, message); a refused state change carries the AL status code in
+        ``.code`` (``.error`` ``"AlStateRefused"``)."""
         token = 0 if command.strip().lower() == "panic" else self._token()
         req = Command.Request(command=command, lease=token)
-        resp = self._call(self._command, req, timeout)
-        return bool(resp.success), str(resp.message)
+        return Answer.of(self._call(self._command, req, timeout))
 
     def panic(self, timeout: float = 5.0) -> tuple[bool, str]:
         resp = self._call(self._panic, Trigger.Request(), timeout)
         return bool(resp.success), str(resp.message)
 
-    def write_many(self, writes: list[WriteVariable], timeout: float = 5.0) -> tuple[bool, str]:
-        """All-or-nothing: the node validates every write before applying any."""
+    def write_many(self, writes: list[WriteVariable], timeout: float = 5.0) -> Answer:
+        """All-or-nothing: the node validates every write before applying any. A refusal
+        carries the typed error's class in ``.error`` (and its code, if it has one)."""
         req = WriteVariables.Request(writes=writes, lease=self._token())
-        resp = self._call(self._writes, req, timeout)
-        return bool(resp.success), str(resp.message)
+        return Answer.of(self._call(self._writes, req, timeout))
 
     def write(
         self, slave: str | int, variable: str, value: float | str, timeout: float = 5.0
-    ) -> tuple[bool, str]:
+    ) -> Answer:
         return self.write_many([make_write(slave, variable, value)], timeout)
 
     def publish_write(self, slave: str | int, variable: str, value: float | str) -> int:
@@ -541,6 +568,8 @@ class EtherRosClient:
     def sdo_read(
         self, slave: str, index: int, subindex: int, type_name: str = "", timeout: float = 10.0
     ) -> SdoRead.Response:
+        """The response itself: ``success``, ``message``, ``data``, ``value``, and for a
+        refusal ``error``/``code`` (an SDO abort: ``"SdoAbort"`` and its abort code)."""
         req = SdoRead.Request(slave=slave, index=index, subindex=subindex, type=type_name)
         return self._call(self._sdo_read, req, timeout)
 
@@ -552,7 +581,8 @@ class EtherRosClient:
         type_name: str,
         value: str,
         timeout: float = 10.0,
-    ) -> tuple[bool, str]:
+    ) -> Answer:
+        """(success, message); an SDO abort carries its abort code in ``.code``."""
         req = SdoWrite.Request(
             slave=slave,
             index=index,
@@ -561,8 +591,7 @@ class EtherRosClient:
             value=value,
             lease=self._token(),
         )
-        resp = self._call(self._sdo_write, req, timeout)
-        return bool(resp.success), str(resp.message)
+        return Answer.of(self._call(self._sdo_write, req, timeout))
 
     def change_state(self, transition: str, timeout: float = 30.0) -> bool:
         """A lifecycle transition. While the node's lease is on, its ``change_state`` is

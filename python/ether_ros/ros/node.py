@@ -76,7 +76,7 @@ from ether_ros._native.protocol import format_address
 from ether_ros.config import types as dt
 from ether_ros.config.bus import check_node_name
 from ether_ros.errors import EtherRosError
-from ether_ros.ros import bridge, command_watchdog, diagnostics, joints, security
+from ether_ros.ros import bridge, command_watchdog, diagnostics, error_fields, joints, security
 from ether_ros.ros.convert import layout_msg
 from ether_ros.ros.follow_joint_trajectory import PERIOD_S, FollowJointTrajectoryServer
 from ether_ros.ros.layout import BusSpec, LayoutError
@@ -228,6 +228,7 @@ class EtherRosNode(LifecycleNode):
         # The last command before the node stopped feeding the watchdog (None: feeding).
         self._starved_since: float | None = None
         self._last_error = ""
+        self._last_failure: BaseException | None = None  # its error, for the answer's code
         self._mirroring = False
 
         self._declare_parameters(cfg, interface)
@@ -609,6 +610,7 @@ class EtherRosNode(LifecycleNode):
 
     def _fail(self, what: str, exc: BaseException) -> TransitionCallbackReturn:
         self._last_error = f"{what} failed: {exc}"
+        self._last_failure = exc
         self.get_logger().error(self._last_error)
         if what == "configure":
             self._release()
@@ -925,7 +927,10 @@ class EtherRosNode(LifecycleNode):
         return self._native_joints.counters() if self._native_joints is not None else {}
 
     # ------------------------------------------------------------------------ writes
-    def _write(self, requests: list[WriteVariable]) -> tuple[bool, str]:
+    def _write(
+        self, requests: list[WriteVariable], failure: list[BaseException] | None = None
+    ) -> tuple[bool, str]:
+        """Apply ``requests``; a typed error that refused them is appended to ``failure``."""
         # Refused before taking the bus lock when not active, so a write arriving during a
         # transition (which holds the lock for seconds) answers at once and never holds up a
         # panic queued behind it on the command executor.
@@ -953,6 +958,8 @@ class EtherRosNode(LifecycleNode):
                 self._variables_written = True
                 bridge.apply_writes(bus, writes)
             except EtherRosError as exc:
+                if failure is not None:
+                    failure.append(exc)
                 return False, str(exc)
         return True, bridge.describe_writes(writes)
 
@@ -973,12 +980,14 @@ class EtherRosNode(LifecycleNode):
     def _on_write_service(
         self, req: WriteVariables.Request, resp: WriteVariables.Response
     ) -> WriteVariables.Response:
+        failure: list[BaseException] = []
         try:
             self._lease.check_token(req.lease)
-            resp.success, resp.message = self._write(list(req.writes))
+            resp.success, resp.message = self._write(list(req.writes), failure)
         except LeaseRefused as exc:
             resp.success, resp.message = False, str(exc)
-        return resp
+            failure.append(exc)
+        return error_fields.fill(resp, failure[0] if failure else None)
 
     # ------------------------------------------------------------------------ joints
     def _axes_if_active(self) -> dict[str, Any]:
@@ -1234,15 +1243,19 @@ class EtherRosNode(LifecycleNode):
     # ------------------------------------------------------------------------ commands
     def _on_command(self, req: Command.Request, resp: Command.Response) -> Command.Response:
         command = req.command.strip().lower()
+        failure: BaseException | None = None
         try:
             if command != "panic":  # panic from anyone; everything else needs the lease
                 self._lease.check_token(req.lease)
+            self._last_failure = None
             resp.success, resp.message = self.run_command(command)
+            # A refused transition answers the AL status code of the slave that refused it.
+            failure = None if resp.success else self._last_failure
         except LeaseRefused as exc:
-            resp.success, resp.message = False, f"{command} refused: {exc}"
+            resp.success, resp.message, failure = False, f"{command} refused: {exc}", exc
         except Exception as exc:  # a service must always answer
-            resp.success, resp.message = False, f"{command} failed: {exc}"
-        return resp
+            resp.success, resp.message, failure = False, f"{command} failed: {exc}", exc
+        return error_fields.fill(resp, failure)
 
     def run_command(self, command: str) -> tuple[bool, str]:
         state = self.lifecycle_state()
@@ -1346,6 +1359,7 @@ class EtherRosNode(LifecycleNode):
                 resp.message = f"{value} ({t.name})"
         except (EtherRosError, ValueError, TypeError) as exc:
             resp.success, resp.message = False, str(exc)
+            error_fields.fill(resp, exc)  # an SDO abort answers its abort code
         return resp
 
     def _dictionary_type(self, slave: str, index: int, subindex: int) -> dt.DataType | None:
@@ -1368,8 +1382,10 @@ class EtherRosNode(LifecycleNode):
             resp.success, resp.message = True, f"{name} {address} = {value}"
         except LeaseRefused as exc:
             resp.success, resp.message = False, f"sdo_write refused: {exc}"
+            error_fields.fill(resp, exc)
         except (EtherRosError, ValueError, InvalidValue) as exc:
             resp.success, resp.message = False, str(exc)
+            error_fields.fill(resp, exc)  # an SDO abort answers its abort code
         return resp
 
     # ------------------------------------------------------------------------ lease

@@ -28,10 +28,10 @@ from ether_ros._native.protocol import coe
 from ether_ros.config.bus import BusConfig, SlaveConfig
 from ether_ros.config.process import ProcessLayout
 from ether_ros.errors import BusError, EtherRosError
+from ether_ros.laelaps import TROT_A_CM, TROT_B_CM, leg_outputs
 from ether_ros.netns import netns_command, thread_in_netns
 from ether_ros.sim.control import request, socket_path
 from ether_ros.sim.spec import bus_order
-from ether_ros.tools.trot_table import TROT_A_CM, TROT_B_CM, leg_outputs
 
 INIT, PREOP, SAFEOP, OP = 1, 2, 4, 8
 

@@ -20,7 +20,13 @@ from pathlib import Path
 from typing import Any
 
 from ether_ros._native.protocol import coe as coe_facts
-from ether_ros._native.protocol import esi_type_name, format_address, parse_address, reg
+from ether_ros._native.protocol import (
+    esi_type_name,
+    format_address,
+    parse_address,
+    parse_index,
+    reg,
+)
 from ether_ros.claim import InterfaceClaim, OwnerClient, describe_owner, hex_bytes
 from ether_ros.config import types as dt
 from ether_ros.config.esi import EsiDevice
@@ -54,6 +60,15 @@ def parse_int(text: str, what: str) -> int:
         return int(text.replace("_", ""), 0)
     except ValueError:
         raise InspectError(f"{what}: {text!r} is not a number (decimal or 0x hex)") from None
+
+
+def parse_register(text: str) -> int:
+    """An ESC register address (``0x0130``, ``0130``, ``130``): hexadecimal with or without
+    ``0x``, the one rule for a bare index (``protocol.parse_index``): ``130`` is 0x0130."""
+    try:
+        return parse_index(text)
+    except ValueError as exc:
+        raise InspectError(f"register address: {exc}") from None
 
 
 def parse_value(text: str, dtype: dt.DataType) -> object:

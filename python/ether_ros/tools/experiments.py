@@ -26,10 +26,10 @@ from typing import Any
 import numpy as np
 
 from ether_ros.errors import EtherRosError
+from ether_ros.laelaps import TROT_A_CM, TROT_B_CM, leg_outputs
 from ether_ros.tools.bus_source import BusSampleSource, bus_info, split_samples
 from ether_ros.tools.recording import FLAG_LATE, FLAG_LOST, Recorder, RecordingWriter
 from ether_ros.tools.trot_metrics import LegReport
-from ether_ros.tools.trot_table import TROT_A_CM, TROT_B_CM, leg_outputs
 
 
 class ExperimentError(EtherRosError):

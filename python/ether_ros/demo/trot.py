@@ -20,7 +20,7 @@ through ROS 2 only.
    steady-trot report (share of time at the PWM limit per leg and joint, toe path error) is
    printed.
 
-Run: ``python -m ether_ros.ros.demo [CONFIG] [--output DIR]`` as root (about a minute).
+Run: ``python -m ether_ros.demo.trot [CONFIG] [--output DIR]`` as root (about a minute).
 """
 
 from __future__ import annotations
@@ -342,7 +342,7 @@ def run_demo(
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m ether_ros.ros.demo", description=__doc__)
+    parser = argparse.ArgumentParser(prog="python -m ether_ros.demo.trot", description=__doc__)
     parser.add_argument("config", nargs="?", default=str(DEFAULT_CONFIG))
     parser.add_argument("--sequence", default="trot", help="sequence file or packaged name")
     parser.add_argument(

@@ -29,7 +29,7 @@ from typing import Any
 
 from sensor_msgs.msg import JointState
 
-from ether_ros.ros.demo import bus_lines
+from ether_ros.demo.trot import bus_lines
 from ether_ros.ros.joints import estimated_velocities
 from ether_ros.ros.rig import RosRig
 
