@@ -356,6 +356,34 @@ def axis_status(axis: Any) -> dict[str, Any]:
     return dict(axis.status())
 
 
+def axis_blocker(
+    st: Mapping[str, Any], mode: str = "", panic: bool = False, check_mode: bool = True
+) -> str:
+    """Why an axis with this ``Axis.status()`` cannot follow a setpoint now ("" when it can):
+    one sentence for the diagnostics, the console and the answers to commands that were not
+    executed. ``panic``: the bus is in panic (the node knows it; the axis only sees a halt);
+    ``check_mode``: a mode not reached yet counts (not while a mode change is under way)."""
+    state = str(st.get("state", ""))
+    code = int(st.get("error_code", 0) or 0) or int(st.get("last_fault_code", 0) or 0)
+    if state in ("fault", "fault_reaction_active"):
+        text = f"0x{code & 0xFFFF:04X} {protocol.emergency_text(code)}" if code else "no code"
+        return f"in fault ({text}): reset_fault, then enable"
+    if panic:
+        return "the bus is in panic: clear_panic, then enable"
+    if st.get("restart_blocked"):
+        return (
+            f"restart blocked: stopped by the watchdog, a panic, a lease lapse or a fault ({state})"
+            " and waiting for an explicit enable"
+        )
+    # A halt alone (the command watchdog's stop) is not reported: the next command ends it.
+    if state != "operation_enabled":
+        return f"not enabled ({state}): enable it first"
+    if check_mode and not st.get("mode_reached", True):
+        shown = st.get("mode_display") or st.get("mode_display_code")
+        return f"mode {mode or '?'} not reached (the drive shows {shown})"
+    return ""
+
+
 def axis_mode(axis: Any) -> str:
     return str(axis.mode)
 
