@@ -371,9 +371,13 @@ def axis_blocker(
     if panic:
         return "the bus is in panic: clear_panic, then enable"
     if st.get("restart_blocked"):
+        last = int(st.get("last_fault_code", 0) or 0)
+        fault = (
+            f"; last fault 0x{last & 0xFFFF:04X} {protocol.emergency_text(last)}" if last else ""
+        )
         return (
             f"restart blocked: stopped by the watchdog, a panic, a lease lapse or a fault ({state})"
-            " and waiting for an explicit enable"
+            f" and waiting for an explicit enable{fault}"
         )
     # A halt alone (the command watchdog's stop) is not reported: the next command ends it.
     if state != "operation_enabled":
