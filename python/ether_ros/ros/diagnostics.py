@@ -332,13 +332,17 @@ _AXIS_FLAGS = (
 
 
 def axis_statuses(
-    node_name: str, axes: Sequence[tuple[str, str, Mapping[str, Any]]], panic: bool = False
+    node_name: str,
+    axes: Sequence[tuple[str, str, Mapping[str, Any]]],
+    panic: bool = False,
+    causes: Mapping[str, str] | None = None,
 ) -> list[DiagnosticStatus]:
     """One status per axis (joint, commanded mode, ``Axis.status()``): ERROR in Fault (the
     message names the error code and its text), WARN when the axis is disabled by a stop and
     waits for an explicit enable (restart blocked, or the bus in panic), for a following error
     beyond the window, an automatic reset that gave up, or an axis at a limit; else OK with the
-    state. ``blocked`` says why the axis would not follow a setpoint ("" when it would)."""
+    state. ``blocked`` says why the axis would not follow a setpoint ("" when it would);
+    ``causes``: what stopped an axis, by joint, as the node saw it (``stopped_by``)."""
     out = []
     for joint, mode, st in axes:
         d = DiagnosticStatus()
@@ -359,13 +363,15 @@ def axis_statuses(
         values += [(k, str(int(st[k]))) for k in _AXIS_COUNTS]
         for flag in _AXIS_FLAGS:
             values.append((flag, str(bool(st.get(flag, False))).lower()))
-        blocked = bridge.axis_blocker(st, mode, panic)
+        cause = (causes or {}).get(joint, "")
+        blocked = bridge.axis_blocker(st, mode, panic, cause=cause)
         values.append(("blocked", blocked))
+        values.append(("stopped_by", cause))
         d.values = [KeyValue(key=k, value=v) for k, v in values]
         state = str(st["state"])
         if state in ("fault", "fault_reaction_active"):
             d.level, d.message = ERROR, f"{state}: {describe(code or last)}"
-        elif st.get("restart_blocked") or (panic and blocked):
+        elif st.get("restart_blocked") or (panic and blocked) or (cause and blocked):
             # Disabled by a stop and waiting for an enable: not OK, the axis will not move.
             d.level, d.message = WARN, blocked
         elif st["retries_exhausted"]:

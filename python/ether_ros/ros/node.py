@@ -405,6 +405,8 @@ class EtherRosNode(LifecycleNode):
         self._hold_lock = threading.Lock()
         self._held_mode: set[str] = set()
         self._held_blocked: frozenset[str] = frozenset()
+        # What stopped an axis it did not ask to stop, by joint (``_note_stop_cause``).
+        self._stop_cause: dict[str, str] = {}
         self._axis_watch_stop = threading.Event()
         self._axis_watcher = threading.Thread(
             target=self._axis_watch_loop, name="ether_ros-axis-watch", daemon=True
@@ -886,7 +888,11 @@ class EtherRosNode(LifecycleNode):
                 statuses.extend(diagnostics.slave_statuses(name, bus.states()))
             except Exception as exc:
                 self.get_logger().warning(f"reading slave states: {exc}")
-        statuses.extend(diagnostics.axis_statuses(name, self._axis_reports(), self._panic))
+        statuses.extend(
+            diagnostics.axis_statuses(
+                name, self._axis_reports(), self._panic, dict(self._stop_cause)
+            )
+        )
         statuses.append(security.status(name, self._security, self._lease.status()))
         self._diag_pub.publish(diagnostics.array(statuses, self.get_clock().now().to_msg()))
 
@@ -1098,16 +1104,30 @@ class EtherRosNode(LifecycleNode):
         return True, bridge.describe_joint_commands(commands)
 
     def _blocked_axes(self) -> frozenset[str]:
-        """The joints that cannot follow a setpoint now (``bridge.axis_blocker``)."""
+        """The joints that cannot follow a setpoint now (``bridge.axis_blocker``); notes what
+        stopped each axis that it did not ask to stop (``_stop_cause``)."""
         out = set()
         for name, axis in list(self._axes.items()):
             try:
                 st = bridge.axis_status(axis)
             except EtherRosError:
                 continue  # the bus stopped meanwhile
+            self._note_stop_cause(name, st)
             if bridge.axis_blocker(st, panic=self._panic, check_mode=False):
                 out.add(name)
         return frozenset(out)
+
+    def _note_stop_cause(self, name: str, st: Any) -> None:
+        """What stopped the axis, seen while it happens (a halt is the command watchdog's or a
+        panic's): the engine voids an axis's enable when the stop ends, after which its status
+        says only that it is disabled. Forgotten once it is enabled again or disabled on
+        purpose (``axis_command``)."""
+        if st["state"] == "operation_enabled" and not st.get("halted"):
+            self._stop_cause.pop(name, None)
+        elif self._panic:
+            self._stop_cause.setdefault(name, "a panic")
+        elif st.get("halted"):
+            self._stop_cause.setdefault(name, "the command watchdog")
 
     def _apply_holds(self) -> None:
         """Leave to Python the joint commands of the axes changing mode or blocked."""
@@ -1118,7 +1138,7 @@ class EtherRosNode(LifecycleNode):
 
     def _axis_watch_loop(self) -> None:
         while not self._axis_watch_stop.wait(AXIS_WATCH_PERIOD_S):
-            if not self._axes or self._native_joints is None:
+            if not self._axes:
                 continue
             try:
                 blocked = self._blocked_axes()
@@ -1136,7 +1156,13 @@ class EtherRosNode(LifecycleNode):
             # A mode not reached yet is not refused: the node holds joint commands in Python
             # while a mode changes, and they take effect once it is reached.
             st = bridge.axis_status(axis)
-            why = bridge.axis_blocker(st, bridge.axis_mode(axis), self._panic, check_mode=False)
+            why = bridge.axis_blocker(
+                st,
+                bridge.axis_mode(axis),
+                self._panic,
+                check_mode=False,
+                cause=self._stop_cause.get(axis.name, ""),
+            )
             if why:
                 raise bridge.AxisRejected(f"joint {axis.name!r} not executed: {why}", field="name")
 
@@ -1275,6 +1301,9 @@ class EtherRosNode(LifecycleNode):
                 bridge.check_mode(chosen, mode)
         except EtherRosError as exc:
             return False, str(exc), [], []
+        if command in ("disable", "enable"):  # a deliberate state: no stop to explain
+            for axis in chosen:
+                self._stop_cause.pop(axis.name, None)
         changing = command in bridge.MODE_CHANGING
         if changing:  # while the mode changes, Python checks every joint command
             self._held_mode.update(axis.name for axis in chosen)
@@ -1555,6 +1584,10 @@ class EtherRosNode(LifecycleNode):
     def _stop_motion(self, why: str) -> None:
         """The lease lapsed: stop as ``on_stop`` says (bridge.stop_motion). The running goal and
         topic trajectory end first with the cause, which their joints' state cannot tell."""
+        for name, axis in list(getattr(self, "_axes", {}).items()):
+            with contextlib.suppress(EtherRosError):
+                if bridge.axis_status(axis)["state"] == "operation_enabled":
+                    self._stop_cause[name] = "a lapse of the control lease"
         action = getattr(self, "_trajectory_action", None)
         if action is not None:
             action.end_goals("control lease lapsed")
