@@ -16,6 +16,8 @@ Requests (``op`` and its arguments) and answers:
 - ``{"op": "joint_refusal", "after": N}``: the first joint_results refusal after the Nth one seen
   → ``{"ok": bool, "message": str}``
 - ``{"op": "command", "command": C}``, ``{"op": "panic"}`` → ``{"ok", "message"}``
+- ``{"op": "set_parameter", "name": N, "value": X}`` (the standard ``set_parameters`` service
+  unless this actor holds the lease) → ``{"ok", "message"}``
 - ``{"op": "change_state", "transition": T}`` (the lifecycle's own service) → ``{"ok"}``
 - ``{"op": "axis", "command": "enable"|"disable", "joints": [...]}`` → ``{"ok", "message"}``
 - ``{"op": "set_mode", "mode": M, "joints": [...]}``,
@@ -91,6 +93,9 @@ class Actor:
             return {"count": len(c.joint_results)}
         if op == "command":
             ok, message = c.command(req["command"])
+            return {"ok": ok, "message": message}
+        if op == "set_parameter":
+            ok, message = c.set_parameter(req["name"], req["value"])
             return {"ok": ok, "message": message}
         if op == "change_state":
             # The lifecycle's own service, called as any ROS tool calls it: not through

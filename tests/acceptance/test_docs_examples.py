@@ -11,7 +11,8 @@ is ready; ``ether-ros run`` (the node) returns once it is up; both keep running 
 ends, when the whole process group gets SIGTERM (the node deactivates: safe outputs, SAFEOP).
 ``ip link ...`` lines (making the veth pair) are the test's own pair. ``rt check`` may exit 1 (a
 failed check on this host is an answer, not an error). A shell example without its own
-``ether-ros sim`` gets the test's simulator.
+``ether-ros sim`` gets the test's simulator. An example marked ``<!-- docs-expect: REGEX -->``
+must also print what matches REGEX (its result code, what it claims).
 """
 
 from __future__ import annotations
@@ -228,6 +229,11 @@ def test_example_runs(block: Block, scratches: dict[Path, Path]) -> None:
         assert proc.returncode == 0, _report(block, "failed", out, err, proc.returncode)
         text = (out + err).decode(errors="replace")
         assert "Traceback" not in text, _report(block, "printed a traceback", out, err, 0)
+        if block.expect is not None:  # what it prints is what it claims (a result code)
+            printed = out.decode(errors="replace")
+            assert re.search(block.expect, printed, re.M), _report(
+                block, f"did not print what it claims (/{block.expect}/)", out, err, 0
+            )
 
 
 def test_not_run_examples_are_listed(capsys: pytest.CaptureFixture[str]) -> None:

@@ -272,3 +272,76 @@ def test_axes_modes_sdo_joints_and_trajectories_need_the_lease() -> None:
             client.wait_for(lambda latest: abs((position(latest) or 9.0) - 0.1) < 0.02, 20)
         finally:
             other.close()
+
+
+def test_parameter_writes_need_the_lease_and_reading_stays_free(rig: RosRig, actor: Actor) -> None:
+    """Issue 24 item 5 / issue 30 item 1: the standard parameter services refuse every write
+    while the lease is on, naming the holder; the holder writes through ethercat_communicator
+    with its token; anyone reads."""
+    assert rig.client.write(LEG, "Kp100_knee", 2200)[0]  # the test's client holds the lease
+    holder = holder_name(rig)
+    before = rig.client.get_parameters(["command_timeout_ms", "ros.decoded_decimation"])
+    for name, value in (("command_timeout_ms", 1), ("ros.decoded_decimation", 100000)):
+        answer = actor("set_parameter", name=name, value=value)
+        assert not answer["ok"] and f"held by '{holder}'" in answer["message"], answer
+    assert rig.client.get_parameters(list(before)) == before
+    # The holder's own write goes through (with its token), and anyone may read the result.
+    ok, message = rig.client.set_parameter("ros.decoded_decimation", 7)
+    assert ok, message
+    assert rig.client.get_parameters(["ros.decoded_decimation"]) == {"ros.decoded_decimation": 7}
+    ok, message = rig.client.set_parameter(
+        "ros.decoded_decimation", before["ros.decoded_decimation"]
+    )
+    assert ok, message
+    # joint_states / decoded samples still flow (the node is alive and publishing).
+    seen = rig.client.latest.counts.get("inputs", 0)
+    rig.client.wait_for(lambda _l: rig.client.latest.counts.get("inputs", 0) > seen, 10)
+
+
+def _all_parameter_names(rig: RosRig) -> list[str]:
+    from rcl_interfaces.srv import ListParameters
+
+    c = rig.client
+    lister = c.node.create_client(ListParameters, f"{c.target}/list_parameters")
+    try:
+        names = list(c._call(lister, ListParameters.Request(), 10.0).result.names)
+    finally:
+        c.node.destroy_client(lister)
+    assert "diagnostics_period_ms" in names and "command_timeout_ms" in names, names
+    return names
+
+
+# Values that no parameter of the node may take (the issue's 1e13 killed the node in the timer).
+HOSTILE_VALUES: tuple[Any, ...] = (10**13, 1e13, -1, 1e308, "x" * 300, True)
+
+
+def test_a_hostile_value_for_every_parameter_is_refused_and_the_node_runs_on(
+    rig: RosRig, actor: Actor
+) -> None:
+    names = _all_parameter_names(rig)
+    before = rig.client.get_parameters(names)
+    holder = holder_name(rig)
+    assert rig.client.write(LEG, "Kp100_knee", 2300)[0]
+    for name in names:
+        for value in HOSTILE_VALUES:
+            # The holder's write is checked and refused with a reason naming the parameter.
+            ok, message = rig.client.set_parameter(name, value)
+            assert not ok and name in message, (name, value, message)
+        # A non-holder is refused, even when it writes the value the parameter has: by the
+        # lease, naming the holder (rclpy itself refuses a read-only one first).
+        value = before[name]
+        if value is None or value == []:
+            continue  # no value a client could send back as it is
+        answer = actor("set_parameter", name=name, value=value)
+        assert not answer["ok"], (name, answer)
+        assert f"held by '{holder}'" in answer["message"] or "read-only" in answer["message"], (
+            name,
+            answer,
+        )
+    assert rig.client.get_parameters(names) == before
+    assert rig.client.get_state() == "active"
+    assert rig.client.write(LEG, "Kp100_knee", 2400)[0]
+    on_wire(rig, "Kp100_knee", 2400)
+    # The diagnostics timer still runs.
+    seen = rig.client.latest.counts.get("diagnostics", 0)
+    rig.client.wait_for(lambda _l: rig.client.latest.counts.get("diagnostics", 0) > seen, 10)

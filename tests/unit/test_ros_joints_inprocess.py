@@ -295,12 +295,19 @@ def test_the_console_operates_the_axes(arm: Any) -> None:
         assert "outside the limits [-2.5, 2.5]" in lines[-1]
         assert command_seq(node) == seq
         console.line("move elbow -0.25")
-        assert lines[-1] == "sent elbow position=-0.25"
+        assert lines[-1].startswith("accepted elbow position=-0.25"), lines[-1]
         wait_position(client, "elbow", -0.25)
         console.line("set_mode elbow warp")
         assert "unknown mode 'warp'" in lines[-1]
         console.line("disable elbow")
         assert lines[-1].startswith("disable done (elbow: switch_on_disabled)")
+        # A move to an axis that cannot move is not executed, and the answer says why.
+        seq = command_seq(node)
+        console.line("move elbow 0.1")
+        assert lines[-1].startswith("error: not executed"), lines[-1]
+        assert "not enabled (switch_on_disabled)" in lines[-1], lines[-1]
+        assert "sent" not in lines[-1]
+        assert command_seq(node) == seq
         console.line("enable all")
         assert lines[-1].startswith("enable done (shoulder_pan: operation_enabled")
 

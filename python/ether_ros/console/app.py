@@ -319,14 +319,38 @@ class Console:
         return True, f"{st.message}{mine}"
 
     def _move(self, command: Move) -> tuple[bool, str]:
+        """``move``: refused at once when the axis's last reported state says it cannot move
+        (nothing is published); else published, and the answer is the node's refusal, or the
+        axis's state afterwards: never a bare "sent" for a command that moved nothing."""
+        what = f"{command.joint} {command.array}={command.value:g}"
+        blocked = self._axis_blocked(command.joint)
+        if blocked:
+            return False, f"not executed: {what}: {blocked}"
         before = len(self.client.joint_results)
         self.client.publish_joint_command([command.joint], **{command.array: [command.value]})
         try:  # the node answers refusals only
             self.client.wait_for(lambda _l: len(self.client.joint_results) > before, MOVE_ANSWER_S)
         except EtherRosError:
-            return True, f"sent {command.joint} {command.array}={command.value:g}"
+            blocked = self._axis_blocked(command.joint)
+            if blocked:
+                return False, f"not executed: {what}: {blocked}"
+            state = self.client.axis_states().get(command.joint, {}).get("state")
+            if state is None:
+                return True, f"accepted {what} (the axis's state is not reported yet)"
+            return True, f"accepted {what} ({command.joint}: {state})"
         result = self.client.joint_results[before]
-        return bool(result.success), str(result.message)
+        message = str(result.message)
+        if not result.success and not message.startswith("not executed"):
+            message = f"not executed: {message}"
+        return bool(result.success), message
+
+    def _axis_blocked(self, joint: str) -> str:
+        """Why the joint cannot move, as the node's diagnostics last said (a fresh report
+        only; "" when it can, or when nothing fresh says otherwise)."""
+        diag = self.client.latest.arrivals
+        if diag.age("diagnostics") is not None and not diag.fresh("diagnostics"):
+            return ""
+        return self.client.axis_states().get(joint, {}).get("blocked", "")
 
     def _get(self, command: Get) -> None:
         latest = self.client.latest
@@ -408,6 +432,12 @@ class Console:
             self.out("  (the node reports no slaves)")
         for slave, al in states.items():
             self.out(f"  {slave:24} {al}")
+        for joint, kv in self.client.axis_states().items():
+            # Each CiA 402 axis as it really is: a stopped axis says why it will not move.
+            line = f"  axis {joint:19} {kv.get('state', '?')} ({kv.get('mode', '?')})"
+            if kv.get("level") not in (None, "OK") or kv.get("blocked"):
+                line += f": {kv.get('message', '')}"
+            self.out(line)
         return True
 
     def _wait_report(self, after: float) -> bool:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import itertools
+import json
 import logging
 import threading
 import time
@@ -630,6 +631,12 @@ class EtherRosClient:
         }
 
     def set_parameter(self, name: str, value: Any, timeout: float = 5.0) -> tuple[bool, str]:
+        """Set one of the node's parameters: (success, reason). While the node's lease is on,
+        the standard ``set_parameters`` service refuses every write (it cannot tell who calls
+        it), so the write goes through ``ethercat_communicator`` with the lease token
+        (``set_parameter NAME VALUE``, docs/security.md)."""
+        if self._token():
+            return self.command(f"set_parameter {name} {json.dumps(value)}", timeout)
         client = self.node.create_client(SetParameters, f"{self.target}/set_parameters")
         try:
             msg = Parameter(name, value=value).to_parameter_msg()

@@ -318,12 +318,31 @@ _AXIS_NUMBERS = ("position", "velocity", "torque", "following_error", "target_po
 _AXIS_COUNTS = ("position_clamps", "velocity_clamps", "torque_clamps", "faults", "fault_resets")
 
 
+# The flags of ``Axis.status()`` each axis status reports (true/false).
+_AXIS_FLAGS = (
+    "following_error_exceeded",
+    "retries_exhausted",
+    "halted",
+    "restart_blocked",
+    "enable_wanted",
+    "mode_reached",
+    "limit_active",
+    "outside_limits",
+)
+
+
 def axis_statuses(
-    node_name: str, axes: Sequence[tuple[str, str, Mapping[str, Any]]]
+    node_name: str,
+    axes: Sequence[tuple[str, str, Mapping[str, Any]]],
+    panic: bool = False,
+    causes: Mapping[str, str] | None = None,
 ) -> list[DiagnosticStatus]:
     """One status per axis (joint, commanded mode, ``Axis.status()``): ERROR in Fault (the
-    message names the error code and its text), WARN for a following error beyond the window
-    or an automatic reset that gave up, else OK with the state."""
+    message names the error code and its text), WARN when the axis is disabled by a stop and
+    waits for an explicit enable (restart blocked, or the bus in panic), for a following error
+    beyond the window, an automatic reset that gave up, or an axis at a limit; else OK with the
+    state. ``blocked`` says why the axis would not follow a setpoint ("" when it would);
+    ``causes``: what stopped an axis, by joint, as the node saw it (``stopped_by``)."""
     out = []
     for joint, mode, st in axes:
         d = DiagnosticStatus()
@@ -342,12 +361,19 @@ def axis_statuses(
         ]
         values += [(k, f"{float(st[k]):.6g}") for k in _AXIS_NUMBERS]
         values += [(k, str(int(st[k]))) for k in _AXIS_COUNTS]
-        for flag in ("following_error_exceeded", "retries_exhausted", "halted"):
-            values.append((flag, str(bool(st[flag])).lower()))
+        for flag in _AXIS_FLAGS:
+            values.append((flag, str(bool(st.get(flag, False))).lower()))
+        cause = (causes or {}).get(joint, "")
+        blocked = bridge.axis_blocker(st, mode, panic, cause=cause)
+        values.append(("blocked", blocked))
+        values.append(("stopped_by", cause))
         d.values = [KeyValue(key=k, value=v) for k, v in values]
         state = str(st["state"])
         if state in ("fault", "fault_reaction_active"):
             d.level, d.message = ERROR, f"{state}: {describe(code or last)}"
+        elif st.get("restart_blocked") or (panic and blocked) or (cause and blocked):
+            # Disabled by a stop and waiting for an enable: not OK, the axis will not move.
+            d.level, d.message = WARN, blocked
         elif st["retries_exhausted"]:
             d.level = ERROR
             d.message = f"{state}: automatic fault reset gave up (last {describe(last)})"
@@ -356,8 +382,13 @@ def axis_statuses(
             d.message = f"{state}: following error {float(st['following_error']):.4g}"
         elif code:
             d.level, d.message = WARN, f"{state}: {describe(code)}"
+        elif st.get("limit_active") or st.get("outside_limits"):
+            where = "outside its limits" if st.get("outside_limits") else "at a limit"
+            d.level, d.message = WARN, f"{state} ({mode}): {where}, the setpoint is clamped"
         else:
             d.level, d.message = OK, f"{state} ({mode})"
+            if blocked:  # e.g. disabled on purpose: OK, but say that it will not move
+                d.message += f": {blocked}"
             if last:  # a fault the drive recovered from stays visible
                 d.message += f"; last fault {describe(last)} ({int(st['faults'])} so far)"
         out.append(d)

@@ -325,6 +325,15 @@ class NativeCommandPath:
             if axis in held:
                 joints.set_kind(i, None)
 
+    def set_held(self, axes: dict[str, Any], held: set[str] | frozenset[str]) -> None:
+        """Leave every command for the joints named in ``held`` to Python, take the others'
+        setpoint kinds from their modes; ``axes`` are all of them, in the table's order."""
+        joints = self._joints
+        if joints is None:
+            return
+        for i, (name, axis) in enumerate(axes.items()):
+            joints.set_kind(i, None if name in held else bridge.setpoint_kind(axis))
+
     def update_joints(self, axes: dict[str, Any]) -> None:
         """Take each axis's setpoint kind from its mode again (after a mode change)."""
         joints = self._joints

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import json
 import logging
 import os
 import threading
@@ -74,7 +75,7 @@ from trajectory_msgs.msg import JointTrajectory
 
 from ether_ros._native.protocol import format_address
 from ether_ros.config import types as dt
-from ether_ros.config.bus import check_node_name
+from ether_ros.config.bus import MAX_DECIMATION, MAX_ROS_PERIOD_MS, check_node_name
 from ether_ros.errors import EtherRosError
 from ether_ros.ros import bridge, command_watchdog, diagnostics, error_fields, joints, security
 from ether_ros.ros.convert import layout_msg
@@ -133,16 +134,23 @@ QOS_LATCHED = QoSProfile(
     durability=DurabilityPolicy.TRANSIENT_LOCAL,
 )
 
-# Parameters the operator may change at run time; every other ``bus.*``/``slaves.*``/``ros.*``
-# parameter mirrors the configuration file and is read-only (edit the file, then reconfigure).
-_RUNTIME_PARAMETERS = {
-    "ros.raw_decimation",
-    "ros.decoded_decimation",
-    "ros.snapshot_period_ms",
-    "command_timeout_ms",
-    "diagnostics_period_ms",
-    "diagnostics_window_ms",
+# Parameters the operator may change at run time, with their bounds (inclusive); every other
+# ``bus.*``/``slaves.*``/``ros.*``/``axes.*`` parameter mirrors the configuration file and is
+# read-only (edit the file, then reconfigure). The bounds are the configuration file's
+# (config/bus.py): a period in ns must fit the int64 rcl keeps a timer's period in. docs/ros.md
+# lists them.
+_RUNTIME_PARAMETERS: dict[str, tuple[int, int]] = {
+    "ros.raw_decimation": (1, MAX_DECIMATION),
+    "ros.decoded_decimation": (1, MAX_DECIMATION),
+    "ros.snapshot_period_ms": (0, MAX_ROS_PERIOD_MS),
+    "command_timeout_ms": (0, 60_000),
+    "diagnostics_period_ms": (1, MAX_ROS_PERIOD_MS),
+    "diagnostics_window_ms": (1, MAX_ROS_PERIOD_MS),
 }
+# ``interface`` may change at run time too: it is a string, used at the next configure.
+_INTERFACE_PARAMETER = "interface"
+# Longest network interface name Linux takes (IFNAMSIZ - 1).
+_MAX_INTERFACE_NAME = 15
 
 BusOpener = Callable[..., Any]
 
@@ -152,6 +160,10 @@ COMMAND_THREAD_NICE = -10
 # The topics that command the bus: a lease holder's publishers on these are the holder's.
 COMMAND_TOPICS = ("pdo_listener", "joint_commands", "joint_trajectory")
 # Lifecycle transitions the ``ethercat_communicator`` service runs by name (with the lease).
+#: How often the node looks for axes that cannot move, to answer their joint commands itself.
+AXIS_WATCH_PERIOD_S = 0.02
+#: ``ethercat_communicator``'s parameter write with the lease: ``set_parameter NAME VALUE``.
+SET_PARAMETER_COMMAND = "set_parameter"
 _TRANSITIONS = ("configure", "activate", "deactivate", "cleanup", "shutdown")
 
 
@@ -231,6 +243,11 @@ class EtherRosNode(LifecycleNode):
         self._last_failure: BaseException | None = None  # its error, for the answer's code
         self._mirroring = False
 
+        # Set while the holder's lease-carrying write runs (set_parameters_with_lease): the
+        # standard parameter services cannot tell who calls them, so with the lease on they
+        # refuse every write (docs/security.md).
+        self._lease_write = threading.local()
+        self._lease: Any = None
         self._declare_parameters(cfg, interface)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
@@ -389,6 +406,21 @@ class EtherRosNode(LifecycleNode):
             target=self._topic_watch_loop, name="ether_ros-traj-watch", daemon=True
         )
         self._topic_watcher.start()
+        # Joint commands for an axis that cannot move (in fault, restart blocked, disabled, the
+        # bus in panic) are left to Python, which refuses them saying why, instead of being
+        # written natively to an axis that will not follow them; a thread of its own looks at
+        # the axes every AXIS_WATCH_PERIOD_S and holds those joints in Python (as a mode change
+        # does for its joints).
+        self._hold_lock = threading.Lock()
+        self._held_mode: set[str] = set()
+        self._held_blocked: frozenset[str] = frozenset()
+        # What stopped an axis it did not ask to stop, by joint (``_note_stop_cause``).
+        self._stop_cause: dict[str, str] = {}
+        self._axis_watch_stop = threading.Event()
+        self._axis_watcher = threading.Thread(
+            target=self._axis_watch_loop, name="ether_ros-axis-watch", daemon=True
+        )
+        self._axis_watcher.start()
         self.create_service(Command, "ethercat_communicator", self._on_command)
         self.create_service(SdoRead, "sdo_read", self._on_sdo_read)
         self.create_service(SdoWrite, "sdo_write", self._on_sdo_write)
@@ -449,34 +481,41 @@ class EtherRosNode(LifecycleNode):
 
     def _update_mirror(self, cfg: Any) -> None:
         params = []
-        for name, value in config_parameters(cfg).items():
-            if self.has_parameter(name):
-                params.append(Parameter(name, value=value))
-            else:
-                self.declare_parameter(name, value, ParameterDescriptor(dynamic_typing=True))
         self._mirroring = True
         try:
+            for name, value in config_parameters(cfg).items():
+                if self.has_parameter(name):
+                    params.append(Parameter(name, value=value))
+                else:
+                    self.declare_parameter(name, value, ParameterDescriptor(dynamic_typing=True))
             self.set_parameters(params)
         finally:
             self._mirroring = False
 
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
+        """Every parameter write passes here before it takes effect (the standard parameter
+        services and ``set_parameters_with_lease`` alike): with the control lease on, only the
+        holder's lease-carrying write passes; every value is checked (type, range, whether it
+        may change at run time) so that nothing invalid reaches a timer or the engine."""
         if self._mirroring:
             return SetParametersResult(successful=True)
+        if (
+            self._lease is not None
+            and self._lease.enabled
+            and not getattr(self._lease_write, "active", False)
+        ):
+            holder = self._lease.holder()
+            return SetParametersResult(
+                successful=False,
+                reason="the control lease is on"
+                + (f" (held by '{holder}')" if holder else " (nobody holds it)")
+                + ": parameters change only through ethercat_communicator "
+                "'set_parameter NAME VALUE' with the lease token (reading stays free)",
+            )
         for p in params:
-            if p.name not in _RUNTIME_PARAMETERS and p.name != "interface":
-                return SetParametersResult(
-                    successful=False,
-                    reason=f"{p.name} mirrors the configuration file; edit the file and "
-                    "reconfigure the node",
-                )
-            if p.name == "interface":
-                continue
-            if not isinstance(p.value, int) or isinstance(p.value, bool):
-                return SetParametersResult(successful=False, reason=f"{p.name} is an integer")
-            low = 1 if p.name.endswith("decimation") or p.name.startswith("diagnostics_") else 0
-            if p.value < low:
-                return SetParametersResult(successful=False, reason=f"{p.name} must be >= {low}")
+            reason = self._check_parameter(p)
+            if reason:
+                return SetParametersResult(successful=False, reason=reason)
         for p in params:
             if p.name == "ros.raw_decimation":
                 self._rates.raw_decimation = int(p.value)
@@ -490,6 +529,59 @@ class EtherRosNode(LifecycleNode):
             elif p.name == "diagnostics_window_ms":
                 self._windows = diagnostics.Windows(int(p.value) / 1000.0)
         return SetParametersResult(successful=True)
+
+    def _check_parameter(self, p: Parameter) -> str:
+        """Why the value of ``p`` may not take effect ("" when it may)."""
+        if p.name == _INTERFACE_PARAMETER:
+            value = p.value
+            if not isinstance(value, str):
+                return f"{p.name} is a string (a network interface name, empty: bus.interface)"
+            if len(value) > _MAX_INTERFACE_NAME or any(c in value for c in "/ \t\n\0:"):
+                return (
+                    f"{p.name} '{value[:40]}' is not a network interface name "
+                    f"(at most {_MAX_INTERFACE_NAME} characters, no '/', ':' or blanks)"
+                )
+            return ""
+        bounds = _RUNTIME_PARAMETERS.get(p.name)
+        if bounds is None:
+            if self.has_parameter(p.name):
+                return (
+                    f"{p.name} mirrors the configuration file and does not change at run time; "
+                    "edit the file and reconfigure the node"
+                )
+            return f"{p.name} is not a parameter of this node"
+        if not isinstance(p.value, int) or isinstance(p.value, bool):
+            return f"{p.name} is an integer (got {type(p.value).__name__} {p.value!r:.40})"
+        low, high = bounds
+        if p.name == "command_timeout_ms" and p.value:
+            # A timeout shorter than two cycles trips between two commands sent every cycle.
+            low = max(1, -(-2 * int(self._cfg.bus.cycle_us) // 1000))
+            if p.value < low:
+                return f"{p.name} must be 0 (off) or at least {low} (two bus cycles)"
+        if not low <= p.value <= high:
+            return f"{p.name} must be within {low}..{high} (got {p.value})"
+        return ""
+
+    def set_parameters_with_lease(self, name: str, value: Any) -> tuple[bool, str]:
+        """The holder's way to change a parameter while the lease is on (the caller has checked
+        the token): the same checks as the standard services, then the value takes effect."""
+        try:
+            param = Parameter(name, value=value)
+        except (TypeError, ValueError) as exc:
+            return False, f"{name}: {exc}"
+        if not self.has_parameter(name):
+            return False, f"{name} is not a parameter of this node"
+        self._lease_write.active = True
+        try:
+            result = self.set_parameters([param])[0]
+        except Exception as exc:  # rclpy refuses a type change of a declared parameter
+            return False, f"{name}: {exc}"
+        finally:
+            self._lease_write.active = False
+        if not result.successful:
+            reason = str(result.reason)  # rclpy's own type check does not name the parameter
+            return False, reason if name in reason else f"{name}: {reason}"
+        return True, f"{name} = {value!r}"
 
     def _describe_claim(self, bus: Any) -> None:
         """Name this node in the bus's interface claim (a second master is refused naming
@@ -551,6 +643,9 @@ class EtherRosNode(LifecycleNode):
                     self._native.attach(bus, spec)
                 if self._native_joints is not None and self._axes:
                     self._native_joints.attach_joints(bus, self._axes)
+                    # The axes start disabled: their commands are Python's until enabled.
+                    self._held_blocked = self._blocked_axes()
+                    self._apply_holds()
         except EtherRosError as exc:
             self._stop_bus()
             return self._fail("activate", exc)
@@ -653,6 +748,8 @@ class EtherRosNode(LifecycleNode):
         return str(self._state_machine.current_state[1])
 
     def destroy_node(self) -> None:
+        self._axis_watch_stop.set()
+        self._axis_watcher.join(1.0)
         self._topic_watch_stop = True
         self._topic_watch_wake.set()
         self._topic_watcher.join(1.0)
@@ -801,7 +898,11 @@ class EtherRosNode(LifecycleNode):
                 statuses.extend(diagnostics.slave_statuses(name, bus.states()))
             except Exception as exc:
                 self.get_logger().warning(f"reading slave states: {exc}")
-        statuses.extend(diagnostics.axis_statuses(name, self._axis_reports()))
+        statuses.extend(
+            diagnostics.axis_statuses(
+                name, self._axis_reports(), self._panic, dict(self._stop_cause)
+            )
+        )
         statuses.append(security.status(name, self._security, self._lease.status()))
         self._diag_pub.publish(diagnostics.array(statuses, self.get_clock().now().to_msg()))
 
@@ -1012,11 +1113,75 @@ class EtherRosNode(LifecycleNode):
                     list(msg.velocity),
                     list(msg.effort),
                 )
+                self._refuse_blocked([axis for axis, _kind, _value in commands])
                 self._last_command = time.monotonic()
                 bridge.apply_joint_commands(commands)
         except EtherRosError as exc:
             return False, str(exc)
         return True, bridge.describe_joint_commands(commands)
+
+    def _blocked_axes(self) -> frozenset[str]:
+        """The joints that cannot follow a setpoint now (``bridge.axis_blocker``); notes what
+        stopped each axis that it did not ask to stop (``_stop_cause``)."""
+        out = set()
+        for name, axis in list(self._axes.items()):
+            try:
+                st = bridge.axis_status(axis)
+            except EtherRosError:
+                continue  # the bus stopped meanwhile
+            self._note_stop_cause(name, st)
+            if bridge.axis_blocker(st, panic=self._panic, check_mode=False):
+                out.add(name)
+        return frozenset(out)
+
+    def _note_stop_cause(self, name: str, st: Any) -> None:
+        """What stopped the axis, seen while it happens (a halt is the command watchdog's or a
+        panic's): the engine voids an axis's enable when the stop ends, after which its status
+        says only that it is disabled. Forgotten once it is enabled again or disabled on
+        purpose (``axis_command``)."""
+        if st["state"] == "operation_enabled" and not st.get("halted"):
+            self._stop_cause.pop(name, None)
+        elif self._panic:
+            self._stop_cause.setdefault(name, "a panic")
+        elif st.get("halted"):
+            self._stop_cause.setdefault(name, "the command watchdog")
+
+    def _apply_holds(self) -> None:
+        """Leave to Python the joint commands of the axes changing mode or blocked."""
+        with self._hold_lock:
+            native, axes = self._native_joints, self._axes
+            if native is not None and axes:
+                native.set_held(axes, self._held_mode | self._held_blocked)
+
+    def _axis_watch_loop(self) -> None:
+        while not self._axis_watch_stop.wait(AXIS_WATCH_PERIOD_S):
+            if not self._axes:
+                continue
+            try:
+                blocked = self._blocked_axes()
+                if blocked != self._held_blocked:
+                    self._held_blocked = blocked
+                    self._apply_holds()
+            except Exception as exc:  # the watch must outlive a bad round (a closing bus)
+                self.get_logger().warning(f"axis watch: {exc}", throttle_duration_sec=5.0)
+
+    def _refuse_blocked(self, axes: list[Any]) -> None:
+        """AxisRejected, saying why, when one of ``axes`` cannot follow a setpoint now (in
+        fault, restart blocked, disabled, the bus in panic): the command
+        is not executed rather than written to an axis that will not move."""
+        for axis in axes:
+            # A mode not reached yet is not refused: the node holds joint commands in Python
+            # while a mode changes, and they take effect once it is reached.
+            st = bridge.axis_status(axis)
+            why = bridge.axis_blocker(
+                st,
+                bridge.axis_mode(axis),
+                self._panic,
+                check_mode=False,
+                cause=self._stop_cause.get(axis.name, ""),
+            )
+            if why:
+                raise bridge.AxisRejected(f"joint {axis.name!r} not executed: {why}", field="name")
 
     def _on_joint_commands(self, msg: JointState, publisher: bytes | None = None) -> None:
         try:
@@ -1153,9 +1318,13 @@ class EtherRosNode(LifecycleNode):
                 bridge.check_mode(chosen, mode)
         except EtherRosError as exc:
             return False, str(exc), [], []
-        native = self._native_joints if command in bridge.MODE_CHANGING else None
-        if native is not None:  # while the mode changes, Python checks every joint command
-            native.hold_joints(self._axes, chosen)
+        if command in ("disable", "enable"):  # a deliberate state: no stop to explain
+            for axis in chosen:
+                self._stop_cause.pop(axis.name, None)
+        changing = command in bridge.MODE_CHANGING
+        if changing:  # while the mode changes, Python checks every joint command
+            self._held_mode.update(axis.name for axis in chosen)
+            self._apply_holds()
         errors = []
         try:
             for axis in chosen:
@@ -1164,8 +1333,11 @@ class EtherRosNode(LifecycleNode):
                 except EtherRosError as exc:
                     errors.append(str(exc))
         finally:
-            if native is not None:
-                native.update_joints(self._axes)
+            if changing:
+                self._held_mode.difference_update(axis.name for axis in chosen)
+            # After an enable, reset_fault or a mode change, the axes' blockers are seen again.
+            self._held_blocked = self._blocked_axes()
+            self._apply_holds()
         states = []
         for axis in chosen:
             try:
@@ -1248,7 +1420,12 @@ class EtherRosNode(LifecycleNode):
             if command != "panic":  # panic from anyone; everything else needs the lease
                 self._lease.check_token(req.lease)
             self._last_failure = None
-            resp.success, resp.message = self.run_command(command)
+            if command.startswith(SET_PARAMETER_COMMAND + " "):
+                # The name and value keep their case (an interface name may have capitals).
+                command = SET_PARAMETER_COMMAND
+                resp.success, resp.message = self._set_parameter_command(req.command)
+            else:
+                resp.success, resp.message = self.run_command(command)
             # A refused transition answers the AL status code of the slave that refused it.
             failure = None if resp.success else self._last_failure
         except LeaseRefused as exc:
@@ -1256,6 +1433,24 @@ class EtherRosNode(LifecycleNode):
         except Exception as exc:  # a service must always answer
             resp.success, resp.message, failure = False, f"{command} failed: {exc}", exc
         return error_fields.fill(resp, failure)
+
+    def _set_parameter_command(self, command: str) -> tuple[bool, str]:
+        """``set_parameter NAME VALUE`` (VALUE in JSON: 10, 2.5, true, "eth0"): the holder's
+        parameter write while the lease is on (the token is checked by the caller)."""
+        parts = command.strip().split(None, 2)
+        if len(parts) != 3:
+            return False, f"usage: {SET_PARAMETER_COMMAND} NAME VALUE (VALUE in JSON)"
+        _, name, text = parts
+        try:
+            value = json.loads(text)
+        except ValueError:
+            return False, f'{name}: the value {text[:40]!r} is not JSON (10, 2.5, true, "eth0")'
+        if isinstance(value, list | dict) or value is None:
+            return False, f"{name}: the value must be a number, a boolean or a string"
+        ok, message = self.set_parameters_with_lease(name, value)
+        if ok:
+            self.get_logger().info(f"parameter {message} (by the lease holder)")
+        return ok, message
 
     def run_command(self, command: str) -> tuple[bool, str]:
         state = self.lifecycle_state()
@@ -1289,7 +1484,7 @@ class EtherRosNode(LifecycleNode):
             return True, f"{command}: now {self.lifecycle_state()}"
         return False, (
             f"unknown command '{command}' (start, stop, restart, panic, clear_panic, "
-            f"reset_watchdog, {', '.join(_TRANSITIONS)})"
+            f"reset_watchdog, {', '.join(_TRANSITIONS)}, {SET_PARAMETER_COMMAND} NAME VALUE)"
         )
 
     def _transition(self, name: str) -> bool:
@@ -1413,6 +1608,10 @@ class EtherRosNode(LifecycleNode):
     def _stop_motion(self, why: str) -> None:
         """The lease lapsed: stop as ``on_stop`` says (bridge.stop_motion). The running goal and
         topic trajectory end first with the cause, which their joints' state cannot tell."""
+        for name, axis in list(getattr(self, "_axes", {}).items()):
+            with contextlib.suppress(EtherRosError):
+                if bridge.axis_status(axis)["state"] == "operation_enabled":
+                    self._stop_cause[name] = "a lapse of the control lease"
         action = getattr(self, "_trajectory_action", None)
         if action is not None:
             action.end_goals("control lease lapsed")

@@ -9,6 +9,10 @@ HTML comments on the lines right before it say how the docs test treats it:
   file with ``esi=PATH device=TYPE count=N``); default ``config/laelaps.yaml``.
 - ``<!-- docs-test: continues -->``: a Python block that goes on from the file's previous
   Python block (that one runs first, in the same interpreter).
+- ``<!-- docs-expect: REGEX -->``: what the example must print for its claim to hold (a
+  result code, a state): the test fails unless its standard output matches ``REGEX``
+  (``re.search``, multi-line). An example that exits non-zero or prints a traceback fails
+  anyway; this is for an example whose success shows in what it prints.
 
 Interface names are substituted: the master's side of the docs (``veth0``, ``ecat0``, ``eth1``,
 ``enp5s0``) becomes the test's master end of a veth pair, the simulator's side (``veth1``,
@@ -32,6 +36,7 @@ DOC_CPU = 3
 _FENCE = re.compile(r"^(`{3,})\s*([\w+-]*)")
 _NOT_RUN = re.compile(r"<!--\s*not-run:\s*(.+?)\s*-->")
 _DIRECTIVE = re.compile(r"<!--\s*docs-test:\s*(.+?)\s*-->")
+_EXPECT = re.compile(r"<!--\s*docs-expect:\s*(.+?)\s*-->")
 
 
 @dataclass
@@ -44,6 +49,7 @@ class Block:
     text: str
     not_run: str | None = None
     options: dict[str, str] = field(default_factory=dict)
+    expect: str | None = None  # a regex its standard output must match
 
     @property
     def where(self) -> str:
@@ -78,7 +84,10 @@ def blocks(path: Path) -> list[Block]:
             text = lines[j]
             if (m := _NOT_RUN.search(text)) is not None:
                 block.not_run = m.group(1)
-            if (m := _DIRECTIVE.search(text)) is not None:
+            if (m := _EXPECT.search(text)) is not None:
+                re.compile(m.group(1))  # a bad regex fails at collection, naming the block
+                block.expect = m.group(1)
+            elif (m := _DIRECTIVE.search(text)) is not None:
                 for word in m.group(1).split():
                     key, _, value = word.partition("=")
                     block.options[key] = value

@@ -55,6 +55,21 @@ class AxisRow:
     # The axis's ``extras:`` in SI (``Axis.extras`` / the node's ``joint_extras``), in
     # configuration order; empty when it has none.
     extras: dict[str, float] = field(default_factory=dict)
+    # Why it would not follow a setpoint (restart blocked, disabled, in fault, panic), or that
+    # it is at a limit: "" when neither (``axis_note``).
+    note: str = ""
+
+
+def axis_note(blocked: str, limit_active: bool, outside_limits: bool) -> str:
+    """What ``top`` says after an axis's error: why it cannot move, else whether a limit
+    clamps its setpoint."""
+    if blocked:
+        return f"NOT MOVING: {blocked}"
+    if outside_limits:
+        return "outside its limits"
+    if limit_active:
+        return "at a limit"
+    return ""
 
 
 @dataclass
@@ -170,7 +185,8 @@ def axes_text(s: LiveSnapshot) -> str:
         return ""
     lines = [f"{'joint':<16} {'state':<24} {'mode':<5} {'position':>10}  error"]
     for a in s.axes:
-        lines.append(f"{a.joint:<16} {a.state:<24} {a.mode:<5} {a.position:10.4f}  {a.error}")
+        error = "  ".join(x for x in (a.error, a.note) if x)
+        lines.append(f"{a.joint:<16} {a.state:<24} {a.mode:<5} {a.position:10.4f}  {error}")
         if a.extras:
             lines.append(f"{'':<16} {extras_text(a.extras)}")
     return "\n".join(lines)
@@ -469,11 +485,23 @@ def axis_row(
 ) -> AxisRow:
     """A row from an ``Axis.status()`` and ``Axis.extras`` (a standalone bus)."""
     from ether_ros._native.protocol import emergency_text
+    from ether_ros.ros.bridge import axis_blocker
 
     code = int(status["error_code"]) or int(status["last_fault_code"])
     text = f"0x{code:04X} {emergency_text(code)}" if code else ""
+    note = axis_note(
+        axis_blocker(status, mode),
+        bool(status.get("limit_active")),
+        bool(status.get("outside_limits")),
+    )
     return AxisRow(
-        joint, str(status["state"]), mode, float(status["position"]), text, dict(extras or {})
+        joint,
+        str(status["state"]),
+        mode,
+        float(status["position"]),
+        text,
+        dict(extras or {}),
+        note,
     )
 
 
@@ -491,7 +519,8 @@ def snapshot_from_diagnostics(
     late_frames, wkc_errors, panic, <h>_p50_ns/_p99_ns/_max_ns for the loop timing,
     dc_sync_error_max_ns). ``slaves``: slave name -> (message, key/values of its status:
     position, al_state, al_error, al_status_code). ``axes``: joint -> key/values of its
-    "axis" status (state, mode, position, error_code/_text, last_fault_code/_text).
+    "axis" status (state, mode, position, error_code/_text, last_fault_code/_text, blocked,
+    limit_active, outside_limits).
     ``groups``: group name -> key/values of its "<node>: group <name>" status. The node sends
     quantiles, not every cycle, so the timing is shown as p50/p99/max.
     """
@@ -539,6 +568,11 @@ def snapshot_from_diagnostics(
                 joint_position,
                 shown,
                 dict((extras or {}).get(joint, {})),
+                axis_note(
+                    kv.get("blocked", ""),
+                    kv.get("limit_active") == "true",
+                    kv.get("outside_limits") == "true",
+                ),
             )
         )
     return LiveSnapshot(

@@ -1,0 +1,108 @@
+"""The truth about each axis (issue 24, item 4), on config/arm6.yaml (lease on, ``restart:
+manual``): the simulator and the node in their own processes on a veth pair, the test's own
+client (the lease holder), the operator console in this process on that client.
+
+An axis stopped by the command watchdog reports ``restart_blocked`` in its diagnostic status
+(WARN, with why it will not move) while the stop lasts and "disabled by the command watchdog"
+after it, ``top`` shows it, and a joint command or a console ``move`` to it answers that it was
+not executed and why; after an explicit enable it moves again.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from ether_ros.console.app import Console, run_lines
+from ether_ros.ros.rig import RosRig
+from ether_ros.tools.live import axes_text, snapshot_from_diagnostics
+
+pytestmark = [pytest.mark.netns, pytest.mark.ros, pytest.mark.slow]
+
+REPO = Path(__file__).resolve().parents[2]
+JOINT = "wrist_3"
+
+
+@pytest.fixture(scope="module")
+def rig(veth_allowed: bool) -> Iterator[RosRig]:
+    if not veth_allowed:
+        pytest.fail("the ROS acceptance tests need root (veth pairs)")
+    with RosRig(REPO / "config" / "arm6.yaml", netns=True) as rig:
+        assert rig.client.wait_for_node() == "active"
+        ok, message, _ = rig.client.axis_command("enable")
+        assert ok, message
+        yield rig
+
+
+def refusal(c: Any, publish: Callable[[], None]) -> str:
+    seen = len(c.joint_results)
+    publish()
+    result = c.wait_for(lambda _l: len(c.joint_results) > seen and c.joint_results[seen], 10)
+    assert not result.success, result
+    return str(result.message)
+
+
+def console_says(c: Any, *lines: str) -> str:
+    printed: list[str] = []
+    with Console(c, out=printed.append) as con:
+        for line in lines:
+            run_lines(con, [line])
+    return "\n".join(printed)
+
+
+def test_an_axis_stopped_by_the_watchdog_says_so_and_refuses_commands(rig: RosRig) -> None:
+    c = rig.client
+    ok, message = c.set_parameter("diagnostics_period_ms", 200)
+    assert ok, message
+    ok, message = c.set_parameter("command_timeout_ms", 300)
+    assert ok, message
+    try:
+        # A velocity command and then silence: the watchdog stops the axis, and it waits for
+        # an explicit enable (restart: manual) while the stop lasts.
+        ok, message, _ = c.set_mode("csv", [JOINT])
+        assert ok, message
+        c.publish_joint_command([JOINT], velocity=[0.1])
+        c.wait_for(lambda _l: c.axis_states().get(JOINT, {}).get("restart_blocked") == "true", 15)
+        st = c.axis_states()[JOINT]
+        assert st["state"] != "operation_enabled", st
+        assert st["level"] == "WARN" and "restart blocked" in st["message"], st
+        assert "restart blocked: stopped by the command watchdog" in st["blocked"], st
+        assert st["stopped_by"] == "the command watchdog", st
+
+        # top shows it (from the same diagnostics).
+        snap = snapshot_from_diagnostics({}, {}, axes=c.axis_states())
+        assert "NOT MOVING: restart blocked" in axes_text(snap)
+
+        # A joint command to it is not executed, and the answer says why.
+        why = refusal(c, lambda: c.publish_joint_command([JOINT], velocity=[0.2]))
+        assert "not executed" in why and "restart blocked" in why, why
+        # The console's move says the same (never "sent"); its states screen shows the axis.
+        text = console_says(c, f"move {JOINT} 0.2", "states")
+        assert "not executed" in text and "restart blocked" in text, text
+        assert "sent" not in text, text
+        assert f"axis {JOINT}" in text, text
+    finally:
+        assert c.set_parameter("command_timeout_ms", 0)[0]
+
+    # Once the stop is over the axis is still disabled (restart blocked, or its enable voided
+    # by the engine at the next command), and still says by what.
+    c.wait_for(lambda _l: c.axis_states().get(JOINT, {}).get("halted") == "false", 15)
+    st = c.axis_states()[JOINT]
+    assert "by the command watchdog" in st["blocked"], st
+    assert st["level"] == "WARN", st
+    why = refusal(c, lambda: c.publish_joint_command([JOINT], velocity=[0.2]))
+    assert "not executed" in why and "by the command watchdog" in why, why
+    text = console_says(c, f"move {JOINT} 0.2")
+    assert "not executed" in text and "by the command watchdog" in text, text
+
+    # After an explicit enable it follows commands again, and says so.
+    ok, message, _ = c.axis_command("enable")
+    assert ok, message
+    c.wait_for(lambda _l: c.axis_states().get(JOINT, {}).get("blocked") == "", 10)
+    text = console_says(c, f"move {JOINT} 0.0")
+    assert text.startswith("accepted"), text
+    ok, message, _ = c.set_mode("csp", [JOINT])
+    assert ok, message
