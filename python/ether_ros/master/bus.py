@@ -9,8 +9,9 @@ data by variable name, and supervise it.
 
 Threads: the engine's real-time thread runs the cyclic frame; ``Bus`` methods run in the
 caller's thread; a supervisor thread (plain Python) watches the slaves during OP. Everything
-that talks to the wire acyclically holds ``_acyclic`` so the supervisor and API calls never
-interleave mailbox exchanges with each other.
+that talks to the wire acyclically queues its datagrams to the bus's acyclic worker
+(``worker.py``), which also owns every slave's mailbox; bring-up and recovery run each slave's
+state machine (``slave_fsm.py``).
 """
 
 from __future__ import annotations
@@ -39,9 +40,8 @@ from ether_ros.config.process import (
 )
 from ether_ros.errors import BusError, ConfigError, EtherRosError, LinkError
 from ether_ros.master import axis as axis_mod
-from ether_ros.master import bringup, workspace
+from ether_ros.master import bringup, slave_fsm, workspace
 from ether_ros.master.al import AlState, AlStateMachine, AlStatus, al_code_text
-from ether_ros.master.datagrams import DatagramService
 from ether_ros.master.dc import EPOCH_2000_S, DcSlave, DistributedClocks
 from ether_ros.master.events import BusEvent
 from ether_ros.master.groups import GroupStats, group_stats
@@ -65,9 +65,10 @@ from ether_ros.master.scan import (
     scan,
 )
 from ether_ros.master.service import serve_bus
-from ether_ros.master.shared_frames import run_in_parallel
+from ether_ros.master.slave_fsm import Hooks, outputs_after
 from ether_ros.master.slave import Slave
 from ether_ros.master.supervisor import Supervisor
+from ether_ros.master.worker import AcyclicWorker
 from ether_ros.topology import Link, line
 
 log = logging.getLogger(__name__)
@@ -114,7 +115,9 @@ class Bus:
     def __init__(self, config: Any, engine: Any, drift_frames: int | None = None) -> None:
         self.config = config
         self.engine = engine
-        self.dg = DatagramService(engine)
+        # The one owner of the acyclic datagrams and the slaves' mailboxes (worker.py).
+        self.worker = AcyclicWorker(engine)
+        self.dg = self.worker.service()
         self.al = AlStateMachine(self.dg)
         self.slaves: list[Slave] = []
         # Where each slave hangs (by position), as found on the wire.
@@ -358,35 +361,42 @@ class Bus:
         self.axis_trajectory_starts.clear()
         with self._acyclic:
             self._reset_and_verify()
-            refs = [s.ref for s in self.slaves]
-            self.al.transition(refs, AlState.INIT)
-            run_in_parallel(self.dg, self.slaves, bringup.setup_mailbox)
-            self.al.transition(refs, AlState.PREOP)
-            bringup.configure_all_preop(self.dg, self.slaves)
-            dc_slaves = [s.dc for s in self.slaves if s.dc is not None]
             sync0_start = 0
-            if self.dc_reference is not None and self.dc_reference.dc is not None:
+
+            def bus_dc() -> None:
+                # Delays are measured on the whole tree, so this runs between the machines'
+                # phases, for every DC slave at once.
+                nonlocal sync0_start
+                if self.dc_reference is None or self.dc_reference.dc is None:
+                    return
                 ref = self.dc_reference.dc
+                dc_slaves = [s.dc for s in self.slaves if s.dc is not None]
                 self.dc.measure(dc_slaves, self.tree)
                 self.dc.compensate_drift(ref)
                 sync0_start = self.dc.activate_sync0(
                     dc_slaves, self.cycle_ns, self._sync0_shift_ns, ref
                 )
-            self.al.transition(refs, AlState.SAFEOP)
-            bringup.configure_all_safeop(self.dg, self.slaves)
-            # The cyclic frame starts with the safe outputs; writes before start are dropped.
-            self._outputs = bytearray(self._safe)
-            self.plan = self._build_plan()
-            self.engine.start_cyclic(self.plan)
-            self._running = True
-            try:
+
+            def start_cyclic() -> None:
+                # The cyclic frame starts with the safe outputs; writes before start are dropped.
+                self._outputs = bytearray(self._safe)
+                self.plan = self._build_plan()
+                self.engine.start_cyclic(self.plan)
+                self._running = True
+
+            def outputs_valid(_s: Slave) -> None:
                 # Slaves check for valid outputs (and running SYNC0) before they accept OP.
                 time.sleep(max(5 * self.cycle_ns / 1e9, 0.01))
                 while sync0_start and self.master_time() < sync0_start + 2 * self.cycle_ns:
                     time.sleep(0.005)
-                self.al.transition(refs, AlState.OP)
+
+            try:
+                slave_fsm.bring_up(
+                    self.worker, self.slaves, Hooks(outputs=outputs_valid), bus_dc, start_cyclic
+                )
             except BaseException:
-                self._shutdown_cyclic()
+                if self._running:
+                    self._shutdown_cyclic()
                 raise
         self.supervisor = Supervisor(self)
         self.supervisor.start()
@@ -863,15 +873,14 @@ class Bus:
 
     # ---------------------------------------------------------------------------- acyclic
     def acyclic(self) -> threading.RLock:
-        """The lock every acyclic exchange holds (bring-up, supervision, SDO and register
-        access from the API, the ROS node and the tools through the claim), so that two of
-        them never interleave their datagrams or a slave's mailbox messages."""
+        """The lock of whole-bus work (bring-up, stop). Exchanges with one slave do not need
+        it: the acyclic worker queues every datagram, and each slave's mailbox has its own
+        owner and lock (``worker.py``)."""
         return self._acyclic
 
     def states(self) -> list[SlaveState]:
         """Each slave's AL state and status code (read now, over the acyclic path)."""
-        with self._acyclic:
-            statuses = self.al.read([s.ref for s in self.slaves])
+        statuses = self.al.read([s.ref for s in self.slaves])
         return [_slave_state(s, st) for s, st in zip(self.slaves, statuses, strict=True)]
 
     def sdo_read(
@@ -882,8 +891,7 @@ class Bus:
         s = self.slave(slave)
         if s.sdo is None:
             raise BusError(f"{s}: has no CoE mailbox (start the bus first)")
-        with self._acyclic:
-            data: bytes = s.sdo.upload(index, subindex)
+        data: bytes = s.sdo.upload(index, subindex)
         t, bits = self._sdo_type(s, index, subindex, dtype)
         if t is None:
             return data
@@ -898,8 +906,7 @@ class Bus:
         if s.sdo is None:
             raise BusError(f"{s}: has no CoE mailbox (start the bus first)")
         data = bringup.encode_sdo_value(s, index, subindex, value, dtype)
-        with self._acyclic:
-            s.sdo.download(index, subindex, data)
+        s.sdo.download(index, subindex, data)
 
     @staticmethod
     def _sdo_type(
@@ -931,67 +938,30 @@ class Bus:
                 log.exception("bus event listener failed")
 
     def recover_slave(self, s: Slave) -> None:
-        """Bring one slave back to OP after it dropped out (called by the supervisor). Its
-        outputs start again from their safe values: what was commanded before it dropped out
-        is not resumed by the recovery (a new command for it is)."""
-        with self._acyclic:
-            # First, so the cyclic frames carry the safe values for many cycles before the
-            # slave reaches SAFEOP and OP (an ESC keeps the last output buffer it received).
-            self.reset_slave_outputs(s)
-            status = self.al.read([s.ref])[0]
-            if not status.answered:
-                self._readdress(s)
-                status = self.al.read([s.ref])[0]
-                if not status.answered:
-                    raise BusError(f"{s}: does not answer")
-            if status.error:
-                self.al.acknowledge(s.ref, status)
-            self.al.transition([s.ref], AlState.INIT)
-            bringup.setup_mailbox(self.dg, s)
-            self.al.transition([s.ref], AlState.PREOP)
-            bringup.configure_preop(self.dg, s)
-            if s.dc is not None and self.dc_reference is not None and self.dc_reference.dc:
-                ref = self.dc_reference.dc
-                # Re-sync from a DC slave that kept running: the reference, or (when the
-                # reference itself was reset) the next healthy one, else the master's clock.
-                source = ref if s.dc is not ref else None
-                if source is None:
-                    source = next(
-                        (
-                            o.dc
-                            for o in self.slaves
-                            if o.dc is not None and o is not s and not o.lost
-                        ),
-                        None,
-                    )
-                self.dc.resync_slave(source, s.dc)
-                self.dc.activate_sync0([s.dc], self.cycle_ns, self._sync0_shift_ns, ref)
-            self.al.transition([s.ref], AlState.SAFEOP)
-            bringup.configure_safeop(self.dg, s)
-            time.sleep(max(3 * self.cycle_ns / 1e9, 0.005))
-            self.al.transition([s.ref], AlState.OP)
-
-    def _readdress(self, s: Slave) -> None:
-        """A slave that lost its station address (power cycle) gets it again by position —
-        only if the slave now at that position has no other address: on a tree, a cable pulled
-        on one branch moves the slaves of later branches up to lower positions."""
-        from ether_ros.master.scan import count_slaves, station_address
-
-        count = count_slaves(self.dg)
-        if count <= s.position:
-            raise BusError(f"{s}: not on the bus ({count} slaves answer)")
-        data, wkc = self.dg.aprd(s.position, reg.STATION_ADDRESS, 2)
-        current = int.from_bytes(data, "little") if wkc == 1 else 0
-        if current not in (0, s.station):
-            raise BusError(
-                f"{s}: position {s.position} now holds station 0x{current:04X}: the slave is"
-                " not where it was (a branch before it is cut off?)"
-            )
-        wkc = self.dg.apwr(
-            s.position, reg.STATION_ADDRESS, station_address(s.position).to_bytes(2, "little")
+        """Bring one slave back to OP after it dropped out (requested by the supervisor), through
+        the same state machine as bring-up (``slave_fsm.recover``), while the others keep
+        cycling. Its outputs start again from their safe values: what was commanded before it
+        dropped out is not resumed by the recovery (a new command for it is)."""
+        hooks = Hooks(
+            outputs=outputs_after(3, self.cycle_ns, 0.005),
+            dc=self._resync_dc,
+            reset_outputs=self.reset_slave_outputs,
         )
-        if wkc != 1:
-            raise BusError(f"{s}: re-assigning its station address failed")
+        slave_fsm.recover(self.worker, s, hooks)
+
+    def _resync_dc(self, s: Slave) -> None:
+        """Re-sync a recovered slave's clock from a DC slave that kept running: the reference,
+        or (when the reference itself was reset) the next healthy one, else the master's."""
+        if s.dc is None or self.dc_reference is None or self.dc_reference.dc is None:
+            return
+        ref = self.dc_reference.dc
+        source = ref if s.dc is not ref else None
+        if source is None:
+            source = next(
+                (o.dc for o in self.slaves if o.dc is not None and o is not s and not o.lost), None
+            )
+        self.dc.resync_slave(source, s.dc)
+        self.dc.activate_sync0([s.dc], self.cycle_ns, self._sync0_shift_ns, ref)
 
 
 def output_bit_offset(s: Slave, var: ProcessVariable) -> int:
