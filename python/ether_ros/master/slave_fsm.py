@@ -90,6 +90,7 @@ class SlaveStepError(BusError):
         self.code = int(getattr(cause, "code", 0) or (status.code if status else 0) or 0)
         self.cause = cause
         text = cause.reason if isinstance(cause, BusError) and cause.slave == slave else str(cause)
+        text = text.removeprefix(f"{slave}: ").removeprefix(f"{slave} ")
         shown = status.describe() if status is not None else "unknown"
         super().__init__(
             f"{text} [step {step.name}: {step.what}, timeout {step.timeout_s:g} s; AL status "
