@@ -100,7 +100,7 @@ class Supervisor:
         self._last_failure: dict[str, str] = {}
         # Recoveries under way (slave name → its thread and, once done, its error or None).
         self.recover_in_threads = recover_in_threads
-        self._recovering: dict[str, tuple[threading.Thread, list[BaseException | None]]] = {}
+        self._recovering: dict[str, tuple[threading.Thread, list[Any]]] = {}
         self.link_lost = False
         # Broken cables on branches: position of the first silent slave → (it, the report).
         self.cut_branches: dict[int, tuple[Slave, str]] = {}
@@ -259,30 +259,35 @@ class Supervisor:
                 self._poll_emergencies_of(s)
 
     def _poll_emergencies_of(self, s: Slave) -> None:
+        for em in self._read_emergencies(s):
+            self._emit("emergency", s, em.text)
+
+    def _read_emergencies(self, s: Slave) -> list[Any]:
         if s.sdo is None:
-            return
+            return []
         try:
-            emergencies = s.sdo.poll_emergencies()
+            return list(s.sdo.poll_emergencies())
         except EtherRosError as exc:
             log.debug("%s: polling emergencies failed: %s", s, exc)
-            return
-        for em in emergencies:
-            self._emit("emergency", s, em.text)
+            return []
 
     def _try_recover(self, s: Slave) -> None:
         """Request the slave's recovery: its machine runs in a thread of its own (or here,
         without ``recover_in_threads``); the result is taken by ``_collect_recoveries``."""
-        result: list[BaseException | None] = [None]
+        result: list[Any] = [None, []]
 
         def run() -> None:
             try:
                 self.bus.recover_slave(s)
             except BaseException as exc:  # handed to the supervisor's round
                 result[0] = exc
+                # A refusal usually comes with an emergency; read it now, before the next
+                # attempt's INIT empties the mailbox (and before a later one arrives).
+                result[1] = self._read_emergencies(s)
 
         if not self.recover_in_threads:
             run()
-            self._recovery_done(s, result[0])
+            self._recovery_done(s, result[0], result[1])
             return
         thread = threading.Thread(target=run, name=f"ether_ros-recover-{s.position}", daemon=True)
         self._recovering[s.name] = (thread, result)
@@ -294,9 +299,11 @@ class Supervisor:
             if thread.is_alive():
                 continue
             del self._recovering[name]
-            self._recovery_done(by_name[name], result[0])
+            self._recovery_done(by_name[name], result[0], result[1])
 
-    def _recovery_done(self, s: Slave, error: BaseException | None) -> None:
+    def _recovery_done(
+        self, s: Slave, error: BaseException | None, emergencies: list[Any]
+    ) -> None:
         if error is not None and not isinstance(error, EtherRosError):
             log.error("%s: recovery failed", s, exc_info=error)
             error = BusError(f"recovery failed: {error}", slave=str(s))
@@ -310,9 +317,8 @@ class Supervisor:
             if self._last_failure.get(s.name) != text:
                 self._last_failure[s.name] = text
                 self._emit("recovery_failed", s, f"{s}: recovery failed: {text}")
-            # A refusal usually comes with an emergency; read it before the next attempt's
-            # INIT empties the mailbox.
-            self._poll_emergencies_of(s)
+            for em in emergencies:
+                self._emit("emergency", s, em.text)
             return
         self._recovered(s, "recovered to OP")
 
