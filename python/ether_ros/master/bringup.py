@@ -244,3 +244,40 @@ def _read_list(slave: Slave, index: int, width: int) -> list[int] | None:
 def write_pdo_assignment(slave: Slave) -> None:
     """Compatibility name of :func:`configure_pdos`."""
     configure_pdos(slave)
+
+
+def sdo_type(
+    slave: Slave, index: int, subindex: int, type_name: str | None
+) -> tuple[dt.DataType | None, int]:
+    """The type and bit length of an object of ``slave``: by ``type_name``, else the ESI
+    dictionary's (None: unknown)."""
+    if type_name:
+        t = dt.config_type(type_name)
+        if t is None:
+            raise BusError(f"unknown data type {type_name!r}")
+        return t, t.bit_length
+    if slave.device is not None:
+        e = slave.device.od_entry(index, subindex)
+        if e is not None:
+            return dt.BY_CODE.get(e.data_type), e.bit_length
+    return None, 0
+
+
+def sdo_read(slave: Slave, index: int, subindex: int, type_name: str | None) -> object:
+    """Upload an object, typed by ``type_name`` or the ESI dictionary (raw bytes when neither
+    knows the type), through the slave's mailbox owner."""
+    if slave.sdo is None:
+        raise BusError(f"{slave}: has no CoE mailbox (start the bus first)")
+    data: bytes = slave.sdo.upload(index, subindex)
+    t, bits = sdo_type(slave, index, subindex, type_name)
+    if t is None:
+        return data
+    bits = 8 * len(data) if not bits or t.kind in ("string", "bytes") else bits
+    return dt.decode_value(t, data[: (bits + 7) // 8], bits)
+
+
+def sdo_write(slave: Slave, index: int, subindex: int, value: object,
+              type_name: str | None) -> None:  # fmt: skip
+    if slave.sdo is None:
+        raise BusError(f"{slave}: has no CoE mailbox (start the bus first)")
+    slave.sdo.download(index, subindex, encode_sdo_value(slave, index, subindex, value, type_name))

@@ -10,10 +10,15 @@ machine is in, losses and recoveries, the last error).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 from ether_ros._native.protocol import features
 from ether_ros.config.sii import SiiInfo
+from ether_ros.master.al import AlStatus, al_code_text
 from ether_ros.topology import open_ports
+
+if TYPE_CHECKING:
+    from ether_ros.master.slave import Slave
 
 
 @dataclass
@@ -78,3 +83,26 @@ class SlaveRuntime:
     last_problem: str = ""
     recoveries: int = 0
     last_error: str = ""
+
+
+@dataclass(frozen=True)
+class SlaveState:
+    """A slave's AL state as ``Bus.states`` reports it."""
+
+    name: str
+    position: int
+    station: int
+    state: str
+    error: bool
+    code: int
+    text: str
+    problem: str = ""  # why the supervisor considers the slave lost ('' when it is fine)
+
+    def as_dict(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+
+def slave_state(s: Slave, st: AlStatus) -> SlaveState:
+    text = al_code_text(st.code) if st.error else ""
+    problem = s.last_problem if s.lost else ""
+    return SlaveState(s.name, s.position, s.station, st.name, st.error, st.code, text, problem)

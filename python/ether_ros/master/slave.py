@@ -5,7 +5,7 @@ runtime (``SlaveRuntime``), and what bring-up gave it (image area, DC, mailbox).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ether_ros.config.esi import EsiDevice
 from ether_ros.config.process import ProcessLayout
@@ -14,6 +14,9 @@ from ether_ros.master.dc import DcSlave
 from ether_ros.master.found import FoundSlave, SlaveRuntime
 from ether_ros.master.pdo import PdoSelection
 from ether_ros.master.plan import SlaveArea
+
+if TYPE_CHECKING:
+    from ether_ros.master.setup import SlaveSetup
 
 
 @dataclass
@@ -34,6 +37,7 @@ class Slave:
     sdo_client: Any = None  # the ether_ros.master.coe.SdoClient itself
     runtime: SlaveRuntime = field(default_factory=SlaveRuntime)
     extra: dict[str, Any] = field(default_factory=dict)
+    setup: SlaveSetup | None = None  # the configured slave (setup.py)
 
     # Supervision's view, kept on the runtime (these names are the API's).
     @property
