@@ -92,7 +92,7 @@ def test_a_configured_slave_missing_is_named(veth_ns: VethPair, tmp_path: Path) 
 
 
 def test_a_different_device_in_its_place_is_named(veth_ns: VethPair, tmp_path: Path) -> None:
-    leg = "  - {name: io_box, position: 4, device: LaelapsII_Leg, safe_outputs: {State_Machine: 0}}\n"
+    leg = "  - {name: io_box, position: 4, device: LaelapsII_Leg}\n"
     with (
         SimProcess(_sim_config(tmp_path, leg), veth_ns.slave, veth_ns.netns),
         pytest.raises(IdentityMismatch) as err,

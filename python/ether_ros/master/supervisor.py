@@ -301,9 +301,7 @@ class Supervisor:
             del self._recovering[name]
             self._recovery_done(by_name[name], result[0], result[1])
 
-    def _recovery_done(
-        self, s: Slave, error: BaseException | None, emergencies: list[Any]
-    ) -> None:
+    def _recovery_done(self, s: Slave, error: BaseException | None, emergencies: list[Any]) -> None:
         if error is not None and not isinstance(error, EtherRosError):
             log.error("%s: recovery failed", s, exc_info=error)
             error = BusError(f"recovery failed: {error}", slave=str(s))
