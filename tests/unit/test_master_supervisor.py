@@ -94,7 +94,7 @@ def test_counter_flat_or_nested() -> None:
 
 def test_wkc_errors_reported_once_per_burst() -> None:
     bus = FakeBus()
-    sup = Supervisor(bus, retry_s=0)  # type: ignore[arg-type]
+    sup = Supervisor(bus, recover_in_threads=False, retry_s=0)  # type: ignore[arg-type]
     for errors in (5, 9, 12, 12, 20):
         bus.wkc_errors = errors
         sup.check()
@@ -105,7 +105,7 @@ def test_wkc_errors_reported_once_per_burst() -> None:
 def test_wkc_errors_are_reported_per_group() -> None:
     bus = FakeBus()
     bus.group_errors = {"default": 0, "io": 0}
-    sup = Supervisor(bus, retry_s=0)  # type: ignore[arg-type]
+    sup = Supervisor(bus, recover_in_threads=False, retry_s=0)  # type: ignore[arg-type]
     for errors in (3, 7, 7):
         bus.group_errors["io"] = errors
         sup.check()
@@ -118,7 +118,7 @@ def test_wkc_errors_are_reported_per_group() -> None:
 
 def test_lost_slave_is_reported_then_recovered() -> None:
     bus = FakeBus()
-    sup = Supervisor(bus, retry_s=0)  # type: ignore[arg-type]
+    sup = Supervisor(bus, recover_in_threads=False, retry_s=0)  # type: ignore[arg-type]
     bus.statuses[1] = AlStatus(AlState.SAFEOP, True, 0x001B)
     bus.refuse = True
     sup.check()
@@ -138,7 +138,7 @@ def test_lost_slave_is_reported_then_recovered() -> None:
 
 def test_link_lost_and_restored() -> None:
     bus = FakeBus()
-    sup = Supervisor(bus, retry_s=0)  # type: ignore[arg-type]
+    sup = Supervisor(bus, recover_in_threads=False, retry_s=0)  # type: ignore[arg-type]
     bus.link_up = False
     sup.check()
     sup.check()
@@ -154,7 +154,7 @@ def test_a_cable_pulled_behind_a_junction_is_located() -> None:
     tree = [Link(None, 0), Link(0, 1), Link(0, 2), Link(2, 1)]
     bus = FakeBus(("coupler", "io_a", "junction", "io_b"), tree)
     bus.refuse = True  # recovery cannot reach them either
-    sup = Supervisor(bus, retry_s=0)  # type: ignore[arg-type]
+    sup = Supervisor(bus, recover_in_threads=False, retry_s=0)  # type: ignore[arg-type]
     silent = AlStatus(0, False, 0, answered=False)
     bus.statuses[2] = bus.statuses[3] = silent
     # The coupler still has a link on port 2: the junction is there but silent (power-cycled,

@@ -734,3 +734,62 @@ class Axis:
                 )
             self._bus.feed_watchdog()
             time.sleep(POLL_S)
+
+
+# -- the bus's axes, by name (``Bus.follow``, ``quiet_stop``, ``wait_trajectories``, ``axis``) --
+def find(bus: Bus, name: str) -> Axis:
+    """A CiA 402 axis of ``bus`` by joint name."""
+    for a in bus.axes():
+        if a.name == name:
+            return a
+    names = ", ".join(a.name for a in bus.axes()) or "none"
+    raise AxisCommandError(f"no axis {name!r} on this bus (axes: {names})")
+
+
+def chosen(bus: Bus, names: Iterable[str] | None) -> list[Axis]:
+    """The axes named (every axis of the bus by default)."""
+    return [find(bus, n) for n in names] if names is not None else bus.axes()
+
+
+def follow_named(
+    bus: Bus,
+    tracks: Mapping[str, Iterable[TrajectoryPoint | tuple[float, ...]]],
+    start_in: float,
+) -> float:
+    """``Bus.follow``: one trajectory for several axes by joint name, all started in the same
+    cycle; every axis's points checked first (all or nothing)."""
+    by_name = {a.name: a for a in bus.axes()}
+    unknown = [n for n in tracks if n not in by_name]
+    if unknown:
+        names = ", ".join(by_name) or "none"
+        raise AxisCommandError(f"no axis {unknown[0]!r} on this bus (axes: {names})")
+    return follow_together(bus, {by_name[n]: points for n, points in tracks.items()}, start_in)
+
+
+def quiet_stop_named(bus: Bus, names: Iterable[str] | None) -> None:
+    """``Bus.quiet_stop``: a quiet stop on the axes named, all in the same cycle."""
+    axes = chosen(bus, names)
+    if axes:
+        if not bus.running:
+            raise AxisCommandError("the bus is not in OP (call start())")
+        bus.engine.axis_stop([a.index for a in axes])
+
+
+def wait_named(bus: Bus, names: Iterable[str] | None, timeout: float) -> None:
+    """``Bus.wait_trajectories``: until the last trajectory of each axis named has run out."""
+    deadline = time.monotonic() + timeout
+    for a in chosen(bus, names):
+        a.wait_trajectory(max(deadline - time.monotonic(), 0.0))
+
+
+def stop_all(engine: Any, count: int, wait_s: float) -> None:
+    """Every axis to its on_stop command, and a moment (``wait_s`` at most) for the drives to
+    leave Operation Enabled (bounded: the stop goes on the wire whatever the drives answer)."""
+    for i in range(count):
+        engine.axis_enable(i, False)
+    deadline = time.monotonic() + wait_s
+    while count and time.monotonic() < deadline:
+        states = [engine.axis_status(i)["state"] for i in range(count)]
+        if "operation_enabled" not in states:
+            break
+        time.sleep(0.005)

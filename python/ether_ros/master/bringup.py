@@ -1,5 +1,5 @@
-"""The per-state configuration steps of bring-up, shared by ``Bus.start`` (all slaves) and the
-supervisor (one slave that dropped out and came back).
+"""The configuration work of the steps of a slave's state machine (``slave_fsm.py``), the same
+for bring-up (every slave in parallel) and recovery (one slave that dropped out and came back).
 
 INIT   : mailbox SyncManagers (SM0/SM1)                           → request PREOP
 PREOP  : ESI init commands (IP, PS), sdo_init list, PDO assignment/mapping over CoE (read
@@ -12,7 +12,7 @@ SAFEOP : ESI init commands (SO), OpOnly SyncManagers enabled; the cyclic frame r
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 from ether_ros._native.protocol import format_address
@@ -36,7 +36,6 @@ from ether_ros.master.pdo import (
     sm_assignments,
 )
 from ether_ros.master.plan import LOGICAL_BASE
-from ether_ros.master.shared_frames import run_in_parallel
 from ether_ros.master.slave import Slave
 
 log = logging.getLogger(__name__)
@@ -46,7 +45,7 @@ def setup_mailbox(dg: DatagramService, slave: Slave) -> None:
     """INIT: SM0/SM1 and the Mailbox/SdoClient objects (if the slave has a mailbox)."""
     sms = mailbox_sync_managers(str(slave), slave.found.header, slave.device)
     if not sms:
-        slave.mailbox = slave.sdo = None
+        slave.mailbox = slave.sdo = slave.sdo_client = None
         return
     write_sync_managers(dg, slave.station, str(slave), sms)
     from ether_ros.master.mailbox import Mailbox
@@ -55,9 +54,9 @@ def setup_mailbox(dg: DatagramService, slave: Slave) -> None:
     slave.mailbox = Mailbox(
         dg, slave.station, slave.name, out_sm.start, out_sm.length, in_sm.start, in_sm.length
     )
-    slave.sdo = None
+    slave.sdo = slave.sdo_client = None
     if slave.has_coe:
-        slave.sdo = make_sdo_client(slave)
+        slave.sdo = slave.sdo_client = make_sdo_client(slave)
 
 
 def make_sdo_client(slave: Slave) -> Any:
@@ -113,6 +112,13 @@ def configure_preop(dg: DatagramService, slave: Slave) -> None:
     """PREOP: the ESI's CoE init commands of INIT → PREOP and PREOP → SAFEOP, the
     configuration's sdo_init (after them: the configuration wins), the PDO assignment and
     mapping, process-data SMs and FMMUs."""
+    configure_coe(slave)
+    configure_process_data(dg, slave)
+
+
+def configure_coe(slave: Slave) -> None:
+    """PREOP over the mailbox: the ESI's init commands (IP, PS), the configuration's sdo_init
+    (after them: the configuration wins), the PDO assignment and mapping."""
     run_init_cmds(slave, ("IP", "PS"))
     cfg = slave.config
     for item in getattr(cfg, "sdo_init", None) or []:
@@ -123,6 +129,10 @@ def configure_preop(dg: DatagramService, slave: Slave) -> None:
         )
         sdo_download(slave, index, sub, data, f"sdo_init {format_address(index, sub)}")
     configure_pdos(slave)
+
+
+def configure_process_data(dg: DatagramService, slave: Slave) -> None:
+    """PREOP: the process-data SyncManagers and FMMUs of the slave's image area."""
     area = slave.area
     if area is None:
         return
@@ -236,27 +246,38 @@ def write_pdo_assignment(slave: Slave) -> None:
     configure_pdos(slave)
 
 
-def configure_all_preop(dg: DatagramService, slaves: Sequence[Slave]) -> None:
-    """``configure_preop`` of every slave at once, their datagrams (SDO init, PDO assignment,
-    SyncManagers, FMMUs) sharing frames (``shared_frames.py``)."""
-    run_in_parallel(dg, slaves, lambda d, s: _with_mailbox_on(d, s, configure_preop))
+def sdo_type(
+    slave: Slave, index: int, subindex: int, type_name: str | None
+) -> tuple[dt.DataType | None, int]:
+    """The type and bit length of an object of ``slave``: by ``type_name``, else the ESI
+    dictionary's (None: unknown)."""
+    if type_name:
+        t = dt.config_type(type_name)
+        if t is None:
+            raise BusError(f"unknown data type {type_name!r}")
+        return t, t.bit_length
+    if slave.device is not None:
+        e = slave.device.od_entry(index, subindex)
+        if e is not None:
+            return dt.BY_CODE.get(e.data_type), e.bit_length
+    return None, 0
 
 
-def configure_all_safeop(dg: DatagramService, slaves: Sequence[Slave]) -> None:
-    """``configure_safeop`` of every slave at once."""
-    run_in_parallel(dg, slaves, lambda d, s: _with_mailbox_on(d, s, configure_safeop))
+def sdo_read(slave: Slave, index: int, subindex: int, type_name: str | None) -> object:
+    """Upload an object, typed by ``type_name`` or the ESI dictionary (raw bytes when neither
+    knows the type), through the slave's mailbox owner."""
+    if slave.sdo is None:
+        raise BusError(f"{slave}: has no CoE mailbox (start the bus first)")
+    data: bytes = slave.sdo.upload(index, subindex)
+    t, bits = sdo_type(slave, index, subindex, type_name)
+    if t is None:
+        return data
+    bits = 8 * len(data) if not bits or t.kind in ("string", "bytes") else bits
+    return dt.decode_value(t, data[: (bits + 7) // 8], bits)
 
 
-def _with_mailbox_on(
-    dg: DatagramService, slave: Slave, step: Callable[[DatagramService, Slave], None]
-) -> None:
-    """``step`` with the slave's mailbox on ``dg`` for the time of it."""
-    mailbox = slave.mailbox
-    before = mailbox.dg if mailbox is not None else None
-    if mailbox is not None:
-        mailbox.dg = dg
-    try:
-        step(dg, slave)
-    finally:
-        if mailbox is not None:
-            mailbox.dg = before
+def sdo_write(slave: Slave, index: int, subindex: int, value: object,
+              type_name: str | None) -> None:  # fmt: skip
+    if slave.sdo is None:
+        raise BusError(f"{slave}: has no CoE mailbox (start the bus first)")
+    slave.sdo.download(index, subindex, encode_sdo_value(slave, index, subindex, value, type_name))

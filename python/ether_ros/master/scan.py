@@ -22,8 +22,8 @@ import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from ether_ros._native.protocol import al, features, reg
-from ether_ros.config.sii import SiiInfo, parse_sii
+from ether_ros._native.protocol import al, reg
+from ether_ros.config.sii import parse_sii
 from ether_ros.errors import BusError, ConfigError, IdentityMismatch
 from ether_ros.master.al import AlState
 from ether_ros.master.datagrams import (
@@ -34,64 +34,17 @@ from ether_ros.master.datagrams import (
     fixed_address,
     u16,
 )
+from ether_ros.master.found import FoundSlave
 from ether_ros.master.sii import read_sii
-from ether_ros.topology import Link, first_difference, open_ports, tree_from_ports
+from ether_ros.topology import Link, first_difference, tree_from_ports
 
 FIRST_STATION = 0x1001
+
+__all__ = ["Expected", "FoundSlave", "bus_tree", "match_configuration", "scan"]
 
 
 def station_address(position: int) -> int:
     return FIRST_STATION + position
-
-
-@dataclass
-class FoundSlave:
-    """A slave as found on the wire."""
-
-    position: int
-    station: int
-    alias: int
-    esc_type: int
-    esc_features: int
-    sii: bytes
-    header: SiiInfo
-    dl_status: int = 0
-
-    @property
-    def open_ports(self) -> int:
-        """Bit p set when port p has an open link (from DL status 0x0110)."""
-        return open_ports(self.dl_status)
-
-    @property
-    def vendor_id(self) -> int:
-        return self.header.vendor_id
-
-    @property
-    def product_code(self) -> int:
-        return self.header.product_code
-
-    @property
-    def revision(self) -> int:
-        return self.header.revision
-
-    @property
-    def name(self) -> str:
-        """The device name from the SII (general category), or '' when it has none."""
-        return self.header.name
-
-    @property
-    def dc_supported(self) -> bool:
-        return bool(self.esc_features & features.DC)
-
-    @property
-    def lrw_supported(self) -> bool:
-        return not self.esc_features & features.LRW_NOT_SUPPORTED
-
-    def identity(self) -> str:
-        return (
-            f"vendor 0x{self.vendor_id:08X} product 0x{self.product_code:08X} "
-            f"revision 0x{self.revision:08X}"
-        )
 
 
 @dataclass(frozen=True)

@@ -5,8 +5,9 @@ inspection commands of another process (``ether-ros slaves``, ``states``, ``uplo
 ``download``, ``reg-read``, ``sii-read``, ``master``, ...) do not open the interface — that
 would be a second master, and the slaves of the running one would drop under it. They send
 their requests here instead, and this module carries them out on the running bus's own
-acyclic path (the same lock and the same mailbox clients as the master's own requests, so a
-slave's mailbox has one owner and its counter stays in step). Reads never disturb the cycle;
+acyclic worker (``worker.py``: the same datagram queue and the same mailbox owner as the
+master's own requests, so a slave's mailbox has one owner and its counter stays in step, and
+a request for one slave never waits for another slave's exchange). Reads never disturb the cycle;
 a write (an SDO download) is refused while the bus's write gate says so (the ROS node's
 control lease).
 
@@ -100,8 +101,8 @@ def _reg_read(bus: Bus, request: Mapping[str, Any]) -> bytes:
         raise RequestRefused(
             f"0x{address:04X} + {length} bytes runs past the ESC's address space (0xFFFF)"
         )
-    with bus.acyclic():
-        data, wkc = bus.dg.fprd(s.station, address, length)
+    # One datagram through the bus's acyclic worker: it shares a frame with the master's own.
+    data, wkc = bus.dg.fprd(s.station, address, length)
     if wkc != 1:
         raise BusError(f"{s}: no answer reading 0x{address:04X}")
     return bytes(data)
@@ -117,8 +118,7 @@ def _upload(bus: Bus, request: Mapping[str, Any]) -> bytes:
     s = _slave(bus, request)
     index = _int(request, "index", 0, 0xFFFF)
     subindex = _int(request, "subindex", 0, 0xFF)
-    with bus.acyclic():
-        data: bytes = _mailbox(s).upload(index, subindex)
+    data: bytes = _mailbox(s).upload(index, subindex)
     return data
 
 
@@ -146,5 +146,4 @@ def _download(bus: Bus, request: Mapping[str, Any]) -> None:
         raise RequestRefused("data must be hex bytes") from None
     if not data:
         raise RequestRefused("no data to download")
-    with bus.acyclic():
-        _mailbox(s).download(index, subindex, data)
+    _mailbox(s).download(index, subindex, data)

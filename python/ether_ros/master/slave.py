@@ -1,17 +1,22 @@
-"""Everything the master knows about one configured slave, gathered during discovery."""
+"""One configured slave on the bus: what the configuration says (its ESI device, PDO selection
+and process layout), the slave found for it on the wire (``found.py``: ``FoundSlave``), its
+runtime (``SlaveRuntime``), and what bring-up gave it (image area, DC, mailbox)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ether_ros.config.esi import EsiDevice
 from ether_ros.config.process import ProcessLayout
 from ether_ros.master.al import SlaveRef
 from ether_ros.master.dc import DcSlave
+from ether_ros.master.found import FoundSlave, SlaveRuntime
 from ether_ros.master.pdo import PdoSelection
 from ether_ros.master.plan import SlaveArea
-from ether_ros.master.scan import FoundSlave
+
+if TYPE_CHECKING:
+    from ether_ros.master.setup import SlaveSetup
 
 
 @dataclass
@@ -27,12 +32,37 @@ class Slave:
     area: SlaveArea | None = None
     dc: DcSlave | None = None
     mailbox: Any = None  # ether_ros.master.mailbox.Mailbox once the mailbox SMs are set
-    sdo: Any = None  # ether_ros.master.coe.SdoClient
-    # Supervision: the last AL state seen and whether the slave is out of OP.
-    lost: bool = False
-    last_problem: str = ""
-    recoveries: int = 0
+    # The SDO client as users see it: each call holds the slave's mailbox lock (worker.py).
+    sdo: Any = None
+    sdo_client: Any = None  # the ether_ros.master.coe.SdoClient itself
+    runtime: SlaveRuntime = field(default_factory=SlaveRuntime)
     extra: dict[str, Any] = field(default_factory=dict)
+    setup: SlaveSetup | None = None  # the configured slave (setup.py)
+
+    # Supervision's view, kept on the runtime (these names are the API's).
+    @property
+    def lost(self) -> bool:
+        return self.runtime.lost
+
+    @lost.setter
+    def lost(self, value: bool) -> None:
+        self.runtime.lost = value
+
+    @property
+    def last_problem(self) -> str:
+        return self.runtime.last_problem
+
+    @last_problem.setter
+    def last_problem(self, value: str) -> None:
+        self.runtime.last_problem = value
+
+    @property
+    def recoveries(self) -> int:
+        return self.runtime.recoveries
+
+    @recoveries.setter
+    def recoveries(self, value: int) -> None:
+        self.runtime.recoveries = value
 
     @property
     def ref(self) -> SlaveRef:

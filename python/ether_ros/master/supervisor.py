@@ -6,8 +6,10 @@ What it sees and does:
 - working-counter errors counted by the engine: one ``wkc_error`` event per burst (a run of
   supervision rounds that each saw new errors);
 - a slave not in OP, with an AL error, or not answering: ``slave_lost`` (once), then a recovery
-  attempt every ``retry_s`` (backing off to ``max_retry_s``) — INIT, mailbox, PREOP
-  configuration, DC re-sync, SAFEOP, OP — and ``slave_recovered`` when it is back in OP;
+  request every ``retry_s`` (backing off to ``max_retry_s``): the bus takes the slave through
+  its state machine (``slave_fsm.py``: address, INIT, mailbox, PREOP configuration, DC
+  re-sync, SAFEOP, OP) in a thread of its own, so a slave slow to come back delays neither
+  the others' recoveries nor the watching; ``slave_recovered`` when it is back in OP;
 - no answer at all (cable pulled): ``link_lost`` once, ``link_restored`` when frames return;
 - a branch that stopped answering while the slave it hangs on still answers and shows no link
   on that port in its DL status (a cable pulled behind a junction): ``branch_lost`` once,
@@ -22,7 +24,6 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from contextlib import AbstractContextManager
 from typing import Any, Protocol
 
 from ether_ros._native.protocol import reg
@@ -46,9 +47,6 @@ class SupervisedBus(Protocol):
     al: AlStateMachine
     slaves: list[Slave]
     tree: list[Link]
-
-    @property
-    def _acyclic(self) -> AbstractContextManager[Any]: ...
 
     def recover_slave(self, s: Slave) -> None: ...
 
@@ -82,6 +80,7 @@ class Supervisor:
         retry_s: float = 0.2,
         max_retry_s: float = 2.0,
         emergency_period_s: float = 0.5,
+        recover_in_threads: bool = True,
     ) -> None:
         self.bus = bus
         self.period_s = period_s
@@ -99,6 +98,9 @@ class Supervisor:
         self._next_try: dict[str, float] = {}
         self._backoff: dict[str, float] = {}
         self._last_failure: dict[str, str] = {}
+        # Recoveries under way (slave name → its thread and, once done, its error or None).
+        self.recover_in_threads = recover_in_threads
+        self._recovering: dict[str, tuple[threading.Thread, list[Any]]] = {}
         self.link_lost = False
         # Broken cables on branches: position of the first silent slave → (it, the report).
         self.cut_branches: dict[int, tuple[Slave, str]] = {}
@@ -112,6 +114,8 @@ class Supervisor:
         self._stop.set()
         if self._thread.is_alive() and threading.current_thread() is not self._thread:
             self._thread.join(timeout=30)
+        for thread, _result in list(self._recovering.values()):
+            thread.join(timeout=30)
 
     def branch_problems(self) -> list[str]:
         """The current broken-cable reports (for diagnostics)."""
@@ -135,9 +139,9 @@ class Supervisor:
         """One supervision round (also callable directly, e.g. from tests)."""
         bus = self.bus
         self._check_wkc(dict(bus.engine.stats()))
+        self._collect_recoveries()
         try:
-            with bus._acyclic:
-                statuses = bus.al.read([s.ref for s in bus.slaves])
+            statuses = bus.al.read([s.ref for s in bus.slaves])
         except EtherRosError as exc:
             if not self.link_lost:
                 self.link_lost = True
@@ -152,6 +156,8 @@ class Supervisor:
         self._locate_cuts([st.answered for st in statuses])
         now = time.monotonic()
         for s, st in zip(bus.slaves, statuses, strict=True):
+            if s.name in self._recovering:
+                continue  # its machine is running: it reports when done
             ok = st.answered and st.state == AlState.OP and not st.error
             if ok:
                 if s.lost:
@@ -207,8 +213,7 @@ class Supervisor:
         """The parent's DL status (0x0110) shows no link on ``port``: the cable is out (a
         slave that only lost its station address still has its link up)."""
         try:
-            with self.bus._acyclic:
-                data, wkc = self.bus.dg.fprd(parent.station, reg.DL_STATUS, 2)
+            data, wkc = self.bus.dg.fprd(parent.station, reg.DL_STATUS, 2)
         except EtherRosError:
             return False
         return wkc == 1 and not open_ports(int.from_bytes(data, "little")) & (1 << port)
@@ -250,25 +255,58 @@ class Supervisor:
 
     def _poll_emergencies(self) -> None:
         for s in self.bus.slaves:
-            if not s.lost and not self._stop.is_set():
+            if not s.lost and not self._stop.is_set() and s.name not in self._recovering:
                 self._poll_emergencies_of(s)
 
     def _poll_emergencies_of(self, s: Slave) -> None:
-        if s.sdo is None:
-            return
-        try:
-            with self.bus._acyclic:
-                emergencies = s.sdo.poll_emergencies()
-        except EtherRosError as exc:
-            log.debug("%s: polling emergencies failed: %s", s, exc)
-            return
-        for em in emergencies:
+        for em in self._read_emergencies(s):
             self._emit("emergency", s, em.text)
 
-    def _try_recover(self, s: Slave) -> None:
+    def _read_emergencies(self, s: Slave) -> list[Any]:
+        if s.sdo is None:
+            return []
         try:
-            self.bus.recover_slave(s)
+            return list(s.sdo.poll_emergencies())
         except EtherRosError as exc:
+            log.debug("%s: polling emergencies failed: %s", s, exc)
+            return []
+
+    def _try_recover(self, s: Slave) -> None:
+        """Request the slave's recovery: its machine runs in a thread of its own (or here,
+        without ``recover_in_threads``); the result is taken by ``_collect_recoveries``."""
+        result: list[Any] = [None, []]
+
+        def run() -> None:
+            try:
+                self.bus.recover_slave(s)
+            except BaseException as exc:  # handed to the supervisor's round
+                result[0] = exc
+                # A refusal usually comes with an emergency; read it now, before the next
+                # attempt's INIT empties the mailbox (and before a later one arrives).
+                result[1] = self._read_emergencies(s)
+
+        if not self.recover_in_threads:
+            run()
+            self._recovery_done(s, result[0], result[1])
+            return
+        thread = threading.Thread(target=run, name=f"ether_ros-recover-{s.position}", daemon=True)
+        self._recovering[s.name] = (thread, result)
+        thread.start()
+
+    def _collect_recoveries(self) -> None:
+        by_name = {s.name: s for s in self.bus.slaves}
+        for name, (thread, result) in list(self._recovering.items()):
+            if thread.is_alive():
+                continue
+            del self._recovering[name]
+            self._recovery_done(by_name[name], result[0], result[1])
+
+    def _recovery_done(self, s: Slave, error: BaseException | None, emergencies: list[Any]) -> None:
+        if error is not None and not isinstance(error, EtherRosError):
+            log.error("%s: recovery failed", s, exc_info=error)
+            error = BusError(f"recovery failed: {error}", slave=str(s))
+        if isinstance(error, EtherRosError):
+            exc = error
             backoff = min(self._backoff.get(s.name, self.retry_s) * 2, self.max_retry_s)
             self._backoff[s.name] = backoff
             self._next_try[s.name] = time.monotonic() + backoff
@@ -277,9 +315,8 @@ class Supervisor:
             if self._last_failure.get(s.name) != text:
                 self._last_failure[s.name] = text
                 self._emit("recovery_failed", s, f"{s}: recovery failed: {text}")
-            # A refusal usually comes with an emergency; read it before the next attempt's
-            # INIT empties the mailbox.
-            self._poll_emergencies_of(s)
+            for em in emergencies:
+                self._emit("emergency", s, em.text)
             return
         self._recovered(s, "recovered to OP")
 

@@ -641,8 +641,8 @@ class Inspector:
 
 def _configured_names(found: Sequence[FoundSlave], cfg: Any) -> dict[int, str]:
     """Position → configured name, the found slaves matched against the configuration."""
-    from ether_ros.master.bus import _expected
     from ether_ros.master.scan import match_configuration
+    from ether_ros.master.setup import expected_of as _expected
 
     expected = [_expected(s, i) for i, s in enumerate(cfg.slaves)]
     positions = match_configuration(found, expected)
