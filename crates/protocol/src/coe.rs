@@ -12,6 +12,11 @@ crate::named_constants! {
     pub const TABLE;
     /// CoE header length.
     pub const HEADER_LEN: usize = 2;
+    /// Bytes of an SDO segment before its data: the CoE header and the command byte.
+    pub const SEGMENT_HEADER_LEN: usize = HEADER_LEN + 1;
+    /// Data bytes a segment carries at least: shorter data is padded to this and the command
+    /// byte says how many of them are unused (bits 1..=3).
+    pub const MIN_SEGMENT_DATA: usize = 7;
     /// SDO frame: CoE header, command, index, subindex, 4 data bytes.
     pub const SDO_HEADER_LEN: usize = 10;
     /// Service: emergency.
@@ -177,12 +182,6 @@ pub const fn toggle_message(
     m[2] = (specifier << SPECIFIER_SHIFT) | if toggle { TOGGLE } else { 0 };
     m
 }
-
-/// Bytes of an SDO segment before its data: the CoE header and the command byte.
-pub const SEGMENT_HEADER_LEN: usize = HEADER_LEN + 1;
-/// Data bytes a segment carries at least: shorter data is padded to this and the command byte
-/// says how many of them are unused (bits 1..=3).
-pub const MIN_SEGMENT_DATA: usize = 7;
 
 /// One SDO segment (ETG.1000.6 §5.6.2.3 and §5.6.2.5): a download segment request from the
 /// master or an upload segment response from the slave. The messages that only toggle (upload
