@@ -1,8 +1,9 @@
 """Errors the user sees. Every one says what is wrong and where; the CLI prints them as one line
 and exits non-zero instead of showing a traceback.
 
-One hierarchy for the Python side and the Rust core (the engine's exceptions,
-``ether_ros._native.EngineError`` and ``EngineTimeout``, derive from these classes). Errors that
+One hierarchy for the Python side and the Rust core. Every class is defined here, once: the
+Rust extension raises these classes (``crates/py`` imports them from this module) and
+re-exports the engine's as ``ether_ros._native.EngineError`` and ``EngineTimeout``. Errors that
 have codes carry them as attributes — an AL status code, an SDO abort code, a working counter —
 and render their text from the protocol crate (``ether_ros._native.protocol``), so a caller
 decides by the data, never by parsing a message::
@@ -10,6 +11,7 @@ decides by the data, never by parsing a message::
     EtherRosError
     ├── ConfigError (file, line, field, value)
     ├── MessageError (topic, field)
+    ├── InvalidRequest (also a ValueError): an argument the Rust core refused
     ├── BusError (slave)
     │   ├── AlStateRefused (slave, state, reached, code)
     │   ├── AlStateTimeout (slave, state, reached, timeout_s)
@@ -21,7 +23,9 @@ decides by the data, never by parsing a message::
     │       ├── MailboxErrorReply (code)
     │       └── SdoAbort (index, subindex, code)
     └── LinkError (errno)
-        └── FrameTimeout (commands, attempts, timeout_us, link)
+        ├── FrameTimeout (commands, attempts, timeout_us, link)
+        └── EngineError: the engine cannot do what was asked
+            └── EngineTimeout (also a FrameTimeout)
 
 Where an error comes from is data as well as text: a :class:`ConfigError` carries the file, the
 line and the key path (``field``), a :class:`MessageError` the topic or service and the message
@@ -264,6 +268,22 @@ class FrameTimeout(LinkError):
     attempts: int = 0
     timeout_us: int = 0
     link: str = ""
+
+
+class InvalidRequest(EtherRosError, ValueError):
+    """The Rust core (engine, simulator) refused an argument before doing anything: the text
+    says what is wrong. A ``ValueError`` as well, so a caller that checks its input that way
+    keeps working."""
+
+
+class EngineError(LinkError):
+    """The engine cannot do what was asked: link failure, wrong state, or the real-time setup
+    was refused. Raised by ``ether_ros._native.Engine`` (and re-exported there)."""
+
+
+class EngineTimeout(EngineError, FrameTimeout):
+    """No reply to an acyclic frame within its retries: the frame's ``commands``, the
+    ``attempts`` and the wait per attempt ``timeout_us`` on ``link``."""
 
 
 def _protocol() -> ModuleType:

@@ -14,7 +14,7 @@ runs in a network namespace of its own, which holds its end of the veth pair and
 a command through ``ip netns exec`` (:func:`netns_command`), an in-process master (pysoem) by
 opening its socket on a thread moved into the namespace for that moment
 (:func:`thread_in_netns`). Our engine binds its socket to the interface and the EtherType
-before it receives anything (``crates/engine/src/link.rs``), so it needs neither.
+before it receives anything (``crates/link/src/packet.rs``), so it needs neither.
 """
 
 from __future__ import annotations

@@ -37,7 +37,8 @@ LAELAPS = REPO / "config" / "laelaps.yaml"
 LINE128 = REPO / "config" / "line128.yaml"
 RT_THREAD = "ether_ros-rt"
 
-# What one cycle may ask of the kernel (crates/engine/src/cyclic.rs, link.rs, xdp.rs, clock.rs),
+# What one cycle may ask of the kernel (crates/engine/src/cyclic.rs; crates/link/src: packet.rs,
+# xdp.rs, clock.rs),
 # per link:
 COMMON_SYSCALLS = {
     "clock_nanosleep",  # sleep until the next cycle (absolute CLOCK_MONOTONIC)

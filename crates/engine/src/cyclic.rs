@@ -8,12 +8,12 @@ use std::sync::Arc;
 use ether_ros_protocol::{self as wire, MAX_FRAME_LEN};
 
 use crate::cia402::{Axes, AxisExchange};
-use crate::clock::{now_ns, sleep_until};
 use crate::frames::{frame_index, reply_matches};
 use crate::handover::{flags, Mailbox, SampleRecord, SampleRing, SeqBuffer};
-use crate::link::{Link, Received};
 use crate::plan::{CycleLayout, DcMode, Order, Plan};
 use crate::stats::{FrameStats, Stats};
+use ether_ros_link::clock::{now_ns, sleep_until};
+use ether_ros_link::{Link, Received};
 
 /// Cyclic frames carry indices 0x80..=0xFF (rotating, one per frame sent), acyclic ones
 /// 0x00..=0x7F, so a reply tells at a glance which path it belongs to.

@@ -6,18 +6,14 @@
 //! it. While cyclic, `transact` posts its frame to a one-slot mailbox that the RT thread sends
 //! after the cyclic frame.
 
-mod bpf;
 pub mod cia402;
-pub mod clock;
 pub mod cyclic;
 pub mod fields;
 pub mod frames;
 pub mod handover;
-pub mod link;
 pub mod plan;
 pub mod rt;
 pub mod stats;
-pub mod xdp;
 
 use std::sync::atomic::Ordering;
 use std::sync::{mpsc, Arc, Mutex, MutexGuard};
@@ -26,18 +22,21 @@ use std::time::Duration;
 
 use cia402::AxisCommand;
 pub use cia402::{AxisStatus, Mode, Point, SetpointKind};
-pub use clock::now_ns;
 use cyclic::{Cyclic, Exchange, Shared, RESET_ALL};
 pub use fields::OutputField;
 pub use frames::Request;
 use frames::{build_request_frame, reply_datagrams, reply_matches};
 use handover::mailbox_state;
 pub use handover::{flags, SampleRecord, RECORD_LEN};
-pub use link::{InProcessLink, Link, LinkKind, LinkOptions, RawSocketLink, Received, Responder};
+// The links live in their own crate (shared with the simulator); the engine's users reach
+// them through it as before.
+pub use ether_ros_link::{
+    clock, now_ns, InProcessLink, Link, LinkKind, LinkOptions, RawSocketLink, Received, Responder,
+    XdpLink, XdpMode,
+};
 pub use plan::Plan;
 
 use stats::Summary;
-pub use xdp::{XdpLink, XdpMode};
 
 use ether_ros_protocol::MAX_FRAME_LEN;
 

@@ -679,9 +679,10 @@ fn the_rt_path_source_has_no_lock_and_no_output() {
             include_str!("../src/cia402/records.rs"),
         ),
         ("handover.rs", include_str!("../src/handover.rs")),
-        ("link.rs", include_str!("../src/link.rs")),
-        ("xdp.rs", include_str!("../src/xdp.rs")),
-        ("clock.rs", include_str!("../src/clock.rs")),
+        // The links the loop drives live in crates/link.
+        ("link/packet.rs", include_str!("../../link/src/packet.rs")),
+        ("link/xdp.rs", include_str!("../../link/src/xdp.rs")),
+        ("link/clock.rs", include_str!("../../link/src/clock.rs")),
         ("stats.rs", include_str!("../src/stats.rs")),
         ("frames.rs", include_str!("../src/frames.rs")),
     ];

@@ -12,6 +12,11 @@ crate::named_constants! {
     pub const TABLE;
     /// CoE header length.
     pub const HEADER_LEN: usize = 2;
+    /// Bytes of an SDO segment before its data: the CoE header and the command byte.
+    pub const SEGMENT_HEADER_LEN: usize = HEADER_LEN + 1;
+    /// Data bytes a segment carries at least: shorter data is padded to this and the command
+    /// byte says how many of them are unused (bits 1..=3).
+    pub const MIN_SEGMENT_DATA: usize = 7;
     /// SDO frame: CoE header, command, index, subindex, 4 data bytes.
     pub const SDO_HEADER_LEN: usize = 10;
     /// Service: emergency.
@@ -120,14 +125,137 @@ crate::named_constants! {
     pub const TXPDO_ASSIGN: u16 = 0x1C13;
 }
 
+/// The decoded CoE header (2 bytes, little endian): bits 0..=8 number, bits 12..=15 service.
+/// The same shape as the SoE header (`crate::soe::Header`): a struct with `decode`/`encode`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Header {
+    /// Number (bits 0..=8): 0 for SDOs; the PDO number of a PDO over the mailbox.
+    pub number: u16,
+    /// Service (bits 12..=15): `SERVICE_*`.
+    pub service: u16,
+}
+
+impl Header {
+    /// The header of a message of `service` with number 0.
+    pub const fn of(service: u16) -> Header {
+        Header { number: 0, service }
+    }
+
+    /// Decode the first two bytes of `data` (`None` when shorter).
+    pub fn decode(data: &[u8]) -> Option<Header> {
+        let h = data.get(..HEADER_LEN)?;
+        let word = u16::from_le_bytes([h[0], h[1]]);
+        Some(Header {
+            number: word & 0x01FF,
+            service: word >> 12,
+        })
+    }
+
+    /// The two header bytes.
+    pub const fn encode(&self) -> [u8; HEADER_LEN] {
+        ((self.number & 0x01FF) | ((self.service & 0x0F) << 12)).to_le_bytes()
+    }
+}
+
 /// The CoE header of a message of `service` (number 0).
-pub const fn header(service: u16) -> [u8; 2] {
-    (service << 12).to_le_bytes()
+pub const fn header(service: u16) -> [u8; HEADER_LEN] {
+    Header::of(service).encode()
 }
 
 /// The service of a CoE message (upper 4 bits of its header), `None` when too short.
 pub fn service_of(payload: &[u8]) -> Option<u16> {
-    Some(u16::from(*payload.get(1)? >> 4))
+    Header::decode(payload).map(|h| h.service)
+}
+
+/// A segment message without data (an upload segment request from the master, a download
+/// segment response from the slave): CoE header of `service`, command byte (`specifier`,
+/// `toggle`; the unused and last bits are reserved here and 0), 7 zero bytes.
+pub const fn toggle_message(
+    service: u16,
+    specifier: u8,
+    toggle: bool,
+) -> [u8; SEGMENT_HEADER_LEN + MIN_SEGMENT_DATA] {
+    let h = header(service);
+    let mut m = [0u8; SEGMENT_HEADER_LEN + MIN_SEGMENT_DATA];
+    m[0] = h[0];
+    m[1] = h[1];
+    m[2] = (specifier << SPECIFIER_SHIFT) | if toggle { TOGGLE } else { 0 };
+    m
+}
+
+/// One SDO segment (ETG.1000.6 §5.6.2.3 and §5.6.2.5): a download segment request from the
+/// master or an upload segment response from the slave. The messages that only toggle (upload
+/// segment request, download segment response) are [`toggle_message`].
+///
+/// Layout: CoE header, command byte (bits 5..=7 specifier, bit 4 toggle, bits 1..=3 unused
+/// bytes of a segment of up to 7 data bytes, bit 0 last segment), then the data, padded to 7
+/// bytes. The master and the simulator build and read segments with this one codec.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Segment<'a> {
+    /// The CoE service of the message (`SERVICE_SDO_REQUEST` or `SERVICE_SDO_RESPONSE`).
+    pub service: u16,
+    /// Command specifier (bits 5..=7): `CCS_*` from the master, `SCS_*` from the slave.
+    pub specifier: u8,
+    /// Toggle bit (bit 4): alternates from 0 with each segment of a transfer.
+    pub toggle: bool,
+    /// Last segment of the transfer (bit 0).
+    pub last: bool,
+    /// The segment's data, without the padding.
+    pub data: &'a [u8],
+}
+
+impl<'a> Segment<'a> {
+    /// The command byte: specifier, toggle, unused bytes and the last-segment bit.
+    pub fn command(&self) -> u8 {
+        let unused = MIN_SEGMENT_DATA.saturating_sub(self.data.len()) as u8;
+        (self.specifier << SPECIFIER_SHIFT)
+            | if self.toggle { TOGGLE } else { 0 }
+            | (unused << SEGMENT_UNUSED_SHIFT)
+            | if self.last { LAST_SEGMENT } else { 0 }
+    }
+
+    /// Bytes of the encoded message.
+    pub fn encoded_len(&self) -> usize {
+        SEGMENT_HEADER_LEN + self.data.len().max(MIN_SEGMENT_DATA)
+    }
+
+    /// Append the whole message to `out`: CoE header, command byte, data padded to 7 bytes.
+    pub fn encode_into(&self, out: &mut Vec<u8>) {
+        out.extend_from_slice(&header(self.service));
+        out.push(self.command());
+        out.extend_from_slice(self.data);
+        let padding = MIN_SEGMENT_DATA.saturating_sub(self.data.len());
+        out.extend_from_slice(&[0; MIN_SEGMENT_DATA][..padding]);
+    }
+
+    /// The whole message in a new vector.
+    pub fn encode(&self) -> Vec<u8> {
+        let mut out = Vec::with_capacity(self.encoded_len());
+        self.encode_into(&mut out);
+        out
+    }
+
+    /// Decode a segment message (CoE header first). Of a segment of up to 7 data bytes only
+    /// the bytes its unused count leaves are data; a longer segment is data to its end.
+    /// `None` when the message is shorter than the CoE header and the command byte.
+    pub fn decode(message: &'a [u8]) -> Option<Segment<'a>> {
+        let header = Header::decode(message)?;
+        let command = *message.get(HEADER_LEN)?;
+        let body = &message[SEGMENT_HEADER_LEN..];
+        let n = if body.len() > MIN_SEGMENT_DATA {
+            body.len()
+        } else {
+            let unused = usize::from((command >> SEGMENT_UNUSED_SHIFT) & 0x07);
+            MIN_SEGMENT_DATA.saturating_sub(unused).min(body.len())
+        };
+        Some(Segment {
+            service: header.service,
+            specifier: command >> SPECIFIER_SHIFT,
+            toggle: command & TOGGLE != 0,
+            last: command & LAST_SEGMENT != 0,
+            data: &body[..n],
+        })
+    }
 }
 
 /// Name of an object code (`"VAR"`, `"ARRAY"`, `"RECORD"`).
@@ -241,5 +369,86 @@ mod tests {
         assert_eq!(header(SERVICE_SDO_REQUEST), [0x00, 0x20]);
         assert_eq!(service_of(&[0x00, 0x30, 0x40]), Some(SERVICE_SDO_RESPONSE));
         assert_eq!(object_code_name(OBJECT_RECORD), Some("RECORD"));
+    }
+
+    #[test]
+    fn header_round_trips_and_matches_etg1000_6() {
+        // ETG.1000.6 table 29: number in bits 0..=8, service in bits 12..=15. An SDO request
+        // is 0x2000 on the wire as 00 20; an emergency 00 10.
+        assert_eq!(Header::of(SERVICE_SDO_REQUEST).encode(), [0x00, 0x20]);
+        assert_eq!(Header::of(SERVICE_EMERGENCY).encode(), [0x00, 0x10]);
+        let h = Header {
+            number: 0x1FF,
+            service: SERVICE_TXPDO,
+        };
+        assert_eq!(h.encode(), [0xFF, 0x41]);
+        assert_eq!(Header::decode(&h.encode()), Some(h));
+        assert_eq!(Header::decode(&[0x00]), None);
+    }
+
+    #[test]
+    fn segment_byte_images() {
+        // A download segment of 3 bytes, toggle 1, last (ETG.1000.6 §5.6.2.3): command
+        // 000 1 100 1 = 0x19 (4 unused bytes), data padded to 7.
+        let s = Segment {
+            service: SERVICE_SDO_REQUEST,
+            specifier: CCS_DOWNLOAD_SEGMENT,
+            toggle: true,
+            last: true,
+            data: &[1, 2, 3],
+        };
+        assert_eq!(s.encode(), [0x00, 0x20, 0x19, 1, 2, 3, 0, 0, 0, 0]);
+        assert_eq!(Segment::decode(&s.encode()), Some(s));
+        // An upload segment request (master, no data): 011 t 000 0 and 7 zero bytes.
+        assert_eq!(
+            toggle_message(SERVICE_SDO_REQUEST, CCS_UPLOAD_SEGMENT, false),
+            [0x00, 0x20, 0x60, 0, 0, 0, 0, 0, 0, 0]
+        );
+        assert_eq!(
+            toggle_message(SERVICE_SDO_RESPONSE, SCS_DOWNLOAD_SEGMENT, true),
+            [0x00, 0x30, 0x30, 0, 0, 0, 0, 0, 0, 0]
+        );
+        // An empty data segment says 7 unused: decoded, it carries no data.
+        let empty = Segment {
+            service: SERVICE_SDO_REQUEST,
+            specifier: CCS_DOWNLOAD_SEGMENT,
+            toggle: false,
+            last: true,
+            data: &[],
+        };
+        assert_eq!(empty.encode(), [0x00, 0x20, 0x0F, 0, 0, 0, 0, 0, 0, 0]);
+        assert_eq!(Segment::decode(&empty.encode()), Some(empty));
+        // Segments of 7 and more bytes say 0 unused and carry everything.
+        let long: Vec<u8> = (0..20).collect();
+        let l = Segment {
+            service: SERVICE_SDO_RESPONSE,
+            specifier: SCS_UPLOAD_SEGMENT,
+            toggle: false,
+            last: false,
+            data: &long,
+        };
+        let enc = l.encode();
+        assert_eq!(&enc[..3], &[0x00, 0x30, 0x00]);
+        assert_eq!(Segment::decode(&enc), Some(l));
+        assert_eq!(Segment::decode(&[0x00, 0x20]), None);
+    }
+
+    #[test]
+    fn segments_round_trip_for_every_length() {
+        let data: Vec<u8> = (0..40).map(|i| i as u8 ^ 0x5A).collect();
+        for n in 0..data.len() {
+            for (toggle, last) in [(false, false), (true, false), (false, true), (true, true)] {
+                let s = Segment {
+                    service: SERVICE_SDO_REQUEST,
+                    specifier: CCS_DOWNLOAD_SEGMENT,
+                    toggle,
+                    last,
+                    data: &data[..n],
+                };
+                let enc = s.encode();
+                assert_eq!(enc.len(), s.encoded_len());
+                assert_eq!(Segment::decode(&enc), Some(s), "length {n}");
+            }
+        }
     }
 }

@@ -48,32 +48,50 @@ pub const BROADCAST_MAC: [u8; 6] = [0xff; 6];
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[repr(u8)]
 pub enum Command {
+    /// No operation.
     Nop = 0,
+    /// Auto-increment physical read.
     Aprd = 1,
+    /// Auto-increment physical write.
     Apwr = 2,
+    /// Auto-increment physical read-write.
     Aprw = 3,
+    /// Configured address physical read.
     Fprd = 4,
+    /// Configured address physical write.
     Fpwr = 5,
+    /// Configured address physical read-write.
     Fprw = 6,
+    /// Broadcast read.
     Brd = 7,
+    /// Broadcast write.
     Bwr = 8,
+    /// Broadcast read-write.
     Brw = 9,
+    /// Logical memory read.
     Lrd = 10,
+    /// Logical memory write.
     Lwr = 11,
+    /// Logical memory read-write.
     Lrw = 12,
+    /// Auto-increment physical read, multiple write.
     Armw = 13,
+    /// Configured address physical read, multiple write.
     Frmw = 14,
 }
 
 /// How a command selects slaves.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Addressing {
+    /// No slave (NOP).
     None,
     /// Auto-increment: ADP holds minus the position; each slave increments it on the way.
     AutoIncrement,
     /// Configured station address (register 0x0010) or alias.
     Fixed,
+    /// Every slave.
     Broadcast,
+    /// The logical address space, through the slaves' FMMUs.
     Logical,
 }
 
@@ -120,6 +138,7 @@ impl Command {
         })
     }
 
+    /// How the command selects slaves.
     pub fn addressing(self) -> Addressing {
         use Command::*;
         match self {
@@ -149,6 +168,7 @@ impl Command {
         )
     }
 
+    /// The command's name as ETG.1000.4 writes it (`"LRW"`).
     pub fn name(self) -> &'static str {
         use Command::*;
         match self {
@@ -322,15 +342,22 @@ impl<'a> FrameBuilder<'a> {
 pub struct Datagram {
     /// Raw command byte (may be unknown: see `command()`).
     pub cmd: u8,
+    /// Index (the master's tag to match the reply).
     pub index: u8,
+    /// Address: ADP in the low 16 bits and ADO in the high ones, or a logical address.
     pub address: u32,
+    /// Circulating bit: the frame passed a closed port once.
     pub circulating: bool,
+    /// More datagrams follow in the frame.
     pub more: bool,
+    /// IRQ field (the slaves' event requests ORed together).
     pub irq: u16,
+    /// Where the data and the working counter sit in the frame buffer.
     pub slot: DatagramSlot,
 }
 
 impl Datagram {
+    /// The command, `None` when the code is unknown.
     pub fn command(&self) -> Option<Command> {
         Command::from_u8(self.cmd)
     }

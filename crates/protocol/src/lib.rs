@@ -19,6 +19,7 @@
 //! building and parsing, working counters, value encoding).
 
 #![forbid(unsafe_code)]
+#![warn(missing_docs)]
 
 /// Defines constants together with a table of them by name, so the Python binding can export
 /// every constant without a second list of names. Each table is `&[(name, value)]`.

@@ -324,6 +324,76 @@ pub mod sm {
         /// PDI control bit 0: the PDI deactivated the SyncManager.
         pub const PDI_DEACTIVATE: u8 = 0x01;
     }
+
+    /// The 8 register bytes of one SyncManager (ET1100 datasheet section II, 0x0800): start
+    /// (u16), length (u16), control (u8), status (u8, read only), activate (u8), PDI control
+    /// (u8, read only for the master). The master writes it, the simulator's ESC reads it.
+    #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+    pub struct Record {
+        /// Physical start address of the window in the ESC's memory.
+        pub start: u16,
+        /// Length of the window in bytes.
+        pub length: u16,
+        /// Control: mode, direction, interrupts, watchdog (`MODE_*`, `DIR_*`, ...).
+        pub control: u8,
+        /// Status (read only; written as 0).
+        pub status: u8,
+        /// Activate: `ACTIVATE_ENABLE`, `REPEAT`.
+        pub activate: u8,
+        /// PDI control (read only for the master; written as 0).
+        pub pdi_control: u8,
+    }
+
+    impl Record {
+        /// Bytes of the record.
+        pub const LEN: usize = super::SM_LEN as usize;
+
+        /// The record the master writes: `control`, enabled or not, status and PDI control 0.
+        pub const fn new(start: u16, length: u16, control: u8, enable: bool) -> Record {
+            Record {
+                start,
+                length,
+                control,
+                status: 0,
+                activate: if enable { ACTIVATE_ENABLE } else { 0 },
+                pdi_control: 0,
+            }
+        }
+
+        /// Whether activate bit 0 (enable) is set.
+        pub const fn enabled(&self) -> bool {
+            self.activate & ACTIVATE_ENABLE != 0
+        }
+
+        /// The 8 register bytes.
+        pub const fn encode(&self) -> [u8; Record::LEN] {
+            let s = self.start.to_le_bytes();
+            let l = self.length.to_le_bytes();
+            [
+                s[0],
+                s[1],
+                l[0],
+                l[1],
+                self.control,
+                self.status,
+                self.activate,
+                self.pdi_control,
+            ]
+        }
+
+        /// Decode the first 8 bytes of `data` (`None` when shorter).
+        pub fn decode(data: &[u8]) -> Option<Record> {
+            let r = data.get(..Record::LEN)?;
+            Some(Record {
+                start: u16::from_le_bytes([r[0], r[1]]),
+                length: u16::from_le_bytes([r[2], r[3]]),
+                control: r[4],
+                status: r[5],
+                activate: r[6],
+                pdi_control: r[7],
+            })
+        }
+    }
 }
 
 /// FMMU registers (16 bytes at `FMMU0 + n·FMMU_LEN`) and their bits.
@@ -351,6 +421,83 @@ pub mod fmmu {
         pub const READ: u8 = 0x01;
         /// Type bit 1: the frame is written into slave memory (outputs).
         pub const WRITE: u8 = 0x02;
+        /// Activate bit 0: the FMMU is enabled.
+        pub const ACTIVATE_ENABLE: u8 = 0x01;
+    }
+
+    /// The 16 register bytes of one FMMU (ET1100 datasheet section II, 0x0600): logical start
+    /// (u32), length in bytes (u16), logical start bit (u8), logical stop bit (u8), physical
+    /// start (u16), physical start bit (u8), type (u8), activate (u8), 3 reserved bytes. The
+    /// master writes it, the simulator's ESC reads it.
+    #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+    pub struct Record {
+        /// Logical start address.
+        pub logical_start: u32,
+        /// Length in bytes of the logical range.
+        pub length: u16,
+        /// First bit (0..=7) of the first logical byte.
+        pub logical_start_bit: u8,
+        /// Last bit (0..=7) of the last logical byte.
+        pub logical_stop_bit: u8,
+        /// Physical start address in the ESC's memory.
+        pub physical_start: u16,
+        /// First bit (0..=7) of the first physical byte.
+        pub physical_start_bit: u8,
+        /// Type: `READ` (inputs), `WRITE` (outputs) or both.
+        pub kind: u8,
+        /// Activate: `ACTIVATE_ENABLE`.
+        pub activate: u8,
+    }
+
+    impl Record {
+        /// Bytes of the record.
+        pub const LEN: usize = super::FMMU_LEN as usize;
+
+        /// Whether activate bit 0 (enable) is set.
+        pub const fn enabled(&self) -> bool {
+            self.activate & ACTIVATE_ENABLE != 0
+        }
+
+        /// The 16 register bytes (the reserved ones 0).
+        pub const fn encode(&self) -> [u8; Record::LEN] {
+            let ls = self.logical_start.to_le_bytes();
+            let l = self.length.to_le_bytes();
+            let ps = self.physical_start.to_le_bytes();
+            [
+                ls[0],
+                ls[1],
+                ls[2],
+                ls[3],
+                l[0],
+                l[1],
+                self.logical_start_bit,
+                self.logical_stop_bit,
+                ps[0],
+                ps[1],
+                self.physical_start_bit,
+                self.kind,
+                self.activate,
+                0,
+                0,
+                0,
+            ]
+        }
+
+        /// Decode the first 13 bytes of `data` (the reserved bytes are not read; `None` when
+        /// shorter). The fields are taken as they are, bit numbers included.
+        pub fn decode(data: &[u8]) -> Option<Record> {
+            let r = data.get(..ACTIVATE as usize + 1)?;
+            Some(Record {
+                logical_start: u32::from_le_bytes([r[0], r[1], r[2], r[3]]),
+                length: u16::from_le_bytes([r[4], r[5]]),
+                logical_start_bit: r[6],
+                logical_stop_bit: r[7],
+                physical_start: u16::from_le_bytes([r[8], r[9]]),
+                physical_start_bit: r[10],
+                kind: r[11],
+                activate: r[12],
+            })
+        }
     }
 }
 
@@ -418,5 +565,60 @@ mod tests {
     fn dc_difference_is_sign_and_magnitude() {
         assert_eq!(dc::difference_ns(5), 5);
         assert_eq!(dc::difference_ns(dc::DIFF_SIGN | 5), -5);
+    }
+
+    #[test]
+    fn sm_record_byte_image() {
+        // The usual SM2 of an EL2004-like slave: 1 byte at 0x0F00, buffered, master writes,
+        // PDI event, watchdog (0x64), enabled: 00 0F 01 00 64 00 01 00.
+        let r = sm::Record::new(0x0F00, 1, 0x64, true);
+        assert_eq!(r.encode(), [0x00, 0x0F, 0x01, 0x00, 0x64, 0x00, 0x01, 0x00]);
+        assert_eq!(sm::Record::decode(&r.encode()), Some(r));
+        assert!(r.enabled());
+        assert!(!sm::Record::new(0x1000, 0, 0x20, false).enabled());
+        assert_eq!(sm::Record::decode(&[0; 7]), None);
+        // Each field at the offset the register map names.
+        let all = sm::Record {
+            start: 0x0102,
+            length: 0x0304,
+            control: 5,
+            status: 6,
+            activate: 7,
+            pdi_control: 8,
+        }
+        .encode();
+        assert_eq!(all[sm::START as usize], 0x02);
+        assert_eq!(all[sm::LENGTH as usize], 0x04);
+        assert_eq!(all[sm::CONTROL as usize], 5);
+        assert_eq!(all[sm::STATUS as usize], 6);
+        assert_eq!(all[sm::ACTIVATE as usize], 7);
+        assert_eq!(all[sm::PDI_CONTROL as usize], 8);
+    }
+
+    #[test]
+    fn fmmu_record_byte_image() {
+        // Outputs: logical 0x00010000, 2 bytes, bits 0..7, to physical 0x1000, write, enabled.
+        let r = fmmu::Record {
+            logical_start: 0x0001_0000,
+            length: 2,
+            logical_start_bit: 0,
+            logical_stop_bit: 7,
+            physical_start: 0x1000,
+            physical_start_bit: 0,
+            kind: fmmu::WRITE,
+            activate: fmmu::ACTIVATE_ENABLE,
+        };
+        assert_eq!(
+            r.encode(),
+            [0, 0, 1, 0, 2, 0, 0, 7, 0x00, 0x10, 0, 2, 1, 0, 0, 0]
+        );
+        assert_eq!(fmmu::Record::decode(&r.encode()), Some(r));
+        assert_eq!(fmmu::Record::decode(&r.encode()[..13]), Some(r));
+        assert_eq!(fmmu::Record::decode(&r.encode()[..12]), None);
+        let enc = r.encode();
+        assert_eq!(enc[fmmu::LOGICAL_STOP_BIT as usize], 7);
+        assert_eq!(enc[fmmu::PHYSICAL_START as usize], 0x00);
+        assert_eq!(enc[fmmu::TYPE as usize], fmmu::WRITE);
+        assert_eq!(enc[fmmu::ACTIVATE as usize], 1);
     }
 }

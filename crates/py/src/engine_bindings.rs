@@ -21,15 +21,12 @@ use ether_ros_protocol::{Command, MAX_FRAME_LEN};
 use ether_ros_sim::network::Network;
 use pyo3::exceptions::{PyException, PyValueError};
 use pyo3::prelude::*;
-use pyo3::sync::PyOnceLock;
 use pyo3::types::{PyBytes, PyDict, PyList, PyTuple, PyType};
 
 use crate::sim_bindings::SimNetwork;
 
-static ENGINE_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
-static ENGINE_TIMEOUT: PyOnceLock<Py<PyType>> = PyOnceLock::new();
-
-/// A class of `ether_ros.errors` (`Exception` if that module cannot be imported).
+/// A class of `ether_ros.errors` (`Exception` if that module cannot be imported). The classes
+/// are defined there once; the extension raises them and re-exports the engine's.
 fn errors_class<'py>(py: Python<'py>, name: &str) -> Bound<'py, PyType> {
     py.import("ether_ros.errors")
         .and_then(|m| m.getattr(name))
@@ -37,60 +34,25 @@ fn errors_class<'py>(py: Python<'py>, name: &str) -> Bound<'py, PyType> {
         .unwrap_or_else(|_| py.get_type::<PyException>())
 }
 
-/// `EngineError` subclasses `ether_ros.errors.LinkError` (so the CLI reports it as a one-line
-/// user error).
-fn engine_error(py: Python<'_>) -> &Bound<'_, PyType> {
-    ENGINE_ERROR
-        .get_or_init(py, || {
-            PyErr::new_type(
-                py,
-                c"ether_ros._native.EngineError",
-                Some(
-                    c"The engine cannot do what was asked: link failure, wrong state, or the \
-                        real-time setup was refused.",
-                ),
-                Some(&errors_class(py, "LinkError")),
-                None,
-            )
-            .expect("creating EngineError")
-        })
-        .bind(py)
+/// `ether_ros.errors.EngineError` (a `LinkError`).
+fn engine_error(py: Python<'_>) -> Bound<'_, PyType> {
+    errors_class(py, "EngineError")
 }
 
-/// `EngineTimeout` is an `EngineError` and an `ether_ros.errors.FrameTimeout`: no reply to a
-/// frame within its retries, with the frame's commands, the attempts and the wait as data.
-fn engine_timeout(py: Python<'_>) -> &Bound<'_, PyType> {
-    ENGINE_TIMEOUT
-        .get_or_init(py, || {
-            let attrs = PyDict::new(py);
-            let made = attrs
-                .set_item("__module__", "ether_ros._native")
-                .and_then(|_| {
-                    attrs.set_item(
-                        "__doc__",
-                        "No reply to an acyclic frame within its retries.",
-                    )
-                })
-                .and_then(|_| py.import("builtins"))
-                .and_then(|b| b.getattr("type"))
-                .and_then(|t| {
-                    let bases = PyTuple::new(
-                        py,
-                        [engine_error(py).clone(), errors_class(py, "FrameTimeout")],
-                    )?;
-                    t.call1(("EngineTimeout", bases, attrs))
-                })
-                .and_then(|c| c.cast_into::<PyType>().map_err(PyErr::from));
-            made.expect("creating EngineTimeout").unbind()
-        })
-        .bind(py)
+/// `ether_ros.errors.EngineTimeout`: an `EngineError` and a `FrameTimeout`, with the frame's
+/// commands, the attempts and the wait as data.
+fn engine_timeout(py: Python<'_>) -> Bound<'_, PyType> {
+    errors_class(py, "EngineTimeout")
 }
 
 /// The engine's error as the Python exception of its kind, its data as attributes.
 fn to_py(py: Python<'_>, e: Error) -> PyErr {
     let text = e.to_string();
     let (err, attrs): (PyErr, Vec<(&str, Py<PyAny>)>) = match e {
-        Error::Invalid(m) => (PyValueError::new_err(m), vec![]),
+        Error::Invalid(m) => (
+            PyErr::from_type(errors_class(py, "InvalidRequest"), m),
+            vec![],
+        ),
         Error::Timeout {
             link,
             commands,
@@ -109,7 +71,7 @@ fn to_py(py: Python<'_>, e: Error) -> PyErr {
                 ])
             })()
             .unwrap_or_default();
-            (PyErr::from_type(engine_timeout(py).clone(), text), attrs)
+            (PyErr::from_type(engine_timeout(py), text), attrs)
         }
         Error::Link { errno, .. }
         | Error::Realtime(ether_ros_engine::rt::SetupError { errno, .. }) => {
@@ -118,11 +80,11 @@ fn to_py(py: Python<'_>, e: Error) -> PyErr {
                 .map(|v| v.into_any().unbind())
                 .unwrap_or_else(|_| py.None());
             (
-                PyErr::from_type(engine_error(py).clone(), text),
+                PyErr::from_type(engine_error(py), text),
                 vec![("errno", errno)],
             )
         }
-        Error::State(_) => (PyErr::from_type(engine_error(py).clone(), text), vec![]),
+        Error::State(_) => (PyErr::from_type(engine_error(py), text), vec![]),
     };
     let value = err.value(py);
     for (name, v) in attrs {

@@ -13,7 +13,7 @@ use p::value::ValueError as CheckError;
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::sync::PyOnceLock;
-use pyo3::types::{PyDict, PyList, PyTuple, PyType};
+use pyo3::types::{PyBytes, PyDict, PyList, PyTuple, PyType};
 
 const MODULE: &str = "ether_ros._native.protocol";
 
@@ -90,6 +90,327 @@ fn mailbox_error_text(code: u16) -> &'static str {
 #[pyfunction]
 fn mailbox_type_name(mbx_type: u8) -> Option<&'static str> {
     p::mailbox::type_name(mbx_type)
+}
+
+// ----- record codecs (one codec, crates/protocol; the master's Python wraps these) --------
+
+/// The 8 register bytes of a SyncManager the master writes (status and PDI control 0).
+#[pyfunction]
+#[pyo3(signature = (start, length, control, enable = true))]
+fn sm_record<'py>(
+    py: Python<'py>,
+    start: u16,
+    length: u16,
+    control: u8,
+    enable: bool,
+) -> Bound<'py, PyBytes> {
+    PyBytes::new(
+        py,
+        &p::reg::sm::Record::new(start, length, control, enable).encode(),
+    )
+}
+
+/// `(start, length, control, status, activate, pdi_control)` of the SyncManager record `data`
+/// starts with, or None when it is shorter than 8 bytes.
+#[pyfunction]
+fn parse_sm_record(data: &[u8]) -> Option<(u16, u16, u8, u8, u8, u8)> {
+    p::reg::sm::Record::decode(data).map(|r| {
+        (
+            r.start,
+            r.length,
+            r.control,
+            r.status,
+            r.activate,
+            r.pdi_control,
+        )
+    })
+}
+
+/// The 16 register bytes of an FMMU: `kind` is `fmmu.READ` and/or `fmmu.WRITE`.
+#[pyfunction]
+#[pyo3(signature = (
+    logical_start, length, physical_start, kind,
+    logical_start_bit = 0, logical_stop_bit = 7, physical_start_bit = 0, enable = true
+))]
+#[allow(clippy::too_many_arguments)]
+fn fmmu_record<'py>(
+    py: Python<'py>,
+    logical_start: u32,
+    length: u16,
+    physical_start: u16,
+    kind: u8,
+    logical_start_bit: u8,
+    logical_stop_bit: u8,
+    physical_start_bit: u8,
+    enable: bool,
+) -> Bound<'py, PyBytes> {
+    let r = p::reg::fmmu::Record {
+        logical_start,
+        length,
+        logical_start_bit,
+        logical_stop_bit,
+        physical_start,
+        physical_start_bit,
+        kind,
+        activate: if enable {
+            p::reg::fmmu::ACTIVATE_ENABLE
+        } else {
+            0
+        },
+    };
+    PyBytes::new(py, &r.encode())
+}
+
+/// An FMMU record as Python gets it (the fields in register order).
+type PyFmmu = (u32, u16, u8, u8, u16, u8, u8, u8);
+
+/// `(logical_start, length, logical_start_bit, logical_stop_bit, physical_start,
+/// physical_start_bit, kind, activate)` of the FMMU record `data` starts with, or None when it
+/// is shorter than 13 bytes.
+#[pyfunction]
+fn parse_fmmu_record(data: &[u8]) -> Option<PyFmmu> {
+    p::reg::fmmu::Record::decode(data).map(|r| {
+        (
+            r.logical_start,
+            r.length,
+            r.logical_start_bit,
+            r.logical_stop_bit,
+            r.physical_start,
+            r.physical_start_bit,
+            r.kind,
+            r.activate,
+        )
+    })
+}
+
+/// The categories of an SII image: `(offset, type, data)` from word 0x40 up to the end
+/// marker, stopping where a category runs past the image.
+#[pyfunction]
+fn sii_categories<'py>(py: Python<'py>, image: &[u8]) -> Vec<(usize, u16, Bound<'py, PyBytes>)> {
+    p::sii::categories(image)
+        .map(|c| (c.offset, c.kind, PyBytes::new(py, c.data)))
+        .collect()
+}
+
+/// A category: its header (`kind`, size in words) and `data`, padded to a whole word.
+#[pyfunction]
+fn sii_category_bytes<'py>(py: Python<'py>, kind: u16, data: &[u8]) -> Bound<'py, PyBytes> {
+    let mut out = Vec::with_capacity(data.len() + 5);
+    p::sii::encode_category(kind, data, &mut out);
+    PyBytes::new(py, &out)
+}
+
+/// Whether `image` holds the category list up to its end marker (a list running on past
+/// `max_bytes` counts as complete).
+#[pyfunction]
+fn sii_list_complete(image: &[u8], max_bytes: usize) -> bool {
+    p::sii::list_complete(image, max_bytes)
+}
+
+/// One 8-byte record of the SII SyncM category.
+#[pyfunction]
+fn sii_syncm_record<'py>(
+    py: Python<'py>,
+    start: u16,
+    length: u16,
+    control: u8,
+    enable: u8,
+    kind: u8,
+) -> Bound<'py, PyBytes> {
+    let r = p::sii::syncm::Record {
+        start,
+        length,
+        control,
+        status: 0,
+        enable,
+        kind,
+    };
+    PyBytes::new(py, &r.encode())
+}
+
+/// `(start, length, control, status, enable, type)` of every record of a SyncM category's data.
+#[pyfunction]
+fn parse_sii_syncms(data: &[u8]) -> Vec<(u16, u16, u8, u8, u8, u8)> {
+    p::sii::syncm::Record::decode_all(data)
+        .map(|r| (r.start, r.length, r.control, r.status, r.enable, r.kind))
+        .collect()
+}
+
+/// The 8-byte record of one PDO of a TxPDO/RxPDO category (`sync_manager` `sii_pdo.NO_SM`
+/// when not assigned by default).
+#[pyfunction]
+fn sii_pdo_record<'py>(
+    py: Python<'py>,
+    index: u16,
+    entries: u8,
+    sync_manager: u8,
+    name: u8,
+    flags: u16,
+) -> Bound<'py, PyBytes> {
+    let r = p::sii::pdo::Record {
+        index,
+        entries,
+        sync_manager,
+        synchronization: 0,
+        name,
+        flags,
+    };
+    PyBytes::new(py, &r.encode())
+}
+
+/// The 8-byte record of one PDO entry (`data_type` the low byte of the type code).
+#[pyfunction]
+fn sii_pdo_entry_record<'py>(
+    py: Python<'py>,
+    index: u16,
+    subindex: u8,
+    name: u8,
+    data_type: u8,
+    bit_length: u8,
+) -> Bound<'py, PyBytes> {
+    let e = p::sii::pdo::Entry {
+        index,
+        subindex,
+        name,
+        data_type,
+        bit_length,
+        flags: 0,
+    };
+    PyBytes::new(py, &e.encode())
+}
+
+/// A PDO as Python gets it: `(index, sync_manager, name, flags, entries)`, each entry
+/// `(index, subindex, name, data_type, bit_length)`.
+type PyPdo = (u16, u8, u8, u16, Vec<(u16, u8, u8, u8, u8)>);
+
+/// The PDOs of a TxPDO/RxPDO category's data, and None; or, when a PDO's entry list runs past
+/// the data, no PDOs and that PDO's index (the caller names it in its error).
+#[pyfunction]
+fn parse_sii_pdos(data: &[u8]) -> (Vec<PyPdo>, Option<u16>) {
+    match p::sii::pdo::decode_all(data) {
+        Ok(pdos) => (
+            pdos.iter()
+                .map(|pdo| {
+                    let r = pdo.record;
+                    let entries = pdo
+                        .entries
+                        .iter()
+                        .map(|e| (e.index, e.subindex, e.name, e.data_type, e.bit_length))
+                        .collect();
+                    (r.index, r.sync_manager, r.name, r.flags, entries)
+                })
+                .collect(),
+            None,
+        ),
+        Err(t) => (Vec::new(), Some(t.index)),
+    }
+}
+
+/// The 24-byte record of one DC operation mode.
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+fn sii_dc_record<'py>(
+    py: Python<'py>,
+    cycle_time_sync0: u32,
+    shift_time_sync0: i32,
+    shift_time_sync1: i32,
+    sync1_cycle_factor: u16,
+    assign_activate: u16,
+    sync0_cycle_factor: u16,
+    name: u8,
+    description: u8,
+) -> Bound<'py, PyBytes> {
+    let r = p::sii::dc::Record {
+        cycle_time_sync0,
+        shift_time_sync0,
+        shift_time_sync1,
+        sync1_cycle_factor,
+        assign_activate,
+        sync0_cycle_factor,
+        name,
+        description,
+    };
+    PyBytes::new(py, &r.encode())
+}
+
+/// A DC record as Python gets it (the fields in record order).
+type PyDc = (u32, i32, i32, u16, u16, u16, u8, u8);
+
+/// `(cycle_time_sync0, shift_time_sync0, shift_time_sync1, sync1_cycle_factor,
+/// assign_activate, sync0_cycle_factor, name, description)` of every record of a DC category.
+#[pyfunction]
+fn parse_sii_dcs(data: &[u8]) -> Vec<PyDc> {
+    data.chunks_exact(p::sii::dc::RECORD_LEN)
+        .filter_map(p::sii::dc::Record::decode)
+        .map(|r| {
+            (
+                r.cycle_time_sync0,
+                r.shift_time_sync0,
+                r.shift_time_sync1,
+                r.sync1_cycle_factor,
+                r.assign_activate,
+                r.sync0_cycle_factor,
+                r.name,
+                r.description,
+            )
+        })
+        .collect()
+}
+
+/// The 2-byte CoE header of a message of `service` (number 0).
+#[pyfunction]
+fn coe_header<'py>(py: Python<'py>, service: u16) -> Bound<'py, PyBytes> {
+    PyBytes::new(py, &p::coe::header(service))
+}
+
+/// An SDO segment message: CoE header of `service`, command byte (`specifier`, `toggle`,
+/// unused bytes, `last`), `data` padded to 7 bytes.
+#[pyfunction]
+fn sdo_segment<'py>(
+    py: Python<'py>,
+    service: u16,
+    specifier: u8,
+    toggle: bool,
+    last: bool,
+    data: &[u8],
+) -> Bound<'py, PyBytes> {
+    let s = p::coe::Segment {
+        service,
+        specifier,
+        toggle,
+        last,
+        data,
+    };
+    PyBytes::new(py, &s.encode())
+}
+
+/// A segment message without data (upload segment request, download segment response).
+#[pyfunction]
+fn sdo_toggle_message<'py>(
+    py: Python<'py>,
+    service: u16,
+    specifier: u8,
+    toggle: bool,
+) -> Bound<'py, PyBytes> {
+    PyBytes::new(py, &p::coe::toggle_message(service, specifier, toggle))
+}
+
+/// `(service, specifier, toggle, last, data)` of an SDO segment message (data without its
+/// padding), or None when shorter than the CoE header and the command byte.
+#[pyfunction]
+fn parse_sdo_segment<'py>(
+    py: Python<'py>,
+    message: &[u8],
+) -> Option<(u16, u8, bool, bool, Bound<'py, PyBytes>)> {
+    p::coe::Segment::decode(message).map(|s| {
+        (
+            s.service,
+            s.specifier,
+            s.toggle,
+            s.last,
+            PyBytes::new(py, s.data),
+        )
+    })
 }
 
 /// The 6-byte mailbox header of a message of `length` bytes after it.
@@ -436,7 +757,7 @@ pub fn register(parent: &Bound<'_, PyModule>) -> PyResult<()> {
         .iter()
         .map(|c| (c.name(), *c as u64))
         .collect();
-    let namespaces: [(&str, &str, Vec<Table<'_>>); 27] = [
+    let namespaces: [(&str, &str, Vec<Table<'_>>); 30] = [
         ("frame", "Frame and datagram layout.", vec![p::frame::TABLE]),
         ("cmd", "Datagram command codes.", vec![&commands]),
         ("reg", "ESC register addresses.", vec![p::reg::TABLE]),
@@ -492,6 +813,21 @@ pub fn register(parent: &Bound<'_, PyModule>) -> PyResult<()> {
             "sii_syncm",
             "SII SyncM category: SyncManager types and enable bits.",
             vec![p::sii::syncm::TABLE],
+        ),
+        (
+            "sii_general",
+            "SII General category: byte offsets, CoE details, flags, port types.",
+            vec![p::sii::general::TABLE],
+        ),
+        (
+            "sii_fmmu",
+            "SII FMMU category: what each FMMU is for.",
+            vec![p::sii::fmmu_usage::TABLE],
+        ),
+        (
+            "sii_pdo",
+            "SII TxPDO/RxPDO categories: PDO flags, record length.",
+            vec![p::sii::pdo::TABLE],
         ),
         (
             "mailbox",
@@ -591,6 +927,24 @@ pub fn register(parent: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(open_ports, &m)?)?;
     m.add_function(wrap_pyfunction!(cia402_state, &m)?)?;
     m.add_function(wrap_pyfunction!(dc_time_difference, &m)?)?;
+    m.add_function(wrap_pyfunction!(sm_record, &m)?)?;
+    m.add_function(wrap_pyfunction!(parse_sm_record, &m)?)?;
+    m.add_function(wrap_pyfunction!(fmmu_record, &m)?)?;
+    m.add_function(wrap_pyfunction!(parse_fmmu_record, &m)?)?;
+    m.add_function(wrap_pyfunction!(sii_categories, &m)?)?;
+    m.add_function(wrap_pyfunction!(sii_category_bytes, &m)?)?;
+    m.add_function(wrap_pyfunction!(sii_list_complete, &m)?)?;
+    m.add_function(wrap_pyfunction!(sii_syncm_record, &m)?)?;
+    m.add_function(wrap_pyfunction!(parse_sii_syncms, &m)?)?;
+    m.add_function(wrap_pyfunction!(sii_pdo_record, &m)?)?;
+    m.add_function(wrap_pyfunction!(sii_pdo_entry_record, &m)?)?;
+    m.add_function(wrap_pyfunction!(parse_sii_pdos, &m)?)?;
+    m.add_function(wrap_pyfunction!(sii_dc_record, &m)?)?;
+    m.add_function(wrap_pyfunction!(parse_sii_dcs, &m)?)?;
+    m.add_function(wrap_pyfunction!(coe_header, &m)?)?;
+    m.add_function(wrap_pyfunction!(sdo_segment, &m)?)?;
+    m.add_function(wrap_pyfunction!(sdo_toggle_message, &m)?)?;
+    m.add_function(wrap_pyfunction!(parse_sdo_segment, &m)?)?;
     parent.add("protocol", &m)?;
     py.import("sys")?.getattr("modules")?.set_item(MODULE, &m)?;
     Ok(())

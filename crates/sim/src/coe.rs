@@ -7,6 +7,9 @@
 //! payload into its own mailbox message. Nothing a master sends can make this code panic: a
 //! malformed request is answered with an abort or ignored.
 //!
+//! The CoE header and the SDO segments are read and written with the protocol crate's codecs
+//! (`ether_ros_protocol::coe::{Header, Segment, toggle_message}`), the ones the master uses.
+//!
 //! Wire layout facts used here (all little endian):
 //! - CoE header (2 bytes): bits 0..=8 number, 9..=11 reserved, 12..=15 service.
 //! - SDO request/response after it: command byte, index (2), subindex (1), 4 data bytes.
@@ -99,10 +102,6 @@ pub struct CoeServer {
     transfer: Transfer,
 }
 
-fn coe_header(service: u16) -> [u8; 2] {
-    (service << 12).to_le_bytes()
-}
-
 fn u16_at(b: &[u8], at: usize) -> Option<u16> {
     Some(u16::from_le_bytes([*b.get(at)?, *b.get(at + 1)?]))
 }
@@ -115,7 +114,7 @@ fn u32_at(b: &[u8], at: usize) -> Option<u32> {
 /// An SDO frame: CoE header (service), command byte, index, subindex and 4 data bytes.
 fn sdo_frame(service: u16, command: u8, index: u16, subindex: u8, data: [u8; 4]) -> Vec<u8> {
     let mut v = Vec::with_capacity(10);
-    v.extend_from_slice(&coe_header(service));
+    v.extend_from_slice(&facts::header(service));
     v.push(command);
     v.extend_from_slice(&index.to_le_bytes());
     v.push(subindex);
@@ -290,11 +289,11 @@ impl CoeServer {
         max_payload: usize,
         out: &mut Vec<Vec<u8>>,
     ) {
-        let Some(header) = u16_at(request, 0) else {
+        let Some(header) = facts::Header::decode(request) else {
             return;
         };
         let max_payload = max_payload.max(MIN_PAYLOAD);
-        match header >> 12 {
+        match header.service {
             service::SDO_REQUEST => {
                 let reply = self.sdo_request(
                     request,
@@ -313,7 +312,7 @@ impl CoeServer {
     /// CoE emergency payload (service 1): error code, error register, 5 data bytes.
     pub fn emergency(error_code: u16, error_register: u8, data: [u8; 5]) -> Vec<u8> {
         let mut v = Vec::with_capacity(10);
-        v.extend_from_slice(&coe_header(service::EMERGENCY));
+        v.extend_from_slice(&facts::header(service::EMERGENCY));
         v.extend_from_slice(&error_code.to_le_bytes());
         v.push(error_register);
         v.extend_from_slice(&data);
@@ -401,7 +400,6 @@ impl CoeServer {
     }
 
     fn download_segment(&mut self, r: &[u8], od: &mut ObjectDictionary, al: u8) -> Vec<u8> {
-        let command = r[2];
         let Transfer::Download {
             index,
             subindex,
@@ -413,19 +411,17 @@ impl CoeServer {
         else {
             return abort_frame(0, 0, abort::INVALID_COMMAND);
         };
-        let this_toggle = command & facts::TOGGLE != 0;
+        // A segment of up to 7 bytes is padded to 7 and says how many bytes are unused: the
+        // protocol crate's segment codec reads it (the caller checked the length).
+        let Some(segment) = facts::Segment::decode(r) else {
+            return abort_frame(index, subindex, abort::INVALID_COMMAND);
+        };
+        let this_toggle = segment.toggle;
         if this_toggle != toggle {
             return abort_frame(index, subindex, abort::TOGGLE_BIT);
         }
-        let segment = &r[3..];
-        // A segment of up to 7 bytes is padded to 7 and says how many bytes are unused.
-        let n = if segment.len() > 7 {
-            segment.len()
-        } else {
-            (7 - ((command >> facts::SEGMENT_UNUSED_SHIFT) & 0x07) as usize).min(segment.len())
-        };
-        data.extend_from_slice(&segment[..n]);
-        let last = command & facts::LAST_SEGMENT != 0;
+        data.extend_from_slice(segment.data);
+        let last = segment.last;
         if data.len() > size {
             return abort_frame(index, subindex, abort::LENGTH_TOO_HIGH);
         }
@@ -446,12 +442,12 @@ impl CoeServer {
                 toggle: !toggle,
             };
         }
-        let t = if this_toggle { facts::TOGGLE } else { 0 };
-        let mut v = Vec::with_capacity(10);
-        v.extend_from_slice(&coe_header(service::SDO_RESPONSE));
-        v.push(cs::DOWNLOAD_SEGMENT_RESP << facts::SPECIFIER_SHIFT | t);
-        v.extend_from_slice(&[0; 7]);
-        v
+        facts::toggle_message(
+            service::SDO_RESPONSE,
+            cs::DOWNLOAD_SEGMENT_RESP,
+            this_toggle,
+        )
+        .to_vec()
     }
 
     fn upload_initiate(&mut self, r: &[u8], od: &ObjectDictionary, max_payload: usize) -> Vec<u8> {
@@ -520,19 +516,16 @@ impl CoeServer {
         if this_toggle != toggle {
             return abort_frame(index, subindex, abort::TOGGLE_BIT);
         }
-        let n = (data.len() - sent).min(max_payload - 3);
+        let n = (data.len() - sent).min(max_payload - facts::SEGMENT_HEADER_LEN);
         let last = sent + n == data.len();
-        let unused = if n < 7 { (7 - n) as u8 } else { 0 };
-        let mut v = Vec::with_capacity(3 + n.max(7));
-        v.extend_from_slice(&coe_header(service::SDO_RESPONSE));
-        v.push(
-            cs::UPLOAD_SEGMENT_RESP << facts::SPECIFIER_SHIFT
-                | if this_toggle { facts::TOGGLE } else { 0 }
-                | unused << 1
-                | u8::from(last),
-        );
-        v.extend_from_slice(&data[sent..sent + n]);
-        v.resize(3 + n.max(7), 0);
+        let v = facts::Segment {
+            service: service::SDO_RESPONSE,
+            specifier: cs::UPLOAD_SEGMENT_RESP,
+            toggle: this_toggle,
+            last,
+            data: &data[sent..sent + n],
+        }
+        .encode();
         if !last {
             self.transfer = Transfer::Upload {
                 index,
@@ -754,7 +747,7 @@ impl CoeServer {
             Ok((opcode, body)) => Self::fragments(opcode, &body, max_payload, out),
             Err(code) => {
                 let mut v = Vec::with_capacity(10);
-                v.extend_from_slice(&coe_header(service::SDO_INFORMATION));
+                v.extend_from_slice(&facts::header(service::SDO_INFORMATION));
                 v.extend_from_slice(&[info::ERROR, 0, 0, 0]);
                 v.extend_from_slice(&code.to_le_bytes());
                 out.push(v);
@@ -772,7 +765,7 @@ impl CoeServer {
             let chunk = &body[(k * room).min(body.len())..((k + 1) * room).min(body.len())];
             let left = (count - 1 - k) as u16;
             let mut v = Vec::with_capacity(6 + chunk.len());
-            v.extend_from_slice(&coe_header(service::SDO_INFORMATION));
+            v.extend_from_slice(&facts::header(service::SDO_INFORMATION));
             v.push(opcode | if left > 0 { info::INCOMPLETE } else { 0 });
             v.push(0);
             v.extend_from_slice(&left.to_le_bytes());
@@ -1430,7 +1423,7 @@ mod tests {
     }
 
     fn info_req(opcode: u8, body: &[u8]) -> Vec<u8> {
-        let mut v = coe_header(service::SDO_INFORMATION).to_vec();
+        let mut v = facts::header(service::SDO_INFORMATION).to_vec();
         v.extend_from_slice(&[opcode, 0, 0, 0]);
         v.extend_from_slice(body);
         v

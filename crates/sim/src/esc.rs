@@ -811,14 +811,12 @@ impl Esc {
     fn sm_configured(&mut self, k: usize) {
         let base = sm_base(k);
         let field = |offset: u16| base + at(offset);
-        let start =
-            u16::from_le_bytes([self.mem[field(smr::START)], self.mem[field(smr::START) + 1]]);
-        let len = u16::from_le_bytes([
-            self.mem[field(smr::LENGTH)],
-            self.mem[field(smr::LENGTH) + 1],
-        ]);
-        let control = self.mem[field(smr::CONTROL)];
-        let activate = self.mem[field(smr::ACTIVATE)];
+        // The master's record, read with the protocol crate's codec.
+        let Some(record) = smr::Record::decode(&self.mem[field(smr::START)..]) else {
+            return;
+        };
+        let (start, len, control, activate) =
+            (record.start, record.length, record.control, record.activate);
         let s = &mut self.sm[k];
         let changed = s.start != start || s.len != len || s.control != control;
         let enabling = activate & ACT_ENABLE != 0 && s.activate & ACT_ENABLE == 0;

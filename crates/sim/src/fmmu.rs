@@ -1,4 +1,5 @@
-//! FMMU registers (0x0600 + 16·n) and the bit-level logical → physical mapping.
+//! FMMU registers (0x0600 + 16·n) and the bit-level logical → physical mapping. The register
+//! record's codec is the protocol crate's (`ether_ros_protocol::reg::fmmu::Record`).
 //!
 //! Layout: logical start (u32), length in bytes (u16), logical start bit (u8, 0..=7), logical
 //! stop bit (u8, 0..=7), physical start (u16), physical start bit (u8), type (u8: bit 0 read,
@@ -19,20 +20,22 @@ pub struct Fmmu {
 }
 
 impl Fmmu {
-    /// Decode an active FMMU from its 16 register bytes (None when inactive or empty).
+    /// Decode an active FMMU from its 16 register bytes (None when inactive or empty): the
+    /// protocol crate's record, with the bit numbers taken modulo 8 as the ESC does.
     pub fn decode(r: &[u8]) -> Option<Fmmu> {
-        if r.len() < 13 || r[12] & 1 == 0 {
+        let rec = ether_ros_protocol::reg::fmmu::Record::decode(r)?;
+        if !rec.enabled() {
             return None;
         }
         let f = Fmmu {
-            logical_start: u32::from_le_bytes([r[0], r[1], r[2], r[3]]),
-            length: u16::from_le_bytes([r[4], r[5]]),
-            logical_start_bit: r[6] & 7,
-            logical_stop_bit: r[7] & 7,
-            physical_start: u16::from_le_bytes([r[8], r[9]]),
-            physical_start_bit: r[10] & 7,
-            read: r[11] & 1 != 0,
-            write: r[11] & 2 != 0,
+            logical_start: rec.logical_start,
+            length: rec.length,
+            logical_start_bit: rec.logical_start_bit & 7,
+            logical_stop_bit: rec.logical_stop_bit & 7,
+            physical_start: rec.physical_start,
+            physical_start_bit: rec.physical_start_bit & 7,
+            read: rec.kind & ether_ros_protocol::reg::fmmu::READ != 0,
+            write: rec.kind & ether_ros_protocol::reg::fmmu::WRITE != 0,
         };
         if f.length == 0 || !(f.read || f.write) {
             return None;

@@ -1,6 +1,6 @@
-//! Runs a `Network` on a network interface: an `AF_PACKET` raw socket bound to EtherType
-//! 0x88A4 (or the engine's AF_XDP link, so the simulator is never the slower side of an xdp
-//! master), a background thread that receives a frame, processes it through the tree of slaves
+//! Runs a `Network` on a network interface: the `AF_PACKET` raw socket of `ether_ros_link`
+//! (`SlaveSocket`, bound to EtherType 0x88A4) or its AF_XDP link (so the simulator is never the
+//! slower side of an xdp master), a background thread that receives a frame, processes it through the tree of slaves
 //! and sends the answer back, and the device firmware on worker threads of its own
 //! (`crate::firmware`). With no workers (`threads = 0`) the frame thread runs the firmware
 //! itself, on each frame and every millisecond without one (the model before the workers).
@@ -10,82 +10,24 @@
 //! behind the frames still on the master's link, plus the time its last bit takes through the
 //! slaves and back; docs/simulator.md, "Threads and timing").
 
-use std::ffi::CString;
 use std::io;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 
-use ether_ros_engine::{Link, LinkKind, LinkOptions, XdpLink};
-use ether_ros_protocol as wire;
+use ether_ros_link::{Link, LinkKind, LinkOptions, SlaveSocket, XdpLink, SLAVE_IDLE_POLL_US};
 
 use crate::firmware::{available_cpus, Roster, WorkerStats, Workers};
 use crate::network::{monotonic_ns, FirmwareMode, Network};
 
-/// Receive timeout when the line is idle (µs).
-const IDLE_POLL_US: libc::suseconds_t = 1_000;
+/// Receive timeout when the line is idle (µs): the link's blocking receive returns by then.
+const IDLE_POLL_US: u32 = SLAVE_IDLE_POLL_US;
 /// Real-time priority the frame thread asks for (ignored when not permitted).
 const RT_PRIORITY: i32 = 70;
 /// Receive buffer size (largest Ethernet frame without FCS, rounded up).
 const FRAME_BUF: usize = 1536;
 /// Answers the `delay` fault can hold back at once.
 const DELAY_QUEUE: usize = 256;
-
-struct Socket(libc::c_int);
-
-impl Drop for Socket {
-    fn drop(&mut self) {
-        // SAFETY: we own the descriptor.
-        unsafe { libc::close(self.0) };
-    }
-}
-
-fn open_socket(ifname: &str) -> io::Result<Socket> {
-    let name = CString::new(ifname)
-        .map_err(|_| io::Error::new(io::ErrorKind::InvalidInput, "interface name contains NUL"))?;
-    // SAFETY: plain libc calls with valid arguments; every result is checked.
-    unsafe {
-        let ifindex = libc::if_nametoindex(name.as_ptr());
-        if ifindex == 0 {
-            return Err(io::Error::new(
-                io::ErrorKind::NotFound,
-                format!("no network interface named '{ifname}'"),
-            ));
-        }
-        // Protocol 0 receives nothing until bind() names the interface and the EtherType;
-        // opening with the EtherType directly would queue EtherCAT frames from every interface
-        // (e.g. other buses on the same host) in the window before bind().
-        let fd = libc::socket(libc::AF_PACKET, libc::SOCK_RAW, 0);
-        if fd < 0 {
-            return Err(io::Error::last_os_error());
-        }
-        let sock = Socket(fd);
-        let mut sll: libc::sockaddr_ll = std::mem::zeroed();
-        sll.sll_family = libc::AF_PACKET as u16;
-        sll.sll_protocol = wire::ETHERTYPE.to_be();
-        sll.sll_ifindex = ifindex as i32;
-        let r = libc::bind(
-            fd,
-            &sll as *const libc::sockaddr_ll as *const libc::sockaddr,
-            std::mem::size_of::<libc::sockaddr_ll>() as u32,
-        );
-        if r < 0 {
-            return Err(io::Error::last_os_error());
-        }
-        // Promiscuous, so frames addressed to any MAC reach us (masters use broadcast anyway).
-        let mut mreq: libc::packet_mreq = std::mem::zeroed();
-        mreq.mr_ifindex = ifindex as i32;
-        mreq.mr_type = libc::PACKET_MR_PROMISC as u16;
-        libc::setsockopt(
-            fd,
-            libc::SOL_PACKET,
-            libc::PACKET_ADD_MEMBERSHIP,
-            &mreq as *const libc::packet_mreq as *const libc::c_void,
-            std::mem::size_of::<libc::packet_mreq>() as u32,
-        );
-        Ok(sock)
-    }
-}
 
 fn try_realtime() {
     // SAFETY: best-effort scheduling and memory locking; failures are ignored on purpose.
@@ -106,57 +48,19 @@ trait FrameIo: Send {
     fn send(&mut self, frame: &[u8]) -> bool;
 }
 
-impl FrameIo for Socket {
+impl FrameIo for SlaveSocket {
     fn recv(&mut self, buf: &mut [u8], timeout_ns: u64) -> Option<usize> {
-        // An idle wait is one blocking receive (SO_RCVTIMEO is the idle poll time): one
-        // syscall per frame. A shorter wait (delayed answers due) polls first.
-        let flags = if timeout_ns >= IDLE_POLL_US as u64 * 1_000 {
-            0
-        } else if wait_readable(self.0, timeout_ns) {
-            libc::MSG_DONTWAIT
-        } else {
-            return None;
-        };
-        loop {
-            // SAFETY: recvfrom into our buffer and address struct, sizes passed correctly.
-            let mut sll: libc::sockaddr_ll = unsafe { std::mem::zeroed() };
-            let mut alen = std::mem::size_of::<libc::sockaddr_ll>() as libc::socklen_t;
-            let n = unsafe {
-                libc::recvfrom(
-                    self.0,
-                    buf.as_mut_ptr() as *mut libc::c_void,
-                    buf.len(),
-                    flags,
-                    &mut sll as *mut libc::sockaddr_ll as *mut libc::sockaddr,
-                    &mut alen,
-                )
-            };
-            if n <= 0 {
-                return None;
-            }
-            // Our own answers come back to packet sockets as outgoing frames: not for us.
-            if sll.sll_pkttype != libc::PACKET_OUTGOING {
-                return Some(n as usize);
-            }
-        }
+        SlaveSocket::recv(self, buf, timeout_ns)
     }
 
     fn send(&mut self, frame: &[u8]) -> bool {
-        // SAFETY: send a buffer we own on the bound socket.
-        unsafe {
-            libc::send(
-                self.0,
-                frame.as_ptr() as *const libc::c_void,
-                frame.len(),
-                0,
-            ) >= 0
-        }
+        SlaveSocket::send(self, frame)
     }
 }
 
 impl FrameIo for XdpLink {
     fn recv(&mut self, buf: &mut [u8], timeout_ns: u64) -> Option<usize> {
-        let deadline = ether_ros_engine::now_ns() + timeout_ns as i64;
+        let deadline = ether_ros_link::now_ns() + timeout_ns as i64;
         Link::recv(self, buf, deadline)
             .ok()
             .flatten()
@@ -170,11 +74,7 @@ impl FrameIo for XdpLink {
 
 fn open_io(ifname: &str, kind: LinkKind) -> io::Result<Box<dyn FrameIo>> {
     match kind {
-        LinkKind::Packet => {
-            let sock = open_socket(ifname)?;
-            set_idle_timeout(sock.0);
-            Ok(Box::new(sock))
-        }
+        LinkKind::Packet => Ok(Box::new(SlaveSocket::open(ifname)?)),
         LinkKind::Xdp => Ok(Box::new(XdpLink::open(ifname, &LinkOptions::default())?)),
     }
 }
@@ -398,39 +298,6 @@ impl DelayQueue {
             self.count -= 1;
         }
         errors
-    }
-}
-
-/// Wait until the socket is readable or `timeout_ns` passed (ns resolution, unlike poll()).
-fn wait_readable(fd: libc::c_int, timeout_ns: u64) -> bool {
-    let mut pfd = libc::pollfd {
-        fd,
-        events: libc::POLLIN,
-        revents: 0,
-    };
-    let ts = libc::timespec {
-        tv_sec: (timeout_ns / 1_000_000_000) as libc::time_t,
-        tv_nsec: (timeout_ns % 1_000_000_000) as libc::c_long,
-    };
-    // SAFETY: one valid pollfd and a valid timeout.
-    unsafe { libc::ppoll(&mut pfd, 1, &ts, std::ptr::null()) > 0 }
-}
-
-/// A blocking receive on the raw socket returns after the idle poll time at the latest.
-fn set_idle_timeout(fd: libc::c_int) {
-    let tv = libc::timeval {
-        tv_sec: 0,
-        tv_usec: IDLE_POLL_US,
-    };
-    // SAFETY: setting a socket option from a valid timeval.
-    unsafe {
-        libc::setsockopt(
-            fd,
-            libc::SOL_SOCKET,
-            libc::SO_RCVTIMEO,
-            &tv as *const libc::timeval as *const libc::c_void,
-            std::mem::size_of::<libc::timeval>() as u32,
-        );
     }
 }
 

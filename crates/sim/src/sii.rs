@@ -9,7 +9,7 @@
 //! A command executes at once; the busy bit stays set for `busy_ns` afterwards so masters that
 //! poll it are exercised (0 by default).
 
-use ether_ros_protocol::sii::{category, word as sii_word};
+use ether_ros_protocol::sii::{category, pdo, syncm, word as sii_word};
 pub use ether_ros_protocol::sii::{
     checksum, BUSY, CHECKSUM_ERROR, CMD_MASK, CMD_READ, CMD_RELOAD, CMD_WRITE, COMMAND_ERROR,
     ERROR_MASK, NOT_LOADED, READ_8_BYTES, TWO_ADDRESS_BYTES, WRITE_ENABLE, WRITE_ERROR,
@@ -23,22 +23,12 @@ pub fn word(image: &[u8], w: usize) -> u16 {
     }
 }
 
-/// The categories of an SII image: (type, data) pairs from word 0x40 on, until the end marker.
+/// The categories of an SII image: (type, data) pairs from word 0x40 on, until the end marker
+/// (the protocol crate's walk; the type without bit 15).
 pub fn categories(image: &[u8]) -> Vec<(u16, &[u8])> {
-    let mut out = Vec::new();
-    let mut pos = 2 * sii_word::FIRST_CATEGORY as usize;
-    while pos + 4 <= image.len() {
-        let kind = u16::from_le_bytes([image[pos], image[pos + 1]]);
-        if kind == category::END {
-            break;
-        }
-        let words = u16::from_le_bytes([image[pos + 2], image[pos + 3]]) as usize;
-        let start = pos + 4;
-        let end = (start + 2 * words).min(image.len());
-        out.push((kind & 0x7fff, &image[start..end]));
-        pos = start + 2 * words;
-    }
-    out
+    ether_ros_protocol::sii::categories(image)
+        .map(|c| (c.kind & 0x7fff, c.data))
+        .collect()
 }
 
 /// One SyncManager of the SII SyncM category.
@@ -52,19 +42,18 @@ pub struct SiiSyncManager {
     pub kind: u8,
 }
 
+/// The SyncManagers of the SyncM categories (the protocol crate's record codec).
 pub fn sync_managers(image: &[u8]) -> Vec<SiiSyncManager> {
     let mut v = Vec::new();
     for (kind, data) in categories(image) {
         if kind == category::SYNCM {
-            for c in data.chunks_exact(8) {
-                v.push(SiiSyncManager {
-                    start: u16::from_le_bytes([c[0], c[1]]),
-                    len: u16::from_le_bytes([c[2], c[3]]),
-                    control: c[4],
-                    enable: c[6],
-                    kind: c[7],
-                });
-            }
+            v.extend(syncm::Record::decode_all(data).map(|r| SiiSyncManager {
+                start: r.start,
+                len: r.length,
+                control: r.control,
+                enable: r.enable,
+                kind: r.kind,
+            }));
         }
     }
     v
@@ -79,6 +68,8 @@ pub struct SiiPdo {
     pub entries: Vec<(u16, u8, u16)>,
 }
 
+/// The PDOs of the categories of type `category` (the protocol crate's record codec); a PDO
+/// whose entry list runs past its category keeps the entries that are there.
 pub fn pdos(image: &[u8], category: u16) -> Vec<SiiPdo> {
     let mut v = Vec::new();
     for (kind, data) in categories(image) {
@@ -86,23 +77,19 @@ pub fn pdos(image: &[u8], category: u16) -> Vec<SiiPdo> {
             continue;
         }
         let mut p = 0;
-        while p + 8 <= data.len() {
-            let index = u16::from_le_bytes([data[p], data[p + 1]]);
-            let n = data[p + 2] as usize;
-            let sm = data[p + 3];
+        while let Some(record) = pdo::Record::decode(&data[p..]) {
             let mut entries = Vec::new();
-            let mut q = p + 8;
-            for _ in 0..n {
-                if q + 8 > data.len() {
+            let mut q = p + pdo::RECORD_LEN;
+            for _ in 0..record.entries {
+                let Some(e) = pdo::Entry::decode(&data[q..]) else {
                     break;
-                }
-                let e_index = u16::from_le_bytes([data[q], data[q + 1]]);
-                entries.push((e_index, data[q + 2], data[q + 5] as u16));
-                q += 8;
+                };
+                entries.push((e.index, e.subindex, u16::from(e.bit_length)));
+                q += pdo::RECORD_LEN;
             }
             v.push(SiiPdo {
-                index,
-                sync_manager: sm,
+                index: record.index,
+                sync_manager: record.sync_manager,
                 entries,
             });
             p = q;

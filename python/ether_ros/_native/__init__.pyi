@@ -10,7 +10,8 @@ from types import TracebackType
 from typing import Any, Self, final
 
 from ether_ros._native import protocol as protocol
-from ether_ros.errors import LinkError
+from ether_ros.errors import EngineError as EngineError
+from ether_ros.errors import EngineTimeout as EngineTimeout
 
 __all__ = [
     "PANIC_KEYS",
@@ -33,9 +34,6 @@ __all__ = [
 __version__: str
 SAMPLE_RECORD_LEN: int
 SAMPLE_FLAGS: dict[str, int]
-
-class EngineError(LinkError): ...
-class EngineTimeout(EngineError): ...
 
 @final
 class SimNetwork:

@@ -7,6 +7,10 @@ simulator serves it through the ESC's EEPROM interface); :func:`parse_sii` decod
 Layout: 64 header words (configuration area with its CRC, identity, mailbox, protocols, size,
 version), then categories from word 0x40: ``type:u16, size_in_words:u16, data``, ending with
 0xFFFF. All values little endian.
+
+The byte layout of the categories and their records (SyncM, TxPDO/RxPDO, DC, the General bits)
+is the protocol crate's (``crates/protocol/src/sii.rs``, the codec the simulator reads the
+image with); this module decides what goes into them.
 """
 
 from __future__ import annotations
@@ -16,7 +20,24 @@ import struct
 import unicodedata
 from dataclasses import dataclass, field
 
-from ether_ros._native.protocol import sii_category, sii_checksum, sii_syncm, sii_word
+from ether_ros._native.protocol import (
+    parse_sii_dcs,
+    parse_sii_pdos,
+    parse_sii_syncms,
+    sii_categories,
+    sii_category,
+    sii_category_bytes,
+    sii_checksum,
+    sii_dc_record,
+    sii_fmmu,
+    sii_general,
+    sii_pdo,
+    sii_pdo_entry_record,
+    sii_pdo_record,
+    sii_syncm,
+    sii_syncm_record,
+    sii_word,
+)
 from ether_ros.config.esi import MAX_EEPROM_BYTES, EsiDevice, Pdo
 from ether_ros.errors import ConfigError
 
@@ -36,7 +57,12 @@ SM_TYPE = {
     "Inputs": sii_syncm.TYPE_INPUTS,
 }
 SM_ROLE = {v: k for k, v in SM_TYPE.items()}
-FMMU_TYPE = {"": 0, "Outputs": 1, "Inputs": 2, "MBoxState": 3}
+FMMU_TYPE = {
+    "": sii_fmmu.UNUSED,
+    "Outputs": sii_fmmu.OUTPUTS,
+    "Inputs": sii_fmmu.INPUTS,
+    "MBoxState": sii_fmmu.MBOX_STATE,
+}
 FMMU_ROLE = {v: k for k, v in FMMU_TYPE.items()}
 
 
@@ -194,9 +220,7 @@ def sii_text(text: str) -> bytes:
 
 
 def _category(ctype: int, data: bytes) -> bytes:
-    if len(data) % 2:
-        data += b"\0"
-    return struct.pack("<HH", ctype, len(data) // 2) + data
+    return sii_category_bytes(ctype, data)
 
 
 def _pdo_category(
@@ -216,28 +240,24 @@ def _pdo_category(
             )
             continue
         flags = (
-            (0x0001 if p.mandatory else 0)
-            | (0x0002 if p.sm is not None else 0)
-            | (0x0010 if p.fixed else 0)
+            (sii_pdo.FLAG_MANDATORY if p.mandatory else 0)
+            | (sii_pdo.FLAG_DEFAULT if p.sm is not None else 0)
+            | (sii_pdo.FLAG_FIXED if p.fixed else 0)
         )
-        out += struct.pack(
-            "<HBBBBH",
+        out += sii_pdo_record(
             p.index,
             len(p.entries),
-            0xFF if p.sm is None else p.sm,
-            0,
+            sii_pdo.NO_SM if p.sm is None else p.sm,
             strings.index(p.name),
             flags,
         )
         for e in p.entries:
-            out += struct.pack(
-                "<HBBBBH",
+            out += sii_pdo_entry_record(
                 e.index,
                 e.subindex,
                 strings.index(e.name) if named else 0,
                 e.data_type & 0xFF,
                 e.bit_length,
-                0,
             )
     return bytes(out)
 
@@ -279,31 +299,36 @@ def build_sii(device: EsiDevice, alias: int = 0, serial: int = 0) -> bytes:
     coe = 0
     if mb is not None and mb.coe:
         coe = (
-            0x01
-            | (0x02 if mb.sdo_info else 0)
-            | (0x04 if mb.pdo_assign else 0)
-            | (0x08 if mb.pdo_config else 0)
-            | (0x20 if mb.complete_access else 0)
+            sii_general.COE_SDO
+            | (sii_general.COE_SDO_INFO if mb.sdo_info else 0)
+            | (sii_general.COE_PDO_ASSIGN if mb.pdo_assign else 0)
+            | (sii_general.COE_PDO_CONFIG if mb.pdo_config else 0)
+            | (sii_general.COE_COMPLETE_ACCESS if mb.complete_access else 0)
         )
     ports = 0
+    port_type = {
+        "Y": sii_general.PORT_MII,
+        "K": sii_general.PORT_EBUS,
+        "H": sii_general.PORT_FAST_HOT_CONNECT,
+    }
     for i, ch in enumerate(device.physics[:4]):
-        ports |= {"Y": 0x1, "K": 0x3, "H": 0x4}.get(ch, 0) << (4 * i)
-    general = bytearray(32)
+        ports |= port_type.get(ch, sii_general.PORT_NONE) << (4 * i)
+    general = bytearray(sii_general.LEN)
     # The name must be string 1: SOEM takes string 1 as the slave name, IgH the NameIdx.
-    general[3] = strings.index(device.name)
-    general[0] = strings.index(device.group_type)
-    general[1] = 0
-    general[2] = strings.index(device.type_name)
-    general[5] = coe
-    general[6] = 1 if mb is not None and mb.foe else 0
-    general[7] = 1 if mb is not None and mb.eoe else 0
-    general[11] = 0x01  # enable SAFEOP
-    struct.pack_into("<h", general, 12, 0)
-    general[14] = general[0]
-    struct.pack_into("<H", general, 16, ports)
+    general[sii_general.NAME] = strings.index(device.name)
+    general[sii_general.GROUP] = strings.index(device.group_type)
+    general[sii_general.IMAGE] = 0
+    general[sii_general.ORDER] = strings.index(device.type_name)
+    general[sii_general.COE_DETAILS] = coe
+    general[sii_general.FOE_DETAILS] = 1 if mb is not None and mb.foe else 0
+    general[sii_general.EOE_DETAILS] = 1 if mb is not None and mb.eoe else 0
+    general[sii_general.FLAGS] = sii_general.FLAG_ENABLE_SAFEOP
+    struct.pack_into("<h", general, sii_general.CURRENT_ON_EBUS, 0)
+    general[sii_general.GROUP_COPY] = general[sii_general.GROUP]
+    struct.pack_into("<H", general, sii_general.PHYSICAL_PORTS, ports)
     fmmu = bytes(FMMU_TYPE[r] for r in device.fmmus)
     if len(fmmu) % 2:
-        fmmu += b"\xff"  # category padding: 0xFF marks an unused FMMU
+        fmmu += bytes([sii_fmmu.PADDING])  # category padding: 0xFF marks an unused FMMU
     syncm = bytearray()
     for sm in device.sync_managers:
         size = sm.default_size
@@ -314,8 +339,7 @@ def build_sii(device: EsiDevice, alias: int = 0, serial: int = 0) -> bytes:
         # Enable byte (ETG.2010): a virtual SM is flagged and not enabled (it takes no
         # hardware SM: a master maps its memory with an FMMU only), an OpOnly SM flagged.
         enable = sm.sii_enable
-        syncm += struct.pack("<HHBBBB", sm.start, size & 0xFFFF, sm.control, 0, enable,
-                             SM_TYPE[sm.role])  # fmt: skip
+        syncm += sii_syncm_record(sm.start, size & 0xFFFF, sm.control, enable, SM_TYPE[sm.role])
     # The PDO categories, strings and DC category: as much as the ESI's EEPROM holds. A CoE
     # device's vendor tool leaves out what masters read over CoE (ETG.2010: the PDO categories
     # describe the PDOs of a device without CoE): first the PDOs not assigned by default, then
@@ -372,8 +396,7 @@ def _body(
     rx = _pdo_category(device, rx_pdos, strings, named)
     dc = bytearray()
     for m in device.dc_opmodes:
-        dc += struct.pack(
-            "<IiiHHHBB4x",
+        dc += sii_dc_record(
             m.cycle_time_sync0,
             m.shift_time_sync0,
             m.shift_time_sync1,
@@ -448,32 +471,18 @@ def parse_sii(data: bytes) -> SiiInfo:
     cats: list[int] = []
     pdo_raw: list[tuple[int, bytes]] = []
     dc_raw = b""
-    pos = HEADER_BYTES
-    while pos + 2 <= len(data):
-        (ctype,) = struct.unpack_from("<H", data, pos)
-        if ctype == sii_category.END:
-            break
-        if pos + 4 > len(data):
-            break
-        (nwords,) = struct.unpack_from("<H", data, pos + 2)
-        start, end = pos + 4, pos + 4 + 2 * nwords
-        if end > len(data):
-            break
-        body = data[start:end]
+    for pos, ctype, body in sii_categories(data):
         cats.append(ctype)
         if ctype == sii_category.STRINGS:
             strings = _parse_strings(body, pos)
         elif ctype == sii_category.GENERAL:
-            if len(body) < 18:
+            if len(body) < sii_general.MIN_LEN:
                 raise SiiFormatError(f"SII GENERAL category at byte {pos} is {len(body)} bytes")
             general_raw = body
         elif ctype == sii_category.FMMU:
-            fmmus = tuple(FMMU_ROLE.get(b, "") for b in body if b != 0xFF)
+            fmmus = tuple(FMMU_ROLE.get(b, "") for b in body if b != sii_fmmu.PADDING)
         elif ctype == sii_category.SYNCM:
-            for off in range(0, len(body) - 7, 8):
-                start_addr, length, ctrl, _status, enable, smtype = struct.unpack_from(
-                    "<HHBBBB", body, off
-                )
+            for start_addr, length, ctrl, _status, enable, smtype in parse_sii_syncms(body):
                 sms.append(
                     SiiSyncManager(start_addr, length, ctrl, enable, SM_ROLE.get(smtype, ""))
                 )
@@ -481,30 +490,28 @@ def parse_sii(data: bytes) -> SiiInfo:
             pdo_raw.append((ctype, body))
         elif ctype == sii_category.DC:
             dc_raw = body
-        pos = end
 
     def s(i: int) -> str:
         return strings[i - 1] if 1 <= i <= len(strings) else ""
 
     for ctype, body in pdo_raw:
         (tx if ctype == sii_category.TXPDO else rx).extend(_parse_pdos(body, s))
-    for off in range(0, len(dc_raw) - 23, 24):
-        c0, sh0, sh1, f1, aa, f0, ni, di = struct.unpack_from("<IiiHHHBB", dc_raw, off)
+    for c0, sh0, sh1, f1, aa, f0, ni, di in parse_sii_dcs(dc_raw):
         dcs.append(SiiDc(c0, sh0, sh1, f1, aa, f0, s(ni), s(di)))
     general = None
     if general_raw is not None:
         g = general_raw
         general = SiiGeneral(
-            group=s(g[0]),
-            image=s(g[1]),
-            order=s(g[2]),
-            name=s(g[3]),
-            coe_details=g[5],
-            foe_details=g[6],
-            eoe_details=g[7],
-            flags=g[11],
-            current_on_ebus_ma=struct.unpack_from("<h", g, 12)[0],
-            physical_ports=struct.unpack_from("<H", g, 16)[0],
+            group=s(g[sii_general.GROUP]),
+            image=s(g[sii_general.IMAGE]),
+            order=s(g[sii_general.ORDER]),
+            name=s(g[sii_general.NAME]),
+            coe_details=g[sii_general.COE_DETAILS],
+            foe_details=g[sii_general.FOE_DETAILS],
+            eoe_details=g[sii_general.EOE_DETAILS],
+            flags=g[sii_general.FLAGS],
+            current_on_ebus_ma=struct.unpack_from("<h", g, sii_general.CURRENT_ON_EBUS)[0],
+            physical_ports=struct.unpack_from("<H", g, sii_general.PHYSICAL_PORTS)[0],
         )
     return SiiInfo(
         pdi_control=w[sii_word.PDI_CONTROL],
@@ -549,17 +556,16 @@ def _parse_strings(body: bytes, pos: int) -> list[str]:
 
 def _parse_pdos(body: bytes, s: object) -> list[SiiPdo]:
     assert callable(s)
-    out: list[SiiPdo] = []
-    off = 0
-    while off + 8 <= len(body):
-        index, n, sm, _sync, name_idx, flags = struct.unpack_from("<HBBBBH", body, off)
-        off += 8
-        entries = []
-        for _ in range(n):
-            if off + 8 > len(body):
-                raise SiiFormatError(f"SII PDO {index:#06x}: entry list truncated")
-            ei, es, en, edt, ebits, _ef = struct.unpack_from("<HBBBBH", body, off)
-            off += 8
-            entries.append(SiiPdoEntry(ei, es, s(en), edt, ebits))
-        out.append(SiiPdo(index, sm, s(name_idx), flags, tuple(entries)))
-    return out
+    pdos, truncated = parse_sii_pdos(body)
+    if truncated is not None:
+        raise SiiFormatError(f"SII PDO {truncated:#06x}: entry list truncated")
+    return [
+        SiiPdo(
+            index,
+            sm,
+            s(name_idx),
+            flags,
+            tuple(SiiPdoEntry(ei, es, s(en), edt, ebits) for ei, es, en, edt, ebits in entries),
+        )
+        for index, sm, name_idx, flags, entries in pdos
+    ]

@@ -16,17 +16,22 @@ from dataclasses import dataclass
 
 from ether_ros._native.protocol import (
     coe,
+    coe_header,
     emergency_text,
     format_address,
     object_code_name,
+    parse_sdo_segment,
     sdo_abort,
+    sdo_segment,
+    sdo_toggle_message,
 )
 from ether_ros.errors import MailboxError, SdoAbort
 from ether_ros.master.mailbox import Mailbox, MailboxType
 
-# A segment: CoE header (2), command (1), then at least 7 data bytes.
-SEGMENT_HEADER_LEN = 3
-MIN_SEGMENT_DATA = 7
+# A segment: CoE header (2), command (1), then at least 7 data bytes; the codec is the protocol
+# crate's (``coe::Segment``), the one the simulator's SDO server uses.
+SEGMENT_HEADER_LEN = coe.SEGMENT_HEADER_LEN
+MIN_SEGMENT_DATA = coe.MIN_SEGMENT_DATA
 
 
 @dataclass(frozen=True)
@@ -100,13 +105,9 @@ class EntryDescription:
         return f"rw({states}) ro" if read else f"wo({states})"
 
 
-def _coe_header(service: int) -> bytes:
-    return struct.pack("<H", service << 12)  # CoE header: number 0, service in bits 12..15
-
-
 def _sdo(command: int, index: int, subindex: int, data: bytes = b"\x00\x00\x00\x00") -> bytes:
     return (
-        _coe_header(coe.SERVICE_SDO_REQUEST) + struct.pack("<BHB", command, index, subindex) + data
+        coe_header(coe.SERVICE_SDO_REQUEST) + struct.pack("<BHB", command, index, subindex) + data
     )
 
 
@@ -203,18 +204,20 @@ class SdoClient:
         data = bytearray(reply[coe.SDO_HEADER_LEN : coe.SDO_HEADER_LEN + size])
         toggle = 0
         while len(data) < size:
-            segment = self._exchange(_segment_request(toggle), what, index, subindex)
-            if segment[2] >> coe.SPECIFIER_SHIFT != coe.SCS_UPLOAD_SEGMENT:
+            request = sdo_toggle_message(
+                coe.SERVICE_SDO_REQUEST, coe.CCS_UPLOAD_SEGMENT, bool(toggle)
+            )
+            segment = self._exchange(request, what, index, subindex)
+            decoded = parse_sdo_segment(segment)
+            if decoded is None or decoded[1] != coe.SCS_UPLOAD_SEGMENT:
                 self._abort(index, subindex, sdo_abort.ABORT_INVALID_COMMAND)
-                raise self._fail(what, f"expected an upload segment, got 0x{segment[2]:02X}")
-            if segment[2] & coe.TOGGLE != toggle:
+                got = f"0x{segment[2]:02X}" if len(segment) > 2 else f"{len(segment)} bytes"
+                raise self._fail(what, f"expected an upload segment, got {got}")
+            _service, _specifier, seg_toggle, last, body = decoded
+            if seg_toggle != bool(toggle):
                 self._abort(index, subindex, sdo_abort.ABORT_TOGGLE_BIT)
                 raise self._fail(what, "slave did not alternate the toggle bit")
-            body = segment[SEGMENT_HEADER_LEN:]
-            if len(body) <= MIN_SEGMENT_DATA:
-                body = body[: MIN_SEGMENT_DATA - ((segment[2] >> coe.SEGMENT_UNUSED_SHIFT) & 0x07)]
             data += body
-            last = bool(segment[2] & coe.LAST_SEGMENT)
             if last or not body:
                 break
             toggle ^= coe.TOGGLE
@@ -256,16 +259,13 @@ class SdoClient:
         while sent < len(data):
             chunk = data[sent : sent + segment_room]
             sent += len(chunk)
-            last = coe.LAST_SEGMENT if sent == len(data) else 0
-            unused = MIN_SEGMENT_DATA - len(chunk) if len(chunk) < MIN_SEGMENT_DATA else 0
-            command = (
-                coe.CCS_DOWNLOAD_SEGMENT << coe.SPECIFIER_SHIFT
-                | toggle
-                | unused << coe.SEGMENT_UNUSED_SHIFT
-                | last
+            segment = sdo_segment(
+                coe.SERVICE_SDO_REQUEST,
+                coe.CCS_DOWNLOAD_SEGMENT,
+                bool(toggle),
+                sent == len(data),
+                chunk,
             )
-            segment = _coe_header(coe.SERVICE_SDO_REQUEST) + bytes([command])
-            segment += chunk.ljust(MIN_SEGMENT_DATA, b"\x00")
             reply = self._exchange(segment, what, index, subindex)
             if reply[2] >> coe.SPECIFIER_SHIFT != coe.SCS_DOWNLOAD_SEGMENT:
                 self._abort(index, subindex, sdo_abort.ABORT_INVALID_COMMAND)
@@ -282,7 +282,7 @@ class SdoClient:
     ) -> bytes:
         """One SDO Information exchange; the fragments of the answer put together. ``index``
         and ``subindex`` name the object an abort is about."""
-        request = _coe_header(coe.SERVICE_SDO_INFORMATION) + bytes([opcode, 0, 0, 0]) + body
+        request = coe_header(coe.SERVICE_SDO_INFORMATION) + bytes([opcode, 0, 0, 0]) + body
         self.mailbox.flush()
         try:
             self.mailbox.send(MailboxType.COE, request, self.timeout_s)
@@ -357,14 +357,6 @@ class SdoClient:
         return EntryDescription(
             got_index, got_sub, value_info, data_type, bits, access, _text(body[10:])
         )
-
-
-def _segment_request(toggle: int) -> bytes:
-    return (
-        _coe_header(coe.SERVICE_SDO_REQUEST)
-        + bytes([coe.CCS_UPLOAD_SEGMENT << coe.SPECIFIER_SHIFT | toggle])
-        + bytes(7)
-    )
 
 
 def _text(raw: bytes) -> str:

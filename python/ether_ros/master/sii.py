@@ -23,7 +23,7 @@ import struct
 import time
 from collections.abc import Sequence
 
-from ether_ros._native.protocol import reg, sii, sii_category, sii_word
+from ether_ros._native.protocol import reg, sii, sii_list_complete, sii_word
 from ether_ros.errors import BusError, SiiReadError
 from ether_ros.master.datagrams import Cmd, Datagram, DatagramService, fixed_address, u16, u32
 
@@ -37,21 +37,10 @@ MAX_SII_BYTES = 64 * 1024
 
 
 def sii_complete(image: bytes) -> bool:
-    """True once ``image`` holds the whole category list up to its end marker."""
-    word = sii_word.FIRST_CATEGORY
-    while True:
-        pos = 2 * word
-        if pos + 2 > len(image):
-            return False
-        (kind,) = struct.unpack_from("<H", image, pos)
-        if kind == sii_category.END:
-            return True
-        if pos + 4 > len(image):
-            return False
-        (size,) = struct.unpack_from("<H", image, pos + 2)
-        word += 2 + size
-        if 2 * word > MAX_SII_BYTES:
-            return True  # a broken list: stop here and let the parser complain
+    """True once ``image`` holds the whole category list up to its end marker (or a broken
+    list runs past :data:`MAX_SII_BYTES`: the reader stops there and the parser complains).
+    The walk is the protocol crate's (``sii::list_complete``)."""
+    return sii_list_complete(image, MAX_SII_BYTES)
 
 
 def _who(names: Sequence[str], i: int) -> str:

@@ -4,14 +4,25 @@ A SyncManager (8 bytes at 0x0800 + 8·n) guards a window of the slave's process 
 SMs (0 master→slave, 1 slave→master) use the one-buffer handshake, the process-data SMs (2
 outputs, 3 inputs) the three-buffer mode. An FMMU (16 bytes at 0x0600 + 16·n) maps a range of the
 logical address space the LRW datagram travels through onto such a window.
+
+The register records' byte layout is the protocol crate's (``reg::sm::Record``,
+``reg::fmmu::Record``, the codec the simulator's ESC reads them with); these classes carry the
+master's values and hand them to it.
 """
 
 from __future__ import annotations
 
-import struct
 from dataclasses import dataclass
 
-from ether_ros._native.protocol import reg, sm
+from ether_ros._native.protocol import (
+    fmmu,
+    fmmu_record,
+    parse_fmmu_record,
+    parse_sm_record,
+    reg,
+    sm,
+    sm_record,
+)
 
 # The control bytes the master uses when the slave's SII/ESI gives none (the usual defaults;
 # the bits are the protocol crate's, ``protocol.sm``).
@@ -36,13 +47,14 @@ class SyncManager:
     def encode(self) -> bytes:
         """Start (u16), length (u16), control (u8), status (u8, read-only), activate (u8),
         PDI control (u8, read-only)."""
-        return struct.pack(
-            "<HHBBBB", self.start, self.length, self.control, 0, 1 if self.enable else 0, 0
-        )
+        return sm_record(self.start, self.length, self.control, self.enable)
 
     @classmethod
     def decode(cls, index: int, data: bytes) -> SyncManager:
-        start, length, control, _status, activate, _pdi = struct.unpack_from("<HHBBBB", data)
+        record = parse_sm_record(data)
+        if record is None:
+            raise ValueError(f"SyncManager {index}: {len(data)} bytes, the record is 8")
+        start, length, control, _status, activate, _pdi = record
         return cls(index, start, length, control, bool(activate & sm.ACTIVATE_ENABLE))
 
 
@@ -65,22 +77,24 @@ class Fmmu:
     def encode(self) -> bytes:
         """Logical start (u32), length (u16), start bit (u8), end bit (u8), physical start
         (u16), physical start bit (u8), type (u8), activate (u8), 3 reserved bytes."""
-        return struct.pack(
-            "<IHBBHBBB3x",
+        return fmmu_record(
             self.logical_start,
             self.length,
+            self.physical_start,
+            self.direction,
             self.logical_start_bit,
             self.logical_end_bit,
-            self.physical_start,
             self.physical_start_bit,
-            self.direction,
-            1 if self.enable else 0,
+            self.enable,
         )
 
     @classmethod
     def decode(cls, index: int, data: bytes) -> Fmmu:
-        ls, length, lsb, leb, ps, psb, typ, act = struct.unpack_from("<IHBBHBBB3x", data)
-        return cls(index, ls, length, ps, typ, lsb, leb, psb, bool(act & 1))
+        record = parse_fmmu_record(data)
+        if record is None:
+            raise ValueError(f"FMMU {index}: {len(data)} bytes, the record is 16")
+        ls, length, lsb, leb, ps, psb, typ, act = record
+        return cls(index, ls, length, ps, typ, lsb, leb, psb, bool(act & fmmu.ACTIVATE_ENABLE))
 
 
 def mailbox_sms(rx_offset: int, rx_size: int, tx_offset: int, tx_size: int) -> list[SyncManager]:

@@ -1,5 +1,6 @@
-//! The link carries whole Ethernet frames between the engine and the slaves: an AF_PACKET raw
-//! socket on a network interface, or a direct call into an in-process simulator.
+//! The AF_PACKET links and the in-process link: the `Link` trait the engine drives, the
+//! master's raw socket, the simulator's raw socket, and a direct call into an in-process
+//! simulator.
 //!
 //! A link is owned by exactly one thread at a time (the caller of `transact` while the bus is
 //! not cyclic, the real-time thread while it is), so its methods take `&mut self` and need no
@@ -15,7 +16,9 @@ use ether_ros_protocol::{ETHERTYPE, MAX_FRAME_LEN};
 /// (CLOCK_MONOTONIC ns; the kernel's receive timestamp when the link has one).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Received {
+    /// Bytes of the frame in the caller's buffer.
     pub len: usize,
+    /// When it arrived (CLOCK_MONOTONIC ns).
     pub rx_ns: i64,
 }
 
@@ -314,6 +317,7 @@ pub struct InProcessLink {
 }
 
 impl InProcessLink {
+    /// A link named `name` (for messages) whose frames `responder` answers.
     pub fn new(name: &str, responder: Responder) -> InProcessLink {
         InProcessLink {
             responder,
@@ -390,4 +394,149 @@ pub(crate) fn wait_readable(fd: libc::c_int, remaining_ns: i64) -> io::Result<()
         }
     }
     Ok(())
+}
+
+/// Receive timeout of [`SlaveSocket`] when the line is idle (µs): a blocking receive returns
+/// after this long at the latest, so the simulator's frame loop can run its timers.
+pub const SLAVE_IDLE_POLL_US: u32 = 1_000;
+
+/// The simulator's side of an AF_PACKET link: a raw socket bound to one interface and to the
+/// EtherCAT EtherType, promiscuous, whose idle wait is one blocking receive (`SO_RCVTIMEO` is
+/// the idle poll time, [`SLAVE_IDLE_POLL_US`]), so answering a frame costs one syscall each way.
+pub struct SlaveSocket {
+    fd: libc::c_int,
+}
+
+impl Drop for SlaveSocket {
+    fn drop(&mut self) {
+        // SAFETY: we own the descriptor.
+        unsafe { libc::close(self.fd) };
+    }
+}
+
+impl SlaveSocket {
+    /// Open the socket on `ifname`. Needs CAP_NET_RAW (root).
+    pub fn open(ifname: &str) -> io::Result<SlaveSocket> {
+        let name = CString::new(ifname).map_err(|_| {
+            io::Error::new(io::ErrorKind::InvalidInput, "interface name contains NUL")
+        })?;
+        // SAFETY: plain libc calls with valid arguments; every result is checked.
+        unsafe {
+            let ifindex = libc::if_nametoindex(name.as_ptr());
+            if ifindex == 0 {
+                return Err(io::Error::new(
+                    io::ErrorKind::NotFound,
+                    format!("no network interface named '{ifname}'"),
+                ));
+            }
+            // Protocol 0 receives nothing until bind() names the interface and the EtherType;
+            // opening with the EtherType directly would queue EtherCAT frames from every
+            // interface (e.g. other buses on the same host) in the window before bind().
+            let fd = libc::socket(libc::AF_PACKET, libc::SOCK_RAW, 0);
+            if fd < 0 {
+                return Err(io::Error::last_os_error());
+            }
+            let sock = SlaveSocket { fd };
+            let mut sll: libc::sockaddr_ll = std::mem::zeroed();
+            sll.sll_family = libc::AF_PACKET as u16;
+            sll.sll_protocol = ETHERTYPE.to_be();
+            sll.sll_ifindex = ifindex as i32;
+            let r = libc::bind(
+                fd,
+                &sll as *const libc::sockaddr_ll as *const libc::sockaddr,
+                std::mem::size_of::<libc::sockaddr_ll>() as u32,
+            );
+            if r < 0 {
+                return Err(io::Error::last_os_error());
+            }
+            // Promiscuous, so frames addressed to any MAC reach us (masters use broadcast anyway).
+            let mut mreq: libc::packet_mreq = std::mem::zeroed();
+            mreq.mr_ifindex = ifindex as i32;
+            mreq.mr_type = libc::PACKET_MR_PROMISC as u16;
+            libc::setsockopt(
+                fd,
+                libc::SOL_PACKET,
+                libc::PACKET_ADD_MEMBERSHIP,
+                &mreq as *const libc::packet_mreq as *const libc::c_void,
+                std::mem::size_of::<libc::packet_mreq>() as u32,
+            );
+            // A blocking receive returns after the idle poll time at the latest.
+            let tv = libc::timeval {
+                tv_sec: 0,
+                tv_usec: SLAVE_IDLE_POLL_US as libc::suseconds_t,
+            };
+            libc::setsockopt(
+                fd,
+                libc::SOL_SOCKET,
+                libc::SO_RCVTIMEO,
+                &tv as *const libc::timeval as *const libc::c_void,
+                std::mem::size_of::<libc::timeval>() as u32,
+            );
+            Ok(sock)
+        }
+    }
+
+    /// Wait up to `timeout_ns` for a frame from the wire; its length in `buf`, or `None` when
+    /// none came. Frames this socket sent itself are skipped.
+    pub fn recv(&mut self, buf: &mut [u8], timeout_ns: u64) -> Option<usize> {
+        // An idle wait is one blocking receive (SO_RCVTIMEO is the idle poll time): one
+        // syscall per frame. A shorter wait (delayed answers due) polls first.
+        let flags = if timeout_ns >= SLAVE_IDLE_POLL_US as u64 * 1_000 {
+            0
+        } else if poll_readable(self.fd, timeout_ns) {
+            libc::MSG_DONTWAIT
+        } else {
+            return None;
+        };
+        loop {
+            // SAFETY: recvfrom into our buffer and address struct, sizes passed correctly.
+            let mut sll: libc::sockaddr_ll = unsafe { std::mem::zeroed() };
+            let mut alen = std::mem::size_of::<libc::sockaddr_ll>() as libc::socklen_t;
+            let n = unsafe {
+                libc::recvfrom(
+                    self.fd,
+                    buf.as_mut_ptr() as *mut libc::c_void,
+                    buf.len(),
+                    flags,
+                    &mut sll as *mut libc::sockaddr_ll as *mut libc::sockaddr,
+                    &mut alen,
+                )
+            };
+            if n <= 0 {
+                return None;
+            }
+            // Our own answers come back to packet sockets as outgoing frames: not for us.
+            if sll.sll_pkttype != libc::PACKET_OUTGOING {
+                return Some(n as usize);
+            }
+        }
+    }
+
+    /// Send one frame; false when the kernel refused it.
+    pub fn send(&mut self, frame: &[u8]) -> bool {
+        // SAFETY: send a buffer we own on the bound socket.
+        unsafe {
+            libc::send(
+                self.fd,
+                frame.as_ptr() as *const libc::c_void,
+                frame.len(),
+                0,
+            ) >= 0
+        }
+    }
+}
+
+/// Wait until `fd` is readable or `timeout_ns` passed (ns resolution, unlike poll()).
+fn poll_readable(fd: libc::c_int, timeout_ns: u64) -> bool {
+    let mut pfd = libc::pollfd {
+        fd,
+        events: libc::POLLIN,
+        revents: 0,
+    };
+    let ts = libc::timespec {
+        tv_sec: (timeout_ns / 1_000_000_000) as libc::time_t,
+        tv_nsec: (timeout_ns % 1_000_000_000) as libc::c_long,
+    };
+    // SAFETY: one valid pollfd and a valid timeout.
+    unsafe { libc::ppoll(&mut pfd, 1, &ts, std::ptr::null()) > 0 }
 }

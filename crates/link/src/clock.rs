@@ -1,4 +1,5 @@
-//! CLOCK_MONOTONIC in nanoseconds and absolute-time sleeping: the time base of the cyclic loop.
+//! CLOCK_MONOTONIC in nanoseconds and absolute-time sleeping: the time base links stamp frames
+//! in and the engine's cyclic loop sleeps on.
 
 /// Nanoseconds of CLOCK_MONOTONIC (a vDSO call, no syscall).
 pub fn now_ns() -> i64 {

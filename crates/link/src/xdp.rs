@@ -16,7 +16,7 @@ use std::sync::atomic::{AtomicU32, Ordering};
 
 use crate::bpf::{self, bind_queue, Attached, Fd};
 use crate::clock::now_ns;
-use crate::link::{set_busy_poll, wait_readable, Link, LinkOptions, Received};
+use crate::packet::{set_busy_poll, wait_readable, Link, LinkOptions, Received};
 use ether_ros_protocol::MAX_FRAME_LEN;
 
 /// UMEM chunk size: one page, so a chunk never straddles pages.
@@ -131,7 +131,9 @@ impl<T> Drop for Ring<T> {
 /// Whether the driver moves frames to and from the UMEM itself.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum XdpMode {
+    /// The driver DMAs straight into the UMEM (`XDP_ZEROCOPY`).
     ZeroCopy,
+    /// The kernel copies each frame once (veth, drivers without zero-copy).
     Copy,
 }
 
@@ -316,6 +318,7 @@ impl XdpLink {
         })
     }
 
+    /// Whether the driver bound the socket in zero-copy or copy mode.
     pub fn mode(&self) -> XdpMode {
         self.mode
     }
