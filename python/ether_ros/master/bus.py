@@ -24,6 +24,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
+from ether_ros._native import Plan as EnginePlan
 from ether_ros._native.protocol import reg
 from ether_ros.claim import InterfaceClaim
 from ether_ros.config import types as dt
@@ -120,7 +121,7 @@ class Bus:
         # Where each slave hangs (by position), as found on the wire.
         self.tree: list[Link] = []
         self.layout: ImageLayout | None = None
-        self.plan: dict[str, Any] | None = None
+        self.plan: EnginePlan | None = None
         self.cycle_ns = int(config.bus.cycle_us * 1000)
         # DC system time = CLOCK_MONOTONIC + this: nanoseconds since 2000-01-01 (wall clock at
         # open time), so DC timestamps read like dates.
@@ -412,7 +413,7 @@ class Bus:
             s.found = found[pos]
             s.lost = False
 
-    def _build_plan(self) -> dict[str, Any]:
+    def _build_plan(self) -> EnginePlan:
         assert self.layout is not None
         bus_cfg = self.config.bus
         rt = getattr(bus_cfg, "realtime", None)
