@@ -60,7 +60,7 @@ class FrameDatagrams:
         return self.transact(self.APWR, (-position & 0xFFFF) | ado << 16, data)[1]
 
 
-def spec_for(device: EsiDevice, mbx: dict[str, int]) -> dict[str, Any]:
+def spec_for(device: EsiDevice, mbx: native.MailboxSpec) -> native.SlaveSpec:
     objects: list[tuple[int, str, int]] = []
     entries: list[tuple[int, int, str, int, int, str, bool, bytes]] = []
     for o in device.objects:
@@ -88,14 +88,17 @@ def spec_for(device: EsiDevice, mbx: dict[str, int]) -> dict[str, Any]:
         (0x1602, 1, "SubIndex 001", 0x07, 32, "rw", False, b""),
         (0x1602, 2, "SubIndex 002", 0x07, 32, "rw", False, b""),
     ]
-    return {
-        "name": "front_left_leg",
-        "sii": build_sii(device),
-        "objects": objects,
-        "entries": entries,
-        "device": "none",
-        "mailbox": mbx,
-    }
+    return native.SlaveSpec(
+        name="front_left_leg",
+        vendor_id=device.vendor_id,
+        product_code=device.product_code,
+        revision=device.revision,
+        sii=build_sii(device),
+        objects=objects,
+        entries=entries,
+        device="none",
+        mailbox=mbx,
+    )
 
 
 def open_sim_slave() -> SdoClient:
@@ -103,12 +106,12 @@ def open_sim_slave() -> SdoClient:
     device = load_esi(ESI)[0]
     mbox_out, mbox_in = device.sm("MBoxOut"), device.sm("MBoxIn")
     assert mbox_out is not None and mbox_in is not None
-    mbx = {
-        "rx_offset": mbox_out.start,
-        "rx_size": mbox_out.default_size,
-        "tx_offset": mbox_in.start,
-        "tx_size": mbox_in.default_size,
-    }
+    mbx = native.MailboxSpec(
+        rx_offset=mbox_out.start,
+        rx_size=mbox_out.default_size,
+        tx_offset=mbox_in.start,
+        tx_size=mbox_in.default_size,
+    )
     net = native.SimNetwork()
     net.add_slave(spec_for(device, mbx))
     dg = FrameDatagrams(net)
