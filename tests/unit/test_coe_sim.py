@@ -117,8 +117,8 @@ def open_sim_slave() -> SdoClient:
     dg = FrameDatagrams(net)
     assert dg.apwr(0, 0x0010, struct.pack("<H", STATION)) == 1
     # SM0 write mailbox (control 0x26), SM1 read mailbox (control 0x22), both activated.
-    sm0 = struct.pack("<HHBBBB", mbx["rx_offset"], mbx["rx_size"], 0x26, 0, 1, 0)
-    sm1 = struct.pack("<HHBBBB", mbx["tx_offset"], mbx["tx_size"], 0x22, 0, 1, 0)
+    sm0 = struct.pack("<HHBBBB", mbx.rx_offset, mbx.rx_size, 0x26, 0, 1, 0)
+    sm1 = struct.pack("<HHBBBB", mbx.tx_offset, mbx.tx_size, 0x22, 0, 1, 0)
     assert dg.fpwr(STATION, 0x0800, sm0 + sm1) == 1
     assert dg.fpwr(STATION, 0x0120, struct.pack("<H", 0x02)) == 1
     for _ in range(100):
@@ -129,8 +129,8 @@ def open_sim_slave() -> SdoClient:
         code, _ = dg.fprd(STATION, 0x0134, 2)
         raise AssertionError(f"no PREOP: AL status {status.hex()}, code {code.hex()}")
     mailbox = Mailbox(
-        dg, STATION, "front_left_leg", mbx["rx_offset"], mbx["rx_size"],
-        mbx["tx_offset"], mbx["tx_size"],
+        dg, STATION, "front_left_leg", mbx.rx_offset, mbx.rx_size,
+        mbx.tx_offset, mbx.tx_size,
     )  # fmt: skip
     return SdoClient(mailbox, "front_left_leg", timeout_s=1.0)
 

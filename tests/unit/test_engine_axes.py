@@ -309,7 +309,7 @@ def test_trajectory_runs_on_the_engine_clock(rig: tuple[_native.Engine, Drive]) 
 def test_bad_axis_plans_name_the_key() -> None:
     with pytest.raises(ValueError, match=r"axes\[0\]: axis j1: position_scale"):
         plan(position_scale=0.0)
-    with pytest.raises(ValueError, match=r"AxisPlan\.on_stop: 'brake' is not one of"):
+    with pytest.raises(ValueError, match=r'AxisPlan\.on_stop: "brake" is not one of'):
         plan(on_stop="brake")
     with pytest.raises(ValueError, match="statusword at byte 2 must lie in an input range"):
         plan({**MAP, "statusword": 2})

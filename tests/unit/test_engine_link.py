@@ -290,7 +290,7 @@ def test_writes_outside_the_output_ranges_are_refused(sim: tuple[_native.Engine,
 @pytest.mark.parametrize(
     ("make", "error", "message"),
     [
-        (lambda: plan(order="sideways"), ValueError, "Plan.order: 'sideways' is not one of"),
+        (lambda: plan(order="sideways"), ValueError, 'Plan.order: "sideways" is not one of'),
         (
             lambda: plan(safe_image=b"\x00"),
             ValueError,
