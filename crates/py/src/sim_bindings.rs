@@ -179,8 +179,7 @@ impl PySlaveSpec {
             });
         }
         let entries_py = PyTuple::new(py, &entries)?.unbind();
-        for (index, subindex, name, data_type, bit_length, access, pdo_mappable, default) in
-            entries
+        for (index, subindex, name, data_type, bit_length, access, pdo_mappable, default) in entries
         {
             let access = match access.as_str() {
                 "ro" => Access::ReadOnly,
