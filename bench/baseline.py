@@ -16,7 +16,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -388,35 +388,36 @@ def one_lrw_plan(
     output_bytes: int,
     sync0_shift_ns: int,
     priority: int,
-) -> dict[str, Any]:
-    """The engine plan of the benchmarks' synthetic bus: DC write + sync to station 0x1001 and
-    one LRW of ``image`` (outputs first), no watchdog, a large sample ring."""
-    return {
-        "cycle_ns": cycle_us * 1000,
-        "order": order,
-        "datagrams": [
-            {"kind": "dc_write_ref", "station": 0x1001},
-            {"kind": "dc_sync", "station": 0x1001},
-            {
-                "kind": "lrw",
-                "address": 0x10000,
-                "length": len(image),
-                "image_offset": 0,
-                "expected_wkc": 0,
-            },
-        ],
-        "image_len": len(image),
-        "output_ranges": [(0, output_bytes)],
-        "initial_image": image,
-        "safe_image": image,
-        "dc": {"mode": "ref_follows_master", "time_offset_ns": 0, "sync0_shift_ns": sync0_shift_ns},
-        "rt": {
-            "policy": "fifo",
-            "priority": priority,
-            "cpu": None,
-            "runtime_ns": 0,
-            "lock_memory": True,
-        },
-        "watchdog_ns": 0,
-        "ring_capacity": 65536,
-    }
+    axes: Sequence[Any] = (),
+) -> Any:
+    """The engine plan (``_native.Plan``) of the benchmarks' synthetic bus: DC write + sync to
+    station 0x1001 and one LRW of ``image`` (outputs first), no watchdog, a large sample ring;
+    ``axes``: ``_native.AxisPlan``s."""
+    from ether_ros import _native
+
+    station = 0x1001
+    datagrams = [
+        _native.DcDatagram(kind="dc_write_ref", station=station),
+        _native.DcDatagram(kind="dc_sync", station=station),
+        _native.LogicalDatagram(
+            kind="lrw", address=0x10000, length=len(image), image_offset=0, expected_wkc=0
+        ),
+    ]
+    return _native.Plan(
+        cycle_ns=cycle_us * 1000,
+        order=order,
+        frames=[_native.Frame(datagrams=datagrams, every=1, watchdog_ns=0)],
+        image_len=len(image),
+        output_ranges=[(0, output_bytes)],
+        initial_image=image,
+        safe_image=image,
+        dc=_native.DcSettings(
+            mode="ref_follows_master", time_offset_ns=0, sync0_shift_ns=sync0_shift_ns
+        ),
+        rt=_native.RtSettings(
+            policy="fifo", priority=priority, cpu=None, runtime_ns=0, lock_memory=True
+        ),
+        watchdog_ns=0,
+        ring_capacity=65536,
+        axes=list(axes),
+    )

@@ -41,36 +41,46 @@ OPERATION_ENABLED = 0x0027
 CSP = 8
 
 
-def _axis(n: int) -> dict[str, Any]:
+def _axis(n: int) -> Any:
+    """Axis ``n`` as a ``_native.AxisPlan`` (every field given: the engine type has no
+    defaults for what the configuration decides)."""
+    from ether_ros import _native
+
     out, inp = n * OUT_BYTES, OUTPUTS + n * IN_BYTES
-    return {
-        "name": f"joint_{n}",
-        "map": {
-            "controlword": out,
-            "mode": out + 2,
-            "target_position": out + 4,
-            "target_velocity": out + 8,
-            "target_torque": out + 12,
-            "statusword": inp,
-            "mode_display": inp + 2,
-            "position": inp + 4,
-            "velocity": inp + 8,
-            "torque": inp + 12,
-            "error_code": inp + 14,
-            "following_error": inp + 16,
-        },
-        "mode": "csp",
-        "position_scale": 4.8e-5,
-        "velocity_scale": 4.8e-5,
-        "torque_scale": 0.01,
-        "position_min": -3.0,
-        "position_max": 3.0,
-        "velocity_max": 3.0,
-        "torque_max": 8.0,
-        "following_error_window": 0.05,
-        "on_stop": "quick_stop",
-        "fault_reset": "auto",
-    }
+    return _native.AxisPlan(
+        name=f"joint_{n}",
+        map=_native.AxisMap(
+            controlword=out,
+            mode=out + 2,
+            target_position=out + 4,
+            target_velocity=out + 8,
+            target_torque=out + 12,
+            statusword=inp,
+            mode_display=inp + 2,
+            position=inp + 4,
+            velocity=inp + 8,
+            torque=inp + 12,
+            error_code=inp + 14,
+            following_error=inp + 16,
+        ),
+        mode="csp",
+        position_scale=4.8e-5,
+        position_offset=0.0,
+        velocity_scale=4.8e-5,
+        torque_scale=0.01,
+        position_min=-3.0,
+        position_max=3.0,
+        velocity_max=3.0,
+        torque_max=8.0,
+        deceleration=math.inf,
+        mode_change_velocity="actual",
+        restart="manual",
+        following_error_window=0.05,
+        on_stop="quick_stop",
+        fault_reset="auto",
+        fault_retries=3,
+        fault_backoff_ns=100_000_000,
+    )
 
 
 def _initial_image() -> bytes:
@@ -83,17 +93,16 @@ def _initial_image() -> bytes:
     return bytes(image)
 
 
-def _plan(axes: int) -> dict[str, Any]:
-    plan = one_lrw_plan(
+def _plan(axes: int) -> Any:
+    return one_lrw_plan(
         cycle_us=CYCLE_US,
         order="send_at_wake",
         image=_initial_image(),
         output_bytes=OUTPUTS,
         sync0_shift_ns=100_000,
         priority=PRIORITY,
+        axes=[_axis(n) for n in range(axes)],
     )
-    plan["axes"] = [_axis(n) for n in range(axes)]
-    return plan
 
 
 def _run(engine: Any, axes: int, seconds: float) -> dict[str, Any]:

@@ -54,7 +54,7 @@ EXEC_P99_TARGET_NS = 15_000
 LATENCY_RATIO = 1.1
 
 
-def _plan(order: str, cycle_us: int = CYCLE_US) -> dict[str, Any]:
+def _plan(order: str, cycle_us: int = CYCLE_US) -> Any:
     return one_lrw_plan(
         cycle_us=cycle_us,
         order=order,

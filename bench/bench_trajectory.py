@@ -162,11 +162,11 @@ class Fields:
 
     @classmethod
     def of(cls, bus: Any) -> Fields:
-        entries = {e["name"]: e for e in bus.plan["axes"]}
+        entries = {e.name: e for e in bus.plan.axes}
         return cls(
-            target=[entries[j]["map"]["target_position"] for j in JOINTS],
-            actual=[entries[j]["map"]["position"] for j in JOINTS],
-            scale=[entries[j]["position_scale"] for j in JOINTS],
+            target=[entries[j].map.target_position for j in JOINTS],
+            actual=[entries[j].map.position for j in JOINTS],
+            scale=[entries[j].position_scale for j in JOINTS],
             image_len=bus.layout.image_len,
             cycle_ns=bus.cycle_ns,
             lrw=_the_lrw(bus.plan),
@@ -180,13 +180,12 @@ class Fields:
         return np.stack(cols, axis=1)
 
 
-def _the_lrw(plan: dict[str, Any]) -> dict[str, int]:
+def _the_lrw(plan: Any) -> dict[str, int]:
     """The plan's one LRW datagram (arm6: one frame, one LRW over the whole image)."""
-    frames = plan.get("frames") or [{"datagrams": plan["datagrams"]}]
-    lrws = [d for f in frames for d in f["datagrams"] if d["kind"] == "lrw"]
+    lrws = [d for f in plan.frames for d in f.datagrams if d.kind == "lrw"]
     if len(lrws) != 1:
         raise RuntimeError(f"the benchmark reads one LRW per cycle; the plan has {len(lrws)}")
-    return {k: int(lrws[0][k]) for k in ("address", "length", "image_offset")}
+    return {k: int(getattr(lrws[0], k)) for k in ("address", "length", "image_offset")}
 
 
 @dataclass

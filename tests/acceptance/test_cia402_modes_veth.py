@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from ether_ros import _native
 from ether_ros.config import BusConfig, load_bus_config
 from ether_ros.config.cia402 import MODES
 from ether_ros.master import Bus
@@ -89,8 +90,9 @@ def _field(images: Any, offset: int, dtype: str) -> Any:
     return np.ascontiguousarray(images[:, offset : offset + size]).view(dtype)[:, 0]
 
 
-def _entry(bus: Bus, axis: Axis) -> dict[str, Any]:
-    return next(e for e in bus.plan["axes"] if e["name"] == axis.name)  # type: ignore[index]
+def _entry(bus: Bus, axis: Axis) -> _native.AxisPlan:
+    assert bus.plan is not None
+    return next(e for e in bus.plan.axes if e.name == axis.name)
 
 
 def _speed(velocity: Any, k: int) -> float:
@@ -148,7 +150,8 @@ def test_a_mode_change_at_speed_is_a_quiet_stop(
     c = axis.spec.config
     assert first in axis.spec.modes and second in axis.spec.modes
     entry = _entry(bus, axis)
-    m = entry["map"]
+    m = entry.map
+    assert m.position is not None and m.velocity is not None and m.target_position is not None
     # The premise is a switch while the axis moves at speed. A host that stalls the test
     # process for seconds between "moving" and set_mode (a loaded CI machine) lets the motion
     # end first; such a run proves nothing either way, so it is tried again from the start.
@@ -171,8 +174,8 @@ def test_a_mode_change_at_speed_is_a_quiet_stop(
             f"{first} → {second}: {st['state']}, last fault 0x{st['last_fault_code']:04X}"
         )
         assert not st["following_error_exceeded"], st
-        position = _field(s.images, m["position"], "<i4") * c.position_scale + c.position_offset
-        velocity = _field(s.images, m["velocity"], "<i4") * c.velocity_scale
+        position = _field(s.images, m.position, "<i4") * c.position_scale + c.position_offset
+        velocity = _field(s.images, m.velocity, "<i4") * c.velocity_scale
 
         speed = functools.partial(_speed, velocity)
         first_cycle = functools.partial(_first_cycle, s.images, m)
@@ -197,7 +200,7 @@ def test_a_mode_change_at_speed_is_a_quiet_stop(
     )
     if second == "csp":
         # The position targets never jumped, nor away from the axis.
-        target = _field(s.images, m["target_position"], "<i4") * c.position_scale
+        target = _field(s.images, m.target_position, "<i4") * c.position_scale
         jumps = np.abs(np.diff(target[k:]))
         assert jumps.max() <= step + 1e-9, jumps.max()
         assert np.abs(target[k + 2 :] - position[k + 2 :]).max() < 0.01

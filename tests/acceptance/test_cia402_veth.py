@@ -102,9 +102,11 @@ def test_arm6_enables_every_axis_and_follows_a_trajectory(
 def test_enabling_never_moves_an_axis(arm: tuple[Bus, SimProcess]) -> None:
     bus, _sim = arm
     elbow = bus.axis("elbow")
-    entry = next(e for e in bus.plan["axes"] if e["name"] == "elbow")  # type: ignore[index]
-    cw_at, target_at = entry["map"]["controlword"], entry["map"]["target_position"]
-    actual_at = entry["map"]["position"]
+    assert bus.plan is not None
+    entry = next(e for e in bus.plan.axes if e.name == "elbow")
+    cw_at, target_at = entry.map.controlword, entry.map.target_position
+    actual_at = entry.map.position
+    assert target_at is not None and actual_at is not None
     elbow.enable(timeout=5)
     # On the way to 1 rad, a panic quick-stops the axis part-way: its last setpoint and the
     # drive's last target are then far from where it stands.
@@ -130,7 +132,7 @@ def test_enabling_never_moves_an_axis(arm: tuple[Bus, SimProcess]) -> None:
     assert (cw == 0x000F).any(), "the enable sequence is in the samples"
     # Every target sent while enabling and after was the drive's actual position (one cycle
     # old: the axis stands still, so they agree to a few counts).
-    scale = entry["position_scale"]
+    scale = entry.position_scale
     assert np.abs(target - actual).max() * scale < SETTLED_TOLERANCE
 
 
@@ -160,7 +162,8 @@ def test_panic_puts_a_quick_stop_on_the_wire_within_two_cycles(
     bus, _sim = arm
     for a in bus.axes():
         a.enable(timeout=5)
-    entries = bus.plan["axes"]  # type: ignore[index]
+    assert bus.plan is not None
+    entries = bus.plan.axes
     bus.samples()
     t_call = bus.engine.now_ns()
     bus.panic()
@@ -177,12 +180,12 @@ def test_panic_puts_a_quick_stop_on_the_wire_within_two_cycles(
     # have carried the stop.
     assert first - int(np.flatnonzero(after)[0]) <= 1
     for e in entries:
-        cw = _field(s.images[first:], e["map"]["controlword"], "<u2")
-        assert (cw == QUICK_STOP).all(), (e["name"], cw[:5])
+        cw = _field(s.images[first:], e.map.controlword, "<u2")
+        assert (cw == QUICK_STOP).all(), (e.name, cw[:5])
         # The drive obeyed (statusword from the simulator's model): from Operation Enabled to
         # Switch On Disabled (at standstill the quick stop ramp ends within a drive cycle).
-        sw = _field(s.images[first:], e["map"]["statusword"], "<u2")
-        assert (sw[0] & 0x6F) == 0x27 and (sw[-1] & 0x4F) == 0x40, (e["name"], sw[:5])
+        sw = _field(s.images[first:], e.map.statusword, "<u2")
+        assert (sw[0] & 0x6F) == 0x27 and (sw[-1] & 0x4F) == 0x40, (e.name, sw[:5])
     bus.clear_panic()
     for a in bus.axes():
         a.enable(timeout=5)

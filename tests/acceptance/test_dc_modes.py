@@ -80,7 +80,7 @@ def _percentile(values: list[int] | np.ndarray, q: float) -> int:
 def test_clocks_lock_and_stay_locked(sim: SimProcess, veth_ns: VethPair, mode: str) -> None:
     with Bus.open(_config(veth_ns.master, mode)) as bus:
         bus.start()
-        assert bus.plan is not None and bus.plan["dc"]["mode"] == mode
+        assert bus.plan is not None and bus.plan.dc.mode == mode
         # Wait for the lock (the reference slews out its start-up offset at ≤ 200 ppm).
         deadline = time.monotonic() + 20.0
         while not _locked(_dc_infos(sim), mode):

@@ -108,7 +108,7 @@ def test_four_legs_reach_op_with_dc_and_walk(
     with Bus.open(cfg) as bus:
         assert_link(bus, link)
         bus.start()
-        assert bus.plan is not None and bus.plan["dc"]["mode"] == mode
+        assert bus.plan is not None and bus.plan.dc.mode == mode
         assert _states(bus) == ["OP"] * 4
         for pos in range(4):
             info = sim_laelaps.request({"op": "slave_info", "slave": pos})

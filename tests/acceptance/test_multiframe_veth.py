@@ -82,13 +82,13 @@ def test_a_bus_of_three_frames_reaches_op_and_serves_an_lrw_refusing_slave(
         bus.start()
         assert [s.state for s in bus.states()] == ["OP"] * 4
         assert bus.layout is not None and bus.plan is not None
-        frames = bus.plan["frames"]
+        frames = bus.plan.frames
         assert len(frames) >= 3
         # The slave whose ESC refuses LRW: found by its feature register, given LWR + LRD.
         wide_1 = next(s for s in bus.slaves if s.name == "wide_1")
         assert not wide_1.found.lrw_supported
         assert bus.layout.area("wide_1").lrw is False
-        kinds = [d["kind"] for f in frames for d in f["datagrams"]]
+        kinds = [d.kind for f in frames for d in f.datagrams]
         assert "lwr" in kinds and "lrd" in kinds
         # Data both ways through every frame: each wide slave's outputs come back as its
         # inputs (loopback), the I/O box reports what it was told.

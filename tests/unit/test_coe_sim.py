@@ -60,7 +60,7 @@ class FrameDatagrams:
         return self.transact(self.APWR, (-position & 0xFFFF) | ado << 16, data)[1]
 
 
-def spec_for(device: EsiDevice, mbx: dict[str, int]) -> dict[str, Any]:
+def spec_for(device: EsiDevice, mbx: native.MailboxSpec) -> native.SlaveSpec:
     objects: list[tuple[int, str, int]] = []
     entries: list[tuple[int, int, str, int, int, str, bool, bytes]] = []
     for o in device.objects:
@@ -88,14 +88,17 @@ def spec_for(device: EsiDevice, mbx: dict[str, int]) -> dict[str, Any]:
         (0x1602, 1, "SubIndex 001", 0x07, 32, "rw", False, b""),
         (0x1602, 2, "SubIndex 002", 0x07, 32, "rw", False, b""),
     ]
-    return {
-        "name": "front_left_leg",
-        "sii": build_sii(device),
-        "objects": objects,
-        "entries": entries,
-        "device": "none",
-        "mailbox": mbx,
-    }
+    return native.SlaveSpec(
+        name="front_left_leg",
+        vendor_id=device.vendor_id,
+        product_code=device.product_code,
+        revision=device.revision,
+        sii=build_sii(device),
+        objects=objects,
+        entries=entries,
+        device="none",
+        mailbox=mbx,
+    )
 
 
 def open_sim_slave() -> SdoClient:
@@ -103,19 +106,19 @@ def open_sim_slave() -> SdoClient:
     device = load_esi(ESI)[0]
     mbox_out, mbox_in = device.sm("MBoxOut"), device.sm("MBoxIn")
     assert mbox_out is not None and mbox_in is not None
-    mbx = {
-        "rx_offset": mbox_out.start,
-        "rx_size": mbox_out.default_size,
-        "tx_offset": mbox_in.start,
-        "tx_size": mbox_in.default_size,
-    }
+    mbx = native.MailboxSpec(
+        rx_offset=mbox_out.start,
+        rx_size=mbox_out.default_size,
+        tx_offset=mbox_in.start,
+        tx_size=mbox_in.default_size,
+    )
     net = native.SimNetwork()
     net.add_slave(spec_for(device, mbx))
     dg = FrameDatagrams(net)
     assert dg.apwr(0, 0x0010, struct.pack("<H", STATION)) == 1
     # SM0 write mailbox (control 0x26), SM1 read mailbox (control 0x22), both activated.
-    sm0 = struct.pack("<HHBBBB", mbx["rx_offset"], mbx["rx_size"], 0x26, 0, 1, 0)
-    sm1 = struct.pack("<HHBBBB", mbx["tx_offset"], mbx["tx_size"], 0x22, 0, 1, 0)
+    sm0 = struct.pack("<HHBBBB", mbx.rx_offset, mbx.rx_size, 0x26, 0, 1, 0)
+    sm1 = struct.pack("<HHBBBB", mbx.tx_offset, mbx.tx_size, 0x22, 0, 1, 0)
     assert dg.fpwr(STATION, 0x0800, sm0 + sm1) == 1
     assert dg.fpwr(STATION, 0x0120, struct.pack("<H", 0x02)) == 1
     for _ in range(100):
@@ -126,8 +129,8 @@ def open_sim_slave() -> SdoClient:
         code, _ = dg.fprd(STATION, 0x0134, 2)
         raise AssertionError(f"no PREOP: AL status {status.hex()}, code {code.hex()}")
     mailbox = Mailbox(
-        dg, STATION, "front_left_leg", mbx["rx_offset"], mbx["rx_size"],
-        mbx["tx_offset"], mbx["tx_size"],
+        dg, STATION, "front_left_leg", mbx.rx_offset, mbx.rx_size,
+        mbx.tx_offset, mbx.tx_size,
     )  # fmt: skip
     return SdoClient(mailbox, "front_left_leg", timeout_s=1.0)
 

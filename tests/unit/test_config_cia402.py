@@ -73,17 +73,17 @@ def test_plan_entries_put_each_object_at_its_image_byte(tmp_path: Path) -> None:
               for i, s in enumerate(cfg.slaves)]  # fmt: skip
     layout = layout_image(slaves)
     entries = plan_entries(cfg.axis_specs(), layout)
-    assert [e["name"] for e in entries] == ["j1", "j2"]
+    assert [e.name for e in entries] == ["j1", "j2"]
     drive = layout.area("drive")
     j1, j2 = entries
-    assert j1["map"]["controlword"] == drive.output_offset
-    assert j1["map"]["statusword"] == drive.input_offset
+    assert j1.map.controlword == drive.output_offset
+    assert j1.map.statusword == drive.input_offset
     # The second axis's RxPDO 0x1610 follows 0x1600 (14 bytes), its TxPDO 0x1A10 follows 0x1A00.
-    assert j2["map"]["controlword"] == drive.output_offset + 14
-    assert j2["map"]["statusword"] == drive.input_offset + 20
-    assert (j1["position_min"], j1["position_max"], j1["velocity_max"]) == (-1.0, 1.0, 2.0)
-    assert j2["mode"] == "csv" and math.isinf(j2["position_max"])
-    assert (j1["on_stop"], j1["fault_reset"], j1["fault_backoff_ns"]) == (
+    assert j2.map.controlword == drive.output_offset + 14
+    assert j2.map.statusword == drive.input_offset + 20
+    assert (j1.position_min, j1.position_max, j1.velocity_max) == (-1.0, 1.0, 2.0)
+    assert j2.mode == "csv" and math.isinf(j2.position_max)
+    assert (j1.on_stop, j1.fault_reset, j1.fault_backoff_ns) == (
         "quick_stop", "auto", 100_000_000
     )  # fmt: skip
 

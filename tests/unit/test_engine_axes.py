@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+import engine_plans
 import ether_ros._native as _native
 from ether_ros.master.samples import decode_samples
 from ether_ros.testing.wait import wait_for
@@ -107,58 +108,39 @@ class Drive:
             return list(self.frames)
 
 
-def axis(**overrides: Any) -> dict[str, Any]:
-    a: dict[str, Any] = {
-        "name": "j1",
-        "map": {
-            "controlword": CW,
-            "mode": MODE,
-            "target_position": TPOS,
-            "target_velocity": TVEL,
-            "statusword": SW,
-            "mode_display": MODE_D,
-            "position": POS,
-            "error_code": ERR,
-        },
-        "mode": "csp",
+MAP = {
+    "controlword": CW,
+    "mode": MODE,
+    "target_position": TPOS,
+    "target_velocity": TVEL,
+    "statusword": SW,
+    "mode_display": MODE_D,
+    "position": POS,
+    "error_code": ERR,
+}
+
+
+def axis(offsets: dict[str, int] = MAP, **fields: Any) -> _native.AxisPlan:
+    """Axis j1 over the image above; ``fields`` are ``AxisPlan``'s keywords."""
+    base: dict[str, Any] = {
         "position_scale": 0.001,
         "velocity_scale": 0.001,
         "position_min": -10.0,
         "position_max": 10.0,
         "velocity_max": 2.0,
-        "on_stop": "quick_stop",
-        "fault_reset": "auto",
-        "fault_retries": 3,
         "fault_backoff_ns": 5_000_000,
     }
-    a.update(overrides)
-    return a
+    return engine_plans.axis_plan("j1", offsets, **{**base, **fields})
 
 
-def plan(**axis_overrides: Any) -> dict[str, Any]:
-    return {
-        "cycle_ns": 1_000_000,
-        "order": "send_at_wake",
-        "datagrams": [
-            {"kind": "lrw", "address": 0, "length": IMAGE, "image_offset": 0, "expected_wkc": 3}
-        ],
-        "image_len": IMAGE,
-        "output_ranges": [(0, 12)],
-        "initial_image": bytes(IMAGE),
-        "safe_image": bytes(IMAGE),
-        "dc": {"mode": "off"},
-        "rt": {
-            "policy": "other",
-            "priority": 0,
-            "cpu": None,
-            "runtime_ns": 0,
-            "lock_memory": False,
-        },
-        "watchdog_ns": 0,
-        "ring_capacity": 65536,
-        "axes": [axis(**axis_overrides)],
-        "trajectory_capacity": 64,
-    }
+def plan(offsets: dict[str, int] = MAP, **axis_fields: Any) -> _native.Plan:
+    return engine_plans.plan(
+        [engine_plans.logical("lrw", 0, IMAGE, 0, 3)],
+        IMAGE,
+        output_ranges=[(0, 12)],
+        axes=[axis(offsets, **axis_fields)],
+        trajectory_capacity=64,
+    )
 
 
 @pytest.fixture
@@ -325,26 +307,27 @@ def test_trajectory_runs_on_the_engine_clock(rig: tuple[_native.Engine, Drive]) 
 
 
 def test_bad_axis_plans_name_the_key() -> None:
-    engine = _native.Engine.open_sim(Drive())
-    try:
-        with pytest.raises(ValueError, match=r"axes\[0\]: axis j1: position_scale"):
-            engine.start_cyclic(plan(position_scale=0.0))
-        with pytest.raises(ValueError, match=r"plan\['axes\[0\]\.on_stop'\] = 'brake'"):
-            engine.start_cyclic(plan(on_stop="brake"))
-        p = plan()
-        p["axes"][0]["map"]["statusword"] = 2
-        with pytest.raises(ValueError, match="statusword at byte 2 must lie in an input range"):
-            engine.start_cyclic(p)
-        # A misspelt limit is refused, never taken for an absent one (an unlimited velocity).
-        with pytest.raises(ValueError, match=r"plan\['axes\[0\]\.velocty_max'\]: unknown key"):
-            engine.start_cyclic(plan(velocty_max=1.0))
-        p = plan()
-        p["axes"][0]["map"]["target_postion"] = 4
-        with pytest.raises(ValueError, match=r"plan\['axes\[0\]\.map\.target_postion'\]"):
-            engine.start_cyclic(p)
-        assert not engine.is_running
-    finally:
-        engine.close()
+    with pytest.raises(ValueError, match=r"axes\[0\]: axis j1: position_scale"):
+        plan(position_scale=0.0)
+    with pytest.raises(ValueError, match=r'AxisPlan\.on_stop: "brake" is not one of'):
+        plan(on_stop="brake")
+    with pytest.raises(ValueError, match="statusword at byte 2 must lie in an input range"):
+        plan({**MAP, "statusword": 2})
+    # A misspelt limit is refused, never taken for an absent one (an unlimited velocity).
+    with pytest.raises(TypeError, match=r"AxisPlan.*unexpected keyword argument 'velocty_max'"):
+        plan(velocty_max=1.0)
+    with pytest.raises(TypeError, match=r"AxisMap.*unexpected keyword argument 'target_postion'"):
+        plan({**MAP, "target_postion": 4})
+    # A field the configuration decides has no default here: missing, it is named.
+    fields = {**engine_plans.AXIS_DEFAULTS}
+    del fields["on_stop"]
+    with pytest.raises(
+        TypeError, match=r"AxisPlan.*missing 1 required keyword argument: 'on_stop'"
+    ):
+        _native.AxisPlan(name="j1", map=_native.AxisMap(controlword=0, statusword=12), **fields)
+    with pytest.raises(ValueError, match=r"AxisPlan\.max_acceleration: -1 must be > 0"):
+        axis(max_acceleration=-1.0)
+    assert axis(max_acceleration=2.5).max_acceleration == 2.5 and axis().max_acceleration is None
 
 
 def test_a_new_cyclic_run_starts_from_the_plans_commands() -> None:

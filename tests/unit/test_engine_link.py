@@ -16,6 +16,7 @@ from typing import Any
 
 import pytest
 
+import engine_plans
 import ether_ros._native as _native
 from ether_ros.errors import FrameTimeout, LinkError
 from ether_ros.master.samples import (
@@ -143,32 +144,21 @@ class VethResponder:
         self.sock.close()
 
 
-def plan(order: str = "send_at_wake", **overrides: Any) -> dict[str, Any]:
-    p: dict[str, Any] = {
-        "cycle_ns": 1_000_000,
+def plan(order: str = "send_at_wake", **fields: Any) -> _native.Plan:
+    """One frame: the DC datagrams and one LRW of the 12-byte image; ``fields`` are ``Plan``'s
+    keywords."""
+    base: dict[str, Any] = {
         "order": order,
-        "datagrams": [
-            {"kind": "dc_write_ref", "station": 0x1001},
-            {"kind": "dc_sync", "station": 0x1001},
-            {"kind": "lrw", "address": 0x10000, "length": 12, "image_offset": 0, "expected_wkc": 6},
-        ],
-        "image_len": 12,
         "output_ranges": [(0, 4), (6, 4)],
-        "initial_image": bytes(12),
         "safe_image": SAFE,
-        "dc": {"mode": "ref_follows_master", "time_offset_ns": 0, "sync0_shift_ns": 0},
-        "rt": {
-            "policy": "other",
-            "priority": 0,
-            "cpu": None,
-            "runtime_ns": 0,
-            "lock_memory": False,
-        },
-        "watchdog_ns": 0,
+        "dc": engine_plans.dc("ref_follows_master"),
         "ring_capacity": 100_000,
     }
-    p.update(overrides)
-    return p
+    datagrams = [
+        *engine_plans.dc_datagrams("ref_follows_master"),
+        engine_plans.logical("lrw", 0x10000, 12, 0, 6),
+    ]
+    return engine_plans.plan(datagrams, 12, **{**base, **fields})
 
 
 def wait_for(cond: Callable[[], bool], what: str) -> None:
@@ -298,33 +288,69 @@ def test_writes_outside_the_output_ranges_are_refused(sim: tuple[_native.Engine,
 
 
 @pytest.mark.parametrize(
-    ("change", "message"),
+    ("make", "error", "message"),
     [
-        ({"order": "sideways"}, "plan\\['order'\\] = 'sideways'"),
-        ({"safe_image": b"\x00"}, "safe_image is 1 bytes long but image_len is 12"),
-        ({"cycle_ns": "fast"}, "plan\\['cycle_ns'\\] must be a positive int"),
-        ({"datagrams": [{"kind": "lrw", "address": 0}]}, "missing 'datagrams\\[0\\].length'"),
-        ({"output_ranges": [(10, 4)]}, "output_ranges\\[0\\]"),
-        ({"dc": {"mode": "off"}}, "dc_write_ref but dc.mode is not ref_follows_master"),
+        (lambda: plan(order="sideways"), ValueError, 'Plan.order: "sideways" is not one of'),
         (
-            {"rt": {"policy": "fifo", "priority": 0, "runtime_ns": 0, "lock_memory": False}},
-            "rt.priority = 0",
+            lambda: plan(safe_image=b"\x00"),
+            ValueError,
+            "safe_image is 1 bytes long but image_len is 12",
         ),
-        ({"rt": {"policy": "fifo", "priority": 80}}, "missing 'rt.runtime_ns'"),
-        ({"watchdog": 5}, "plan\\['watchdog'\\]: unknown key \\(known here: cycle_ns"),
+        (lambda: plan(cycle_ns="fast"), TypeError, "cycle_ns"),
         (
-            {"dc": {"mode": "ref_follows_master", "sync0_shift": 5}},
-            "plan\\['dc.sync0_shift'\\]: unknown key",
+            lambda: _native.LogicalDatagram(kind="lrw", address=0),
+            TypeError,
+            r"LogicalDatagram.*missing .*'length'",
+        ),
+        (lambda: plan(output_ranges=[(10, 4)]), ValueError, r"output_ranges\[0\]"),
+        (
+            lambda: plan(dc=engine_plans.dc("off")),
+            ValueError,
+            "dc_write_ref but dc.mode is not ref_follows_master",
+        ),
+        (
+            lambda: engine_plans.rt(policy="fifo", priority=0),
+            ValueError,
+            r"RtSettings\.priority: 0 is outside 1\.\.=99",
+        ),
+        (
+            lambda: _native.RtSettings(policy="fifo", priority=80),  # type: ignore[call-arg]
+            TypeError,
+            r"RtSettings.*missing .*'cpu', 'runtime_ns'",
+        ),
+        # A misspelt or unknown key is refused by name, never taken for an absent one.
+        (lambda: plan(watchdog=5), TypeError, r"Plan.*unexpected keyword argument 'watchdog'"),
+        (
+            lambda: _native.DcSettings(  # type: ignore[call-arg]
+                mode="ref_follows_master", time_offset_ns=0, sync0_shift=5
+            ),
+            TypeError,
+            r"DcSettings.*unexpected keyword argument 'sync0_shift'",
+        ),
+        (
+            lambda: engine_plans.frame([engine_plans.logical("lrw", 0, 4, 0, 1)], every=0),
+            ValueError,
+            r"Frame\.every: 0 is outside",
+        ),
+        (
+            lambda: engine_plans.frame([{"kind": "lrw"}]),  # type: ignore[list-item]
+            TypeError,
+            r"Frame\.datagrams\[0\]: expected a LogicalDatagram or a DcDatagram, got dict",
         ),
     ],
 )
-def test_bad_plans_name_the_key(
-    sim: tuple[_native.Engine, FakeEsc], change: dict[str, Any], message: str
+def test_bad_plans_name_the_field(
+    make: Callable[[], object], error: type[Exception], message: str
 ) -> None:
-    engine, _esc = sim
-    with pytest.raises(ValueError, match=message):
-        engine.start_cyclic(plan(**change))
-    assert not engine.is_running
+    with pytest.raises(error, match=message):
+        make()
+
+
+def test_plans_are_frozen() -> None:
+    p = plan()
+    with pytest.raises(AttributeError):
+        p.cycle_ns = 5  # type: ignore[misc]
+    assert p.frames[0].datagrams[2].kind == "lrw" and p.dc.mode == "ref_follows_master"
 
 
 def _thread_named(name: str) -> str | None:
@@ -341,7 +367,7 @@ def test_rt_thread_runs_sched_fifo_pinned_with_locked_memory(
     wire: tuple[_native.Engine, FakeEsc, VethResponder],
 ) -> None:
     engine, esc, _r = wire
-    rt = {"policy": "fifo", "priority": 20, "cpu": 0, "runtime_ns": 0, "lock_memory": True}
+    rt = engine_plans.rt(policy="fifo", priority=20, cpu=0, lock_memory=True)
     engine.start_cyclic(plan("send_then_wait", rt=rt))
     tid = _thread_named("ether_ros-rt")
     assert tid is not None
@@ -359,8 +385,7 @@ def test_rt_thread_runs_sched_fifo_pinned_with_locked_memory(
 
 def test_sched_deadline_runs_or_is_refused_clearly(sim: tuple[_native.Engine, FakeEsc]) -> None:
     engine, _esc = sim
-    rt = {"policy": "deadline", "priority": 0, "runtime_ns": 200_000, "cpu": None,
-          "lock_memory": False}  # fmt: skip
+    rt = engine_plans.rt(policy="deadline", runtime_ns=200_000)
     try:
         engine.start_cyclic(plan(rt=rt))
     except _native.EngineError as e:

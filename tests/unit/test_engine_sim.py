@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+import engine_plans
 import ether_ros._native as _native
 from ether_ros.config import load_bus_config
 from ether_ros.master.samples import FLAG_DC_ADJUSTED, FLAG_LOST, decode_samples
@@ -41,29 +42,22 @@ def address_slaves(engine: Any, count: int) -> None:
         ]
 
 
-def dc_plan(mode: str, order: str, rt: dict[str, Any] | None = None) -> dict[str, Any]:
-    datagrams: list[dict[str, Any]] = []
-    if mode == "ref_follows_master":
-        datagrams.append({"kind": "dc_write_ref", "station": 0x1001})
-    datagrams.append({"kind": "dc_sync", "station": 0x1001})
+def dc_plan(mode: str, order: str, rt: _native.RtSettings | None = None) -> _native.Plan:
     # No FMMU is configured, so this LRW passes untouched (working counter 0, expected 0).
-    datagrams.append(
-        {"kind": "lrw", "address": 0x10000, "length": 8, "image_offset": 0, "expected_wkc": 0}
+    datagrams = [
+        *engine_plans.dc_datagrams(mode),
+        engine_plans.logical("lrw", 0x10000, 8, 0, 0),
+    ]
+    return engine_plans.plan(
+        datagrams,
+        8,
+        cycle_ns=CYCLE_NS,
+        order=order,
+        output_ranges=[(0, 4)],
+        dc=engine_plans.dc(mode),
+        rt=rt or engine_plans.rt(),
+        ring_capacity=100_000,
     )
-    return {
-        "cycle_ns": CYCLE_NS,
-        "order": order,
-        "datagrams": datagrams,
-        "image_len": 8,
-        "output_ranges": [(0, 4)],
-        "initial_image": bytes(8),
-        "safe_image": bytes(8),
-        "dc": {"mode": mode, "time_offset_ns": 0, "sync0_shift_ns": 0},
-        "rt": rt
-        or {"policy": "other", "priority": 0, "cpu": None, "runtime_ns": 0, "lock_memory": False},
-        "watchdog_ns": 0,
-        "ring_capacity": 100_000,
-    }
 
 
 def test_in_process_acyclic_reaches_every_simulated_slave(net: Any) -> None:
@@ -112,7 +106,7 @@ def test_veth_acyclic_and_cyclic_with_the_simulator(sim_on_veth: tuple[Any, Any]
     [(_data, wkc)] = engine.transact([("BRD", 0, 2)], timeout_us=200_000)
     assert wkc == 2
     address_slaves(engine, 2)
-    rt = {"policy": "fifo", "priority": 30, "cpu": None, "runtime_ns": 0, "lock_memory": False}
+    rt = engine_plans.rt(policy="fifo", priority=30)
     engine.start_cyclic(dc_plan("ref_follows_master", "send_at_wake", rt))
     wait_for(lambda: engine.stats()["rtt"]["count"] >= 50, "50 answered cycles")
     # SDO-style acyclic traffic while cyclic goes through the RT thread's mailbox.

@@ -191,7 +191,7 @@ def test_communication_objects_from_the_esi_when_the_dictionary_lacks_them(tmp_p
     assert [int.from_bytes(rows[(0x1C12, k)][7], "little") for k in (1, 2)] == [0x1600, 0x1610]
     assert int.from_bytes(rows[(0x1610, 1)][7], "little") == 0x687A0020
     spec = device_spec(dev, name="m")
-    assert {0x1C00, 0x1C12, 0x1C13, 0x1600, 0x1610} <= {o[0] for o in spec["objects"]}
+    assert {0x1C00, 0x1C12, 0x1C13, 0x1600, 0x1610} <= {o[0] for o in spec.objects}
 
 
 def test_a_passive_terminal_in_a_config_is_refused_by_name(tmp_path: Path) -> None:

@@ -104,9 +104,9 @@ def manual_bus() -> Iterator[ManualBus]:
     net = SimNetwork(manual_clock_ns=START_NS)
     drifts = [50.0, -7.5, 25.0, -3.0]  # the reference drifts +50 ppm
     for pos, (slave, drift) in enumerate(zip(bus_order(cfg), drifts, strict=True)):
-        spec = slave_spec(slave, pos)
-        spec["drift_ppm"] = drift
-        net.add_slave(spec)
+        # The drift as the configuration gives it (sim.drift_ppm): the spec is made whole.
+        sim = slave.sim.model_copy(update={"drift_ppm": drift})
+        net.add_slave(slave_spec(slave.model_copy(update={"sim": sim}), pos))
     engine = Engine.open_sim(net)
     dg = DatagramService(engine)
     slaves = []

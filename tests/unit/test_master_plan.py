@@ -6,6 +6,7 @@ import struct
 
 import pytest
 
+from ether_ros import _native
 from ether_ros._native.protocol import fmmu
 from ether_ros.master.datagrams import (
     DATAGRAM_OVERHEAD,
@@ -124,7 +125,7 @@ def test_groups_have_their_own_frames_and_rate() -> None:
         layout_image([ImageSlave(0, 1, "a", 2, 2, "nope")])
 
 
-def test_plan_dict_follows_engine_contract() -> None:
+def test_plan_follows_engine_contract() -> None:
     layout = layout_image(LEGS, dc=True)
     safe = bytes(range(152))
     plan = build_plan(
@@ -137,20 +138,26 @@ def test_plan_dict_follows_engine_contract() -> None:
         rt=RtPlan(),
         watchdog_ns=100_000_000,
     )
-    (frame,) = plan["frames"]
-    assert frame["every"] == 1 and frame["watchdog_ns"] == 0
-    kinds = [d["kind"] for d in frame["datagrams"]]
+    assert isinstance(plan, _native.Plan)
+    (frame,) = plan.frames
+    assert frame.every == 1 and frame.watchdog_ns == 0
+    kinds = [d.kind for d in frame.datagrams]
     assert kinds == ["dc_write_ref", "dc_sync", "lrw"]
-    assert frame["datagrams"][2] == {
-        "kind": "lrw", "address": 0, "length": 240, "image_offset": 0, "expected_wkc": 12,
-    }  # fmt: skip
-    assert plan["output_ranges"] == [(0, 152)]
-    assert plan["safe_image"][:152] == safe and len(plan["safe_image"]) == 240
-    assert plan["dc"] == {"mode": "ref_follows_master", "time_offset_ns": 123,
-                          "sync0_shift_ns": 55_000}  # fmt: skip
+    lrw = frame.datagrams[2]
+    assert isinstance(lrw, _native.LogicalDatagram)
+    assert (lrw.address, lrw.length, lrw.image_offset, lrw.expected_wkc) == (0, 240, 0, 12)
+    assert plan.output_ranges == [(0, 152)]
+    assert plan.safe_image[:152] == safe and len(plan.safe_image) == 240
+    assert (plan.dc.mode, plan.dc.time_offset_ns, plan.dc.sync0_shift_ns) == (
+        "ref_follows_master", 123, 55_000,
+    )  # fmt: skip
+    # RtPlan's defaults (the only ones: RtSettings has none) reach the engine's type.
+    assert (plan.rt.policy, plan.rt.priority, plan.rt.runtime_ns, plan.rt.lock_memory) == (
+        "fifo", 80, 100_000, True,
+    )  # fmt: skip
     follow = build_plan(layout, 400_000, "send_then_wait", safe, safe,
                         DcPlan("master_follows_ref", 0x1001), RtPlan(), 0)  # fmt: skip
-    assert [d["kind"] for d in follow["frames"][0]["datagrams"]] == ["dc_sync", "lrw"]
+    assert [d.kind for d in follow.frames[0].datagrams] == ["dc_sync", "lrw"]
     with pytest.raises(ValueError):
         build_plan(layout, 400_000, "sideways", safe, safe, DcPlan(), RtPlan(), 0)
     # A layout without room for the DC datagrams is refused, not sent oversized.
@@ -166,8 +173,8 @@ def test_a_groups_watchdog_goes_to_each_of_its_frames() -> None:
     out = bytes(layout.output_bytes)
     plan = build_plan(layout, 1_000_000, "send_at_wake", out, out, DcPlan(), RtPlan(), 0,
                       group_watchdog_ns={"io": 50_000_000})  # fmt: skip
-    frames = zip(layout.frames, plan["frames"], strict=True)
-    by_group = [(f.group, p["watchdog_ns"]) for f, p in frames]
+    frames = zip(layout.frames, plan.frames, strict=True)
+    by_group = [(f.group, p.watchdog_ns) for f, p in frames]
     assert by_group == [("default", 0), ("io", 50_000_000), ("io", 50_000_000)]
 
 

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+import engine_plans
 from ether_ros.config import load_bus_config
 from ether_ros.master.plan import layout_image
 from ether_ros.master.samples import FLAG_LOST, FLAG_WATCHDOG, SAMPLE_DTYPE, Samples
@@ -133,9 +134,13 @@ def test_axis_joints_carry_the_values_of_their_own_sample(rig: Any) -> None:
 
     bus, sinks, pub = rig
     at = bus.layout.image_len - 12  # 10 spare bytes at the image's end for a made-up axis
-    entry = {"name": "elbow", "map": {"position": at, "velocity": at + 4, "torque": at + 8},
-             "position_scale": 1e-4, "position_offset": 0.5, "velocity_scale": 1e-3,
-             "torque_scale": 0.01}  # fmt: skip
+    scales = {"position_scale": 1e-4, "position_offset": 0.5, "velocity_scale": 1e-3,
+              "torque_scale": 0.01}  # fmt: skip
+    # controlword and statusword are required; this test reads only the actual values.
+    objects = {"controlword": 0, "statusword": 0}
+    entry = engine_plans.axis_plan(
+        "elbow", {**objects, "position": at, "velocity": at + 4, "torque": at + 8}, **scales
+    )
     pub._axis_joints = AxisImageJoints([entry])
     samples = batch(bus, range(0, 50))
     for row, cycle in enumerate(samples.records["cycle"]):
@@ -151,4 +156,5 @@ def test_axis_joints_carry_the_values_of_their_own_sample(rig: Any) -> None:
         assert msg.velocity[k] == pytest.approx(-7 * cycle * 1e-3)
         assert msg.effort[k] == pytest.approx(3 * cycle * 0.01)
     # An object the PDOs do not map reads raw 0 (position: the offset), as in the engine.
-    assert AxisImageJoints([{**entry, "map": {}}])(bytes(16)) == [("elbow", 0.5, 0.0, 0.0)]
+    unmapped = engine_plans.axis_plan("elbow", objects, **scales)
+    assert AxisImageJoints([unmapped])(bytes(16)) == [("elbow", 0.5, 0.0, 0.0)]

@@ -29,7 +29,7 @@ def test_profile_402_devices_run_the_cia402_model() -> None:
     corpus = load_esi(REPO / "tests" / "data" / "esi" / "servo_vendor_style.xml")[0]
     assert default_sim_device(corpus) == "cia402"
     cfg = bus_config_for_esi(SERVO, "ServoDrive2", 2, interface="veth-x")
-    assert [s["device"] for s in network_specs(cfg)] == ["cia402", "cia402"]
+    assert [s.device for s in network_specs(cfg)] == ["cia402", "cia402"]
 
 
 @pytest.mark.parametrize(

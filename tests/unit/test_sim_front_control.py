@@ -21,38 +21,35 @@ SLAVES = ["hind_right_leg", "hind_left_leg", "front_left_leg", "front_right_leg"
 def test_laelaps_specs() -> None:
     cfg = load_bus_config(REPO / "config" / "laelaps.yaml")
     specs = network_specs(cfg)
-    assert [s["name"] for s in specs] == SLAVES
+    assert [s.name for s in specs] == SLAVES
     s0 = specs[0]
-    assert (s0["vendor_id"], s0["product_code"], s0["device"]) == (
+    assert (s0.vendor_id, s0.product_code, s0.device) == (
         0x0A12,
         0x00A986FD,
         "laelaps_leg",
     )
-    assert s0["dc_supported"] and s0["dc_required"]
-    assert s0["mailbox"] == {
-        "rx_offset": 0x1000,
-        "rx_size": 128,
-        "tx_offset": 0x1080,
-        "tx_size": 128,
-    }
-    assert s0["serial"] == SERIAL_BASE and specs[3]["serial"] == SERIAL_BASE + 3
-    assert s0["drift_ppm"] == 12.0 and s0["delay_ns"] == 500
-    info = parse_sii(s0["sii"])
+    assert s0.dc_supported and s0.dc_required
+    m = s0.mailbox
+    assert m is not None
+    assert (m.rx_offset, m.rx_size, m.tx_offset, m.tx_size) == (0x1000, 128, 0x1080, 128)
+    assert s0.serial == SERIAL_BASE and specs[3].serial == SERIAL_BASE + 3
+    assert s0.drift_ppm == 12.0 and s0.delay_ns == 500
+    info = parse_sii(s0.sii)
     assert info.checksum_ok and info.serial == SERIAL_BASE and info.vendor_id == 0x0A12
-    entries = {(e[0], e[1]): e for e in s0["entries"]}
+    entries = {(e[0], e[1]): e for e in s0.entries}
     state = entries[(0x7000, 1)]
     assert state[2:7] == ("State_Machine", 1, 1, "rw", True)
     assert entries[(0x1008, 0)][7] == b"LaelapsII_Leg"
-    assert (0x1018, "Identity", 9) in s0["objects"]
-    for e in s0["entries"]:
+    assert (0x1018, "Identity", 9) in s0.objects
+    for e in s0.entries:
         assert len(e[7]) == (e[4] + 7) // 8
 
 
 def test_generic_io_spec_device_default() -> None:
     cfg = load_bus_config(REPO / "config" / "mixed.yaml")
     specs = network_specs(cfg)
-    assert [s["device"] for s in specs] == ["laelaps_leg"] * 4 + ["generic_io"]
-    assert not specs[4]["dc_required"]
+    assert [s.device for s in specs] == ["laelaps_leg"] * 4 + ["generic_io"]
+    assert not specs[4].dc_required
 
 
 @pytest.mark.parametrize(
@@ -180,6 +177,6 @@ def test_sim_fault_without_simulator_is_one_line_error(tmp_path: Path, capsys: A
 def test_identity_object_carries_the_serial() -> None:
     cfg = load_bus_config(REPO / "config" / "laelaps.yaml")
     for pos, spec in enumerate(network_specs(cfg)):
-        entries = {(e[0], e[1]): e[7] for e in spec["entries"]}
+        entries = {(e[0], e[1]): e[7] for e in spec.entries}
         assert int.from_bytes(entries[(0x1018, 4)], "little") == SERIAL_BASE + pos
         assert int.from_bytes(entries[(0x1018, 1)], "little") == 0x0A12

@@ -11,7 +11,7 @@ from typing import Any
 
 import pytest
 
-from ether_ros._native import SimNetwork
+from ether_ros._native import MailboxSpec, SimNetwork, SlaveSpec
 from ether_ros._native.protocol import sii_checksum
 from ether_ros.testing.netns import VethPair, thread_in_netns
 from ether_ros.testing.wait import wait_for
@@ -41,7 +41,7 @@ def sii_image(alias: int = 0) -> bytes:
     return bytes(b)
 
 
-def spec(alias: int = 0) -> dict[str, Any]:
+def spec(alias: int = 0, **fields: Any) -> SlaveSpec:
     """Output 0x7000:1 (u16) via 0x1600, input 0x6000:1 (u32) via 0x1A00."""
     u8, u16, u32 = 5, 6, 7
     entries = [
@@ -62,10 +62,11 @@ def spec(alias: int = 0) -> dict[str, Any]:
     objects = [
         (i, f"obj {i:04X}", 7 if i == 0x1000 else 9) for i in sorted({e[0] for e in entries})
     ]
-    return {
+    base: dict[str, Any] = {
         "name": "tiny",
         "vendor_id": VENDOR,
         "product_code": PRODUCT,
+        "revision": 0,
         "sii": sii_image(alias),
         "objects": objects,
         "entries": entries,
@@ -75,9 +76,10 @@ def spec(alias: int = 0) -> dict[str, Any]:
         "delay_ns": 800,
         "dc_supported": True,
         "dc_required": False,
-        "mailbox": {"rx_offset": MBX_RX, "rx_size": 128, "tx_offset": MBX_TX, "tx_size": 128},
+        "mailbox": MailboxSpec(rx_offset=MBX_RX, rx_size=128, tx_offset=MBX_TX, tx_size=128),
         "pdram_kib": 8,
     }
+    return SlaveSpec(**{**base, **fields})
 
 
 def frame(cmd: int, adp: int, ado: int, data: bytes) -> bytes:
@@ -174,18 +176,18 @@ def test_faults_and_bad_input_are_reported() -> None:
         net.fault("drop", rate=2.0)
     with pytest.raises(IndexError, match="no slave at position 3"):
         net.slave_info(3)
-    bad = spec()
-    bad["delay_ns"] = "soon"
-    with pytest.raises(ValueError, match="'delay_ns'"):
-        net.add_slave(bad)
-    bad = spec()
-    bad["colour"] = "blue"
-    with pytest.raises(ValueError, match="unknown key 'colour'"):
-        net.add_slave(bad)
-    bad = spec()
-    bad["device"] = "toaster"
+    # A slave spec is checked when made: a wrong type, an unknown or a missing field is
+    # named (with the type it belongs to).
+    with pytest.raises(TypeError, match="'delay_ns'"):
+        spec(delay_ns="soon")
+    with pytest.raises(TypeError, match=r"SlaveSpec.*unexpected keyword argument 'colour'"):
+        spec(colour="blue")
+    with pytest.raises(TypeError, match=r"SlaveSpec.*missing 1 required keyword argument: 'sii'"):
+        SlaveSpec(name="x", vendor_id=1, product_code=2, revision=3)  # type: ignore[call-arg]
+    with pytest.raises(ValueError, match=r"SlaveSpec\.pdram_kib: expected int 1\.\.=60"):
+        spec(pdram_kib=61)
     with pytest.raises(ValueError, match="toaster"):
-        net.add_slave(bad)
+        net.add_slave(spec(device="toaster"))
     with pytest.raises(ValueError, match="no object entry 0x1234:0"):
         net.od_read(0, 0x1234, 0)
     with pytest.raises(OSError, match="nosuchif0"):

@@ -4,6 +4,7 @@
 use pyo3::prelude::*;
 
 mod command_bindings;
+mod contracts;
 mod engine_bindings;
 mod protocol_bindings;
 mod sim_bindings;
@@ -13,6 +14,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     sim_bindings::register(m)?;
     engine_bindings::register(m)?;
+    contracts::register(m)?;
     command_bindings::register(m)?;
     protocol_bindings::register(m)?;
     Ok(())

@@ -1,12 +1,15 @@
 //! Python bindings for the simulator: `ether_ros._native.SimNetwork`.
 //!
-//! # Slave spec (the dict passed to `SimNetwork.add_slave`)
+//! # Slave spec (`ether_ros._native.SlaveSpec`, passed to `SimNetwork.add_slave`)
 //!
 //! Built by `python/ether_ros/sim/spec.py` from the bus config and the ESI; documented for
-//! people in `docs/simulator.md`. Keys (all optional except `sii`; an unknown key or a wrong
-//! type is a `ValueError` naming the key):
+//! people in `docs/simulator.md`. A frozen class with a keyword-only constructor: `name`,
+//! `vendor_id`, `product_code`, `revision` and `sii` are required, the rest optional (None: the
+//! default of `ether_ros_sim::SlaveSpec::default()`, the one place it lives); an unknown or
+//! missing keyword is a `TypeError` naming it, a wrong value a `ValueError` naming
+//! `SlaveSpec.field`. Fields:
 //!
-//! | key | type | meaning |
+//! | field | type | meaning |
 //! |---|---|---|
 //! | `name` | str | slave name, for messages |
 //! | `vendor_id`, `product_code`, `revision`, `serial` | int | identity (informational: the master reads it from the SII) |
@@ -22,20 +25,21 @@
 //! | `upstream` | (parent_index, port) or None | where port 0 is connected: port 1..=3 of an earlier slave; None: port 1 of the previous slave (a line). Slaves are added in the frame's visiting order |
 //! | `dc_supported` | bool | the ESC has distributed clocks (feature bits 2/3 in 0x0008; default True) |
 //! | `dc_required` | bool | PREOP->SAFEOP refuses (0x0030) unless SYNC0 is active with a cycle time (default False) |
-//! | `mailbox` | dict{rx_offset, rx_size, tx_offset, tx_size} or None | standard mailbox (SM0 = rx, master->slave; SM1 = tx), used when SII words 0x18..=0x1B are zero |
+//! | `mailbox` | `MailboxSpec(rx_offset, rx_size, tx_offset, tx_size)` or None | standard mailbox (SM0 = rx, master->slave; SM1 = tx), used when SII words 0x18..=0x1B are zero |
 //! | `pdram_kib` | int | process-data RAM size in KiB (register 0x0006), 1..=60; default the chip's (ET1100 8, ET1200 1, LAN9252 4) |
 //! | `loopback_links` | list[(out_index, out_sub, in_index, in_sub)] | output → input pairs of the `loopback` model (built by `ether_ros.sim.spec.loopback_pairs`) |
 //! | `esc` | str | slave controller chip whose registers the ESC presents: "et1100" (default), "et1200", "lan9252" |
 //! | `lrw` | bool | False: the ESC reports "LRW not supported" (0x0008 bit 9) and ignores LRW datagrams (no data, no working counter); default True |
 //! | `safeop_op_timeout_ms` | int | how long a SAFEOP->OP request waits for valid outputs before it is refused (ESI `<SafeopOpTimeout>`, default 10000) |
 
+use std::collections::BTreeMap;
 use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
 use pyo3::exceptions::{PyIndexError, PyOSError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
-use pyo3::types::{PyBytes, PyDict, PyList};
+use pyo3::types::{PyBytes, PyDict, PyList, PyTuple};
 
 use ether_ros_engine::LinkKind;
 use ether_ros_protocol::{reg, Command};
@@ -53,23 +57,10 @@ use ether_ros_sim::{MailboxSpec, Network, SlaveSpec};
 const MAX_FIRMWARE_THREADS: usize = 64;
 
 fn bad_key(key: &str, expected: &str) -> PyErr {
-    PyValueError::new_err(format!("slave spec key '{key}': expected {expected}"))
+    PyValueError::new_err(format!("SlaveSpec.{key}: expected {expected}"))
 }
 
-fn get<'py, T>(spec: &Bound<'py, PyDict>, key: &str, expected: &str) -> PyResult<Option<T>>
-where
-    T: for<'a> FromPyObject<'a, 'py>,
-{
-    match spec.get_item(key)? {
-        None => Ok(None),
-        Some(v) if v.is_none() => Ok(None),
-        Some(v) => v
-            .extract::<T>()
-            .map(Some)
-            .map_err(|_| bad_key(key, expected)),
-    }
-}
-
+/// Little-endian bytes (`None`: empty, read as zeros).
 fn bytes_of(v: &Bound<'_, PyAny>, key: &str) -> PyResult<Vec<u8>> {
     if v.is_none() {
         return Ok(Vec::new());
@@ -80,96 +71,124 @@ fn bytes_of(v: &Bound<'_, PyAny>, key: &str) -> PyResult<Vec<u8>> {
     v.extract::<Vec<u8>>().map_err(|_| bad_key(key, "bytes"))
 }
 
-/// Convert the Python spec dict into a `SlaveSpec` (see the module documentation).
-fn parse_spec(spec: &Bound<'_, PyDict>) -> PyResult<SlaveSpec> {
-    let mut s = SlaveSpec::default();
-    const KNOWN: &[&str] = &[
-        "name",
-        "vendor_id",
-        "product_code",
-        "revision",
-        "serial",
-        "alias",
-        "sii",
-        "objects",
-        "entries",
-        "idns",
-        "device",
-        "params",
-        "drift_ppm",
-        "delay_ns",
-        "upstream",
-        "dc_supported",
-        "dc_required",
-        "mailbox",
-        "pdram_kib",
-        "esc",
-        "safeop_op_timeout_ms",
-        "loopback_links",
-        "lrw",
-    ];
-    for k in spec.keys() {
-        let k: String = k
-            .extract()
-            .map_err(|_| PyValueError::new_err("slave spec keys must be strings"))?;
-        if !KNOWN.contains(&k.as_str()) {
-            return Err(PyValueError::new_err(format!(
-                "slave spec: unknown key '{k}'"
-            )));
+/// A standard mailbox (SM0 = rx, master → slave; SM1 = tx), used when SII words 0x18..=0x1B
+/// are zero.
+#[pyclass(name = "MailboxSpec", module = "ether_ros._native", frozen, get_all)]
+pub struct PyMailboxSpec {
+    rx_offset: u16,
+    rx_size: u16,
+    tx_offset: u16,
+    tx_size: u16,
+}
+
+#[pymethods]
+impl PyMailboxSpec {
+    #[new]
+    #[pyo3(signature = (*, rx_offset, rx_size, tx_offset, tx_size))]
+    fn new(rx_offset: u16, rx_size: u16, tx_offset: u16, tx_size: u16) -> Self {
+        Self {
+            rx_offset,
+            rx_size,
+            tx_offset,
+            tx_size,
         }
     }
-    if let Some(v) = get::<String>(spec, "name", "str")? {
-        s.name = v;
+
+    fn __repr__(&self) -> String {
+        format!(
+            "MailboxSpec(rx_offset={}, rx_size={}, tx_offset={}, tx_size={})",
+            self.rx_offset, self.rx_size, self.tx_offset, self.tx_size
+        )
     }
-    s.vendor_id = get::<u32>(spec, "vendor_id", "int (u32)")?.unwrap_or(0);
-    s.product_code = get::<u32>(spec, "product_code", "int (u32)")?.unwrap_or(0);
-    s.revision = get::<u32>(spec, "revision", "int (u32)")?.unwrap_or(0);
-    s.serial = get::<u32>(spec, "serial", "int (u32)")?.unwrap_or(0);
-    s.alias = get::<u16>(spec, "alias", "int (u16)")?.unwrap_or(0);
-    match spec.get_item("sii")? {
-        Some(v) => s.sii = bytes_of(&v, "sii")?,
-        None => {
-            return Err(PyValueError::new_err(
-                "slave spec: missing key 'sii' (the EEPROM image)",
-            ))
-        }
-    }
-    if let Some(list) = spec.get_item("objects")? {
-        for item in list
-            .try_iter()
-            .map_err(|_| bad_key("objects", "a list of (index, name, object_code)"))?
-        {
-            let (index, name, object_code): (u16, String, u8) = item?
-                .extract()
-                .map_err(|_| bad_key("objects", "a list of (index, name, object_code)"))?;
+}
+
+/// One CoE entry of a spec: (index, subindex, name, data_type, bit_length, access,
+/// pdo_mappable, default).
+type EntryTuple<'py> = (u16, u8, String, u16, u16, String, bool, Bound<'py, PyAny>);
+/// One IDN of a spec: (idn, name, data_type, bit_length, default).
+type IdnTuple<'py> = (u16, String, u16, u16, Bound<'py, PyAny>);
+
+/// A virtual slave for `SimNetwork.add_slave` (see the module documentation): built by
+/// `python/ether_ros/sim/spec.py` from the bus config and the ESI, checked when made. Every
+/// optional field left out (None) takes `ether_ros_sim::SlaveSpec::default()`'s value, the one
+/// place those defaults live.
+#[pyclass(name = "SlaveSpec", module = "ether_ros._native", frozen)]
+pub struct PySlaveSpec {
+    inner: SlaveSpec,
+    objects: Py<PyTuple>,
+    entries: Py<PyTuple>,
+    idns: Py<PyTuple>,
+    mailbox: Option<Py<PyMailboxSpec>>,
+    #[pyo3(get)]
+    device: String,
+}
+
+#[pymethods]
+impl PySlaveSpec {
+    #[new]
+    #[pyo3(signature = (
+        *, name, vendor_id, product_code, revision, sii, serial = None, alias = None,
+        objects = Vec::new(), entries = Vec::new(), idns = Vec::new(), device = None,
+        params = None, drift_ppm = None, delay_ns = None, upstream = None, dc_supported = None,
+        dc_required = None, mailbox = None, pdram_kib = None, esc = None,
+        safeop_op_timeout_ms = None, loopback_links = Vec::new(), lrw = None,
+    ))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        py: Python<'_>,
+        name: String,
+        vendor_id: u32,
+        product_code: u32,
+        revision: u32,
+        sii: Bound<'_, PyAny>,
+        serial: Option<u32>,
+        alias: Option<u16>,
+        objects: Vec<(u16, String, u8)>,
+        entries: Vec<EntryTuple<'_>>,
+        idns: Vec<IdnTuple<'_>>,
+        device: Option<String>,
+        params: Option<BTreeMap<String, f64>>,
+        drift_ppm: Option<f64>,
+        delay_ns: Option<u64>,
+        upstream: Option<(usize, u8)>,
+        dc_supported: Option<bool>,
+        dc_required: Option<bool>,
+        mailbox: Option<Bound<'_, PyMailboxSpec>>,
+        pdram_kib: Option<u8>,
+        esc: Option<String>,
+        safeop_op_timeout_ms: Option<u32>,
+        loopback_links: Vec<(u16, u8, u16, u8)>,
+        lrw: Option<bool>,
+    ) -> PyResult<Self> {
+        let mut s = SlaveSpec {
+            name,
+            vendor_id,
+            product_code,
+            revision,
+            ..SlaveSpec::default()
+        };
+        s.sii = bytes_of(&sii, "sii")?;
+        s.serial = serial.unwrap_or(s.serial);
+        s.alias = alias.unwrap_or(s.alias);
+        let objects_py = PyTuple::new(py, &objects)?.unbind();
+        for (index, name, object_code) in objects {
             s.objects.push(Object {
                 index,
                 name,
                 object_code,
             });
         }
-    }
-    if let Some(list) = spec.get_item("entries")? {
-        let what = "a list of (index, subindex, name, data_type, bit_length, access, pdo_mappable, default)";
-        for item in list.try_iter().map_err(|_| bad_key("entries", what))? {
-            let item = item?;
-            let (index, subindex, name, data_type, bit_length, access, pdo_mappable, default): (
-                u16,
-                u8,
-                String,
-                u16,
-                u16,
-                String,
-                bool,
-                Bound<'_, PyAny>,
-            ) = item.extract().map_err(|_| bad_key("entries", what))?;
+        let entries_py = PyTuple::new(py, &entries)?.unbind();
+        for (index, subindex, name, data_type, bit_length, access, pdo_mappable, default) in entries
+        {
             let access = match access.as_str() {
                 "ro" => Access::ReadOnly,
                 "rw" => Access::ReadWrite,
                 "wo" => Access::WriteOnly,
                 other => {
                     return Err(PyValueError::new_err(format!(
-                        "slave spec key 'entries': entry 0x{index:04X}:{subindex} has access '{other}', expected 'ro', 'rw' or 'wo'"
+                        "SlaveSpec.entries: entry 0x{index:04X}:{subindex} has access '{other}', \
+                         expected 'ro', 'rw' or 'wo'"
                     )))
                 }
             };
@@ -185,89 +204,146 @@ fn parse_spec(spec: &Bound<'_, PyDict>) -> PyResult<SlaveSpec> {
                 value,
             });
         }
-    }
-    if let Some(list) = spec.get_item("idns")? {
-        let what = "a list of (idn, name, data_type, bit_length, default)";
-        for item in list.try_iter().map_err(|_| bad_key("idns", what))? {
-            let (idn, name, data_type, bit_length, default): (
-                u16,
-                String,
-                u16,
-                u16,
-                Bound<'_, PyAny>,
-            ) = item?.extract().map_err(|_| bad_key("idns", what))?;
+        let idns_py = PyTuple::new(py, &idns)?.unbind();
+        for (idn, name, data_type, bit_length, default) in idns {
             let value = bytes_of(&default, "idns")?;
             s.idns
                 .push(IdnSpec::typed(idn, name, data_type, bit_length, value));
         }
-    }
-    if let Some(v) = get::<String>(spec, "device", "str")? {
-        s.device = v;
-    }
-    if let Some(p) = spec.get_item("params")? {
-        if !p.is_none() {
-            let d = p
-                .cast::<PyDict>()
-                .map_err(|_| bad_key("params", "dict[str, float]"))?;
-            for (k, v) in d.iter() {
-                let k: String = k
-                    .extract()
-                    .map_err(|_| bad_key("params", "dict[str, float]"))?;
-                let v: f64 = v
-                    .extract()
-                    .map_err(|_| bad_key("params", "dict[str, float]"))?;
-                s.params.push((k, v));
+        if let Some(d) = device {
+            s.device = d;
+        }
+        if let Some(p) = params {
+            // Sorted by name (a BTreeMap): the device reads them in a stable order.
+            s.params = p.into_iter().collect();
+        }
+        s.drift_ppm = drift_ppm.unwrap_or(s.drift_ppm);
+        s.delay_ns = delay_ns.unwrap_or(s.delay_ns);
+        s.upstream = upstream;
+        s.dc_supported = dc_supported.unwrap_or(s.dc_supported);
+        s.dc_required = dc_required.unwrap_or(s.dc_required);
+        s.mailbox = mailbox.as_ref().map(|m| {
+            let m = m.get();
+            MailboxSpec {
+                rx_offset: m.rx_offset,
+                rx_size: m.rx_size,
+                tx_offset: m.tx_offset,
+                tx_size: m.tx_size,
             }
-            s.params.sort_by(|a, b| a.0.cmp(&b.0));
+        });
+        if let Some(k) = pdram_kib {
+            if !(1..=60).contains(&k) {
+                return Err(bad_key("pdram_kib", "int 1..=60"));
+            }
+            s.pdram_kib = k;
         }
-    }
-    s.drift_ppm = get::<f64>(spec, "drift_ppm", "float")?.unwrap_or(0.0);
-    if let Some(d) = get::<u64>(spec, "delay_ns", "int >= 0")? {
-        s.delay_ns = d;
-    }
-    s.upstream = get::<(usize, u8)>(spec, "upstream", "(parent index, port) or None")?;
-    if let Some(v) = get::<bool>(spec, "dc_supported", "bool")? {
-        s.dc_supported = v;
-    }
-    s.dc_required = get::<bool>(spec, "dc_required", "bool")?.unwrap_or(false);
-    if let Some(m) = spec.get_item("mailbox")? {
-        if !m.is_none() {
-            let what = "None or dict {rx_offset, rx_size, tx_offset, tx_size}";
-            let d = m.cast::<PyDict>().map_err(|_| bad_key("mailbox", what))?;
-            let field = |k: &str| -> PyResult<u16> {
-                get::<u16>(d, k, "int (u16)")?.ok_or_else(|| bad_key("mailbox", what))
-            };
-            s.mailbox = Some(MailboxSpec {
-                rx_offset: field("rx_offset")?,
-                rx_size: field("rx_size")?,
-                tx_offset: field("tx_offset")?,
-                tx_size: field("tx_size")?,
-            });
+        if let Some(name) = esc {
+            s.esc = EscChip::from_name(&name).map_err(|e| bad_key("esc", &e))?;
         }
+        s.lrw_supported = lrw.unwrap_or(s.lrw_supported);
+        s.safeop_op_timeout_ms = safeop_op_timeout_ms.unwrap_or(s.safeop_op_timeout_ms);
+        s.loopback_links = loopback_links;
+        Ok(Self {
+            device: s.device.clone(),
+            inner: s,
+            objects: objects_py,
+            entries: entries_py,
+            idns: idns_py,
+            mailbox: mailbox.map(Bound::unbind),
+        })
     }
-    if let Some(k) = get::<u8>(spec, "pdram_kib", "int 1..=60")? {
-        if !(1..=60).contains(&k) {
-            return Err(bad_key("pdram_kib", "int 1..=60"));
-        }
-        s.pdram_kib = k;
+
+    #[getter]
+    fn name(&self) -> &str {
+        &self.inner.name
     }
-    if let Some(name) = get::<String>(spec, "esc", "str")? {
-        s.esc = EscChip::from_name(&name).map_err(|e| bad_key("esc", &e))?;
+    #[getter]
+    fn vendor_id(&self) -> u32 {
+        self.inner.vendor_id
     }
-    if let Some(lrw) = get::<bool>(spec, "lrw", "bool")? {
-        s.lrw_supported = lrw;
+    #[getter]
+    fn product_code(&self) -> u32 {
+        self.inner.product_code
     }
-    if let Some(ms) = get::<u32>(spec, "safeop_op_timeout_ms", "int >= 0")? {
-        s.safeop_op_timeout_ms = ms;
+    #[getter]
+    fn revision(&self) -> u32 {
+        self.inner.revision
     }
-    if let Some(links) = get::<Vec<(u16, u8, u16, u8)>>(
-        spec,
-        "loopback_links",
-        "list of (out_index, out_subindex, in_index, in_subindex)",
-    )? {
-        s.loopback_links = links;
+    #[getter]
+    fn serial(&self) -> u32 {
+        self.inner.serial
     }
-    Ok(s)
+    #[getter]
+    fn alias(&self) -> u16 {
+        self.inner.alias
+    }
+    #[getter]
+    fn sii<'py>(&self, py: Python<'py>) -> Bound<'py, PyBytes> {
+        PyBytes::new(py, &self.inner.sii)
+    }
+    #[getter]
+    fn objects<'py>(&self, py: Python<'py>) -> Bound<'py, PyTuple> {
+        self.objects.bind(py).clone()
+    }
+    #[getter]
+    fn entries<'py>(&self, py: Python<'py>) -> Bound<'py, PyTuple> {
+        self.entries.bind(py).clone()
+    }
+    #[getter]
+    fn idns<'py>(&self, py: Python<'py>) -> Bound<'py, PyTuple> {
+        self.idns.bind(py).clone()
+    }
+    #[getter]
+    fn params(&self) -> BTreeMap<String, f64> {
+        self.inner.params.iter().cloned().collect()
+    }
+    #[getter]
+    fn mailbox<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyMailboxSpec>> {
+        self.mailbox.as_ref().map(|m| m.bind(py).clone())
+    }
+    #[getter]
+    fn drift_ppm(&self) -> f64 {
+        self.inner.drift_ppm
+    }
+    #[getter]
+    fn delay_ns(&self) -> u64 {
+        self.inner.delay_ns
+    }
+    #[getter]
+    fn upstream(&self) -> Option<(usize, u8)> {
+        self.inner.upstream
+    }
+    #[getter]
+    fn dc_supported(&self) -> bool {
+        self.inner.dc_supported
+    }
+    #[getter]
+    fn dc_required(&self) -> bool {
+        self.inner.dc_required
+    }
+    #[getter]
+    fn esc(&self) -> &'static str {
+        self.inner.esc.name()
+    }
+    #[getter]
+    fn lrw(&self) -> bool {
+        self.inner.lrw_supported
+    }
+    #[getter]
+    fn safeop_op_timeout_ms(&self) -> u32 {
+        self.inner.safeop_op_timeout_ms
+    }
+    #[getter]
+    fn loopback_links(&self) -> Vec<(u16, u8, u16, u8)> {
+        self.inner.loopback_links.clone()
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "SlaveSpec(name={:?}, vendor_id={:#x}, product_code={:#x}, device={:?})",
+            self.inner.name, self.inner.vendor_id, self.inner.product_code, self.device
+        )
+    }
 }
 
 /// A virtual EtherCAT network (a line of virtual slaves).
@@ -335,9 +411,9 @@ impl SimNetwork {
         }
     }
 
-    /// Append a slave built from a spec dict; returns its position.
-    fn add_slave(&self, spec: &Bound<'_, PyDict>) -> PyResult<usize> {
-        let s = parse_spec(spec)?;
+    /// Append a slave made from `spec` (a `SlaveSpec`); returns its position.
+    fn add_slave(&self, spec: PyRef<'_, PySlaveSpec>) -> PyResult<usize> {
+        let s = spec.inner.clone();
         let name = s.name.clone();
         self.lock()?
             .add_slave(s)
@@ -807,5 +883,7 @@ impl SimNetwork {
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<SimNetwork>()?;
+    m.add_class::<PySlaveSpec>()?;
+    m.add_class::<PyMailboxSpec>()?;
     Ok(())
 }

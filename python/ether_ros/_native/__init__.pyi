@@ -1,11 +1,12 @@
 """Type stub of the Rust extension ``ether_ros._native`` (crates/py). Keep in step with
-``crates/py/src/sim_bindings.rs``, ``engine_bindings.rs`` and ``command_bindings.rs``; the
+``crates/py/src/sim_bindings.rs``, ``engine_bindings.rs``, ``contracts.rs`` and
+``command_bindings.rs``; the
 ``protocol`` submodule's stub is ``protocol.pyi`` beside this file.
 
 (This folder holds stubs only: at run time ``ether_ros._native`` is the extension module file,
 which Python's import takes before a folder without ``__init__.py``.)"""
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from types import TracebackType
 from typing import Any, Self, final
 
@@ -17,15 +18,25 @@ __all__ = [
     "PANIC_KEYS",
     "SAMPLE_FLAGS",
     "SAMPLE_RECORD_LEN",
+    "AxisMap",
+    "AxisPlan",
     "CommandReceiver",
     "CommandTable",
+    "DcDatagram",
+    "DcSettings",
     "Engine",
     "EngineError",
     "EngineTimeout",
+    "Frame",
     "JointTable",
     "LeaseGate",
+    "LogicalDatagram",
+    "MailboxSpec",
     "PanicKeys",
+    "Plan",
+    "RtSettings",
     "SimNetwork",
+    "SlaveSpec",
     "__version__",
     "check_command_message",
     "protocol",
@@ -35,12 +46,330 @@ __version__: str
 SAMPLE_RECORD_LEN: int
 SAMPLE_FLAGS: dict[str, int]
 
+# ----- the typed contracts (crates/py/src/contracts.rs): keyword-only, frozen, checked when
+# made; an unknown or missing keyword is a TypeError naming it.
+
+@final
+class LogicalDatagram:
+    def __new__(
+        cls, *, kind: str, address: int, length: int, image_offset: int, expected_wkc: int
+    ) -> Self: ...
+    @property
+    def kind(self) -> str: ...
+    @property
+    def address(self) -> int: ...
+    @property
+    def length(self) -> int: ...
+    @property
+    def image_offset(self) -> int: ...
+    @property
+    def expected_wkc(self) -> int: ...
+
+@final
+class DcDatagram:
+    def __new__(cls, *, kind: str, station: int) -> Self: ...
+    @property
+    def kind(self) -> str: ...
+    @property
+    def station(self) -> int: ...
+
+@final
+class Frame:
+    def __new__(
+        cls,
+        *,
+        datagrams: Sequence[LogicalDatagram | DcDatagram],
+        every: int,
+        watchdog_ns: int,
+    ) -> Self: ...
+    @property
+    def datagrams(self) -> tuple[LogicalDatagram | DcDatagram, ...]: ...
+    @property
+    def every(self) -> int: ...
+    @property
+    def watchdog_ns(self) -> int: ...
+
+@final
+class DcSettings:
+    def __new__(cls, *, mode: str, time_offset_ns: int, sync0_shift_ns: int) -> Self: ...
+    @property
+    def mode(self) -> str: ...
+    @property
+    def time_offset_ns(self) -> int: ...
+    @property
+    def sync0_shift_ns(self) -> int: ...
+
+@final
+class RtSettings:
+    def __new__(
+        cls, *, policy: str, priority: int, cpu: int | None, runtime_ns: int, lock_memory: bool
+    ) -> Self: ...
+    @property
+    def policy(self) -> str: ...
+    @property
+    def priority(self) -> int: ...
+    @property
+    def cpu(self) -> int | None: ...
+    @property
+    def runtime_ns(self) -> int: ...
+    @property
+    def lock_memory(self) -> bool: ...
+
+@final
+class AxisMap:
+    def __new__(
+        cls,
+        *,
+        controlword: int,
+        statusword: int,
+        mode: int | None = None,
+        mode_display: int | None = None,
+        target_position: int | None = None,
+        target_velocity: int | None = None,
+        target_torque: int | None = None,
+        position: int | None = None,
+        velocity: int | None = None,
+        torque: int | None = None,
+        error_code: int | None = None,
+        following_error: int | None = None,
+    ) -> Self: ...
+    @property
+    def controlword(self) -> int: ...
+    @property
+    def statusword(self) -> int: ...
+    @property
+    def mode(self) -> int | None: ...
+    @property
+    def mode_display(self) -> int | None: ...
+    @property
+    def target_position(self) -> int | None: ...
+    @property
+    def target_velocity(self) -> int | None: ...
+    @property
+    def target_torque(self) -> int | None: ...
+    @property
+    def position(self) -> int | None: ...
+    @property
+    def velocity(self) -> int | None: ...
+    @property
+    def torque(self) -> int | None: ...
+    @property
+    def error_code(self) -> int | None: ...
+    @property
+    def following_error(self) -> int | None: ...
+    def offsets(self) -> list[tuple[str, int]]: ...
+
+@final
+class AxisPlan:
+    def __new__(
+        cls,
+        *,
+        name: str,
+        map: AxisMap,
+        mode: str,
+        position_scale: float,
+        position_offset: float,
+        velocity_scale: float,
+        torque_scale: float,
+        position_min: float,
+        position_max: float,
+        velocity_max: float,
+        torque_max: float,
+        deceleration: float,
+        mode_change_velocity: str,
+        restart: str,
+        following_error_window: float,
+        on_stop: str,
+        fault_reset: str,
+        fault_retries: int,
+        fault_backoff_ns: int,
+        interpolation_max_ns: int = 100_000_000,
+        max_acceleration: float | None = None,
+    ) -> Self: ...
+    @property
+    def name(self) -> str: ...
+    @property
+    def map(self) -> AxisMap: ...
+    @property
+    def mode(self) -> str: ...
+    @property
+    def position_scale(self) -> float: ...
+    @property
+    def position_offset(self) -> float: ...
+    @property
+    def velocity_scale(self) -> float: ...
+    @property
+    def torque_scale(self) -> float: ...
+    @property
+    def position_min(self) -> float: ...
+    @property
+    def position_max(self) -> float: ...
+    @property
+    def velocity_max(self) -> float: ...
+    @property
+    def torque_max(self) -> float: ...
+    @property
+    def deceleration(self) -> float: ...
+    @property
+    def mode_change_velocity(self) -> str: ...
+    @property
+    def restart(self) -> str: ...
+    @property
+    def following_error_window(self) -> float: ...
+    @property
+    def on_stop(self) -> str: ...
+    @property
+    def fault_reset(self) -> str: ...
+    @property
+    def fault_retries(self) -> int: ...
+    @property
+    def fault_backoff_ns(self) -> int: ...
+    @property
+    def interpolation_max_ns(self) -> int: ...
+    @property
+    def max_acceleration(self) -> float | None: ...
+
+@final
+class Plan:
+    def __new__(
+        cls,
+        *,
+        cycle_ns: int,
+        order: str,
+        frames: Sequence[Frame],
+        image_len: int,
+        output_ranges: Sequence[tuple[int, int]],
+        initial_image: bytes,
+        safe_image: bytes,
+        dc: DcSettings,
+        rt: RtSettings,
+        watchdog_ns: int,
+        ring_capacity: int,
+        axes: Sequence[AxisPlan] = ...,
+        trajectory_capacity: int | None = None,
+    ) -> Self: ...
+    @property
+    def cycle_ns(self) -> int: ...
+    @property
+    def order(self) -> str: ...
+    @property
+    def frames(self) -> tuple[Frame, ...]: ...
+    @property
+    def image_len(self) -> int: ...
+    @property
+    def output_ranges(self) -> list[tuple[int, int]]: ...
+    @property
+    def initial_image(self) -> bytes: ...
+    @property
+    def safe_image(self) -> bytes: ...
+    @property
+    def dc(self) -> DcSettings: ...
+    @property
+    def rt(self) -> RtSettings: ...
+    @property
+    def watchdog_ns(self) -> int: ...
+    @property
+    def ring_capacity(self) -> int: ...
+    @property
+    def axes(self) -> tuple[AxisPlan, ...]: ...
+    @property
+    def trajectory_capacity(self) -> int: ...
+
+@final
+class MailboxSpec:
+    def __new__(cls, *, rx_offset: int, rx_size: int, tx_offset: int, tx_size: int) -> Self: ...
+    @property
+    def rx_offset(self) -> int: ...
+    @property
+    def rx_size(self) -> int: ...
+    @property
+    def tx_offset(self) -> int: ...
+    @property
+    def tx_size(self) -> int: ...
+
+@final
+class SlaveSpec:
+    """A virtual slave (crates/py/src/sim_bindings.rs); optional fields None: the simulator's
+    default."""
+
+    def __new__(
+        cls,
+        *,
+        name: str,
+        vendor_id: int,
+        product_code: int,
+        revision: int,
+        sii: bytes | None,
+        serial: int | None = None,
+        alias: int | None = None,
+        objects: Sequence[tuple[int, str, int]] = ...,
+        entries: Sequence[tuple[int, int, str, int, int, str, bool, bytes | None]] = ...,
+        idns: Sequence[tuple[int, str, int, int, bytes | None]] = ...,
+        device: str | None = None,
+        params: Mapping[str, float] | None = None,
+        drift_ppm: float | None = None,
+        delay_ns: int | None = None,
+        upstream: tuple[int, int] | None = None,
+        dc_supported: bool | None = None,
+        dc_required: bool | None = None,
+        mailbox: MailboxSpec | None = None,
+        pdram_kib: int | None = None,
+        esc: str | None = None,
+        safeop_op_timeout_ms: int | None = None,
+        loopback_links: Sequence[tuple[int, int, int, int]] = ...,
+        lrw: bool | None = None,
+    ) -> Self: ...
+    @property
+    def name(self) -> str: ...
+    @property
+    def vendor_id(self) -> int: ...
+    @property
+    def product_code(self) -> int: ...
+    @property
+    def revision(self) -> int: ...
+    @property
+    def serial(self) -> int: ...
+    @property
+    def alias(self) -> int: ...
+    @property
+    def sii(self) -> bytes: ...
+    @property
+    def objects(self) -> tuple[tuple[int, str, int], ...]: ...
+    @property
+    def entries(self) -> tuple[tuple[int, int, str, int, int, str, bool, bytes | None], ...]: ...
+    @property
+    def idns(self) -> tuple[tuple[int, str, int, int, bytes | None], ...]: ...
+    @property
+    def device(self) -> str: ...
+    @property
+    def params(self) -> dict[str, float]: ...
+    @property
+    def mailbox(self) -> MailboxSpec | None: ...
+    @property
+    def drift_ppm(self) -> float: ...
+    @property
+    def delay_ns(self) -> int: ...
+    @property
+    def upstream(self) -> tuple[int, int] | None: ...
+    @property
+    def dc_supported(self) -> bool: ...
+    @property
+    def dc_required(self) -> bool: ...
+    @property
+    def esc(self) -> str: ...
+    @property
+    def lrw(self) -> bool: ...
+    @property
+    def safeop_op_timeout_ms(self) -> int: ...
+    @property
+    def loopback_links(self) -> list[tuple[int, int, int, int]]: ...
+
 @final
 class SimNetwork:
     """A line of virtual EtherCAT slave controllers (see docs/simulator.md)."""
 
     def __new__(cls, seed: int = 1, manual_clock_ns: int | None = None) -> Self: ...
-    def add_slave(self, spec: dict[str, Any]) -> int: ...
+    def add_slave(self, spec: SlaveSpec) -> int: ...
     def __len__(self) -> int: ...
     def process_frame(self, frame: bytes) -> bytes | None: ...
     def poll(self) -> None: ...
@@ -77,7 +406,7 @@ class Engine:
         timeout_us: int = 2000,
         retries: int = 3,
     ) -> list[tuple[bytes, int]]: ...
-    def start_cyclic(self, plan: dict[str, Any]) -> None: ...
+    def start_cyclic(self, plan: Plan) -> None: ...
     def stop_cyclic(self) -> None: ...
     def write_outputs(self, offset: int, data: bytes) -> None: ...
     def write_output_fields(self, fields: Sequence[tuple[int, int, int]]) -> None: ...

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import re
 import unicodedata
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal, cast
@@ -892,9 +893,13 @@ def _match_device(s: SlaveConfig, devices: list[EsiDevice], at: KeyPath, err: An
         if not cands:
             known = ", ".join(sorted({d.type_name for d in devices}))
             raise err((*at, "device"), f"no such ESI device (known: {known})", s.device)
-        for key, have in (("vendor_id", s.vendor_id), ("product_code", s.product_code)):
-            if have is not None and all(getattr(d, key) != have for d in cands):
-                actual = getattr(cands[0], key)
+        identity: tuple[tuple[str, int | None, Callable[[EsiDevice], int]], ...] = (
+            ("vendor_id", s.vendor_id, lambda d: d.vendor_id),
+            ("product_code", s.product_code, lambda d: d.product_code),
+        )
+        for key, have, of in identity:
+            if have is not None and all(of(d) != have for d in cands):
+                actual = of(cands[0])
                 raise err(
                     (*at, key),
                     f"does not match ESI device {s.device} ({key} {actual:#010x})",
@@ -902,7 +907,7 @@ def _match_device(s: SlaveConfig, devices: list[EsiDevice], at: KeyPath, err: An
                 )
             if have is not None:
                 # Vendors give several products one type name (Elmo's "Elmo Drive").
-                cands = [d for d in cands if getattr(d, key) == have]
+                cands = [d for d in cands if of(d) == have]
     else:
         cands = [
             d for d in devices if d.vendor_id == s.vendor_id and d.product_code == s.product_code
@@ -1088,10 +1093,11 @@ def _resolve_slave(
             raise err((*path, "name"), f"duplicate joint name (also in slave {joints[joint.name]})",
                       joint.name)  # fmt: skip
         joints[joint.name] = s.name
-        for key in ("position", "velocity", "effort"):
-            var_name = getattr(joint, key)
-            if var_name is None:
+        for key, named in (("position", joint.position), ("velocity", joint.velocity),
+                           ("effort", joint.effort)):  # fmt: skip
+            if named is None:
                 continue
+            var_name = named
             try:
                 var = layout.variable(var_name, "input")
             except ProcessValueError as exc:

@@ -23,7 +23,7 @@ from ether_ros.config.esi import EsiDevice, Pdo, PdoEntry
 from ether_ros.config.process import ProcessLayout, ProcessVariable
 
 if TYPE_CHECKING:
-    from ether_ros.config.bus import AxisConfig
+    from ether_ros.config.bus import AxisConfig, HomingConfig
 
 PROFILE_NUMBER = 402
 # The index distance between axes, the axis limit, the objects and the mode codes are the
@@ -139,7 +139,7 @@ def offered_modes(dev: EsiDevice, axis: int) -> tuple[str, ...]:
     has no default for it — the modes are those whose objects the dictionary holds (or a PDO
     maps); all of them when the ESI has no dictionary (the drive is asked at run time)."""
     entry = dev.od_entry(SUPPORTED_MODES + axis * AXIS_STRIDE, 0)
-    default = getattr(entry, "default", None) if entry is not None else None
+    default = entry.default if entry is not None else None
     bits = int.from_bytes(default[:4], "little") if isinstance(default, bytes | bytearray) else 0
     if bits:
         return tuple(name for name, (_, bit, _t) in MODES.items() if bits >> bit & 1)
@@ -323,8 +323,30 @@ PROFILE_OBJECTS = {
 
 
 SUPPORTED_HOMING_METHODS = cia402_facts.SUPPORTED_HOMING_METHODS
+
+
 # The homing set-up (config key → object of axis 0): 0x6098, 0x6099 (:1 switch, :2 zero),
 # 0x609A, 0x607C.
+def profile_values(cfg: AxisConfig) -> dict[str, float | None]:
+    """The axis's profile settings by the keys of PROFILE_OBJECTS (None: not given)."""
+    return {
+        "profile_velocity": cfg.profile_velocity,
+        "profile_acceleration": cfg.profile_acceleration,
+        "profile_deceleration": cfg.profile_deceleration,
+    }
+
+
+def homing_values(h: HomingConfig) -> dict[str, float | None]:
+    """The homing settings by the keys of HOMING_OBJECTS (None: not given)."""
+    return {
+        "method": h.method,
+        "speed_switch": h.speed_switch,
+        "speed_zero": h.speed_zero,
+        "acceleration": h.acceleration,
+        "offset": h.offset,
+    }
+
+
 HOMING_OBJECTS = {
     "method": cia402_facts.HOMING_METHOD,
     "speed_switch": cia402_facts.HOMING_SPEEDS,
@@ -374,8 +396,9 @@ def axis_sdo_inits(specs: Sequence[AxisSpec], dev: EsiDevice) -> list[tuple[int,
         if limits is not None and dev.od_object(index) is not None:
             out.append((index, 1, limits[0], "int32"))
             out.append((index, 2, limits[1], "int32"))
+        profile = profile_values(a.config)
         for key, base in PROFILE_OBJECTS.items():
-            value = getattr(a.config, key)
+            value = profile[key]
             if value is not None:
                 raw = profile_raw(a.config, key, value)
                 out.append((base + n * AXIS_STRIDE, 0, raw, "uint32"))
@@ -391,8 +414,7 @@ def homing_sdo_inits(cfg: AxisConfig, n: int) -> list[tuple[int, int, int, str]]
         return []
     at = n * AXIS_STRIDE
     out = [(HOMING_OBJECTS["method"] + at, 0, h.method, "int8")]
-    for key, sub in (("speed_switch", 1), ("speed_zero", 2)):
-        value = getattr(h, key)
+    for key, sub, value in (("speed_switch", 1, h.speed_switch), ("speed_zero", 2, h.speed_zero)):
         if value is not None:
             out.append((HOMING_OBJECTS[key] + at, sub, profile_raw(cfg, key, value), "uint32"))
     if h.acceleration is not None:
@@ -405,8 +427,9 @@ def homing_sdo_inits(cfg: AxisConfig, n: int) -> list[tuple[int, int, int, str]]
 
 def check_axis(cfg: AxisConfig, path: tuple[Any, ...], err: ErrorFn) -> None:
     """Refuse inconsistent numbers: non-positive or non-finite scales, NaN, min > max."""
-    for key in ("position_scale", "velocity_scale", "torque_scale"):
-        v = getattr(cfg, key)
+    scales = (("position_scale", cfg.position_scale), ("velocity_scale", cfg.velocity_scale),
+              ("torque_scale", cfg.torque_scale))  # fmt: skip
+    for key, v in scales:
         if not math.isfinite(v) or v <= 0:
             raise err((*path, key), "must be a positive finite number", v)
     if not math.isfinite(cfg.position_offset):
@@ -414,8 +437,7 @@ def check_axis(cfg: AxisConfig, path: tuple[Any, ...], err: ErrorFn) -> None:
     lo, hi = cfg.position_limits
     if math.isnan(lo) or math.isnan(hi) or lo > hi:
         raise err((*path, "position_limits"), "must be [min, max] with min <= max", [lo, hi])
-    for key in ("velocity_limit", "torque_limit"):
-        v = getattr(cfg, key)
+    for key, v in (("velocity_limit", cfg.velocity_limit), ("torque_limit", cfg.torque_limit)):
         if math.isnan(v) or v <= 0:
             raise err((*path, key), "must be positive", v)
     w = cfg.following_error_window
@@ -424,20 +446,20 @@ def check_axis(cfg: AxisConfig, path: tuple[Any, ...], err: ErrorFn) -> None:
     if math.isnan(cfg.deceleration) or cfg.deceleration <= 0:
         raise err((*path, "deceleration"), "must be positive (inf: at once)", cfg.deceleration)
     if cfg.homing is not None:
+        homing = homing_values(cfg.homing)
         for key in ("speed_switch", "speed_zero", "acceleration"):
-            v = getattr(cfg.homing, key)
-            if v is None:
+            given = homing[key]
+            if given is None:
                 continue
             try:
-                profile_raw(cfg, key, v)
+                profile_raw(cfg, key, given)
             except ValueError as exc:
-                raise err((*path, "homing", key), str(exc), v) from None
-    for key in PROFILE_OBJECTS:
-        v = getattr(cfg, key)
-        if v is None:
+                raise err((*path, "homing", key), str(exc), given) from None
+    for key, profile in profile_values(cfg).items():
+        if profile is None:
             continue
-        if not math.isfinite(v) or v <= 0:
-            raise err((*path, key), "must be a positive finite number", v)
+        if not math.isfinite(profile) or profile <= 0:
+            raise err((*path, key), "must be a positive finite number", profile)
         try:
             profile_raw(cfg, key, v)
         except ValueError as exc:
@@ -464,11 +486,12 @@ def resolve_axes(
             raise err((*path, "mode"), f"{dev.type_name} axis {n + 1} does not offer this mode "
                       f"(0x{SUPPORTED_MODES + n * AXIS_STRIDE:04X} supported drive modes: "
                       f"{', '.join(modes) or 'none'})", cfg.mode)  # fmt: skip
+        profile = profile_values(cfg)
         for key, base in PROFILE_OBJECTS.items():
             idx = base + n * AXIS_STRIDE
-            if getattr(cfg, key) is not None and dev.objects and dev.od_object(idx) is None:
+            if profile[key] is not None and dev.objects and dev.od_object(idx) is None:
                 raise err((*path, key), f"the {dev.type_name} dictionary has no object "
-                          f"0x{idx:04X} to write it to", getattr(cfg, key))  # fmt: skip
+                          f"0x{idx:04X} to write it to", profile[key])  # fmt: skip
         for index in MODE_DICTIONARY.get(cfg.mode, ()):
             idx = index + n * AXIS_STRIDE
             if dev.objects and dev.od_object(idx) is None:
@@ -509,12 +532,13 @@ def resolve_axes(
                 raise err((*hpath, "method"), f"{dev.type_name} does not offer this homing method "
                           f"(0x60E3 supported homing methods: "
                           f"{', '.join(map(str, methods))})", cfg.homing.method)  # fmt: skip
+            homing = homing_values(cfg.homing)
             for key, base in HOMING_OBJECTS.items():
                 idx = base + n * AXIS_STRIDE
-                given = key == "method" or getattr(cfg.homing, key) is not None
+                given = key == "method" or homing[key] is not None
                 if given and dev.objects and dev.od_object(idx) is None:
                     raise err((*hpath, key), f"the {dev.type_name} dictionary has no object "
-                              f"0x{idx:04X} to write it to", getattr(cfg.homing, key))  # fmt: skip
+                              f"0x{idx:04X} to write it to", homing[key])  # fmt: skip
         specs.append(AxisSpec(cfg, slave, n, variables, modes, extras, methods))
     return specs
 
@@ -574,7 +598,7 @@ def supported_homing_methods(dev: EsiDevice, axis: int) -> tuple[int, ...] | Non
         return None
     methods = []
     for entry in obj.entries:
-        default = getattr(entry, "default", None)
+        default = entry.default
         if entry.subindex == 0 or not isinstance(default, bytes | bytearray) or not default:
             continue
         methods.append(int.from_bytes(default[:1], "little", signed=True))

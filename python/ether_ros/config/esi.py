@@ -553,7 +553,7 @@ def _local(el: etree._Element) -> str:
 
 
 def _line(el: etree._Element) -> int:
-    line = getattr(el, "sourceline", None)
+    line = el.sourceline  # None for an element built rather than parsed
     return line if isinstance(line, int) else 0
 
 

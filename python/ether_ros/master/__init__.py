@@ -15,5 +15,6 @@ def __getattr__(name: str) -> Any:
     if name in __all__:
         from ether_ros.master import bus
 
+        # Dynamic by nature: the lazy import of a name of this module (PEP 562).
         return getattr(bus, name)
     raise AttributeError(f"module 'ether_ros.master' has no attribute {name!r}")

@@ -14,6 +14,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from ether_ros import _native
 from ether_ros._native.protocol import emergency_text
 from ether_ros.config.cia402 import (
     AXIS_STRIDE,
@@ -116,10 +117,10 @@ class TrajectoryPoint:
     velocity: float = 0.0
 
 
-def plan_entries(specs: Sequence[AxisSpec], layout: ImageLayout) -> list[dict[str, Any]]:
+def plan_entries(specs: Sequence[AxisSpec], layout: ImageLayout) -> list[_native.AxisPlan]:
     """The engine plan's ``axes``: each axis's objects as image byte offsets, its scales,
-    limits and policies."""
-    entries: list[dict[str, Any]] = []
+    limits and policies (every value from the configuration, whose models hold the defaults)."""
+    entries: list[_native.AxisPlan] = []
     for spec in specs:
         area = layout.area(spec.slave)
         offsets: dict[str, int] = {}
@@ -128,27 +129,28 @@ def plan_entries(specs: Sequence[AxisSpec], layout: ImageLayout) -> list[dict[st
             offsets[role] = base + var.bit_offset // 8
         c = spec.config
         entries.append(
-            {
-                "name": c.name,
-                "map": offsets,
-                "mode": c.mode,
-                "position_scale": c.position_scale,
-                "position_offset": c.position_offset,
-                "velocity_scale": c.velocity_scale,
-                "torque_scale": c.torque_scale,
-                "position_min": c.position_limits[0],
-                "position_max": c.position_limits[1],
-                "velocity_max": c.velocity_limit,
-                "torque_max": c.torque_limit,
-                "following_error_window": c.following_error_window,
-                "deceleration": c.deceleration,
-                "mode_change_velocity": c.mode_change_velocity,
-                "restart": c.restart,
-                "on_stop": c.on_stop,
-                "fault_reset": c.fault_reset,
-                "fault_retries": c.fault_retries,
-                "fault_backoff_ns": round(c.fault_backoff_ms * 1e6),
-            }
+            _native.AxisPlan(
+                name=c.name,
+                # The roles are AxisMap's keywords: an unknown one is refused there by name.
+                map=_native.AxisMap(**offsets),
+                mode=c.mode,
+                position_scale=c.position_scale,
+                position_offset=c.position_offset,
+                velocity_scale=c.velocity_scale,
+                torque_scale=c.torque_scale,
+                position_min=c.position_limits[0],
+                position_max=c.position_limits[1],
+                velocity_max=c.velocity_limit,
+                torque_max=c.torque_limit,
+                following_error_window=c.following_error_window,
+                deceleration=c.deceleration,
+                mode_change_velocity=c.mode_change_velocity,
+                restart=c.restart,
+                on_stop=c.on_stop,
+                fault_reset=c.fault_reset,
+                fault_retries=c.fault_retries,
+                fault_backoff_ns=round(c.fault_backoff_ms * 1e6),
+            )
         )
     return entries
 

@@ -18,6 +18,7 @@ from ether_ros.errors import BusError, ConfigError
 from ether_ros.master import axis as axis_mod
 from ether_ros.master.dc import DcSlave
 from ether_ros.master.found import FoundSlave
+from ether_ros import _native
 from ether_ros.master.plan import DcPlan, ImageLayout, ImageSlave, build_plan, layout_image
 from ether_ros.master.scan import bus_tree, match_configuration, match_topology
 from ether_ros.master.setup import BusSetup, SlaveSetup
@@ -153,7 +154,7 @@ def engine_plan(
     bound: Bound,
     time_offset_ns: int,
     initial_outputs: bytes,
-) -> dict[str, Any]:
+) -> _native.Plan:
     """The plan ``Engine.start_cyclic`` takes, from the setup and the bound bus."""
     dc = DcPlan()
     if bound.dc_reference is not None:

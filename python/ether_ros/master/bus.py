@@ -23,6 +23,7 @@ from collections.abc import Callable, Iterable, Mapping
 from types import TracebackType
 from typing import Any
 
+from ether_ros._native import Plan as EnginePlan
 from ether_ros.claim import InterfaceClaim
 from ether_ros.config.process import Value
 from ether_ros.errors import BusError
@@ -56,7 +57,7 @@ class Bus:
         self.slaves: list[Slave] = []
         self.tree: list[Any] = []  # where each slave hangs (by position), as found
         self.layout: Any = None
-        self.plan: dict[str, Any] | None = None
+        self.plan: EnginePlan | None = None
         # DC system time = CLOCK_MONOTONIC + this: ns since 2000-01-01 (wall clock at open).
         self.time_offset_ns = time.time_ns() - now_monotonic_ns() - EPOCH_2000_S * 1_000_000_000
         frames = 3000 if drift_frames is None else drift_frames

@@ -25,6 +25,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
 
+from ether_ros import _native
 from ether_ros.config.bus import DEFAULT_GROUP
 from ether_ros.master.datagrams import DATAGRAM_OVERHEAD, FRAME_PAYLOAD
 
@@ -70,14 +71,14 @@ class LogicalDatagram:
     image_offset: int
     expected_wkc: int
 
-    def to_plan(self) -> dict[str, Any]:
-        return {
-            "kind": self.command,
-            "address": self.address,
-            "length": self.length,
-            "image_offset": self.image_offset,
-            "expected_wkc": self.expected_wkc,
-        }
+    def to_plan(self) -> _native.LogicalDatagram:
+        return _native.LogicalDatagram(
+            kind=self.command,
+            address=self.address,
+            length=self.length,
+            image_offset=self.image_offset,
+            expected_wkc=self.expected_wkc,
+        )
 
 
 @dataclass
@@ -336,6 +337,9 @@ def _overlaps(offset: int, length: int, start: int, end: int) -> bool:
 
 @dataclass
 class DcPlan:
+    """The master's DC decision (``reference_station`` places the DC datagrams); the engine
+    gets it as ``_native.DcSettings``. The defaults here are the only ones."""
+
     mode: str = "off"  # 'off' | 'ref_follows_master' | 'master_follows_ref'
     reference_station: int | None = None
     time_offset_ns: int = 0
@@ -344,11 +348,18 @@ class DcPlan:
 
 @dataclass
 class RtPlan:
+    """The RT thread's scheduling as the master decides it; the engine gets it as
+    ``_native.RtSettings``, which has no defaults: these are the only ones."""
+
     policy: str = "fifo"
     priority: int = 80
     cpu: int | None = None
     runtime_ns: int = 100_000
     lock_memory: bool = True
+
+
+#: Sample ring records unless the caller says otherwise (the one default: the engine has none).
+RING_CAPACITY = 65536
 
 
 def build_plan(
@@ -360,54 +371,60 @@ def build_plan(
     dc: DcPlan,
     rt: RtPlan,
     watchdog_ns: int,
-    ring_capacity: int = 65536,
-    axes: list[dict[str, Any]] | None = None,
-    trajectory_capacity: int = 1024,
+    ring_capacity: int = RING_CAPACITY,
+    axes: Sequence[_native.AxisPlan] = (),
+    trajectory_capacity: int | None = None,
     group_watchdog_ns: Mapping[str, int] | None = None,
-) -> dict[str, Any]:
-    """The dict ``Engine.start_cyclic`` takes (see the engine's plan contract);
-    ``group_watchdog_ns``: a group's own command watchdog, given to each of its frames."""
+) -> _native.Plan:
+    """The ``_native.Plan`` ``Engine.start_cyclic`` runs (checked when made: an error names
+    the field); ``group_watchdog_ns``: a group's own command watchdog, given to each of its
+    frames; ``trajectory_capacity`` None: the engine's default."""
     if len(safe_outputs) != layout.output_bytes or len(initial_outputs) != layout.output_bytes:
         raise ValueError("safe/initial output images must cover exactly the output area")
     if order not in ("send_at_wake", "send_then_wait"):
         raise ValueError(f"unknown cycle order {order!r}")
-    datagrams = [[d.to_plan() for d in f.datagrams] for f in layout.frames]
+    datagrams: list[list[_native.LogicalDatagram | _native.DcDatagram]] = [
+        [d.to_plan() for d in f.datagrams] for f in layout.frames
+    ]
     if dc.mode != "off" and dc.reference_station is not None:
         if not layout.frames or not layout.frames[0].dc:
             raise ValueError("the image layout has no room for the DC datagrams (layout_image dc)")
-        dc_datagrams: list[dict[str, Any]] = [{"kind": "dc_sync", "station": dc.reference_station}]
+        dc_datagrams = [_native.DcDatagram(kind="dc_sync", station=dc.reference_station)]
         if dc.mode == "ref_follows_master":
-            dc_datagrams.insert(0, {"kind": "dc_write_ref", "station": dc.reference_station})
+            dc_datagrams.insert(
+                0, _native.DcDatagram(kind="dc_write_ref", station=dc.reference_station)
+            )
         datagrams[0][:0] = dc_datagrams
     watchdogs = group_watchdog_ns or {}
     frames = [
-        {"datagrams": dgs, "every": f.every, "watchdog_ns": int(watchdogs.get(f.group, 0))}
+        # A group without a watchdog of its own: 0, none.
+        _native.Frame(datagrams=dgs, every=f.every, watchdog_ns=int(watchdogs.get(f.group, 0)))
         for dgs, f in zip(datagrams, layout.frames, strict=True)
     ]
     inputs_zero = bytes(layout.input_bytes)
-    return {
-        "cycle_ns": int(cycle_ns),
-        "order": order,
-        "frames": frames,
-        "image_len": layout.image_len,
-        "output_ranges": [(0, layout.output_bytes)] if layout.output_bytes else [],
-        "initial_image": bytes(initial_outputs) + inputs_zero,
-        "safe_image": bytes(safe_outputs) + inputs_zero,
-        "dc": {
-            "mode": dc.mode,
-            "time_offset_ns": int(dc.time_offset_ns),
-            "sync0_shift_ns": int(dc.sync0_shift_ns),
-        },
-        "rt": {
-            "policy": rt.policy,
-            "priority": rt.priority,
-            "cpu": rt.cpu,
-            "runtime_ns": rt.runtime_ns,
-            "lock_memory": rt.lock_memory,
-        },
-        "watchdog_ns": int(watchdog_ns),
-        "ring_capacity": int(ring_capacity),
+    return _native.Plan(
+        cycle_ns=int(cycle_ns),
+        order=order,
+        frames=frames,
+        image_len=layout.image_len,
+        output_ranges=[(0, layout.output_bytes)] if layout.output_bytes else [],
+        initial_image=bytes(initial_outputs) + inputs_zero,
+        safe_image=bytes(safe_outputs) + inputs_zero,
+        dc=_native.DcSettings(
+            mode=dc.mode,
+            time_offset_ns=int(dc.time_offset_ns),
+            sync0_shift_ns=int(dc.sync0_shift_ns),
+        ),
+        rt=_native.RtSettings(
+            policy=rt.policy,
+            priority=rt.priority,
+            cpu=rt.cpu,
+            runtime_ns=rt.runtime_ns,
+            lock_memory=rt.lock_memory,
+        ),
+        watchdog_ns=int(watchdog_ns),
+        ring_capacity=int(ring_capacity),
         # CiA 402 axes (master/axis.py plan_entries): the engine's axis stage.
-        "axes": list(axes or []),
-        "trajectory_capacity": int(trajectory_capacity),
-    }
+        axes=list(axes),
+        trajectory_capacity=trajectory_capacity,
+    )

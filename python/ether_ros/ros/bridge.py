@@ -13,6 +13,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from ether_ros._native import AxisPlan as EngineAxisPlan
 from ether_ros._native import protocol
 from ether_ros.errors import EtherRosError, MessageError
 from ether_ros.master.samples import (  # noqa: F401  (re-exported for the ROS side)
@@ -137,11 +138,11 @@ def output_bytes(bus: Any) -> int:
     return int(bus.layout.output_bytes) if bus.layout is not None else 0
 
 
-def axis_plan_entries(bus: Any) -> list[dict[str, Any]]:
-    """The running cyclic plan's ``axes`` entries (image offsets, scales; ``axis.plan_entries``)
-    of a started bus; empty before the bus has a plan."""
+def axis_plan_entries(bus: Any) -> list[EngineAxisPlan]:
+    """The running cyclic plan's ``axes`` (``_native.AxisPlan``: image offsets, scales;
+    ``axis.plan_entries``) of a started bus; empty before the bus has a plan."""
     plan = getattr(bus, "plan", None)
-    return list(plan.get("axes", [])) if plan else []
+    return list(plan.axes) if plan is not None else []
 
 
 def expected_wkc(bus: Any) -> int:
@@ -325,8 +326,8 @@ def bus_axes(bus: Any) -> dict[str, Any]:
 
 def trajectory_capacity(bus: Any) -> int:
     """Most points one axis's trajectory may have (the engine's slot size)."""
-    plan = getattr(bus, "plan", None) or {}
-    return int(plan.get("trajectory_capacity", 0))
+    plan = getattr(bus, "plan", None)
+    return plan.trajectory_capacity if plan is not None else 0
 
 
 def select_axes(axes: Mapping[str, Any], joints: list[str]) -> list[Any]:

@@ -11,6 +11,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from ether_ros import _native
 from ether_ros.errors import EtherRosError
 from ether_ros.ros import bridge
 from ether_ros.ros.bridge import AxisRejected
@@ -219,17 +220,17 @@ class AxisImageJoints:
     status now, a message carries the values of the cycle whose stamp it has, also when the
     publisher works through a backlog after a stall."""
 
-    def __init__(self, plan_axes: Sequence[Mapping[str, Any]]) -> None:
+    def __init__(self, plan_axes: Sequence[_native.AxisPlan]) -> None:
         self._axes = [
             (
-                str(e["name"]),
-                e["map"].get("position"),
-                e["map"].get("velocity"),
-                e["map"].get("torque"),
-                float(e["position_scale"]),
-                float(e["position_offset"]),
-                float(e["velocity_scale"]),
-                float(e["torque_scale"]),
+                e.name,
+                e.map.position,
+                e.map.velocity,
+                e.map.torque,
+                e.position_scale,
+                e.position_offset,
+                e.velocity_scale,
+                e.torque_scale,
             )
             for e in plan_axes
         ]

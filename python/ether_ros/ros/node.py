@@ -666,7 +666,7 @@ class EtherRosNode(LifecycleNode):
             max_backlog=backlog,
             axis_joints=(
                 joints.AxisImageJoints(
-                    [e for e in bridge.axis_plan_entries(bus) if e["name"] in self._axes]
+                    [e for e in bridge.axis_plan_entries(bus) if e.name in self._axes]
                 )
                 if self._axes
                 else None

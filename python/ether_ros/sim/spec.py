@@ -1,7 +1,9 @@
-"""Slave specs for the simulator: one dict per slave, built from the bus config and the ESI.
+"""Slave specs for the simulator: one ``_native.SlaveSpec`` per slave, built from the bus
+config and the ESI.
 
-The keys are the contract with ``SimNetwork.add_slave`` (documented at the top of
-``crates/py/src/sim_bindings.rs``): identity, the SII EEPROM image, the CoE dictionary
+``SlaveSpec`` is the typed contract with ``SimNetwork.add_slave`` (a frozen class with a
+keyword-only constructor, documented at the top of ``crates/py/src/sim_bindings.rs``, checked
+when made): identity, the SII EEPROM image, the CoE dictionary
 (objects and entries with their default values), the firmware model and its parameters, clock
 drift and propagation delay, where the slave is connected (``upstream``), DC capability, and
 the standard mailbox, and a Sercos drive's IDN dictionary (SoE).
@@ -11,6 +13,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from ether_ros._native import MailboxSpec, SlaveSpec
 from ether_ros._native.protocol import coe, soe
 from ether_ros.config import types as dt
 from ether_ros.config.bus import BusConfig, SlaveConfig
@@ -25,17 +28,17 @@ from ether_ros.errors import ConfigError
 SERIAL_BASE = 0x5E00_0000
 
 
-def mailbox_spec(device: EsiDevice) -> dict[str, int] | None:
+def mailbox_spec(device: EsiDevice) -> MailboxSpec | None:
     """Standard mailbox placement from the ESI's mailbox SyncManagers (None without mailbox)."""
     out, inp = device.sm("MBoxOut"), device.sm("MBoxIn")
     if device.mailbox is None or out is None or inp is None:
         return None
-    return {
-        "rx_offset": out.start,
-        "rx_size": out.default_size,
-        "tx_offset": inp.start,
-        "tx_size": inp.default_size,
-    }
+    return MailboxSpec(
+        rx_offset=out.start,
+        rx_size=out.default_size,
+        tx_offset=inp.start,
+        tx_size=inp.default_size,
+    )
 
 
 def loopback_pairs(device: EsiDevice) -> list[tuple[int, int, int, int]]:
@@ -423,44 +426,50 @@ def device_spec(
     device: EsiDevice,
     *,
     name: str,
-    sim_device: str = "none",
+    sim_device: str | None = None,
     params: dict[str, float] | None = None,
     alias: int = 0,
     serial: int = 0,
-    drift_ppm: float = 0.0,
+    drift_ppm: float | None = None,
     delay_ns: int | None = None,
-    esc: str = "et1100",
-    lrw: bool = True,
-) -> dict[str, Any]:
-    """The ``add_slave`` spec of one slave running ``device``."""
-    objects, entries = _dictionary(device, sim_device)
+    esc: str | None = None,
+    lrw: bool | None = None,
+    upstream: tuple[int, int] | None = None,
+) -> SlaveSpec:
+    """The ``add_slave`` spec of one slave running ``device``. ``sim_device``, ``drift_ppm``,
+    ``esc`` and ``lrw`` None: ``SlaveSpec``'s defaults (no firmware model, no drift, an
+    ET1100, LRW supported); ``delay_ns`` None: the device's physics (``default_delay_ns``);
+    ``upstream`` None: port 1 of the slave before it. ``alias`` and ``serial`` go into the SII
+    image too, so they are given here."""
+    objects, entries = _dictionary(device, sim_device or "none")
     entries = [
         (*e[:7], _default(e[7], serial, e[4])) if (e[0], e[1]) == _SERIAL_ENTRY else e
         for e in entries
     ]
-    return {
-        "name": name,
-        "vendor_id": device.vendor_id,
-        "product_code": device.product_code,
-        "revision": device.revision,
-        "serial": serial,
-        "alias": alias,
-        "sii": build_sii(device, alias=alias, serial=serial),
-        "objects": list(objects),
-        "entries": entries,
-        "idns": idn_rows(device),
-        "device": sim_device,
-        "params": {k: float(v) for k, v in (params or {}).items()},
-        "drift_ppm": float(drift_ppm),
-        "delay_ns": int(default_delay_ns(device) if delay_ns is None else delay_ns),
-        "dc_supported": device.dc_supported,
-        "dc_required": device.sync0_required,
-        "mailbox": mailbox_spec(device),
-        "esc": esc,
-        "lrw": lrw,
-        "loopback_links": loopback_pairs(device) if sim_device == "loopback" else [],
-        "safeop_op_timeout_ms": device.timeouts.safeop_op_ms,
-    }
+    return SlaveSpec(
+        name=name,
+        vendor_id=device.vendor_id,
+        product_code=device.product_code,
+        revision=device.revision,
+        serial=serial,
+        alias=alias,
+        sii=build_sii(device, alias=alias, serial=serial),
+        objects=list(objects),
+        entries=entries,
+        idns=idn_rows(device),
+        device=sim_device,
+        params={k: float(v) for k, v in (params or {}).items()},
+        drift_ppm=drift_ppm,
+        delay_ns=int(default_delay_ns(device) if delay_ns is None else delay_ns),
+        upstream=upstream,
+        dc_supported=device.dc_supported,
+        dc_required=device.sync0_required,
+        mailbox=mailbox_spec(device),
+        esc=esc,
+        lrw=lrw,
+        loopback_links=loopback_pairs(device) if sim_device == "loopback" else [],
+        safeop_op_timeout_ms=device.timeouts.safeop_op_ms,
+    )
 
 
 def _default(esi_default: bytes, override: int | None, bit_length: int) -> bytes:
@@ -470,8 +479,11 @@ def _default(esi_default: bytes, override: int | None, bit_length: int) -> bytes
     return (override & ((1 << (8 * nbytes)) - 1)).to_bytes(nbytes, "little")
 
 
-def slave_spec(slave: SlaveConfig, position: int) -> dict[str, Any]:
-    """The spec of a configured slave at ``position`` on the simulated bus."""
+def slave_spec(
+    slave: SlaveConfig, position: int, upstream: tuple[int, int] | None = None
+) -> SlaveSpec:
+    """The spec of a configured slave at ``position`` on the simulated bus; ``upstream``:
+    (parent position, port) where its port 0 is connected (None: the slave before it)."""
     serial = slave.sim.serial if slave.sim.serial is not None else SERIAL_BASE + position
     return device_spec(
         slave.esi,
@@ -484,6 +496,7 @@ def slave_spec(slave: SlaveConfig, position: int) -> dict[str, Any]:
         delay_ns=slave.sim.delay_ns,
         esc=slave.sim.esc,
         lrw=slave.sim.lrw,
+        upstream=upstream,
     )
 
 
@@ -502,12 +515,14 @@ def bus_order(cfg: BusConfig) -> list[SlaveConfig]:
     return list(cfg.slaves)
 
 
-def network_specs(cfg: BusConfig) -> list[dict[str, Any]]:
+def network_specs(cfg: BusConfig) -> list[SlaveSpec]:
     """Specs for every slave of ``cfg`` in bus order, each connected where ``connected_to``
     says (default: port 1 of the slave before it)."""
-    specs = [slave_spec(s, i) for i, s in enumerate(bus_order(cfg))]
-    if cfg.declares_topology:
-        for spec, link in zip(specs, cfg.tree(), strict=True):
-            if link.parent is not None:
-                spec["upstream"] = (link.parent, link.port)
-    return specs
+    slaves = bus_order(cfg)
+    if not cfg.declares_topology:
+        return [slave_spec(s, i) for i, s in enumerate(slaves)]
+    links = cfg.tree()
+    return [
+        slave_spec(s, i, (link.parent, link.port) if link.parent is not None else None)
+        for i, (s, link) in enumerate(zip(slaves, links, strict=True))
+    ]

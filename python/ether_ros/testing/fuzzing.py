@@ -256,7 +256,7 @@ def load_esi_file(path: Path) -> str:
     for device in types[:4]:
         cfg = bus_config_for_esi(path, device)
         for spec in network_specs(cfg):
-            parse_sii(bytes(spec["sii"]))
+            parse_sii(spec.sii)
         build_network(cfg)
     digest = hashlib.sha256(repr(devices).replace(str(path), "ESI").encode()).hexdigest()[:16]
     return f"{digest} {warnings}"

@@ -249,7 +249,7 @@ def own_assignment_sizes(slave: SlaveConfig) -> Sizes:
         layout = ProcessLayout.for_device(d)
         return Sizes(layout.output_bytes, layout.input_bytes)
     values: dict[tuple[int, int], bytes] = {
-        (e[0], e[1]): bytes(e[7] or b"") for e in slave_spec(slave, 0)["entries"]
+        (e[0], e[1]): bytes(e[7] or b"") for e in slave_spec(slave, 0).entries
     }
 
     def count(index: int) -> int:
