@@ -11,14 +11,13 @@ from __future__ import annotations
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
+from ether_ros import _native
 from ether_ros.config.process import ProcessValueError
 from ether_ros.errors import BusError, ConfigError
 from ether_ros.master import axis as axis_mod
 from ether_ros.master.dc import DcSlave
 from ether_ros.master.found import FoundSlave
-from ether_ros import _native
 from ether_ros.master.plan import DcPlan, ImageLayout, ImageSlave, build_plan, layout_image
 from ether_ros.master.scan import bus_tree, match_configuration, match_topology
 from ether_ros.master.setup import BusSetup, SlaveSetup
