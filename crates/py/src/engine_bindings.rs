@@ -230,6 +230,7 @@ const AXIS_KEYS: &[&str] = &[
     "velocity_max",
     "torque_max",
     "deceleration",
+    "max_acceleration",
     "mode_change_velocity",
     "restart",
     "following_error_window",
@@ -499,6 +500,7 @@ fn parse_axes(d: &Bound<'_, PyDict>) -> PyResult<Vec<AxisPlan>> {
                 torque_max: opt(&a, &path, "torque_max", num, f64::INFINITY)?,
             },
             deceleration: opt(&a, &path, "deceleration", num, f64::INFINITY)?,
+            max_acceleration: opt(&a, &path, "max_acceleration", num, f64::INFINITY)?,
             mode_change_velocity: match a.get_item("mode_change_velocity")? {
                 None => ModeChangeVelocity::Actual,
                 Some(_) => choice(
