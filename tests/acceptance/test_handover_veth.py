@@ -46,6 +46,10 @@ SUCCEEDED = 4
 # A target is an integer: each of the three targets of a second difference is off by up to half
 # a raw unit.
 ROUNDING_RAW = 2
+# cst: the velocity limit is held by the master's torque, which acts a few cycles after the
+# velocity it reacts to (the inputs' and the drive's latency): the speed may pass the limit by
+# what the torque limit adds in those cycles.
+SPEED_MARGIN = 1.05
 
 
 def _limits(cfg: BusConfig, name: str) -> tuple[float, float, float]:
@@ -162,23 +166,23 @@ def test_cst_held_at_a_limit_keeps_the_velocity_limit_and_does_not_chatter(
     time.sleep(1.5)
     s = bus.samples()
     m = _entry(bus, "shoulder_lift")["map"]
-    velocity = _field(s.images, m["velocity"], "<i4") * c.velocity_scale
     position = _field(s.images, m["position"], "<i4") * c.position_scale + c.position_offset
     st = axis.status()
     axis.command(torque=0.0)
     assert st["faults"] == 0 and st["state"] == "operation_enabled", st
-    top = float(np.abs(velocity).max())
-    # The drive's velocity actual of one cycle jitters (a frame that misses a SYNC0 repeats a
-    # target): the bound is on the median of five cycles.
-    smooth = np.array([np.median(velocity[k : k + 5]) for k in range(len(velocity) - 5)])
-    assert float(np.abs(smooth).max()) <= c.velocity_limit, (top, c.velocity_limit)
-    assert float(np.abs(smooth).max()) > 0.8 * c.velocity_limit, "it never went fast"
+    # The joint's speed from its positions over 10 cycles: the drive's velocity actual of
+    # one cycle jitters by a good part of the limit, the encoder's count does not.
+    speed = np.abs(position[10:] - position[:-10]) / (10 * bus.cycle_ns * 1e-9)
+    top = float(speed.max())
+    assert top <= c.velocity_limit * SPEED_MARGIN, (top, c.velocity_limit)
+    assert top > 0.8 * c.velocity_limit, f"it never went fast ({top:.3f} rad/s)"
     assert st["velocity_clamps"] > 0
-    # Held at the limit: at rest there for the last second, no chatter.
+    # Held at the limit: at rest there for the last second, no chatter (no swinging about it
+    # faster than a slow creep).
     last = slice(len(position) - 1000, None)
     assert float(position[last].max()) <= hi + 0.02, float(position[last].max())
     assert float(position[last].min()) > hi - 0.05, float(position[last].min())
-    assert float(np.abs(smooth[-995:]).max()) < 0.1, "it chatters at the limit"
+    assert float(speed[-990:].max()) < 0.1, f"it chatters at the limit ({speed[-990:].max():.3f})"
     _at_rest_in_csp(bus, "shoulder_lift", 0.0)
 
 

@@ -322,6 +322,11 @@ fn read_i16(io: &[u8], off: usize) -> i16 {
 /// target at its next SYNC0 and, in csp, interpolates over one more period): position targets
 /// that follow a moving axis, and the braking envelope, look that far ahead.
 const COMMAND_LATENCY_CYCLES: f64 = 3.0;
+/// Share of each cycle's velocity actual in the smoothed velocity cst limits (an exponential
+/// filter with a time constant of about four cycles).
+const VELOCITY_SMOOTHING: f64 = 0.2;
+/// cst: the torque fades out over this share of the velocity limit below it.
+const CST_BAND_SHARE: f64 = 0.2;
 /// Cycles after a homing start before the drive's homing bits count: the statuswords of the
 /// frames in flight were latched before the drive saw the start.
 const HOMING_ACK_CYCLES: u32 = 5;
@@ -382,6 +387,9 @@ pub struct AxisController {
     /// csp: the velocity of the last target step as it went on the wire ((target − the one
     /// before) / cycle): what the acceleration limit bounds the change of (`blend`).
     step_velocity: f64,
+    /// The velocity actual smoothed over a few cycles (`VELOCITY_SMOOTHING`): what cst's
+    /// velocity limit and braking envelope act on.
+    velocity_filtered: f64,
     /// The last velocity or torque setpoint of the current mode (SI).
     setpoint_value: f64,
     /// Setpoint command already taken over.
@@ -438,6 +446,7 @@ impl AxisController {
             target_position: 0.0,
             desired_velocity: 0.0,
             step_velocity: 0.0,
+            velocity_filtered: 0.0,
             setpoint_value: 0.0,
             seq_seen: 0,
             reset_seen: 0,
@@ -782,6 +791,7 @@ impl AxisController {
         // Where the axis will be when the drive takes a target written now (moving, it is
         // ahead of the position read).
         let ahead = fb.position + fb.velocity * dt * COMMAND_LATENCY_CYCLES;
+        self.velocity_filtered += VELOCITY_SMOOTHING * (fb.velocity - self.velocity_filtered);
         if cmd.mode != self.mode_commanded {
             // A new mode starts from the actual state once the drive shows it. Until then the
             // drive runs the old mode: its targets make a quiet stop from the actual state.
@@ -1045,13 +1055,21 @@ impl AxisController {
                     } else {
                         0.1
                     };
+                    // A drive's velocity actual jitters by a good part of the limit from one
+                    // cycle to the next: a narrower band would turn the fade below the
+                    // velocity limit into bang-bang braking (chatter).
+                    let vband = if limits.velocity_max.is_finite() {
+                        band.max(limits.velocity_max * CST_BAND_SHARE)
+                    } else {
+                        band
+                    };
                     // The velocity limit holds in cst too: the torque fades out over the band
                     // below it (at the speed expected when the torque takes effect) and brakes
                     // above it, as it does before the position limits.
                     let braked = limit_torque(
                         t_out,
                         ahead,
-                        fb.velocity,
+                        self.velocity_filtered,
                         (limits.position_min, limits.position_max),
                         decel,
                         limits.velocity_max,
@@ -1060,10 +1078,10 @@ impl AxisController {
                         } else {
                             t_out.abs()
                         },
-                        band,
+                        (band, vband),
                     );
                     if braked != t_out {
-                        if fb.velocity.abs() + band >= limits.velocity_max {
+                        if self.velocity_filtered.abs() + vband >= limits.velocity_max {
                             st.velocity_clamps += 1;
                         } else {
                             st.position_clamps += 1;

@@ -257,10 +257,11 @@ pub fn blend(
 
 /// A torque command in cst near a limit or at speed: the axis never runs faster than `vmax`,
 /// nor outward faster than the braking speed of the distance left before a position limit.
-/// A torque that pushes towards such a bound fades out over the last `band` SI/s below it (so
-/// the axis comes up to the bound smoothly instead of hitting it and bouncing: no chatter);
-/// an axis faster than a bound is braked, up to `torque_max`, in proportion to the excess
-/// speed (full braking at `band` SI/s over it). Returns the torque.
+/// A torque that pushes towards such a bound fades out over the last `band` SI/s below it
+/// (`bands.0` for the braking envelope, `bands.1` for `vmax`: so the axis comes up to the
+/// bound smoothly instead of hitting it and bouncing, no chatter); an axis faster than a bound
+/// is braked, up to `torque_max`, in proportion to the excess speed (full braking at `band`
+/// SI/s over it). Returns the torque.
 #[allow(clippy::too_many_arguments)]
 pub fn limit_torque(
     torque: f64,
@@ -270,21 +271,27 @@ pub fn limit_torque(
     decel: f64,
     vmax: f64,
     torque_max: f64,
-    band: f64,
+    bands: (f64, f64),
 ) -> f64 {
     let (min, max) = limits;
-    // The fastest the axis may move towards +1 (up) or -1 (down).
+    // The fastest the axis may move towards +1 (up) or -1 (down), the distance to that side's
+    // limit, and the band of whichever bound that is.
     let allowed = |side: f64| {
         let distance = if side > 0.0 {
             max - position
         } else {
             position - min
         };
-        (braking_speed(distance, decel).min(vmax), distance)
+        let envelope = braking_speed(distance, decel);
+        if envelope < vmax {
+            (envelope, distance, bands.0)
+        } else {
+            (vmax, distance, bands.1)
+        }
     };
     for side in [1.0f64, -1.0] {
         let speed = velocity * side;
-        let (bound, _) = allowed(side);
+        let (bound, _, band) = allowed(side);
         if speed > bound {
             let excess = if bound.is_finite() {
                 speed - bound
@@ -300,7 +307,7 @@ pub fn limit_torque(
         return 0.0;
     }
     let side = torque.signum();
-    let (bound, distance) = allowed(side);
+    let (bound, distance, band) = allowed(side);
     if distance <= 0.0 {
         return 0.0;
     }
@@ -375,30 +382,31 @@ mod tests {
         let lim = (-1.0, 1.0);
         // Far from the limits: untouched.
         assert_eq!(
-            limit_torque(2.0, 0.0, 0.5, lim, 10.0, f64::INFINITY, 5.0, 0.1),
+            limit_torque(2.0, 0.0, 0.5, lim, 10.0, f64::INFINITY, 5.0, (0.1, 0.1)),
             2.0
         );
         // 0.05 before the upper limit (braking speed 1/s), moving up slower: still pushed.
         assert_eq!(
-            limit_torque(2.0, 0.95, 0.5, lim, 10.0, f64::INFINITY, 5.0, 0.1),
+            limit_torque(2.0, 0.95, 0.5, lim, 10.0, f64::INFINITY, 5.0, (0.1, 0.1)),
             2.0
         );
         // Faster than the envelope by half the band: half the torque limit, downwards.
         assert!(
-            (limit_torque(2.0, 0.95, 1.05, lim, 10.0, f64::INFINITY, 5.0, 0.1) + 2.5).abs() < 1e-9
+            (limit_torque(2.0, 0.95, 1.05, lim, 10.0, f64::INFINITY, 5.0, (0.1, 0.1)) + 2.5).abs()
+                < 1e-9
         );
         // At the limit, standing: no outward torque; inward torque stays.
         assert_eq!(
-            limit_torque(2.0, 1.0, 0.0, lim, 10.0, f64::INFINITY, 5.0, 0.1),
+            limit_torque(2.0, 1.0, 0.0, lim, 10.0, f64::INFINITY, 5.0, (0.1, 0.1)),
             0.0
         );
         assert_eq!(
-            limit_torque(-2.0, 1.0, 0.0, lim, 10.0, f64::INFINITY, 5.0, 0.1),
+            limit_torque(-2.0, 1.0, 0.0, lim, 10.0, f64::INFINITY, 5.0, (0.1, 0.1)),
             -2.0
         );
         // Beyond the lower limit and still moving out: full braking upwards.
         assert_eq!(
-            limit_torque(-1.0, -1.1, -1.0, lim, 10.0, f64::INFINITY, 5.0, 0.1),
+            limit_torque(-1.0, -1.1, -1.0, lim, 10.0, f64::INFINITY, 5.0, (0.1, 0.1)),
             5.0
         );
     }
@@ -406,7 +414,7 @@ mod tests {
     #[test]
     fn torque_fades_below_the_velocity_limit_and_brakes_above_it() {
         let lim = (-10.0, 10.0);
-        let t = |torque: f64, v: f64| limit_torque(torque, 0.0, v, lim, 10.0, 3.0, 5.0, 0.2);
+        let t = |torque: f64, v: f64| limit_torque(torque, 0.0, v, lim, 10.0, 3.0, 5.0, (0.1, 0.2));
         // Well below the limit: untouched; the last 0.2 rad/s below it: faded.
         assert_eq!(t(2.0, 1.0), 2.0);
         assert!((t(2.0, 2.9) - 1.0).abs() < 1e-9);
@@ -418,7 +426,7 @@ mod tests {
         assert_eq!(t(0.0, -3.5), 5.0);
         assert_eq!(t(-5.0, 3.1), -5.0);
         // Just before a position limit, at rest: the outward torque fades to nothing.
-        let near = limit_torque(2.0, 9.9995, 0.0, lim, 10.0, 3.0, 5.0, 0.2);
+        let near = limit_torque(2.0, 9.9995, 0.0, lim, 10.0, 3.0, 5.0, (0.2, 0.2));
         assert!(near > 0.0 && near < 2.0, "{near}");
     }
 
