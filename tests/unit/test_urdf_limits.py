@@ -169,3 +169,33 @@ def test_urdf_that_is_not_a_regular_file_is_refused(tmp_path: Path) -> None:
     with pytest.raises(ConfigError) as info:
         load_bus_config(cfg)
     assert "not a regular file" in str(info.value)
+
+
+def test_the_acceleration_limit_comes_from_the_config_the_urdf_or_the_deceleration(
+    tmp_path: Path,
+) -> None:
+    from ether_ros.config.cia402 import acceleration_limit
+
+    # issue 24: <limit acceleration=…> (joint_limits.yaml's max_acceleration) fills
+    # max_acceleration where the axis leaves it out; the axis's own key wins.
+    urdf = _robot(
+        _joint("a", limit='lower="-1" upper="1" velocity="2" effort="3" acceleration="7.5"'),
+        _joint("b", limit='lower="-1" upper="1" velocity="2" effort="3" acceleration="7.5"'),
+    )
+    axes = "      - {name: a}\n      - {name: b, max_acceleration: 12.0}\n"
+    cfg = load_bus_config(_bus(tmp_path, urdf, axes))
+    a, b = cfg.slaves[0].axes
+    assert (acceleration_limit(a), acceleration_limit(b)) == (7.5, 12.0)
+    # Neither given: the deceleration, else no limit beyond the velocity limit.
+    urdf = _robot(_joint("a"), _joint("b"))
+    axes = "      - {name: a, deceleration: 20.0}\n      - {name: b}\n"
+    a, b = load_bus_config(_bus(tmp_path, urdf, axes)).slaves[0].axes
+    assert (acceleration_limit(a), acceleration_limit(b)) == (20.0, math.inf)
+    # Refused, naming the key.
+    for bad in ("0.0", "-1.0", ".nan"):
+        axes = f"      - {{name: a, max_acceleration: {bad}}}\n      - {{name: b}}\n"
+        with pytest.raises(ConfigError, match="max_acceleration"):
+            load_bus_config(_bus(tmp_path, urdf, axes))
+    urdf = _robot(_joint("a", limit='velocity="2" effort="3" acceleration="-4"'), _joint("b"))
+    with pytest.raises(ConfigError, match=r"limit\.acceleration"):
+        load_bus_config(_bus(tmp_path, urdf, TWO_AXES))

@@ -16,8 +16,8 @@ mod motion;
 mod records;
 
 pub use motion::{
-    braking_speed, limit_torque, limit_velocity, sample_trajectory, sample_velocity, Interpolator,
-    StopRamp,
+    blend, braking_speed, limit_torque, limit_velocity, sample_trajectory, sample_velocity,
+    Interpolator, StopRamp,
 };
 pub use records::{
     status_flags, AxisCommand, AxisExchange, AxisStatus, Point, COMMAND_LEN, POINT_LEN, STATUS_LEN,
@@ -181,6 +181,11 @@ pub struct AxisPlan {
     /// Deceleration (SI/s², > 0) of the quiet stop a mode change or an enable starts with, and
     /// of the braking envelope before the position limits in csv, pv and cst; ∞: at once.
     pub deceleration: f64,
+    /// Largest change of the commanded velocity (SI/s², > 0): every hand-over (a new
+    /// trajectory, setpoints after a trajectory, a jump of the setpoint) is joined from the
+    /// commanded state within it, in csp (the targets' second difference) and csv (the velocity
+    /// target's step); ∞: only the velocity limit bounds the step.
+    pub max_acceleration: f64,
     pub mode_change_velocity: ModeChangeVelocity,
     pub restart: Restart,
     /// |following error| above this (SI) sets the status flag; 0 = not checked.
@@ -231,6 +236,7 @@ impl AxisPlan {
             ("velocity_max", l.velocity_max),
             ("torque_max", l.torque_max),
             ("deceleration", self.deceleration),
+            ("max_acceleration", self.max_acceleration),
         ] {
             if v.is_nan() || v <= 0.0 {
                 return Err(format!("axis {n}: {key} = {v} must be positive"));
@@ -316,6 +322,11 @@ fn read_i16(io: &[u8], off: usize) -> i16 {
 /// target at its next SYNC0 and, in csp, interpolates over one more period): position targets
 /// that follow a moving axis, and the braking envelope, look that far ahead.
 const COMMAND_LATENCY_CYCLES: f64 = 3.0;
+/// Share of each cycle's velocity actual in the smoothed velocity cst limits (an exponential
+/// filter with a time constant of about four cycles).
+const VELOCITY_SMOOTHING: f64 = 0.2;
+/// cst: the torque fades out over this share of the velocity limit below it.
+const CST_BAND_SHARE: f64 = 0.2;
 /// Cycles after a homing start before the drive's homing bits count: the statuswords of the
 /// frames in flight were latched before the drive saw the start.
 const HOMING_ACK_CYCLES: u32 = 5;
@@ -373,6 +384,12 @@ pub struct AxisController {
     /// Last position target written (SI) and the velocity the axis is commanded to have.
     target_position: f64,
     desired_velocity: f64,
+    /// csp: the velocity of the last target step as it went on the wire ((target − the one
+    /// before) / cycle): what the acceleration limit bounds the change of (`blend`).
+    step_velocity: f64,
+    /// The velocity actual smoothed over a few cycles (`VELOCITY_SMOOTHING`): what cst's
+    /// velocity limit and braking envelope act on.
+    velocity_filtered: f64,
     /// The last velocity or torque setpoint of the current mode (SI).
     setpoint_value: f64,
     /// Setpoint command already taken over.
@@ -428,6 +445,8 @@ impl AxisController {
             entry_pending: true,
             target_position: 0.0,
             desired_velocity: 0.0,
+            step_velocity: 0.0,
+            velocity_filtered: 0.0,
             setpoint_value: 0.0,
             seq_seen: 0,
             reset_seen: 0,
@@ -620,6 +639,7 @@ impl AxisController {
         self.target_position = p0;
         self.setpoint_value = 0.0;
         self.desired_velocity = 0.0;
+        self.step_velocity = v0;
         self.trajectory_running = false;
         self.ramp = match self.command.mode {
             Mode::CyclicPosition | Mode::CyclicVelocity | Mode::ProfileVelocity if v0 != 0.0 => {
@@ -639,12 +659,16 @@ impl AxisController {
         let len = self.staged_len;
         self.staged_seq = None;
         self.trajectory_start = self.command.t_ns;
-        // The spliced point is the target sent last cycle, at that cycle's time; points not
-        // after it are past (trimmed).
+        // The spliced point is the target sent last cycle, at that cycle's time. Points not after
+        // this cycle are past or present (trimmed): a first point at "now" (time 0 of a goal
+        // stamped now, taken over in the cycle it was sent) is the state the client believed
+        // the axis to be in — possibly stale — and the axis's commanded state replaces it, so a
+        // hand-over never steers back to it (issue 24).
         let t_splice = now - cycle_ns - self.trajectory_start;
+        let t_now = now - self.trajectory_start;
         let mut k = self.points[..len]
             .iter()
-            .position(|p| p.t_ns > t_splice)
+            .position(|p| p.t_ns > t_now)
             .unwrap_or(len);
         if k == len {
             // Over already: its end, reached at the velocity limit's pace from here.
@@ -767,6 +791,7 @@ impl AxisController {
         // Where the axis will be when the drive takes a target written now (moving, it is
         // ahead of the position read).
         let ahead = fb.position + fb.velocity * dt * COMMAND_LATENCY_CYCLES;
+        self.velocity_filtered += VELOCITY_SMOOTHING * (fb.velocity - self.velocity_filtered);
         if cmd.mode != self.mode_commanded {
             // A new mode starts from the actual state once the drive shows it. Until then the
             // drive runs the old mode: its targets make a quiet stop from the actual state.
@@ -834,6 +859,7 @@ impl AxisController {
         if !running {
             self.target_position = fb.position;
             self.desired_velocity = 0.0;
+            self.step_velocity = 0.0;
             if !waiting_for_mode {
                 // Commands given while the axis cannot run are dropped, so that enabling
                 // never starts a motion that was asked for before.
@@ -853,6 +879,7 @@ impl AxisController {
                 self.target_position = r.position;
                 velocity_target = r.velocity;
                 self.desired_velocity = r.velocity;
+                self.step_velocity = r.velocity;
             }
             // Whatever ran ends; the mode starts afresh from the actual state once it runs.
             self.setpoint_value = 0.0;
@@ -893,6 +920,10 @@ impl AxisController {
                 }
             }
             let st = &mut self.status;
+            let amax = self.plan.max_acceleration;
+            // A quiet stop is a motion of its own at `deceleration` from the commanded state:
+            // the acceleration limit does not slow it down.
+            let stopping = self.ramp.is_some();
             match cmd.mode {
                 Mode::CyclicPosition | Mode::ProfilePosition => {
                     let (wanted, velocity) = if self.trajectory_running {
@@ -924,9 +955,21 @@ impl AxisController {
                     let mut p = wanted.clamp(lo, hi);
                     if cmd.mode == Mode::CyclicPosition {
                         // No step larger than the velocity limit allows in one cycle of the
-                        // engine's clock (a late wake-up does not make the step larger).
-                        let step = limits.velocity_max * dt;
-                        p = p.clamp(self.target_position - step, self.target_position + step);
+                        // engine's clock (a late wake-up does not make the step larger), and
+                        // no change of the step's velocity beyond the acceleration limit's:
+                        // whatever the target source, it is joined from the commanded state.
+                        let a = if stopping { f64::INFINITY } else { amax };
+                        let (q, _) = blend(
+                            self.target_position,
+                            self.step_velocity,
+                            p,
+                            velocity,
+                            limits.velocity_max,
+                            a,
+                            dt,
+                        );
+                        p = q.clamp(lo, hi);
+                        self.step_velocity = (p - self.target_position) / dt;
                     }
                     let clamped = p != wanted;
                     if clamped {
@@ -970,6 +1013,16 @@ impl AxisController {
                     if v_out != v {
                         st.velocity_clamps += 1;
                     }
+                    if !stopping && amax.is_finite() {
+                        // Every change of the velocity target within the acceleration limit.
+                        let dv = amax * dt;
+                        let joined =
+                            v_out.clamp(self.desired_velocity - dv, self.desired_velocity + dv);
+                        if joined != v_out {
+                            limit_active = true;
+                            v_out = joined;
+                        }
+                    }
                     let braked = limit_velocity(
                         v_out,
                         ahead,
@@ -1002,21 +1055,37 @@ impl AxisController {
                     } else {
                         0.1
                     };
+                    // A drive's velocity actual jitters by a good part of the limit from one
+                    // cycle to the next: a narrower band would turn the fade below the
+                    // velocity limit into bang-bang braking (chatter).
+                    let vband = if limits.velocity_max.is_finite() {
+                        band.max(limits.velocity_max * CST_BAND_SHARE)
+                    } else {
+                        band
+                    };
+                    // The velocity limit holds in cst too: the torque fades out over the band
+                    // below it (at the speed expected when the torque takes effect) and brakes
+                    // above it, as it does before the position limits.
                     let braked = limit_torque(
                         t_out,
                         ahead,
-                        fb.velocity,
+                        self.velocity_filtered,
                         (limits.position_min, limits.position_max),
                         decel,
+                        limits.velocity_max,
                         if limits.torque_max.is_finite() {
                             limits.torque_max
                         } else {
                             t_out.abs()
                         },
-                        band,
+                        (band, vband),
                     );
                     if braked != t_out {
-                        st.position_clamps += 1;
+                        if self.velocity_filtered.abs() + vband >= limits.velocity_max {
+                            st.velocity_clamps += 1;
+                        } else {
+                            st.position_clamps += 1;
+                        }
                         limit_active = true;
                         t_out = braked;
                     }
@@ -1387,6 +1456,7 @@ mod tests {
                 torque_max: 2.0,
             },
             deceleration: f64::INFINITY,
+            max_acceleration: f64::INFINITY,
             mode_change_velocity: ModeChangeVelocity::Actual,
             restart: Restart::Auto,
             following_error_window: 0.0,
@@ -2468,6 +2538,192 @@ mod tests {
         assert!(steps.iter().all(|&d| (1..=2).contains(&d)), "{steps:?}");
         assert_eq!(*b.targets.last().unwrap(), 200);
         assert_eq!(b.status().position_clamps, 0);
+    }
+
+    /// An axis in µrad (so that the targets' second differences show the acceleration):
+    /// ±10 rad, 3 rad/s, 20 rad/s² of acceleration and deceleration.
+    fn fine_plan() -> AxisPlan {
+        let mut p = plan();
+        p.position_scale = 1e-6;
+        p.velocity_scale = 1e-6;
+        p.limits.velocity_max = 3.0;
+        p.deceleration = 20.0;
+        p.max_acceleration = 20.0;
+        p
+    }
+
+    /// Send a trajectory starting `ago` ns before now.
+    fn follow(b: &mut Bench, ago: i64, pts: &[Point]) {
+        let t_ns = b.now - ago;
+        b.command.seq += 1;
+        write_points(&b.ex, 0, b.command.seq, pts);
+        b.command.setpoint_kind = TRAJECTORY_COMMAND;
+        b.command.trajectory_len = pts.len() as u32;
+        b.command.t_ns = t_ns;
+        b.send();
+    }
+
+    fn pt(t_s: f64, position: f64, velocity: f64) -> Point {
+        Point {
+            t_ns: (t_s * 1e9) as i64,
+            position,
+            velocity,
+        }
+    }
+
+    /// The largest |velocity step| (rad/s) and |velocity| (rad/s) of the fine axis's targets,
+    /// from the raw targets written (what goes on the wire).
+    fn wire_motion(targets: &[i32]) -> (f64, f64) {
+        let dt = CYCLE as f64 * 1e-9;
+        let v: Vec<f64> = targets
+            .windows(2)
+            .map(|w| (w[1] - w[0]) as f64 * 1e-6 / dt)
+            .collect();
+        let step = v
+            .windows(2)
+            .map(|w| (w[1] - w[0]).abs())
+            .fold(0.0, f64::max);
+        (step, v.iter().map(|x| x.abs()).fold(0.0, f64::max))
+    }
+
+    /// One cycle of the acceleration limit, plus the raw targets' rounding (±0.5 µrad each,
+    /// 2 µrad in a second difference).
+    const STEP_BOUND: f64 = 20.0 * 1e-3 + 2e-6 / 1e-3;
+
+    #[test]
+    fn a_preempting_trajectory_from_a_stale_state_is_joined_within_the_limits() {
+        let mut b = enabled(fine_plan(), 0);
+        follow(&mut b, 0, &[pt(0.0, 0.0, 0.0), pt(1.0, 1.0, 0.0)]);
+        b.run(500);
+        // Half way at 1.5 rad/s: a goal built from the state of 120 ms ago (its first point,
+        // at "now", lies 0.17 rad behind the axis) going on to 0.8 rad.
+        let stale = b.targets[b.targets.len() - 120] as f64 * 1e-6;
+        let here = *b.targets.last().unwrap();
+        follow(&mut b, 0, &[pt(0.0, stale, 1.5), pt(0.5, 0.8, 0.0)]);
+        let n = b.targets.len();
+        b.run(1500);
+        let targets = &b.targets[n - 3..];
+        let (step, speed) = wire_motion(targets);
+        assert!(
+            step <= STEP_BOUND,
+            "velocity step {step} rad/s in one cycle"
+        );
+        assert!(speed <= 3.0 + 1e-3, "{speed}");
+        // Never back towards the stale point: the targets only go forward, from where the axis
+        // was commanded to be, and end on the new goal.
+        assert!(targets.windows(2).all(|w| w[1] >= w[0]), "it went back");
+        assert!(targets[3] >= here);
+        assert_eq!(*b.targets.last().unwrap(), 800_000);
+    }
+
+    #[test]
+    fn a_trajectory_started_in_the_past_is_joined_within_the_limits() {
+        let mut b = enabled(fine_plan(), 0);
+        b.run(10);
+        // Stamped 0.9 s ago: the path is 0.9 s into a 0 → 2 rad move over 2 s.
+        let n = b.targets.len();
+        follow(
+            &mut b,
+            900_000_000,
+            &[pt(0.0, 0.0, 0.0), pt(1.0, 1.0, 1.5), pt(2.0, 2.0, 0.0)],
+        );
+        b.run(3000);
+        let (step, speed) = wire_motion(&b.targets[n - 2..]);
+        assert!(
+            step <= STEP_BOUND,
+            "velocity step {step} rad/s in one cycle"
+        );
+        assert!(speed <= 3.0 + 1e-3, "{speed}");
+        assert_eq!(*b.targets.last().unwrap(), 2_000_000);
+        // Wholly in the past: its end, reached within the limits.
+        let n = b.targets.len();
+        follow(
+            &mut b,
+            5_000_000_000,
+            &[pt(0.0, 2.0, 0.0), pt(1.0, -1.0, 0.0)],
+        );
+        b.run(3000);
+        let (step, speed) = wire_motion(&b.targets[n - 2..]);
+        assert!(step <= STEP_BOUND && speed <= 3.0 + 1e-3, "{step} {speed}");
+        assert_eq!(*b.targets.last().unwrap(), -1_000_000);
+    }
+
+    #[test]
+    fn setpoints_after_a_trajectory_are_joined_within_the_limits() {
+        let mut b = enabled(fine_plan(), 0);
+        follow(&mut b, 0, &[pt(0.0, 0.0, 0.0), pt(1.0, 1.0, 0.0)]);
+        b.run(500);
+        let n = b.targets.len();
+        // A joint command back to 0.1 rad in the middle of the motion, then one far away.
+        command(&mut b, SetpointKind::Position, 0.1);
+        b.run(1500);
+        assert_eq!(*b.targets.last().unwrap(), 100_000);
+        command(&mut b, SetpointKind::Position, -2.0);
+        b.run(2500);
+        assert_eq!(*b.targets.last().unwrap(), -2_000_000);
+        let (step, speed) = wire_motion(&b.targets[n - 2..]);
+        assert!(step <= STEP_BOUND && speed <= 3.0 + 1e-3, "{step} {speed}");
+        // Without an acceleration limit the same command is one velocity-limited jump.
+        let mut p = fine_plan();
+        p.max_acceleration = f64::INFINITY;
+        let mut b = enabled(p, 0);
+        command(&mut b, SetpointKind::Position, 1.0);
+        let n = b.targets.len();
+        b.run(5);
+        assert_eq!(b.targets[n + 1] - b.targets[n], 3_000);
+    }
+
+    #[test]
+    fn a_velocity_target_changes_within_the_acceleration_limit() {
+        let mut p = fine_plan();
+        p.velocity_scale = 1e-3;
+        let mut b = enabled(p, 0);
+        set_mode(&mut b, Mode::CyclicVelocity);
+        b.run(5);
+        command(&mut b, SetpointKind::Velocity, 3.0);
+        let mut v = vec![];
+        for _ in 0..300 {
+            b.cycle(false);
+            v.push(read_i32(&b.io, TVEL));
+        }
+        // 20 rad/s² at 1 ms: 20 mrad/s per cycle, 3 rad/s after 150 cycles.
+        assert!(v.windows(2).all(|w| (w[1] - w[0]).abs() <= 20), "{v:?}");
+        assert_eq!(*v.last().unwrap(), 3_000);
+        assert!(v[100] < 3_000);
+    }
+
+    #[test]
+    fn cst_holds_the_velocity_limit_and_rests_at_a_position_limit_without_chatter() {
+        // plan(): 5 rad/s; the bench's drive makes 20 rad/s² at 2 N·m.
+        let mut p = plan();
+        p.deceleration = 10.0;
+        p.limits.position_max = 4.0;
+        let mut b = enabled(p, 0);
+        set_mode(&mut b, Mode::CyclicTorque);
+        b.run(5);
+        command(&mut b, SetpointKind::Torque, 2.0);
+        let mut top_speed = 0.0f64;
+        let mut velocities = vec![];
+        for _ in 0..4000 {
+            b.cycle(false);
+            top_speed = top_speed.max(b.velocity.abs() * 1e-3);
+            velocities.push(b.velocity * 1e-3);
+        }
+        assert!(top_speed <= 5.0, "{top_speed} rad/s against the limit of 5");
+        assert!(top_speed > 4.5, "it went near the limit: {top_speed}");
+        assert!(b.status().velocity_clamps > 0);
+        // Held at the position limit by the same outward torque: at rest, no chatter.
+        assert!(
+            b.position <= 4_000.0 + 5.0 && b.position > 3_990.0,
+            "{}",
+            b.position
+        );
+        let last = &velocities[velocities.len() - 1000..];
+        assert!(
+            last.iter().all(|v| v.abs() < 0.05),
+            "it chatters: {:?}",
+            &last[..20]
+        );
     }
 
     #[test]

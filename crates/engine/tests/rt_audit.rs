@@ -289,6 +289,7 @@ fn audit_axis() -> AxisPlan {
             torque_max: 1.0,
         },
         deceleration: 20.0,
+        max_acceleration: 20.0,
         mode_change_velocity: ModeChangeVelocity::Actual,
         restart: Restart::Auto,
         following_error_window: 0.1,

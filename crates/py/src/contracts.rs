@@ -569,6 +569,9 @@ impl AxisPlan {
             fault_retries,
             fault_backoff_ns,
             interpolation_max_ns,
+            // None: no acceleration bound of its own (the velocity limit still applies); the
+            // config's default (the axis's deceleration) is decided in Python (config/bus.py).
+            max_acceleration: max_acceleration.unwrap_or(f64::INFINITY),
         };
         Ok(Self {
             map: map.unbind(),

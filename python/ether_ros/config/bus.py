@@ -385,6 +385,10 @@ class AxisConfig(_Model):
     # SI/s²: the quiet stop a mode change or an enable starts with, and the braking before the
     # position limits in csv/pv/cst (inf: at once, cut at the limit itself).
     deceleration: float = math.inf
+    # SI/s²: the largest change of the commanded velocity; every hand-over (a new trajectory,
+    # setpoints after one, a jump) is joined from the commanded state within it (csp, csv).
+    # None: the URDF's <limit acceleration=…>, else `deceleration` (inf: velocity limit only).
+    max_acceleration: float | None = None
     # The velocity a mode change's quiet stop starts from: the actual one, or zero.
     mode_change_velocity: Literal["actual", "zero"] = "actual"
     # manual: after a panic, watchdog stop or fault the axis waits for an explicit enable;

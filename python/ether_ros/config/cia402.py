@@ -425,6 +425,14 @@ def homing_sdo_inits(cfg: AxisConfig, n: int) -> list[tuple[int, int, int, str]]
     return out
 
 
+def acceleration_limit(cfg: AxisConfig) -> float:
+    """The axis's acceleration limit (SI/s²) for the engine's hand-overs: ``max_acceleration``
+    (from the configuration or the URDF), else the axis's ``deceleration`` — the rate it is
+    configured to stop at, so a hand-over never asks more of it than a stop — which is inf
+    (only the velocity limit) when that is not given either (docs/configuration.md)."""
+    return cfg.max_acceleration if cfg.max_acceleration is not None else cfg.deceleration
+
+
 def check_axis(cfg: AxisConfig, path: tuple[Any, ...], err: ErrorFn) -> None:
     """Refuse inconsistent numbers: non-positive or non-finite scales, NaN, min > max."""
     scales = (("position_scale", cfg.position_scale), ("velocity_scale", cfg.velocity_scale),
@@ -445,6 +453,9 @@ def check_axis(cfg: AxisConfig, path: tuple[Any, ...], err: ErrorFn) -> None:
         raise err((*path, "following_error_window"), "must be a finite number >= 0", w)
     if math.isnan(cfg.deceleration) or cfg.deceleration <= 0:
         raise err((*path, "deceleration"), "must be positive (inf: at once)", cfg.deceleration)
+    a = cfg.max_acceleration
+    if a is not None and (math.isnan(a) or a <= 0):
+        raise err((*path, "max_acceleration"), "must be positive (inf: no limit)", a)
     if cfg.homing is not None:
         homing = homing_values(cfg.homing)
         for key in ("speed_switch", "speed_zero", "acceleration"):

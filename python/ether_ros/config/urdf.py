@@ -2,8 +2,11 @@
 
 A URDF ``<joint name=… type=…>`` with a ``<limit lower upper velocity effort>`` gives the CiA 402
 axis of the same name its ``position_limits`` (lower/upper, none for a ``continuous`` joint),
-``velocity_limit`` and ``torque_limit`` (effort). What the bus configuration sets on the axis
-itself wins; the URDF fills in what it leaves out (:func:`apply_urdf_limits`).
+``velocity_limit`` and ``torque_limit`` (effort), and — where the ``<limit>`` carries the
+``acceleration`` attribute some toolchains add (the URDF standard has none; it is
+``joint_limits.yaml``'s ``max_acceleration``) — its ``max_acceleration``. What the bus
+configuration sets on the axis itself wins; the URDF fills in what it leaves out
+(:func:`apply_urdf_limits`).
 
 Hostile input is bounded as for ESI files (:mod:`ether_ros.config.esi`): a regular file of at most
 :data:`MAX_URDF_BYTES`, read by :func:`ether_ros.config.files.read_regular`, and no document type
@@ -44,6 +47,7 @@ class UrdfJoint:
     upper: float | None
     velocity: float | None
     effort: float | None
+    acceleration: float | None = None
 
 
 def load_urdf_joints(path: Path) -> dict[str, UrdfJoint]:
@@ -79,7 +83,7 @@ def load_urdf_joints(path: Path) -> dict[str, UrdfJoint]:
 
 def _joint(path: Path, name: str, kind: str, limit: ET.Element | None) -> UrdfJoint:
     values: dict[str, float | None] = {}
-    for attr in ("lower", "upper", "velocity", "effort"):
+    for attr in ("lower", "upper", "velocity", "effort", "acceleration"):
         text = None if limit is None else limit.get(attr)
         values[attr] = None if text is None else _number(path, f"joint[{name}].limit.{attr}", text)
     if kind == "continuous":  # a continuous joint has no position limits, whatever it says
@@ -87,11 +91,13 @@ def _joint(path: Path, name: str, kind: str, limit: ET.Element | None) -> UrdfJo
     lo, hi = values["lower"], values["upper"]
     if lo is not None and hi is not None and lo > hi:
         raise _error(path, f"joint[{name}].limit", "lower must be <= upper", [lo, hi])
-    for attr in ("velocity", "effort"):
+    for attr in ("velocity", "effort", "acceleration"):
         v = values[attr]
         if v is not None and v <= 0:
             raise _error(path, f"joint[{name}].limit.{attr}", "must be positive", v)
-    return UrdfJoint(name, kind, lo, hi, values["velocity"], values["effort"])
+    return UrdfJoint(
+        name, kind, lo, hi, values["velocity"], values["effort"], values["acceleration"]
+    )
 
 
 def _number(path: Path, field: str, text: str) -> float:
@@ -137,4 +143,6 @@ def apply_urdf_limits(path: Path, joints: dict[str, UrdfJoint], axes: Iterable[A
             axis.velocity_limit = joint.velocity
         if "torque_limit" not in given and joint.effort is not None:
             axis.torque_limit = joint.effort
+        if "max_acceleration" not in given and joint.acceleration is not None:
+            axis.max_acceleration = joint.acceleration
     return matched

@@ -23,6 +23,7 @@ from ether_ros.config.cia402 import (
     PROFILE_OBJECTS,
     SUPPORTED_HOMING_METHODS,
     AxisSpec,
+    acceleration_limit,
     profile_raw,
 )
 from ether_ros.config.process import ProcessValueError
@@ -144,6 +145,7 @@ def plan_entries(specs: Sequence[AxisSpec], layout: ImageLayout) -> list[_native
                 torque_max=c.torque_limit,
                 following_error_window=c.following_error_window,
                 deceleration=c.deceleration,
+                max_acceleration=acceleration_limit(c),
                 mode_change_velocity=c.mode_change_velocity,
                 restart=c.restart,
                 on_stop=c.on_stop,
@@ -464,7 +466,10 @@ class Axis:
         (seconds from the start, SI), t strictly increasing; position mode interpolates
         positions (cubic, with the velocities), velocity mode the velocities linearly. Starts
         ``start_in`` seconds from now; from the cycle the engine takes it over, the axis moves
-        from the state it is commanded to have to the first point (held when they are equal).
+        from the state it is commanded to have to the first point (held when they are equal),
+        within its ``max_acceleration`` and velocity limit; points not after that cycle (a first
+        point at t = 0 with ``start_in`` 0) are replaced by the commanded state, never steered
+        back to (docs/cia402.md, "Hand-overs").
         Returns the start time (engine clock, s). Several axes together: ``bus.follow``."""
         return follow_together(self._bus, {self: trajectory}, start_in)
 

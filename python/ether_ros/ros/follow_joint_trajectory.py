@@ -5,7 +5,8 @@ or any action client (docs/ros.md, "FollowJointTrajectory").
 A goal is checked as a whole before anything moves: the joints (INVALID_JOINTS: unknown,
 repeated, none, multi-DOF), the trajectory and tolerances (INVALID_GOAL: times not increasing,
 NaN or inf, values or velocities beyond the limits, a joint not enabled or not in csp/csv), and
-its time (OLD_HEADER_TIMESTAMP: it ends in the past). An accepted goal goes to the engine in one
+its time (OLD_HEADER_TIMESTAMP: it ends in the past, or its first point lies further in the past
+than the goal time tolerance). An accepted goal goes to the engine in one
 hand-over (every joint starts in the same cycle) and replaces the rest of the running goal, as
 with JointTrajectoryController; the replaced goal ends aborted with INVALID_GOAL and a message
 saying it was replaced. While it runs, feedback (desired, actual, error) goes out at 100 Hz and
@@ -141,6 +142,12 @@ def resolve_tolerances(
     return out
 
 
+def first_point_lateness(plan: joints.TrajectoryPlan, engine_now_ns: int) -> float:
+    """How long ago (s) the trajectory's first point was due (≤ 0: it is not past yet)."""
+    first_s = min(track[0][0] for _, track in plan.tracks)
+    return (engine_now_ns - plan.start_ns) * 1e-9 - first_s
+
+
 def check_goal(
     axes: Mapping[str, Any],
     goal: Any,
@@ -180,6 +187,15 @@ def check_goal(
     if not math.isfinite(time_tolerance) or time_tolerance < 0:
         raise GoalRefused(Result.INVALID_GOAL, f"goal_time_tolerance {time_tolerance:g} s is "
                           "negative")  # fmt: skip
+    goal_time_s = time_tolerance or defaults.goal_time_tolerance_s
+    late_s = first_point_lateness(plan, engine_now_ns)
+    if late_s > goal_time_s:
+        # Joining a path that far along would be a different motion from the one planned
+        # (docs/ros.md, "Hand-overs"); within the tolerance it is joined from the commanded
+        # state like any other hand-over.
+        raise GoalRefused(Result.OLD_HEADER_TIMESTAMP, f"the first point lies {late_s:.3f} s in "
+                          f"the past, more than the goal time tolerance ({goal_time_s:g} s): "
+                          "stamp the goal now (header.stamp 0) or later")  # fmt: skip
     return GoalRun(
         plan=plan,
         path=resolve_tolerances(
@@ -188,7 +204,7 @@ def check_goal(
         goal=resolve_tolerances(
             goal.goal_tolerance, names, defaults.goal_tolerance, "goal_tolerance"
         ),
-        goal_time_s=time_tolerance or defaults.goal_time_tolerance_s,
+        goal_time_s=goal_time_s,
         final={axis.name: (track[-1][1], track[-1][2]) for axis, track in plan.tracks},
     )
 

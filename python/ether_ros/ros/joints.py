@@ -197,8 +197,10 @@ def trajectory_plan(
 
 def _check_approach(axis: Any, first: float, within: float) -> None:
     """The way from where the axis is commanded to be now to the trajectory's first point,
-    ``within`` seconds: refused when it needs more than the velocity limit (a first point at
-    time 0, or already past, is the start: the engine continues from the axis's state)."""
+    ``within`` seconds: refused when it needs more than the velocity limit. A first point at
+    time 0 (of a goal stamped now) or already past is no target: the engine replaces it with the
+    axis's commanded state and joins the rest of the path from there within the axis's
+    acceleration and velocity limits, never steering back to it (docs/ros.md, "Hand-overs")."""
     if within <= 0:
         return
     st = bridge.axis_status(axis)

@@ -1,6 +1,8 @@
 //! The motion the axis stage commands between commands: setpoint interpolation, trajectory
-//! sampling, the quiet stop after a mode change or an enable, and the braking envelope that
-//! keeps an axis inside its position limits in the velocity and torque modes. Pure functions
+//! sampling, the quiet stop after a mode change or an enable, the blend that joins a new motion
+//! within the acceleration and velocity limits, and the braking envelope that keeps an axis
+//! inside its position limits (and, in cst, below its velocity limit) in the velocity and torque
+//! modes. Pure functions
 //! and small state, no allocation: the RT thread runs them every cycle.
 
 use super::Point;
@@ -199,44 +201,121 @@ pub fn limit_velocity(velocity: f64, position: f64, min: f64, max: f64, decel: f
     }
 }
 
-/// A torque command in cst near a limit: an outward torque is cut to zero once the axis moves
-/// outward at the braking speed of the distance left (so it never accelerates into the limit),
-/// and while it moves outward faster than that the axis is braked, up to `torque_max`, in
-/// proportion to the excess speed (full braking at `band` SI/s over it). Returns the torque.
+/// The next position target of an axis in csp, blended from the state it is commanded to have
+/// (`position`, and `velocity`: the velocity of the last step on the wire) towards the wanted
+/// motion (`wanted` and its velocity `wanted_velocity`) within the acceleration limit `amax`
+/// and the velocity limit `vmax`, for a step of `dt` seconds. Returns the target and the
+/// velocity of the step to it.
+///
+/// A wanted motion the axis can follow (the step it needs changes the velocity by at most
+/// `amax·dt` and stays within `vmax`) is followed exactly. Anything else — the first cycles of
+/// a hand-over, a setpoint that jumps, a trajectory that starts away from the axis — is joined
+/// the fastest way the limits allow without overshoot: the velocity steers towards the wanted
+/// one plus the speed from which the remaining gap can still be closed decelerating at `amax`,
+/// and never changes by more than `amax·dt` in one step. `amax` = ∞ leaves only the velocity
+/// limit (the step clamped to `vmax·dt`).
+pub fn blend(
+    position: f64,
+    velocity: f64,
+    wanted: f64,
+    wanted_velocity: f64,
+    vmax: f64,
+    amax: f64,
+    dt: f64,
+) -> (f64, f64) {
+    if dt <= 0.0 {
+        return (position, velocity);
+    }
+    let need = (wanted - position) / dt;
+    if amax.is_infinite() {
+        if need.abs() <= vmax {
+            return (wanted, need);
+        }
+        let v = need.clamp(-vmax, vmax);
+        return (position + v * dt, v);
+    }
+    let dv = amax * dt;
+    let vmax = vmax.max(0.0);
+    let along = wanted_velocity.clamp(-vmax, vmax);
+    // Followed exactly when the step there keeps the velocity change within the limit, and the
+    // velocity it arrives with is the wanted one within it too (so the next step can be made).
+    if (need - velocity).abs() <= dv && (need - along).abs() <= dv && need.abs() <= vmax {
+        return (wanted, need);
+    }
+    // The gap left if this step moved along with the wanted motion; closed at the speed from
+    // which slowing by `dv` per step ends on it (v² / 2a + v·dt / 2 = gap, less dv·dt / 8 for
+    // a last step that is not a whole `dv`), the last bit in one step.
+    let gap = wanted - position - along * dt;
+    let g = gap.abs();
+    let braking = -0.5 * dv + (0.25 * dv * dv + 2.0 * amax * (g - dv * dt / 8.0).max(0.0)).sqrt();
+    let closing = braking.max((g / dt).min(dv)).min(g / dt);
+    let v = (along + gap.signum() * closing)
+        .clamp(velocity - dv, velocity + dv)
+        .clamp(-vmax, vmax);
+    (position + v * dt, v)
+}
+
+/// A torque command in cst near a limit or at speed: the axis never runs faster than `vmax`,
+/// nor outward faster than the braking speed of the distance left before a position limit.
+/// A torque that pushes towards such a bound fades out over the last `band` SI/s below it
+/// (`bands.0` for the braking envelope, `bands.1` for `vmax`: so the axis comes up to the
+/// bound smoothly instead of hitting it and bouncing, no chatter); an axis faster than a bound
+/// is braked, up to `torque_max`, in proportion to the excess speed (full braking at `band`
+/// SI/s over it). Returns the torque.
+#[allow(clippy::too_many_arguments)]
 pub fn limit_torque(
     torque: f64,
     position: f64,
     velocity: f64,
     limits: (f64, f64),
     decel: f64,
+    vmax: f64,
     torque_max: f64,
-    band: f64,
+    bands: (f64, f64),
 ) -> f64 {
     let (min, max) = limits;
-    // +1: the upper limit is ahead of a motion upwards, -1: the lower one.
-    for side in [1.0f64, -1.0] {
+    // The fastest the axis may move towards +1 (up) or -1 (down), the distance to that side's
+    // limit, and the band of whichever bound that is.
+    let allowed = |side: f64| {
         let distance = if side > 0.0 {
             max - position
         } else {
             position - min
         };
-        let outward_speed = velocity * side;
-        let allowed = braking_speed(distance, decel);
-        let outward_torque = torque * side > 0.0;
-        if outward_speed > allowed {
-            let excess = if allowed.is_finite() {
-                outward_speed - allowed
+        let envelope = braking_speed(distance, decel);
+        if envelope < vmax {
+            (envelope, distance, bands.0)
+        } else {
+            (vmax, distance, bands.1)
+        }
+    };
+    for side in [1.0f64, -1.0] {
+        let speed = velocity * side;
+        let (bound, _, band) = allowed(side);
+        if speed > bound {
+            let excess = if bound.is_finite() {
+                speed - bound
             } else {
                 0.0
             };
             let brake = torque_max * (excess / band).min(1.0);
-            return -side * brake;
-        }
-        if outward_torque && (distance <= 0.0 || outward_speed >= allowed) {
-            return 0.0;
+            // A commanded torque that brakes harder stays.
+            return -side * brake.max(-torque * side);
         }
     }
-    torque
+    if torque == 0.0 {
+        return 0.0;
+    }
+    let side = torque.signum();
+    let (bound, distance, band) = allowed(side);
+    if distance <= 0.0 {
+        return 0.0;
+    }
+    let headroom = bound - velocity * side;
+    if headroom.is_infinite() {
+        return torque;
+    }
+    torque * (headroom / band).clamp(0.0, 1.0)
 }
 
 #[cfg(test)]
@@ -302,15 +381,103 @@ mod tests {
     fn torque_toward_a_limit_is_cut_then_brakes() {
         let lim = (-1.0, 1.0);
         // Far from the limits: untouched.
-        assert_eq!(limit_torque(2.0, 0.0, 0.5, lim, 10.0, 5.0, 0.1), 2.0);
+        assert_eq!(
+            limit_torque(2.0, 0.0, 0.5, lim, 10.0, f64::INFINITY, 5.0, (0.1, 0.1)),
+            2.0
+        );
         // 0.05 before the upper limit (braking speed 1/s), moving up slower: still pushed.
-        assert_eq!(limit_torque(2.0, 0.95, 0.5, lim, 10.0, 5.0, 0.1), 2.0);
+        assert_eq!(
+            limit_torque(2.0, 0.95, 0.5, lim, 10.0, f64::INFINITY, 5.0, (0.1, 0.1)),
+            2.0
+        );
         // Faster than the envelope by half the band: half the torque limit, downwards.
-        assert!((limit_torque(2.0, 0.95, 1.05, lim, 10.0, 5.0, 0.1) + 2.5).abs() < 1e-9);
+        assert!(
+            (limit_torque(2.0, 0.95, 1.05, lim, 10.0, f64::INFINITY, 5.0, (0.1, 0.1)) + 2.5).abs()
+                < 1e-9
+        );
         // At the limit, standing: no outward torque; inward torque stays.
-        assert_eq!(limit_torque(2.0, 1.0, 0.0, lim, 10.0, 5.0, 0.1), 0.0);
-        assert_eq!(limit_torque(-2.0, 1.0, 0.0, lim, 10.0, 5.0, 0.1), -2.0);
+        assert_eq!(
+            limit_torque(2.0, 1.0, 0.0, lim, 10.0, f64::INFINITY, 5.0, (0.1, 0.1)),
+            0.0
+        );
+        assert_eq!(
+            limit_torque(-2.0, 1.0, 0.0, lim, 10.0, f64::INFINITY, 5.0, (0.1, 0.1)),
+            -2.0
+        );
         // Beyond the lower limit and still moving out: full braking upwards.
-        assert_eq!(limit_torque(-1.0, -1.1, -1.0, lim, 10.0, 5.0, 0.1), 5.0);
+        assert_eq!(
+            limit_torque(-1.0, -1.1, -1.0, lim, 10.0, f64::INFINITY, 5.0, (0.1, 0.1)),
+            5.0
+        );
+    }
+
+    #[test]
+    fn torque_fades_below_the_velocity_limit_and_brakes_above_it() {
+        let lim = (-10.0, 10.0);
+        let t = |torque: f64, v: f64| limit_torque(torque, 0.0, v, lim, 10.0, 3.0, 5.0, (0.1, 0.2));
+        // Well below the limit: untouched; the last 0.2 rad/s below it: faded.
+        assert_eq!(t(2.0, 1.0), 2.0);
+        assert!((t(2.0, 2.9) - 1.0).abs() < 1e-9);
+        assert_eq!(t(2.0, 3.0), 0.0);
+        // Against the motion: untouched (it slows the axis).
+        assert_eq!(t(-2.0, 3.0), -2.0);
+        // Over the limit: braked in proportion to the excess, or harder where commanded.
+        assert!((t(2.0, 3.1) + 2.5).abs() < 1e-9);
+        assert_eq!(t(0.0, -3.5), 5.0);
+        assert_eq!(t(-5.0, 3.1), -5.0);
+        // Just before a position limit, at rest: the outward torque fades to nothing.
+        let near = limit_torque(2.0, 9.9995, 0.0, lim, 10.0, 3.0, 5.0, (0.2, 0.2));
+        assert!(near > 0.0 && near < 2.0, "{near}");
+    }
+
+    /// Second differences of a target sequence over dt²: the acceleration of every step.
+    fn accelerations(targets: &[f64], dt: f64) -> impl Iterator<Item = f64> + '_ {
+        targets
+            .windows(3)
+            .map(move |w| ((w[2] - w[1]) - (w[1] - w[0])).abs() / (dt * dt))
+    }
+
+    #[test]
+    fn blend_follows_what_it_can_and_joins_the_rest_within_the_limits() {
+        let dt = 0.001;
+        let (vmax, amax) = (3.0, 20.0);
+        // A motion within the limits is followed exactly.
+        let (p, v) = blend(0.0, 1.0, 0.00101, 1.01, vmax, amax, dt);
+        assert_eq!(p, 0.00101);
+        assert!((v - 1.01).abs() < 1e-9);
+        // A wanted position 0.2 rad back (a stale first point) while moving at 1 rad/s: the
+        // velocity changes by at most amax·dt per cycle, the target comes to rest on the point
+        // without overshoot and stays there.
+        let (mut p, mut v) = (0.0, 1.0);
+        let mut targets = vec![-dt * 1.0, 0.0];
+        for _ in 0..2000 {
+            (p, v) = blend(p, v, -0.2, 0.0, vmax, amax, dt);
+            targets.push(p);
+        }
+        assert!((p + 0.2).abs() < 1e-12 && v == 0.0, "{p} {v}");
+        assert!(targets.iter().all(|&x| x >= -0.2 - 1e-12));
+        assert!(accelerations(&targets, dt).all(|a| a <= amax + 1e-6));
+        assert!(targets
+            .windows(2)
+            .all(|w| (w[1] - w[0]).abs() <= vmax * dt + 1e-12));
+        // Joining a trajectory running 1 rad ahead at 2 rad/s: caught up within the limits,
+        // then followed exactly.
+        let (mut p, mut v) = (0.0, 0.0);
+        let mut targets = vec![0.0, 0.0];
+        let path = |k: usize| 1.0 + 2.0 * k as f64 * dt;
+        for k in 0..3000 {
+            (p, v) = blend(p, v, path(k), 2.0, vmax, amax, dt);
+            targets.push(p);
+        }
+        assert!((p - path(2999)).abs() < 1e-9, "{p}");
+        assert!(accelerations(&targets, dt).all(|a| a <= amax + 1e-6));
+        assert!(targets
+            .windows(2)
+            .all(|w| (w[1] - w[0]).abs() <= vmax * dt + 1e-12));
+        // No acceleration limit: only the velocity limit's step.
+        assert_eq!(
+            blend(0.0, 0.0, 1.0, 0.0, vmax, f64::INFINITY, dt),
+            (vmax * dt, vmax)
+        );
     }
 }
