@@ -102,9 +102,9 @@ def _speed(velocity: Any, k: int) -> float:
     return float(np.median(velocity[max(k - 3, 0) : k + 2]))
 
 
-def _first_cycle(images: Any, m: dict[str, int], byte: str, mode: str, after: int = 0) -> int:
+def _first_cycle(images: Any, m: _native.AxisMap, byte: str, mode: str, after: int = 0) -> int:
     """The first cycle from ``after`` on whose ``byte`` (mode or mode display) shows ``mode``."""
-    values = _field(images, m[byte], "i1")
+    values = _field(images, getattr(m, byte), "i1")  # byte: "mode" or "mode_display"
     return after + int(np.flatnonzero(values[after:] == MODES[mode][0])[0])
 
 
