@@ -800,3 +800,40 @@ def stop_all(engine: Any, count: int, wait_s: float) -> None:
         if "operation_enabled" not in states:
             break
         time.sleep(0.005)
+
+
+def axis_blocker(
+    st: Mapping[str, Any],
+    mode: str = "",
+    panic: bool = False,
+    check_mode: bool = True,
+    cause: str = "",
+) -> str:
+    """Why an axis with this ``Axis.status()`` cannot follow a setpoint now ("" when it can):
+    one sentence for the diagnostics, the console and the answers to commands that were not
+    executed. ``panic``: the bus is in panic (the node knows it; the axis only sees a halt);
+    ``check_mode``: a mode not reached yet counts (not while a mode change is under way);
+    ``cause``: what stopped the axis when the node saw it (``"the command watchdog"``)."""
+    state = str(st.get("state", ""))
+    code = int(st.get("error_code", 0) or 0) or int(st.get("last_fault_code", 0) or 0)
+    if state in ("fault", "fault_reaction_active"):
+        text = f"0x{code & 0xFFFF:04X} {emergency_text(code)}" if code else "no code"
+        return f"in fault ({text}): reset_fault, then enable"
+    if panic:
+        return "the bus is in panic: clear_panic, then enable"
+    if st.get("restart_blocked"):
+        last = int(st.get("last_fault_code", 0) or 0)
+        fault = f"; last fault 0x{last & 0xFFFF:04X} {emergency_text(last)}" if last else ""
+        by = cause or "the watchdog, a panic, a lease lapse or a fault"
+        return (
+            f"restart blocked: stopped by {by} ({state}) and waiting for an explicit enable{fault}"
+        )
+    # A halt alone (the command watchdog's stop) is not reported: the next command ends it.
+    if state != "operation_enabled":
+        if cause:
+            return f"disabled by {cause} ({state}): enable it again"
+        return f"not enabled ({state}): enable it first"
+    if check_mode and not st.get("mode_reached", True):
+        shown = st.get("mode_display") or st.get("mode_display_code")
+        return f"mode {mode or '?'} not reached (the drive shows {shown})"
+    return ""

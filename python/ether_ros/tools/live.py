@@ -485,7 +485,7 @@ def axis_row(
 ) -> AxisRow:
     """A row from an ``Axis.status()`` and ``Axis.extras`` (a standalone bus)."""
     from ether_ros._native.protocol import emergency_text
-    from ether_ros.ros.bridge import axis_blocker
+    from ether_ros.master.axis import axis_blocker
 
     code = int(status["error_code"]) or int(status["last_fault_code"])
     text = f"0x{code:04X} {emergency_text(code)}" if code else ""
