@@ -185,7 +185,13 @@ impl RefuseOp {
 }
 
 /// The slave's mailbox stops answering (`on=False` ends the fault).
-#[pyclass(name = "StallMailbox", module = "ether_ros._native", frozen, eq, get_all)]
+#[pyclass(
+    name = "StallMailbox",
+    module = "ether_ros._native",
+    frozen,
+    eq,
+    get_all
+)]
 #[derive(Clone, PartialEq)]
 pub struct StallMailbox {
     pub slave: usize,
@@ -204,7 +210,11 @@ impl StallMailbox {
     }
 
     fn __repr__(&self) -> String {
-        format!("StallMailbox(slave={}, on={})", self.slave, py_bool(self.on))
+        format!(
+            "StallMailbox(slave={}, on={})",
+            self.slave,
+            py_bool(self.on)
+        )
     }
 }
 

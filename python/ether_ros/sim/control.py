@@ -142,7 +142,9 @@ def validate_fault(kind: str, args: dict[str, Any], slaves: Sequence[str]) -> Fa
     cls = FAULTS.get(kind)
     if cls is None:
         raise ControlError(f"unknown fault {kind!r} (known: {', '.join(FAULTS)})")
-    fields = {k: _slave(k, v, slaves) if k in SLAVE_ARGS else v for k, v in args.items()}
+    fields: dict[str, Any] = {
+        k: _slave(k, v, slaves) if k in SLAVE_ARGS else v for k, v in args.items()
+    }
     try:
         fault = cls(**fields)
     except (TypeError, ValueError, OverflowError) as exc:
