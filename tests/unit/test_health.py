@@ -17,6 +17,7 @@ from typing import Any
 
 import pytest
 
+from ether_ros._native import Link
 from ether_ros.config import load_bus_config
 from ether_ros.master import Bus
 from ether_ros.master.bus import StaleInputs
@@ -41,19 +42,19 @@ def brd_wkc(net: Any) -> int:
 def test_link_up_undoes_every_link_fault() -> None:
     net = build_network(load_bus_config(REPO / "config" / "laelaps.yaml"))
     assert brd_wkc(net) == 4
-    net.fault("link", up=False, at=2)  # the cable between slaves 1 and 2
+    net.inject(Link(up=False, at=2))  # the cable between slaves 1 and 2
     assert brd_wkc(net) == 2
-    net.fault("link", up=True)  # plug every cable back
+    net.inject(Link(up=True))  # plug every cable back
     assert brd_wkc(net) == 4
-    net.fault("link", up=False, at=3)
-    net.fault("link", up=False)  # the master's own cable as well
+    net.inject(Link(up=False, at=3))
+    net.inject(Link(up=False))  # the master's own cable as well
     assert brd_wkc(net) == 0
-    net.fault("link", up=True)
+    net.inject(Link(up=True))
     assert brd_wkc(net) == 4
     # `--at` alone mends only that cable.
-    net.fault("link", up=False, at=1)
-    net.fault("link", up=False, at=3)
-    net.fault("link", up=True, at=3)
+    net.inject(Link(up=False, at=1))
+    net.inject(Link(up=False, at=3))
+    net.inject(Link(up=True, at=3))
     assert brd_wkc(net) == 1
 
 
@@ -114,7 +115,7 @@ def test_read_refuses_stale_inputs_while_the_bus_is_down(bus_and_net: tuple[Bus,
     wait_for("fresh inputs", lambda: bus.inputs_fresh("hind_right_leg"))
     bus.read("hind_right_leg", "hip_angle")
     assert bus.input_age("hind_right_leg") < 1.0
-    net.fault("link", up=False)
+    net.inject(Link(up=False))
     wait_for("stale inputs", lambda: _stale(bus, "front_left_leg"))
     with pytest.raises(StaleInputs, match="slave 'hind_right_leg': inputs are stale"):
         bus.inputs("hind_right_leg")
@@ -122,7 +123,7 @@ def test_read_refuses_stale_inputs_while_the_bus_is_down(bus_and_net: tuple[Bus,
     assert not bus.inputs_fresh("hind_right_leg")
     # Outputs are what the master commands: never stale.
     bus.read("hind_right_leg", "Kp100_knee")
-    net.fault("link", up=True)
+    net.inject(Link(up=True))
     wait_for("fresh inputs again", lambda: not _stale(bus, "front_left_leg"))
     bus.stop()
 

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+from ether_ros._native import DriveFault
 from ether_ros.config import load_bus_config
 from ether_ros.config.bus import BusConfig
 from ether_ros.config.process import ProcessValueError
@@ -325,7 +326,7 @@ def test_a_trajectory_for_an_axis_out_of_operation_enabled_is_refused() -> None:
                            "a trajectory is refused; enable the axis first"):  # fmt: skip
             wrist.follow(track)
         wrist.enable()
-        net.fault("drive_fault", slave=1, error="encoder", axis=2)  # elbow_drive axis 2: wrist_1
+        net.inject(DriveFault(slave=1, error="encoder", axis=2))  # elbow_drive axis 2: wrist_1
         wait_for("the fault", lambda: wrist.status()["state"] == "fault")
         with pytest.raises(
             AxisCommandError,
@@ -377,7 +378,7 @@ def test_a_trajectory_that_stops_early_raises_its_reason(event: str) -> None:
             wrist.disable()
             reason = "joint 'wrist_1' disabled"
         elif event == "fault":
-            net.fault("drive_fault", slave=1, error="encoder", axis=2)  # elbow_drive axis 2
+            net.inject(DriveFault(slave=1, error="encoder", axis=2))  # elbow_drive axis 2
             reason = r"joint 'wrist_1' fault 0x7305 \(incremental encoder 1 fault\)"
         else:
             b.panic()

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+from ether_ros._native import Reset
 from ether_ros.config import load_bus_config
 from ether_ros.config.bus import BusConfig, PdoAssign
 from ether_ros.config.process import ProcessValueError
@@ -93,7 +94,7 @@ def test_reset_reference_clock_comes_back_in_sync() -> None:
         bus.start()
         events: list[str] = []
         bus.on_event(lambda e: events.append(f"{e.kind} {e.slave}"))
-        net.fault("reset", slave=0)  # type: ignore[attr-defined]
+        net.inject(Reset(slave=0))  # type: ignore[attr-defined]
         deadline = time.monotonic() + 10
         while "slave_recovered hind_right_leg" not in events and time.monotonic() < deadline:
             time.sleep(0.02)

@@ -13,6 +13,7 @@ from typing import Any
 
 import pytest
 
+from ether_ros._native import Reset
 from ether_ros._native.protocol import reg
 from ether_ros.config import load_bus_config
 from ether_ros.master.datagrams import Cmd, Datagram, DatagramService, fixed_address, u16, u64
@@ -176,7 +177,7 @@ def test_a_reset_reference_gets_its_loop_settings_again(manual_bus: ManualBus) -
     dc.measure(manual_bus.slaves, line(len(manual_bus.slaves)))
     reference = manual_bus.slaves[0]
     dc.configure_reference_loop(reference, 1_000_000)
-    manual_bus.net.fault("reset", slave=0)
+    manual_bus.net.inject(Reset(slave=0))
     assert manual_bus.dg.apwr(0, 0x0010, u16(reference.station)) == 1
     start, _ = manual_bus.dg.fprd(reference.station, 0x0930, 2)
     assert struct.unpack("<H", start)[0] == 0x1000  # power-on default

@@ -12,6 +12,7 @@ from typing import Any
 
 import pytest
 
+from ether_ros._native import RefuseOp, Reset, StallMailbox
 from ether_ros.config import load_bus_config
 from ether_ros.config.bus import BusConfig
 from ether_ros.errors import AlStateRefused, BusError
@@ -77,7 +78,7 @@ def test_a_slave_taken_to_preop_by_its_machine_has_its_mailbox(opened: tuple[Bus
 
 def test_a_refused_op_names_the_step_and_the_al_status_code(opened: tuple[Bus, Any]) -> None:
     bus, net = opened
-    net.fault("refuse_op", slave=2)
+    net.inject(RefuseOp(slave=2))
     with pytest.raises(SlaveStepError) as err:
         bus.start()
     e = err.value
@@ -94,7 +95,7 @@ def test_a_stalled_mailbox_fails_its_step_after_its_timeout() -> None:
     cfg = _config("arm6.yaml")
     net = _network(cfg)
     with Bus.open(cfg, link=net, drift_frames=100) as bus:
-        net.fault("stall_mailbox", slave=1)
+        net.inject(StallMailbox(slave=1))
         with pytest.raises(SlaveStepError) as err:
             bus.start()
         e = err.value
@@ -112,7 +113,7 @@ def test_a_power_cycled_slave_comes_back_while_the_others_keep_cycling(
     bus.on_event(lambda e: events.append(f"{e.kind} {e.slave}"))
     others = [s.name for s in bus.slaves if s.position != 3]
     fresh_while_away: list[bool] = []
-    net.fault("reset", slave=3)
+    net.inject(Reset(slave=3))
 
     def back() -> bool:
         fresh_while_away.append(all(bus.inputs_fresh(n) for n in others))
@@ -152,7 +153,7 @@ def test_bring_up_and_recovery_are_the_same_machine(opened: tuple[Bus, Any]) -> 
         bus.start()
         assert set(steps) == {("init", "process"), ("safeop", "so"), ("outputs", "op")}
         steps.clear()
-        net.fault("reset", slave=1)
+        net.inject(Reset(slave=1))
         wait_for("recovered", lambda: bus.slave(1).runtime.recoveries == 1, timeout=20)
         assert ("address", "op") in steps
     finally:

@@ -12,6 +12,8 @@ from typing import Any
 import pytest
 from test_ros_node_inprocess import running_node
 
+from ether_ros._native import Link
+
 # netns: the bus runs with its configuration's realtime section (SCHED_FIFO, locked memory).
 pytestmark = [pytest.mark.ros, pytest.mark.netns]
 
@@ -36,7 +38,7 @@ def test_a_bus_going_down_shows_as_stale_data_and_an_error() -> None:
             lambda latest: (m := master(latest)) and m.level != DiagnosticStatus.ERROR, timeout=20
         )
         assert inputs and not any(m.stale for m in inputs)
-        net.fault("link", up=False)  # type: ignore[attr-defined]
+        net.inject(Link(up=False))  # type: ignore[attr-defined]
         down = client.wait_for(
             lambda latest: (m := master(latest)) and m.level == DiagnosticStatus.ERROR and m,
             timeout=15,
@@ -49,7 +51,7 @@ def test_a_bus_going_down_shows_as_stale_data_and_an_error() -> None:
         client.wait_for(lambda _l: len(inputs) > stale_from + 40, timeout=20)
         assert all(m.stale for m in inputs[stale_from:])
         assert client.latest.counts.get("joint_states", 0) <= seen + 1
-        net.fault("link", up=True)  # type: ignore[attr-defined]
+        net.inject(Link(up=True))  # type: ignore[attr-defined]
         client.wait_for(lambda _l: not inputs[-1].stale, timeout=15)
         client.wait_for(lambda latest: latest.counts.get("joint_states", 0) > seen + 5, timeout=15)
         back = client.wait_for(

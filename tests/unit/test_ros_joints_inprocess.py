@@ -18,6 +18,7 @@ from sensor_msgs.msg import JointState
 from test_ros_node_inprocess import running_node
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+from ether_ros._native import DriveFault
 from ether_ros.ros.client import EtherRosClient
 from ether_ros.ros.node import QOS_COMMANDS, EtherRosNode
 from ether_ros.testing.wait import wait_for
@@ -252,7 +253,7 @@ def test_home_service_homes_and_gives_the_joint_back_in_its_mode(arm: Any) -> No
 def test_injected_fault_shows_in_diagnostics_with_its_text(arm: Any) -> None:
     node, client, net = arm
     faults = int(node._axes["wrist_1"].status()["faults"])
-    net.fault("drive_fault", slave=1, error="encoder", axis=2)  # elbow_drive axis 2: wrist_1
+    net.inject(DriveFault(slave=1, error="encoder", axis=2))  # elbow_drive axis 2: wrist_1
 
     def reported(_latest: Any) -> dict[str, str] | None:
         st = client.axis_states().get("wrist_1")

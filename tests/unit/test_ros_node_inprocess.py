@@ -17,6 +17,7 @@ import rclpy
 from rclpy.context import Context
 from rclpy.executors import MultiThreadedExecutor
 
+from ether_ros._native import Link
 from ether_ros.config import load_bus_config
 from ether_ros.ros.client import EtherRosClient
 from ether_ros.ros.node import EtherRosNode
@@ -126,7 +127,7 @@ def test_a_cable_pulled_on_a_branch_shows_in_the_diagnostics() -> None:
     )
     with running_node(9, config=BRANCHED) as (_node, client, net):
         assert client.command("start")[0]
-        net.fault("link", up=False, at=0, port=2)  # type: ignore[attr-defined]
+        net.inject(Link(up=False, at=0, port=2))  # type: ignore[attr-defined]
 
         def reported(latest: Any) -> Any:
             diag = latest.diagnostics
@@ -140,4 +141,4 @@ def test_a_cable_pulled_on_a_branch_shows_in_the_diagnostics() -> None:
 
         io_4 = client.wait_for(reported, timeout=15.0)
         assert io_4.message == message
-        net.fault("link", up=True, at=0, port=2)  # type: ignore[attr-defined]
+        net.inject(Link(up=True, at=0, port=2))  # type: ignore[attr-defined]

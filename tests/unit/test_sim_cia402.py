@@ -10,6 +10,7 @@ from typing import Any
 
 import pytest
 
+from ether_ros._native import DriveFault
 from ether_ros.config.bus import default_sim_device
 from ether_ros.config.esi import load_esi
 from ether_ros.config.from_esi import bus_config_for_esi
@@ -35,13 +36,13 @@ def test_profile_402_devices_run_the_cia402_model() -> None:
 @pytest.mark.parametrize(
     ("request_", "error"),
     [
-        ({"error": "overheat"}, r"error: unknown value 'overheat' \(known: over_current, encoder, under_voltage, following_error\)"),
-        ({"error": 3}, r"error: unknown value 3"),
-        ({"error": "encoder", "axis": 0}, r"axis: 0 is outside \[1, 8\]"),
-        ({"error": "encoder", "axis": 9}, r"axis: 9 is outside \[1, 8\]"),
-        ({"error": "encoder", "axis": 1.5}, r"axis: expected an integer"),
-        ({"axis": 1}, r"fault drive_fault: missing argument error"),
-        ({"error": "encoder", "kind2": 1}, r"unknown argument\(s\) kind2"),
+        ({"error": "overheat"}, r"fault drive_fault: DriveFault.error: \"overheat\" is not one of over_current, encoder, under_voltage, following_error"),
+        ({"error": 3}, r"fault drive_fault: .*while processing 'error'"),
+        ({"error": "encoder", "axis": 0}, r"DriveFault.axis: 0 is outside 1..=8"),
+        ({"error": "encoder", "axis": 9}, r"DriveFault.axis: 9 is outside 1..=8"),
+        ({"error": "encoder", "axis": 1.5}, r"while processing 'axis'"),
+        ({"axis": 1}, r"fault drive_fault: DriveFault.__new__\(\) missing 1 required keyword argument: 'error'"),
+        ({"error": "encoder", "kind2": 1}, r"DriveFault.__new__\(\) got an unexpected keyword argument 'kind2'"),
         ({"error": "encoder", "slave": "servo7"}, r"slave: no slave named 'servo7'"),
     ],
 )  # fmt: skip
@@ -53,11 +54,9 @@ def test_control_socket_validates_drive_fault(request_: dict[str, Any], error: s
 
 def test_control_socket_accepts_drive_fault_with_default_axis() -> None:
     req = {"op": "fault", "kind": "drive_fault", "slave": "servo1", "error": "encoder"}
-    assert validate_request(req, SLAVES) == (
-        "fault",
-        "drive_fault",
-        {"slave": 1, "error": "encoder", "axis": 1},
-    )
+    op, kind, fault = validate_request(req, SLAVES)
+    assert (op, kind, fault) == ("fault", "drive_fault", DriveFault(slave=1, error="encoder"))
+    assert fault.axis == 1  # DriveFault's default, the one place it is written
 
 
 def _parse(argv: list[str]) -> Any:
@@ -78,6 +77,10 @@ def test_sim_fault_command_line_builds_drive_fault() -> None:
         "axis": 2,
     }
     validate_request(req, SLAVES)
+    # Without --axis the request leaves it out and DriveFault's default applies.
+    req = fault_request(_parse(["drive-fault", "servo1", "encoder"]))
+    assert "axis" not in req
+    assert validate_request(req, SLAVES)[2] == DriveFault(slave=1, error="encoder", axis=1)
 
 
 @pytest.mark.parametrize(
@@ -107,14 +110,14 @@ def servo_net() -> Any:
 
 def test_native_drive_fault_errors_name_the_problem(servo_net: Any) -> None:
     with pytest.raises(ValueError, match=r"no axis 3 \(this drive has axes 1..=2\)"):
-        servo_net.fault("drive_fault", slave=0, error="encoder", axis=3)
-    with pytest.raises(ValueError, match=r"unknown drive fault 'overheat'"):
-        servo_net.fault("drive_fault", slave=0, error="overheat")
-    with pytest.raises(ValueError, match=r"needs the argument 'error'"):
-        servo_net.fault("drive_fault", slave=0)
+        servo_net.inject(DriveFault(slave=0, error="encoder", axis=3))
+    with pytest.raises(ValueError, match=r"DriveFault.error: \"overheat\" is not one of"):
+        servo_net.inject(DriveFault(slave=0, error="overheat"))
+    with pytest.raises(TypeError, match=r"missing 1 required keyword argument: 'error'"):
+        servo_net.inject(DriveFault(slave=0))  # type: ignore[call-arg]
     with pytest.raises(ValueError, match=r"no slave at position 5|slave 5"):
-        servo_net.fault("drive_fault", slave=5, error="encoder")
-    servo_net.fault("drive_fault", slave=0, error="encoder", axis=2)
+        servo_net.inject(DriveFault(slave=5, error="encoder"))
+    servo_net.inject(DriveFault(slave=0, error="encoder", axis=2))
 
 
 def test_native_drive_fault_on_a_device_without_faults() -> None:
@@ -123,7 +126,7 @@ def test_native_drive_fault_on_a_device_without_faults() -> None:
     cfg = bus_config_for_esi(REPO / "devices" / "generic_io.xml", None, 1, interface="veth-x")
     net = build_network(cfg)
     with pytest.raises(ValueError, match=r"no injectable faults \(got 'encoder'\)"):
-        net.fault("drive_fault", slave=0, error="encoder")
+        net.inject(DriveFault(slave=0, error="encoder"))
 
 
 def test_probe_reports_each_axis_in_si_units(servo_net: Any) -> None:

@@ -10,6 +10,7 @@ from typing import Any
 
 import pytest
 
+from ether_ros._native import Clear, DriftStep, Drop, Link, Reset
 from ether_ros.config import load_bus_config, parse_sii
 from ether_ros.sim.control import ControlError, ControlServer, request, validate_request
 from ether_ros.sim.spec import SERIAL_BASE, network_specs
@@ -55,17 +56,17 @@ def test_generic_io_spec_device_default() -> None:
 @pytest.mark.parametrize(
     ("req", "expected"),
     [
-        ({"op": "fault", "kind": "drop", "rate": 0.5}, ("fault", "drop", {"rate": 0.5, "burst": 1})),
-        ({"op": "fault", "kind": "reset", "slave": "front_left_leg"}, ("fault", "reset", {"slave": 2})),
-        ({"op": "fault", "kind": "reset", "slave": "3"}, ("fault", "reset", {"slave": 3})),
-        ({"op": "fault", "kind": "link", "up": False}, ("fault", "link", {"up": False})),
-        ({"op": "fault", "kind": "drift_step", "slave": 1, "ppm": -20}, ("fault", "drift_step", {"slave": 1, "ppm": -20.0})),
-        ({"op": "fault", "kind": "clear"}, ("fault", "clear", {})),
-        ({"op": "slave_info", "slave": "hind_left_leg"}, ("slave_info", "", {"slave": 1})),
-        ({"op": "stats"}, ("stats", "", {})),
+        ({"op": "fault", "kind": "drop", "rate": 0.5}, ("fault", "drop", Drop(rate=0.5, burst=1))),
+        ({"op": "fault", "kind": "reset", "slave": "front_left_leg"}, ("fault", "reset", Reset(slave=2))),
+        ({"op": "fault", "kind": "reset", "slave": "3"}, ("fault", "reset", Reset(slave=3))),
+        ({"op": "fault", "kind": "link", "up": False}, ("fault", "link", Link(up=False))),
+        ({"op": "fault", "kind": "drift_step", "slave": 1, "ppm": -20}, ("fault", "drift_step", DriftStep(slave=1, ppm=-20.0))),
+        ({"op": "fault", "kind": "clear"}, ("fault", "clear", Clear())),
+        ({"op": "slave_info", "slave": "hind_left_leg"}, ("slave_info", "", 1)),
+        ({"op": "stats"}, ("stats", "", None)),
     ],
 )  # fmt: skip
-def test_valid_requests(req: dict[str, Any], expected: tuple[str, str, dict[str, Any]]) -> None:
+def test_valid_requests(req: dict[str, Any], expected: tuple[str, str, Any]) -> None:
     assert validate_request(req, SLAVES) == expected
 
 
@@ -75,14 +76,15 @@ def test_valid_requests(req: dict[str, Any], expected: tuple[str, str, dict[str,
         ([1, 2], "JSON object"),
         ({"op": "shell", "cmd": "rm -rf /"}, "unknown op 'shell'"),
         ({"op": "fault", "kind": "explode"}, "unknown fault 'explode'"),
-        ({"op": "fault", "kind": "drop"}, "missing argument rate"),
-        ({"op": "fault", "kind": "drop", "rate": 2}, r"rate: 2.0 is outside \[0.0, 1.0\]"),
-        ({"op": "fault", "kind": "drop", "rate": "0.1"}, "rate: expected a number"),
-        ({"op": "fault", "kind": "drop", "rate": 0.1, "burst": 1.5}, "burst: expected an integer"),
-        ({"op": "fault", "kind": "drop", "rate": 0.1, "x": 1}, r"unknown argument\(s\) x"),
+        ({"op": "fault", "kind": "drop"}, r"fault drop: Drop.__new__\(\) missing 1 required keyword argument: 'rate'"),
+        ({"op": "fault", "kind": "drop", "rate": 2}, r"fault drop: Drop.rate: 2 is outside 0..=1"),
+        ({"op": "fault", "kind": "drop", "rate": "0.1"}, "while processing 'rate'"),
+        ({"op": "fault", "kind": "drop", "rate": 0.1, "burst": 1.5}, "while processing 'burst'"),
+        ({"op": "fault", "kind": "drop", "rate": True}, "rate: expected a number, got True"),
+        ({"op": "fault", "kind": "drop", "rate": 0.1, "x": 1}, r"Drop.__new__\(\) got an unexpected keyword argument 'x'"),
         ({"op": "fault", "kind": "reset", "slave": "tail"}, "no slave named 'tail'"),
         ({"op": "fault", "kind": "reset", "slave": 9}, r"no slave at position 9 \(0..3\)"),
-        ({"op": "fault", "kind": "refuse_op", "slave": 0, "on": 1}, "on: expected true or false"),
+        ({"op": "fault", "kind": "refuse_op", "slave": 0, "on": 1}, "while processing 'on'"),
         ({"op": "probe"}, "exactly one argument: slave"),
         ({"op": "stats", "all": True}, "stats takes no arguments"),
     ],
@@ -93,9 +95,9 @@ def test_invalid_requests(req: Any, pattern: str) -> None:
 
 
 def test_socket_round_trip(tmp_path: Path) -> None:
-    calls: list[tuple[str, str, dict[str, Any]]] = []
+    calls: list[tuple[str, str, Any]] = []
 
-    def handler(op: str, kind: str, args: dict[str, Any]) -> Any:
+    def handler(op: str, kind: str, args: Any) -> Any:
         calls.append((op, kind, args))
         if op == "stats":
             return {"frames": 7}
@@ -130,7 +132,7 @@ def test_socket_round_trip(tmp_path: Path) -> None:
     finally:
         server.close()
     assert not path.exists()
-    assert calls[:2] == [("stats", "", {}), ("fault", "reset", {"slave": 1})]
+    assert calls[:2] == [("stats", "", None), ("fault", "reset", Reset(slave=1))]
     with pytest.raises(ControlError, match="no simulator listening"):
         request(path, {"op": "stats"})
 
@@ -138,7 +140,8 @@ def test_socket_round_trip(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("argv", "expected"),
     [
-        (["drop", "--rate", "0.01"], {"op": "fault", "kind": "drop", "rate": 0.01, "burst": 1}),
+        (["drop", "--rate", "0.01"], {"op": "fault", "kind": "drop", "rate": 0.01}),  # Drop's burst
+        (["drop", "--rate", "0.01", "--burst", "3"], {"op": "fault", "kind": "drop", "rate": 0.01, "burst": 3}),
         (["corrupt", "--rate", "0.5", "--bytes", "2"], {"op": "fault", "kind": "corrupt", "rate": 0.5, "bytes": 2}),
         (["delay", "--us", "300"], {"op": "fault", "kind": "delay", "us": 300}),
         (["reset", "hind_left_leg"], {"op": "fault", "kind": "reset", "slave": "hind_left_leg"}),

@@ -11,7 +11,19 @@ from typing import Any
 
 import pytest
 
-from ether_ros._native import MailboxSpec, SimNetwork, SlaveSpec
+from ether_ros._native import (
+    Clear,
+    Corrupt,
+    Delay,
+    DriftStep,
+    Drop,
+    Link,
+    MailboxSpec,
+    RefuseOp,
+    Reset,
+    SimNetwork,
+    SlaveSpec,
+)
 from ether_ros._native.protocol import sii_checksum
 from ether_ros.testing.netns import VethPair, thread_in_netns
 from ether_ros.testing.wait import wait_for
@@ -155,25 +167,48 @@ def test_frames_bring_a_slave_to_op_and_exchange_process_data() -> None:
 def test_faults_and_bad_input_are_reported() -> None:
     net = SimNetwork(seed=7, manual_clock_ns=1)
     net.add_slave(spec())
-    net.fault("drop", rate=1.0, burst=2)
+    net.inject(Drop(rate=1.0, burst=2))
     assert net.process_frame(frame(BRD, 0, 0, b"\0\0")) is None
-    net.fault("clear")
+    net.inject(Clear())
     assert net.process_frame(frame(BRD, 0, 0, b"\0\0")) is not None
-    net.fault("link", up=False)
+    net.inject(Link(up=False))
     assert net.process_frame(frame(BRD, 0, 0, b"\0\0")) is None
-    net.fault("link", up=True)
-    net.fault("refuse_op", slave=0)
+    net.inject(Link(up=True))
+    net.inject(RefuseOp(slave=0))
     assert net.slave_info(0)["refuse_op"]
-    net.fault("drift_step", pos=0, ppm=25.0)  # `pos` is accepted too
+    net.inject(DriftStep(slave=0, ppm=25.0))
     assert net.slave_info(0)["dc_drift_ppm"] == 25.0
     assert net.process_frame(b"\x00" * 10) is None
     assert net.process_frame(b"\xff" * 6 + MASTER_MAC + b"\x08\x00" + b"\0" * 46) is None
-    with pytest.raises(ValueError, match="unknown fault 'explode'"):
-        net.fault("explode")
-    with pytest.raises(ValueError, match="has no argument 'speed'"):
-        net.fault("drop", rate=0.1, speed=3)
-    with pytest.raises(ValueError, match="rate 2 is not within"):
-        net.fault("drop", rate=2.0)
+    # A fault is checked when made, like the engine plan: an unknown keyword, a missing
+    # field and a value out of range are named with the type they belong to.
+    with pytest.raises(
+        TypeError, match=r"Drop.__new__\(\) got an unexpected keyword argument 'speed'"
+    ):
+        Drop(rate=0.1, speed=3)  # type: ignore[call-arg]
+    with pytest.raises(
+        TypeError, match=r"Drop.__new__\(\) missing 1 required keyword argument: 'rate'"
+    ):
+        Drop()  # type: ignore[call-arg]
+    with pytest.raises(ValueError, match=r"Drop.rate: 2 is outside 0..=1"):
+        Drop(rate=2.0)
+    with pytest.raises(ValueError, match=r"Corrupt.bytes: 0 is outside 1..=64"):
+        Corrupt(rate=0.1, bytes=0)
+    with pytest.raises(ValueError, match=r"Reset.slave: -1 is not a slave position"):
+        Reset(slave=-1)
+    with pytest.raises(ValueError, match=r"Link.port: needs 'at'"):
+        Link(up=False, port=2)
+    with pytest.raises(TypeError, match="positional"):
+        Delay(3000)  # type: ignore[misc]
+    # Each default is the constructor's; a fault is a value (equal when its fields are).
+    assert (Drop(rate=0.5).burst, Drop(rate=0.5).outbound, Corrupt(rate=0.5).bytes) == (1, False, 1)
+    assert RefuseOp(slave=0) == RefuseOp(slave=0, on=True) != RefuseOp(slave=0, on=False)
+    assert repr(Link(up=False, at=2)) == "Link(up=False, at=2, port=None)"
+    # What only the network knows is checked when the fault is injected.
+    with pytest.raises(IndexError, match="no slave at position 4"):
+        net.inject(Reset(slave=4))
+    with pytest.raises(TypeError, match=r"inject\(\) takes a fault \(Drop, .*\), not str"):
+        net.inject("drop")  # type: ignore[arg-type]
     with pytest.raises(IndexError, match="no slave at position 3"):
         net.slave_info(3)
     # A slave spec is checked when made: a wrong type, an unknown or a missing field is
@@ -250,7 +285,7 @@ def test_delayed_answers_keep_their_order_over_veth(veth: VethPair) -> None:
     try:
         sock.bind((veth.master, 0x88A4))
         sock.settimeout(2.0)
-        net.fault("delay", us=3000)
+        net.inject(Delay(us=3000))
         sent = time.monotonic()
         for i in range(20):
             sock.send(frame(BWR, 0, 0x0200, struct.pack("<H", i)))

@@ -8,11 +8,13 @@ mod contracts;
 mod engine_bindings;
 mod protocol_bindings;
 mod sim_bindings;
+mod sim_faults;
 
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     sim_bindings::register(m)?;
+    sim_faults::register(m)?;
     engine_bindings::register(m)?;
     contracts::register(m)?;
     command_bindings::register(m)?;

@@ -53,6 +53,8 @@ use ether_ros_sim::runner::{Runner, RunnerOptions, Timing};
 use ether_ros_sim::soe::IdnSpec;
 use ether_ros_sim::{MailboxSpec, Network, SlaveSpec};
 
+use crate::sim_faults::Fault;
+
 /// Most firmware worker threads `run_on_interface` starts.
 const MAX_FIRMWARE_THREADS: usize = 64;
 
@@ -373,26 +375,6 @@ fn slave(net: &Network, pos: usize) -> PyResult<PiGuard<'_, Esc>> {
     })
 }
 
-fn kw<'py, T>(kwargs: Option<&Bound<'py, PyDict>>, key: &str, kind: &str) -> PyResult<Option<T>>
-where
-    T: for<'a> FromPyObject<'a, 'py>,
-{
-    let Some(d) = kwargs else { return Ok(None) };
-    match d.get_item(key)? {
-        None => Ok(None),
-        Some(v) if v.is_none() => Ok(None),
-        Some(v) => v.extract::<T>().map(Some).map_err(|_| {
-            PyValueError::new_err(format!(
-                "fault '{kind}': argument '{key}' has the wrong type"
-            ))
-        }),
-    }
-}
-
-fn need<T>(v: Option<T>, kind: &str, key: &str) -> PyResult<T> {
-    v.ok_or_else(|| PyValueError::new_err(format!("fault '{kind}' needs the argument '{key}'")))
-}
-
 #[pymethods]
 impl SimNetwork {
     /// `SimNetwork(seed=1, manual_clock_ns=None)`: with `manual_clock_ns` time stands still
@@ -518,148 +500,60 @@ impl SimNetwork {
         self.runner.as_ref().is_some_and(|r| r.is_running())
     }
 
-    /// Inject a fault: drop(rate, burst=1, outbound=False), corrupt(rate, bytes=1), delay(us), reset(slave),
-    /// refuse_op(slave, on=True), link(up, at=None, port=None), drift_step(slave, ppm),
-    /// stall_mailbox(slave, on=True), drive_fault(slave, error, axis=1) (a CiA 402 drive fault:
-    /// over_current, encoder, under_voltage, following_error), seed(seed), clear().
-    /// `slave`/`at` are positions;
-    /// `pos` and `enable` are accepted as other names for `slave`/`at` and `on`.
-    #[pyo3(signature = (kind, **kwargs))]
-    fn fault<'py>(
-        &self,
-        py: Python<'py>,
-        kind: &str,
-        kwargs: Option<&Bound<'py, PyDict>>,
-    ) -> PyResult<()> {
-        let allowed: &[&str] = match kind {
-            "drop" => &["rate", "burst", "outbound"],
-            "corrupt" => &["rate", "bytes"],
-            "delay" => &["us"],
-            "reset" => &["slave"],
-            "refuse_op" | "stall_mailbox" => &["slave", "on"],
-            "link" => &["up", "at", "port"],
-            "drift_step" => &["slave", "ppm"],
-            "drive_fault" => &["slave", "error", "axis"],
-            "seed" => &["seed"],
-            "clear" => &[],
-            other => {
-                return Err(PyValueError::new_err(format!(
-                    "unknown fault '{other}' (drop, corrupt, delay, reset, refuse_op, link, \
-                     drift_step, stall_mailbox, drive_fault, seed, clear)"
-                )))
-            }
-        };
-        // Normalise the alternative argument names.
-        let args = PyDict::new(py);
-        if let Some(d) = kwargs {
-            for (k, v) in d.iter() {
-                let k: String = k.extract()?;
-                let canonical = match (k.as_str(), kind) {
-                    ("pos", "link") => "at",
-                    ("pos", _) => "slave",
-                    ("enable", _) => "on",
-                    (other, _) => other,
-                };
-                if !allowed.contains(&canonical) {
-                    return Err(PyValueError::new_err(format!(
-                        "fault '{kind}' has no argument '{k}' (expected: {})",
-                        if allowed.is_empty() {
-                            "none".to_string()
-                        } else {
-                            allowed.join(", ")
-                        }
-                    )));
-                }
-                args.set_item(canonical, v)?;
-            }
-        }
-        let kwargs = Some(&args);
+    /// Inject a fault: one of the fault types of `sim_faults.rs` (`Drop(rate=0.01)`,
+    /// `Reset(slave=2)`, `Link(up=False, at=3)`, `Clear()`, ...), each checked when it was made;
+    /// here only what needs the network (is there a slave at that position, a drive) is checked.
+    fn inject(&self, fault: &Bound<'_, PyAny>) -> PyResult<()> {
+        let fault = Fault::of(fault)?;
         let mut net = self.lock()?;
-        match kind {
-            "drop" => {
-                let rate: f64 = need(kw(kwargs, "rate", kind)?, kind, "rate")?;
-                if !(0.0..=1.0).contains(&rate) {
-                    return Err(PyValueError::new_err(format!(
-                        "fault 'drop': rate {rate} is not within 0..1"
-                    )));
-                }
-                net.faults.drop_rate = rate;
-                net.faults.drop_burst = kw::<u32>(kwargs, "burst", kind)?.unwrap_or(1).max(1);
-                net.faults.drop_outbound = kw::<bool>(kwargs, "outbound", kind)?.unwrap_or(false);
+        match fault {
+            Fault::Drop(f) => {
+                net.faults.drop_rate = f.rate;
+                net.faults.drop_burst = f.burst;
+                net.faults.drop_outbound = f.outbound;
             }
-            "corrupt" => {
-                let rate: f64 = need(kw(kwargs, "rate", kind)?, kind, "rate")?;
-                if !(0.0..=1.0).contains(&rate) {
-                    return Err(PyValueError::new_err(format!(
-                        "fault 'corrupt': rate {rate} is not within 0..1"
-                    )));
-                }
-                net.faults.corrupt_rate = rate;
-                net.faults.corrupt_bytes = kw::<u32>(kwargs, "bytes", kind)?.unwrap_or(1).max(1);
+            Fault::Corrupt(f) => {
+                net.faults.corrupt_rate = f.rate;
+                net.faults.corrupt_bytes = f.bytes;
             }
-            "delay" => net.faults.delay_us = need(kw(kwargs, "us", kind)?, kind, "us")?,
-            "reset" => {
-                let pos: usize = need(kw(kwargs, "slave", kind)?, kind, "slave")?;
-                drop(slave(&net, pos)?);
-                net.reset_slave(pos);
+            Fault::Delay(f) => net.faults.delay_us = f.us,
+            Fault::Reset(f) => {
+                drop(slave(&net, f.slave)?);
+                net.reset_slave(f.slave);
             }
-            "refuse_op" | "stall_mailbox" => {
-                let pos: usize = need(kw(kwargs, "slave", kind)?, kind, "slave")?;
-                let enable = kw::<bool>(kwargs, "on", kind)?.unwrap_or(true);
-                let mut s = slave(&net, pos)?;
-                if kind == "refuse_op" {
-                    s.refuse_op = enable;
-                } else {
-                    s.mailbox_stalled = enable;
-                }
-            }
-            "link" => {
+            Fault::RefuseOp(f) => slave(&net, f.slave)?.refuse_op = f.on,
+            Fault::StallMailbox(f) => slave(&net, f.slave)?.mailbox_stalled = f.on,
+            Fault::Link(f) => match f.at {
+                // Without `at`: the master's own link. `up` plugs every cable back in, the
+                // cuts inside the bus too (`link --at 2 down` is undone by `link up`).
+                None if f.up => net.mend_all_links(),
+                None => net.faults.link_down = true,
                 // `at` alone: the link into that slave's port 0 (in a line, the one between
                 // `at - 1` and `at`); with `port`: the link on that port of `at`.
-                let up: bool = need(kw(kwargs, "up", kind)?, kind, "up")?;
-                let port = kw::<u8>(kwargs, "port", kind)?;
-                match kw::<usize>(kwargs, "at", kind)? {
-                    None if port.is_some() => {
-                        return Err(PyValueError::new_err(
-                            "fault 'link': 'port' needs 'at' (the slave whose port it is)",
-                        ))
-                    }
-                    // Without `at`: the master's own link. `up` plugs every cable back in,
-                    // the cuts inside the bus too (`link --at 2 down` is undone by `link up`).
-                    None if up => net.mend_all_links(),
-                    None => net.faults.link_down = true,
-                    Some(pos) => {
-                        let name = slave(&net, pos)?.spec.name.clone();
-                        let target = match port {
-                            None | Some(0) => pos,
-                            Some(p) => net.slave_on_port(pos, p).ok_or_else(|| {
-                                PyValueError::new_err(format!(
-                                    "fault 'link': nothing is connected to port {p} of slave \
-                                     {pos} ('{name}')"
-                                ))
-                            })?,
-                        };
-                        net.set_link_cut(target, !up);
-                    }
+                Some(pos) => {
+                    let name = slave(&net, pos)?.spec.name.clone();
+                    let target = match f.port {
+                        None | Some(0) => pos,
+                        Some(p) => net.slave_on_port(pos, p).ok_or_else(|| {
+                            PyValueError::new_err(format!(
+                                "Link: nothing is connected to port {p} of slave {pos} ('{name}')"
+                            ))
+                        })?,
+                    };
+                    net.set_link_cut(target, !f.up);
                 }
-            }
-            "drift_step" => {
-                let pos: usize = need(kw(kwargs, "slave", kind)?, kind, "slave")?;
-                let ppm: f64 = need(kw(kwargs, "ppm", kind)?, kind, "ppm")?;
+            },
+            Fault::DriftStep(f) => {
                 let now = net.now();
-                let mut s = slave(&net, pos)?;
+                let mut s = slave(&net, f.slave)?;
                 let d = s.dc.drift_ppm();
-                s.dc.set_drift(now, d + ppm);
+                s.dc.set_drift(now, d + f.ppm);
             }
-            "drive_fault" => {
-                let pos: usize = need(kw(kwargs, "slave", kind)?, kind, "slave")?;
-                let error: String = need(kw(kwargs, "error", kind)?, kind, "error")?;
-                let axis = kw::<usize>(kwargs, "axis", kind)?.unwrap_or(1);
-                net.inject_device_fault(pos, &error, axis)
-                    .map_err(PyValueError::new_err)?;
-            }
-            "seed" => net.rng = Rng::new(need(kw(kwargs, "seed", kind)?, kind, "seed")?),
-            "clear" => {
+            Fault::DriveFault(f) => net
+                .inject_device_fault(f.slave, &f.error, f.axis)
+                .map_err(PyValueError::new_err)?,
+            Fault::Seed(f) => net.rng = Rng::new(f.seed),
+            Fault::Clear => {
                 net.faults = Default::default();
                 for cell in net.cells() {
                     let mut s = lock(cell);
@@ -668,7 +562,6 @@ impl SimNetwork {
                 }
                 net.update_topology();
             }
-            _ => unreachable!("checked above"),
         }
         Ok(())
     }

@@ -1,5 +1,5 @@
 """Type stub of the Rust extension ``ether_ros._native`` (crates/py). Keep in step with
-``crates/py/src/sim_bindings.rs``, ``engine_bindings.rs``, ``contracts.rs`` and
+``crates/py/src/sim_bindings.rs``, ``sim_faults.rs``, ``engine_bindings.rs``, ``contracts.rs`` and
 ``command_bindings.rs``; the
 ``protocol`` submodule's stub is ``protocol.pyi`` beside this file.
 
@@ -8,7 +8,7 @@ which Python's import takes before a folder without ``__init__.py``.)"""
 
 from collections.abc import Mapping, Sequence
 from types import TracebackType
-from typing import Any, Self, final
+from typing import Any, ClassVar, Self, final
 
 from ether_ros._native import protocol as protocol
 from ether_ros.errors import EngineError as EngineError
@@ -20,23 +20,34 @@ __all__ = [
     "SAMPLE_RECORD_LEN",
     "AxisMap",
     "AxisPlan",
+    "Clear",
     "CommandReceiver",
     "CommandTable",
+    "Corrupt",
     "DcDatagram",
     "DcSettings",
+    "Delay",
+    "DriftStep",
+    "DriveFault",
+    "Drop",
     "Engine",
     "EngineError",
     "EngineTimeout",
     "Frame",
     "JointTable",
     "LeaseGate",
+    "Link",
     "LogicalDatagram",
     "MailboxSpec",
     "PanicKeys",
     "Plan",
+    "RefuseOp",
+    "Reset",
     "RtSettings",
+    "Seed",
     "SimNetwork",
     "SlaveSpec",
+    "StallMailbox",
     "__version__",
     "check_command_message",
     "protocol",
@@ -364,6 +375,117 @@ class SlaveSpec:
     @property
     def loopback_links(self) -> list[tuple[int, int, int, int]]: ...
 
+# ----- the simulator's faults (crates/py/src/sim_faults.rs): typed contracts like the plan's,
+# each default in its constructor; `SimNetwork.inject(fault)` takes them. `slave`/`at` are
+# positions.
+
+@final
+class Drop:
+    def __eq__(self, value: object, /) -> bool: ...
+    __hash__: ClassVar[None]  # type: ignore[assignment]
+    def __new__(cls, *, rate: float, burst: int = 1, outbound: bool = False) -> Self: ...
+    @property
+    def rate(self) -> float: ...
+    @property
+    def burst(self) -> int: ...
+    @property
+    def outbound(self) -> bool: ...
+
+@final
+class Corrupt:
+    def __eq__(self, value: object, /) -> bool: ...
+    __hash__: ClassVar[None]  # type: ignore[assignment]
+    def __new__(cls, *, rate: float, bytes: int = 1) -> Self: ...
+    @property
+    def rate(self) -> float: ...
+    @property
+    def bytes(self) -> int: ...
+
+@final
+class Delay:
+    def __eq__(self, value: object, /) -> bool: ...
+    __hash__: ClassVar[None]  # type: ignore[assignment]
+    def __new__(cls, *, us: int) -> Self: ...
+    @property
+    def us(self) -> int: ...
+
+@final
+class Reset:
+    def __eq__(self, value: object, /) -> bool: ...
+    __hash__: ClassVar[None]  # type: ignore[assignment]
+    def __new__(cls, *, slave: int) -> Self: ...
+    @property
+    def slave(self) -> int: ...
+
+@final
+class RefuseOp:
+    def __eq__(self, value: object, /) -> bool: ...
+    __hash__: ClassVar[None]  # type: ignore[assignment]
+    def __new__(cls, *, slave: int, on: bool = True) -> Self: ...
+    @property
+    def slave(self) -> int: ...
+    @property
+    def on(self) -> bool: ...
+
+@final
+class StallMailbox:
+    def __eq__(self, value: object, /) -> bool: ...
+    __hash__: ClassVar[None]  # type: ignore[assignment]
+    def __new__(cls, *, slave: int, on: bool = True) -> Self: ...
+    @property
+    def slave(self) -> int: ...
+    @property
+    def on(self) -> bool: ...
+
+@final
+class Link:
+    def __eq__(self, value: object, /) -> bool: ...
+    __hash__: ClassVar[None]  # type: ignore[assignment]
+    def __new__(cls, *, up: bool, at: int | None = None, port: int | None = None) -> Self: ...
+    @property
+    def up(self) -> bool: ...
+    @property
+    def at(self) -> int | None: ...
+    @property
+    def port(self) -> int | None: ...
+
+@final
+class DriftStep:
+    def __eq__(self, value: object, /) -> bool: ...
+    __hash__: ClassVar[None]  # type: ignore[assignment]
+    def __new__(cls, *, slave: int, ppm: float) -> Self: ...
+    @property
+    def slave(self) -> int: ...
+    @property
+    def ppm(self) -> float: ...
+
+@final
+class DriveFault:
+    def __eq__(self, value: object, /) -> bool: ...
+    __hash__: ClassVar[None]  # type: ignore[assignment]
+    ERRORS: ClassVar[list[str]]
+    def __new__(cls, *, slave: int, error: str, axis: int = 1) -> Self: ...
+    @property
+    def slave(self) -> int: ...
+    @property
+    def error(self) -> str: ...
+    @property
+    def axis(self) -> int: ...
+
+@final
+class Seed:
+    def __eq__(self, value: object, /) -> bool: ...
+    __hash__: ClassVar[None]  # type: ignore[assignment]
+    def __new__(cls, *, seed: int) -> Self: ...
+    @property
+    def seed(self) -> int: ...
+
+@final
+class Clear:
+    def __eq__(self, value: object, /) -> bool: ...
+    __hash__: ClassVar[None]  # type: ignore[assignment]
+    def __new__(cls) -> Self: ...
+
 @final
 class SimNetwork:
     """A line of virtual EtherCAT slave controllers (see docs/simulator.md)."""
@@ -380,7 +502,20 @@ class SimNetwork:
     def stop(self) -> None: ...
     @property
     def running(self) -> bool: ...
-    def fault(self, kind: str, **kwargs: Any) -> None: ...
+    def inject(
+        self,
+        fault: Drop
+        | Corrupt
+        | Delay
+        | Reset
+        | RefuseOp
+        | StallMailbox
+        | Link
+        | DriftStep
+        | DriveFault
+        | Seed
+        | Clear,
+    ) -> None: ...
     def slave_info(self, pos: int) -> dict[str, Any]: ...
     def probe(self, pos: int) -> dict[str, float]: ...
     def od_read(self, pos: int, index: int, subindex: int) -> bytes: ...

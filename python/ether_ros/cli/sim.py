@@ -129,10 +129,10 @@ def register(subparsers: Any) -> None:
     kinds = f.add_subparsers(dest="fault", metavar="FAULT", required=True)
     k = _fault_parser(kinds, "drop")
     k.add_argument("--rate", type=float, required=True)
-    k.add_argument("--burst", type=int, default=1)
+    k.add_argument("--burst", type=int, help="frames dropped per burst (default: Drop's)")
     k = _fault_parser(kinds, "corrupt")
     k.add_argument("--rate", type=float, required=True)
-    k.add_argument("--bytes", type=int, default=1)
+    k.add_argument("--bytes", type=int, help="bytes flipped per frame (default: Corrupt's)")
     k = _fault_parser(kinds, "delay")
     k.add_argument("--us", type=int, required=True)
     for name in ("reset", "refuse-op", "stall-mailbox", "slave-info", "probe"):
@@ -156,7 +156,9 @@ def register(subparsers: Any) -> None:
     k.add_argument("slave", help="slave name or position")
     k.add_argument("error", type=_drive_fault, help="over_current, encoder, under_voltage or"
                    " following_error")  # fmt: skip
-    k.add_argument("--axis", type=_axis, default=1, help="axis 1..8 of the drive (default 1)")
+    k.add_argument(
+        "--axis", type=_axis, help="axis 1..8 of the drive (default: DriveFault's, the first)"
+    )
     _fault_parser(kinds, "clear")
     _fault_parser(kinds, "stats")
     f.set_defaults(func=run_fault)
@@ -316,6 +318,7 @@ def fault_request(args: argparse.Namespace) -> dict[str, Any]:
         return {"op": name.replace("-", "_"), "slave": args.slave}
     kind = name.replace("-", "_")
     req: dict[str, Any] = {"op": "fault", "kind": kind}
+    # An option left out is left out of the request: the fault type holds its default.
     if name == "drop":
         req.update(rate=args.rate, burst=args.burst)
     elif name == "corrupt":
@@ -336,7 +339,7 @@ def fault_request(args: argparse.Namespace) -> dict[str, Any]:
         req.update(slave=args.slave, ppm=args.ppm)
     elif name == "drive-fault":
         req.update(slave=args.slave, error=args.error, axis=args.axis)
-    return req
+    return {k: v for k, v in req.items() if v is not None}
 
 
 def run_fault(args: argparse.Namespace) -> int:

@@ -13,9 +13,10 @@ JSON object per line back::
     {"op": "probe", "slave": 0}                                  -> {"ok": true, "result": {...}}
     anything wrong                                               -> {"ok": false, "error": "..."}
 
-Every request is validated against the tables below (operation, fault kind, argument names,
-types and ranges, slave names) before it reaches the simulator; nothing is ever evaluated or
-passed to a shell.
+Every request is validated before it reaches the simulator: the operation and the fault kind
+against the tables below, slave names against the bus, and the fault's arguments (names,
+types, ranges, defaults) by the fault type it becomes (``ether_ros._native.Drop``, ...,
+crates/py/src/sim_faults.rs); nothing is ever evaluated or passed to a shell.
 """
 
 from __future__ import annotations
@@ -26,12 +27,39 @@ import os
 import socket
 import threading
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from ether_ros._native import (
+    Clear,
+    Corrupt,
+    Delay,
+    DriftStep,
+    DriveFault,
+    Drop,
+    Link,
+    RefuseOp,
+    Reset,
+    Seed,
+    StallMailbox,
+)
 from ether_ros._native.protocol import cia402
 from ether_ros.errors import EtherRosError
+
+# Any fault `SimNetwork.inject` takes.
+Fault = (
+    Drop
+    | Corrupt
+    | Delay
+    | Reset
+    | RefuseOp
+    | Link
+    | DriftStep
+    | StallMailbox
+    | DriveFault
+    | Seed
+    | Clear
+)
 
 RUN_DIR = Path("/run/ether_ros")
 MAX_REQUEST = 4096
@@ -66,108 +94,76 @@ class InterfaceLock:
             self._claim = None
 
 
-REQUIRED = object()  # an argument without default
-OMIT = object()  # an optional argument passed on only when given
-
-
-@dataclass(frozen=True)
-class Arg:
-    kind: type  # int, float or bool (or str for a slave: name or position → position)
-    lo: float | None = None
-    hi: float | None = None
-    default: Any = REQUIRED
-    choices: tuple[str, ...] = ()  # a name out of these (instead of a slave)
-
-
+# Fault kinds by the name a request gives (`"kind"`), and the types that carry them. Each
+# type's constructor (crates/py/src/sim_faults.rs) holds its defaults and range checks, the one
+# place they live: a request is turned into one of these and refused with its message.
+FAULTS: dict[str, type[Fault]] = {
+    "drop": Drop,
+    "corrupt": Corrupt,
+    "delay": Delay,
+    "reset": Reset,
+    "refuse_op": RefuseOp,
+    "link": Link,
+    "drift_step": DriftStep,
+    "stall_mailbox": StallMailbox,
+    "drive_fault": DriveFault,
+    "seed": Seed,
+    "clear": Clear,
+}
+# Arguments that name a slave: a request gives a name or a position, the type a position.
+SLAVE_ARGS = frozenset({"slave", "at"})
 # Faults of a CiA 402 drive (the simulator's `cia402` model), by the name `drive_fault` takes.
-DRIVE_FAULTS = ("over_current", "encoder", "under_voltage", "following_error")
+DRIVE_FAULTS: tuple[str, ...] = tuple(DriveFault.ERRORS)
 # Axes of one drive (ETG.6010, the protocol crate's limit); the model checks its own count.
 MAX_AXES = cia402.MAX_AXES
-
-
-# Fault kinds and their arguments: the names passed on to SimNetwork.fault(kind, **args).
-FAULTS: dict[str, dict[str, Arg]] = {
-    "drop": {"rate": Arg(float, 0.0, 1.0), "burst": Arg(int, 1, 1_000_000, 1)},
-    "corrupt": {"rate": Arg(float, 0.0, 1.0), "bytes": Arg(int, 1, 64, 1)},
-    "delay": {"us": Arg(int, 0, 1_000_000)},
-    "reset": {"slave": Arg(str)},
-    "refuse_op": {"slave": Arg(str), "on": Arg(bool, default=True)},
-    "link": {"up": Arg(bool), "at": Arg(str, default=OMIT), "port": Arg(int, 0, 3, default=OMIT)},
-    "drift_step": {"slave": Arg(str), "ppm": Arg(float, -1000.0, 1000.0)},
-    "stall_mailbox": {"slave": Arg(str), "on": Arg(bool, default=True)},
-    "drive_fault": {
-        "slave": Arg(str),
-        "error": Arg(str, choices=DRIVE_FAULTS),
-        "axis": Arg(int, 1, MAX_AXES, 1),
-    },
-    "seed": {"seed": Arg(int, 0, 2**63 - 1)},
-    "clear": {},
-}
 QUERIES = ("stats", "slave_info", "probe")
 
 
-def _check_value(name: str, spec: Arg, value: Any, slaves: Sequence[str]) -> Any:
-    if spec.choices:
-        if not isinstance(value, str) or value not in spec.choices:
-            raise ControlError(
-                f"{name}: unknown value {value!r} (known: {', '.join(spec.choices)})"
-            )
-        return value
-    if spec.kind is str:  # a slave: name or position
-        if isinstance(value, bool):
-            raise ControlError(f"{name}: expected a slave name or position, got {value!r}")
-        if isinstance(value, int):
-            if not 0 <= value < len(slaves):
-                raise ControlError(f"{name}: no slave at position {value} (0..{len(slaves) - 1})")
-            return value
-        if isinstance(value, str):
-            if value.isascii() and value.isdigit():
-                return _check_value(name, spec, int(value), slaves)
-            if value in slaves:
-                return slaves.index(value)
-            raise ControlError(f"{name}: no slave named {value!r} (slaves: {', '.join(slaves)})")
+def _slave(name: str, value: Any, slaves: Sequence[str]) -> int:
+    """The position of the slave that ``value`` (a name or a position) names."""
+    if isinstance(value, bool):
         raise ControlError(f"{name}: expected a slave name or position, got {value!r}")
-    if spec.kind is bool:
-        if not isinstance(value, bool):
-            raise ControlError(f"{name}: expected true or false, got {value!r}")
+    if isinstance(value, int):
+        if not 0 <= value < len(slaves):
+            raise ControlError(f"{name}: no slave at position {value} (0..{len(slaves) - 1})")
         return value
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ControlError(f"{name}: expected a number, got {value!r}")
-    if spec.kind is int:
-        if isinstance(value, float) and not value.is_integer():
-            raise ControlError(f"{name}: expected an integer, got {value!r}")
-        value = int(value)
-    else:
-        value = float(value)
-    if (spec.lo is not None and value < spec.lo) or (spec.hi is not None and value > spec.hi):
-        raise ControlError(f"{name}: {value} is outside [{spec.lo}, {spec.hi}]")
-    return value
+    if isinstance(value, str):
+        if value.isascii() and value.isdigit():
+            return _slave(name, int(value), slaves)
+        if value in slaves:
+            return slaves.index(value)
+        raise ControlError(f"{name}: no slave named {value!r} (slaves: {', '.join(slaves)})")
+    raise ControlError(f"{name}: expected a slave name or position, got {value!r}")
 
 
-def validate_fault(kind: str, args: dict[str, Any], slaves: Sequence[str]) -> dict[str, Any]:
-    """Checked keyword arguments for ``SimNetwork.fault(kind, **result)``."""
-    table = FAULTS.get(kind)
-    if table is None:
+def validate_fault(kind: str, args: dict[str, Any], slaves: Sequence[str]) -> Fault:
+    """The fault a request names, for ``SimNetwork.inject``; :class:`ControlError` naming the
+    unknown, missing or wrong argument otherwise."""
+    cls = FAULTS.get(kind)
+    if cls is None:
         raise ControlError(f"unknown fault {kind!r} (known: {', '.join(FAULTS)})")
-    unknown = set(args) - set(table)
-    if unknown:
+    fields: dict[str, Any] = {
+        k: _slave(k, v, slaves) if k in SLAVE_ARGS else v for k, v in args.items()
+    }
+    try:
+        fault = cls(**fields)
+    except (TypeError, ValueError, OverflowError) as exc:
+        # A wrong type is named in the exception's notes ("while processing 'rate'"), which a
+        # reply line would lose otherwise.
+        notes = getattr(exc, "__notes__", [])
         raise ControlError(
-            f"fault {kind}: unknown argument(s) {', '.join(sorted(unknown))}"
-            f" (takes: {', '.join(table) or 'nothing'})"
-        )
-    out: dict[str, Any] = {}
-    for name, spec in table.items():
-        if name in args:
-            out[name] = _check_value(name, spec, args[name], slaves)
-        elif spec.default is REQUIRED:
-            raise ControlError(f"fault {kind}: missing argument {name}")
-        elif spec.default is not OMIT:
-            out[name] = spec.default
-    return out
+            f"fault {kind}: {exc}" + (f" ({'; '.join(notes)})" if notes else "")
+        ) from None
+    # JSON true/false are Python bools, which are ints too: a number field must not take one.
+    for name, value in fields.items():
+        if isinstance(value, bool) and not isinstance(getattr(fault, name), bool):
+            raise ControlError(f"fault {kind}: {name}: expected a number, got {value!r}")
+    return fault
 
 
-def validate_request(request: Any, slaves: Sequence[str]) -> tuple[str, str, dict[str, Any]]:
-    """``(op, kind, args)`` of a decoded JSON request, or :class:`ControlError`."""
+def validate_request(request: Any, slaves: Sequence[str]) -> tuple[str, str, Any]:
+    """``(op, kind, arg)`` of a decoded JSON request, or :class:`ControlError`: for a fault the
+    :data:`Fault` to inject, for a query of one slave its position, for ``stats`` None."""
     if not isinstance(request, dict):
         raise ControlError("a request is a JSON object")
     op = request.get("op")
@@ -180,19 +176,19 @@ def validate_request(request: Any, slaves: Sequence[str]) -> tuple[str, str, dic
     if op == "stats":
         if rest:
             raise ControlError("stats takes no arguments")
-        return op, "", {}
+        return op, "", None
     if op in ("slave_info", "probe"):
         if set(rest) != {"slave"}:
             raise ControlError(f"{op} takes exactly one argument: slave")
-        return op, "", {"slave": _check_value("slave", Arg(str), rest["slave"], slaves)}
+        return op, "", _slave("slave", rest["slave"], slaves)
     raise ControlError(f"unknown op {op!r} (known: fault, {', '.join(QUERIES)})")
 
 
-Handler = Callable[[str, str, dict[str, Any]], Any]
+Handler = Callable[[str, str, Any], Any]
 
 
 class ControlServer:
-    """Serves the control socket on a background thread; ``handler(op, kind, args)`` does the
+    """Serves the control socket on a background thread; ``handler(op, kind, arg)`` does the
     work for validated requests and returns a JSON-serialisable result."""
 
     def __init__(self, path: Path, slaves: Sequence[str], handler: Handler) -> None:

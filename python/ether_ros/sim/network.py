@@ -39,15 +39,16 @@ def _plain(value: Any) -> Any:
     return value
 
 
-def handle_request(net: Any, op: str, kind: str, args: dict[str, Any]) -> Any:
-    """Carry out a validated control request (see :mod:`ether_ros.sim.control`)."""
+def handle_request(net: Any, op: str, kind: str, arg: Any) -> Any:
+    """Carry out a validated control request (see :mod:`ether_ros.sim.control`): ``arg`` is
+    the fault to inject or the position of the slave a query asks about."""
     if op == "fault":
-        net.fault(kind, **args)
+        net.inject(arg)
         return None
     if op == "stats":
         return _plain(net.stats())
     if op == "slave_info":
-        return _plain(net.slave_info(args["slave"]))
+        return _plain(net.slave_info(arg))
     if op == "probe":
-        return _plain(net.probe(args["slave"]))
+        return _plain(net.probe(arg))
     raise ValueError(f"unknown op {op!r}")
