@@ -113,6 +113,8 @@ class Console:
         # the values just sent, not against a snapshot from before them.
         self._sent: dict[tuple[str, str], tuple[float, float]] = {}
         self._axes: dict[str, JointLimits] | None = None  # from the node's parameters, once
+        # joint → (CiA 402 state, when) as answered to this console's own axis commands.
+        self._answered: dict[str, tuple[str, float]] = {}
         # Set to stop the running command at its next interruption point.
         self.cancel = threading.Event()
         self._reason = ""
@@ -290,9 +292,11 @@ class Console:
         elif isinstance(command, Wait):
             self._wait(command.seconds)
         elif isinstance(command, AxisOp):
-            ok, message, _ = self.client.axis_command(command.command, list(command.joints))
+            ok, message, states = self.client.axis_command(command.command, list(command.joints))
+            self._note_answered(states)
         elif isinstance(command, SetMode):
-            ok, message, _ = self.client.set_mode(command.mode, list(command.joints))
+            ok, message, states = self.client.set_mode(command.mode, list(command.joints))
+            self._note_answered(states)
         elif isinstance(command, Move):
             ok, message = self._move(command)
         elif isinstance(command, LeaseOp):
@@ -344,11 +348,29 @@ class Console:
             message = f"not executed: {message}"
         return bool(result.success), message
 
+    def _note_answered(self, states: dict[str, str]) -> None:
+        """The CiA 402 states the node answered to this console's own axis command: newer
+        than the diagnostics until their next report (a `disable` then `move` must not be
+        answered from a report made before the disable)."""
+        now = time.monotonic()
+        for joint, state in states.items():
+            self._answered[joint] = (state, now)
+
     def _axis_blocked(self, joint: str) -> str:
-        """Why the joint cannot move, as the node's diagnostics last said (a fresh report
-        only; "" when it can, or when nothing fresh says otherwise)."""
+        """Why the joint cannot move, as the node last said: the answer to this console's own
+        axis command when it is newer than the diagnostics' last report, else that report (a
+        fresh one only; "" when it can, or when nothing fresh says otherwise)."""
         diag = self.client.latest.arrivals
-        if diag.age("diagnostics") is not None and not diag.fresh("diagnostics"):
+        age = diag.age("diagnostics")
+        answered = self._answered.get(joint)
+        if answered is not None and (age is None or time.monotonic() - answered[1] < age):
+            state = answered[0]
+            if state in ("fault", "fault_reaction_active"):
+                return f"in fault ({state}): reset_fault, then enable"
+            if state != "operation_enabled":
+                return f"not enabled ({state}): enable it first"
+            return ""
+        if age is not None and not diag.fresh("diagnostics"):
             return ""
         return self.client.axis_states().get(joint, {}).get("blocked", "")
 
