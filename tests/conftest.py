@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -11,6 +12,15 @@ from ether_ros.sim.proof import SimProcess
 from ether_ros.testing.netns import VethPair, can_create_veth
 
 REPO = Path(__file__).resolve().parent.parent
+
+# `make test` runs the tests in parallel (pytest-xdist, one worker per core): each worker takes
+# its ROS domains from a slice of its own (ros/rig.py, domain_for), so two workers' nodes never
+# meet; interface and namespace names are unique per process already (netns.unique_name).
+_WORKER = os.environ.get("PYTEST_XDIST_WORKER", "")
+if _WORKER.startswith("gw"):
+    os.environ["ETHER_ROS_DOMAIN_SLICE"] = (
+        f"{int(_WORKER[2:])}/{os.environ.get('PYTEST_XDIST_WORKER_COUNT', '1')}"
+    )
 LAELAPS = REPO / "config" / "laelaps.yaml"
 
 

@@ -15,6 +15,7 @@ from rclpy.context import Context
 from std_srvs.srv import Trigger
 
 from ether_ros.ros.panic_line import PanicLine
+from ether_ros.ros.rig import domain_for
 from ether_ros.testing.wait import wait_for
 
 
@@ -43,7 +44,7 @@ class PanicService:
 @pytest.fixture
 def context() -> Iterator[Context]:
     ctx = Context()
-    rclpy.init(context=ctx, domain_id=200 - os.getpid() % 30)
+    rclpy.init(context=ctx, domain_id=domain_for(os.getpid(), 11))
     yield ctx
     ctx.try_shutdown()
 

@@ -37,9 +37,27 @@ class RigError(EtherRosError):
     """A rig process did not start (the message carries the end of its log)."""
 
 
+#: ``K/N``: this process is the Kth of N running rigs side by side (a parallel test run sets it
+#: per worker), and takes its domains from the Kth of N equal slices of 1..200 only, so that two
+#: such processes never share a domain whatever their pids.
+DOMAIN_SLICE_ENV = "ETHER_ROS_DOMAIN_SLICE"
+
+
+def _domain_slice() -> tuple[int, int]:
+    text = os.environ.get(DOMAIN_SLICE_ENV, "")
+    try:
+        k, n = (int(part) for part in text.split("/"))
+    except ValueError:
+        return 0, 1
+    return (k, n) if 0 <= k < n <= 200 else (0, 1)
+
+
 def domain_for(pid: int, offset: int = 0) -> int:
-    """A ROS domain id for this process: 1..200, distinct for distinct pids (mostly)."""
-    return 1 + (pid * 7 + offset) % 200
+    """A ROS domain id for this process: 1..200, distinct for distinct pids (mostly), and
+    within this process's slice (``ETHER_ROS_DOMAIN_SLICE``) when it has one."""
+    k, n = _domain_slice()
+    width = 200 // n
+    return 1 + k * width + (pid * 7 + offset) % width
 
 
 class RosRig:
