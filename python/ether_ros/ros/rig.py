@@ -154,7 +154,9 @@ class RosRig:
             self.node_proc = subprocess.Popen(
                 cmd, stdout=log, stderr=subprocess.STDOUT, env=self.env
             )
-        self._wait_for_line(self.node_proc, self.node_log, "ether-ros run:", "node", 60.0)
+        # Generous: a node brings its bus up before it says it runs, which took over 60 s with
+        # the host at load 19 (a node that fails says so at once and is reported then).
+        self._wait_for_line(self.node_proc, self.node_log, "ether-ros run:", "node", 180.0)
 
     def stop_node(self, timeout: float = 15.0) -> int | None:
         """SIGINT (the node deactivates: safe outputs, SAFEOP), then SIGKILL if it hangs."""
