@@ -20,21 +20,16 @@ from ether_ros.console.app import Console, run_lines
 from ether_ros.ros.rig import RosRig
 from ether_ros.tools.live import axes_text, snapshot_from_diagnostics
 
+from arm_ros import enabled_arm_rig
+
 pytestmark = [pytest.mark.netns, pytest.mark.ros, pytest.mark.slow]
 
-REPO = Path(__file__).resolve().parents[2]
 JOINT = "wrist_3"
 
 
 @pytest.fixture(scope="module")
 def rig(veth_allowed: bool) -> Iterator[RosRig]:
-    if not veth_allowed:
-        pytest.fail("the ROS acceptance tests need root (veth pairs)")
-    with RosRig(REPO / "config" / "arm6.yaml", netns=True) as rig:
-        assert rig.client.wait_for_node() == "active"
-        ok, message, _ = rig.client.axis_command("enable")
-        assert ok, message
-        yield rig
+    yield from enabled_arm_rig(veth_allowed)
 
 
 def refusal(c: Any, publish: Callable[[], None]) -> str:

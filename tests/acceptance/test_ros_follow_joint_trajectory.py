@@ -26,10 +26,10 @@ from ether_ros.ros.client import EtherRosClient
 from ether_ros.ros.rig import RosRig
 from ether_ros.ros.trajectory_client import Result, TrajectoryActionClient, make_goal
 
+from arm_ros import JOINTS, enabled_arm_rig, positions, settled, stamped_positions
+
 pytestmark = [pytest.mark.netns, pytest.mark.ros, pytest.mark.slow]
 
-REPO = Path(__file__).resolve().parents[2]
-JOINTS = ["shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3"]
 SUCCEEDED, CANCELED, ABORTED = 4, 5, 6
 # The joints' largest velocity limit (rad/s, arm6): a desired position that moves faster jumped.
 MAX_SPEED = 4.0 * 1.05
@@ -37,38 +37,12 @@ MAX_SPEED = 4.0 * 1.05
 
 @pytest.fixture(scope="module")
 def rig(veth_allowed: bool) -> Iterator[RosRig]:
-    if not veth_allowed:
-        pytest.fail("the ROS acceptance tests need root (veth pairs)")
-    with RosRig(REPO / "config" / "arm6.yaml", netns=True) as rig:
-        assert rig.client.wait_for_node() == "active"
-        ok, message, states = rig.client.axis_command("enable")
-        assert ok, message
-        assert states == dict.fromkeys(JOINTS, "operation_enabled")
-        yield rig
+    yield from enabled_arm_rig(veth_allowed)
 
 
 @pytest.fixture(scope="module")
 def fjt(rig: RosRig) -> TrajectoryActionClient:
     return TrajectoryActionClient(rig.client.node)
-
-
-def positions(client: EtherRosClient) -> dict[str, float]:
-    msg = client.wait_for(lambda latest: latest.joint_state, timeout=5)
-    return dict(zip(msg.name, msg.position, strict=True))
-
-
-def settled(client: EtherRosClient, timeout: float = 10.0) -> dict[str, float]:
-    """The positions once joint_states shows the arm at rest (two readings 0.1 s apart agree
-    within 0.2 mrad: joint_states arrives a little after the state it shows)."""
-    deadline = time.monotonic() + timeout
-    last = positions(client)
-    while True:
-        time.sleep(0.1)
-        now = positions(client)
-        if all(abs(now[j] - last[j]) < 2e-4 for j in JOINTS):
-            return now
-        assert time.monotonic() < deadline, f"the arm does not settle: {last} → {now}"
-        last = now
 
 
 def home(fjt: TrajectoryActionClient, client: EtherRosClient) -> dict[str, float]:
@@ -166,7 +140,9 @@ def test_a_violated_goal_tolerance_aborts(rig: RosRig, fjt: TrajectoryActionClie
 def test_a_cancel_stops_the_joint_smoothly(rig: RosRig, fjt: TrajectoryActionClient) -> None:
     client = rig.client
     home(fjt, client)
-    run = fjt.send(make_goal(["wrist_2"], [(2.0, [1.0])]))
+    # A slow goal (0.17 rad/s): a cancel that a loaded host answers seconds late still stops
+    # the joint well short of its target.
+    run = fjt.send(make_goal(["wrist_2"], [(6.0, [1.0])]))
     deadline = time.monotonic() + 10
     while positions(client)["wrist_2"] < 0.2:
         assert time.monotonic() < deadline, "the goal did not start"
@@ -245,16 +221,8 @@ def test_a_goal_whose_joint_leaves_it_aborts_with_the_reason(
             assert desired_speed(outcome) < MAX_SPEED
         # Where the elbow stands a second after the end (its stop takes milliseconds), from a
         # joint_states stamped then: on a loaded host the topic may lag the action's result.
-        after = time.time() + 1.0
-
-        def stamped_after(latest: object) -> object:
-            msg = latest.joint_state  # type: ignore[attr-defined]
-            if msg is None or msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9 < after:
-                return None
-            return msg
-
-        msg = client.wait_for(stamped_after, timeout=30)
-        stopped = dict(zip(msg.name, msg.position, strict=True))["elbow"]  # type: ignore[attr-defined]
+        _, after = stamped_positions(client, time.time() + 1.0)
+        stopped = after["elbow"]
         assert 0.0 < stopped < 0.8, stopped
     finally:
         if event == "panic":

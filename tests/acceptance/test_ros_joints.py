@@ -18,27 +18,15 @@ import pytest
 from ether_ros.ros.client import EtherRosClient
 from ether_ros.ros.rig import RosRig
 
+from arm_ros import JOINTS, enabled_arm_rig, positions
+
 pytestmark = [pytest.mark.netns, pytest.mark.ros, pytest.mark.slow]
 
-REPO = Path(__file__).resolve().parents[2]
-JOINTS = ["shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3"]
 
 
 @pytest.fixture(scope="module")
 def rig(veth_allowed: bool) -> Iterator[RosRig]:
-    if not veth_allowed:
-        pytest.fail("the ROS acceptance tests need root (veth pairs)")
-    with RosRig(REPO / "config" / "arm6.yaml", netns=True) as rig:
-        assert rig.client.wait_for_node() == "active"
-        ok, message, states = rig.client.axis_command("enable")
-        assert ok, message
-        assert states == dict.fromkeys(JOINTS, "operation_enabled")
-        yield rig
-
-
-def positions(client: EtherRosClient) -> dict[str, float]:
-    msg = client.wait_for(lambda latest: latest.joint_state, timeout=5)
-    return dict(zip(msg.name, msg.position, strict=True))
+    yield from enabled_arm_rig(veth_allowed)
 
 
 def reach(client: EtherRosClient, targets: dict[str, float], timeout: float = 10.0) -> None:
