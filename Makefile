@@ -30,13 +30,13 @@ lint: build
 test-rust:
 	cargo test --workspace -q
 
-# The tests run in parallel (pytest-xdist), a test file to a worker, one worker more than the
+# The tests run in parallel (pytest-xdist), a test file (a docs page) to a worker, one worker more than the
 # cores: most of a test's time is waiting for a bus, a node or a simulator (one worker keeps
 # this 2-core machine at a load of about 0.8), so three files at once cut the wall time to about
 # a third; PYTEST_WORKERS=0 runs them in this one process.
 PYTEST_WORKERS ?= $(shell echo $$(( $$(nproc) + 1 )))
 test-python: build
-	$(PY) -m pytest -q -p no:cacheprovider -n $(PYTEST_WORKERS) --dist loadfile $(PYTEST_ARGS)
+	$(PY) -m pytest -q -p no:cacheprovider -n $(PYTEST_WORKERS) --dist loadscope $(PYTEST_ARGS)
 
 test: build lint test-rust test-python
 

@@ -20,9 +20,11 @@ Timing is never asserted: waits have generous deadlines.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import itertools
 import math
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -291,6 +293,24 @@ def test_restart_needs_an_explicit_enable_in_every_mode(
     stays_out("fault")
 
 
+@contextlib.contextmanager
+def feeding(bus: Bus) -> Iterator[None]:
+    """Feeds the engine's command watchdog every 5 ms while the block runs."""
+    stop = threading.Event()
+
+    def feed() -> None:
+        while not stop.wait(0.005):
+            bus.feed_watchdog()
+
+    thread = threading.Thread(target=feed, name="watchdog-feeder", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join()
+
+
 def test_restart_after_a_watchdog_stop_needs_an_explicit_enable(veth_allowed: bool) -> None:
     """The engine's command watchdog (bus.watchdog_ms) stops every axis; when commands come
     back, only an explicit enable restarts one (restart: manual), in every mode."""
@@ -309,13 +329,15 @@ def test_restart_after_a_watchdog_stop_needs_an_explicit_enable(veth_allowed: bo
             # Nothing commands the bus: the watchdog trips and stops the axis.
             wait_for(f"{mode}: halted", lambda: axis.status()["halted"])
             wait_for(f"{mode}: stopped", lambda: axis.state != "operation_enabled")
-            # Commands again (the watchdog is fed), but no enable: the axis stays out.
-            t_end = time.monotonic() + 0.3
-            while time.monotonic() < t_end:
-                bus.feed_watchdog()
-                assert axis.state != "operation_enabled", f"{mode}: restarted by itself"
-                time.sleep(0.005)
-            assert axis.status()["restart_blocked"] and not axis.status()["halted"]
+            # Commands again (the watchdog is fed, from a thread of its own so that a slow
+            # check here cannot starve it), but no enable: the axis stays out.
+            with feeding(bus):
+                wait_for(f"{mode}: fed again", lambda: not axis.status()["halted"])
+                t_end = time.monotonic() + 0.3
+                while time.monotonic() < t_end:
+                    assert axis.state != "operation_enabled", f"{mode}: restarted by itself"
+                    time.sleep(0.005)
+                assert axis.status()["restart_blocked"]
         axis.enable(timeout=5)
         assert axis.state == "operation_enabled"
 

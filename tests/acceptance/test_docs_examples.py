@@ -177,9 +177,7 @@ def _report(block: Block, what: str, out: bytes, err: bytes, code: int | None) -
     )
 
 
-@pytest.mark.timeout(TIMEOUT_S + 120)  # the trot and its figures are slow on a loaded host
-@pytest.mark.parametrize("block", RUNNABLE, ids=[b.where for b in RUNNABLE])
-def test_example_runs(block: Block, scratches: dict[Path, Path]) -> None:
+def run_example(block: Block, scratches: dict[Path, Path]) -> None:
     scratch = scratches[block.path]
     starts_sim = block.lang == "sh" and re.search(r"^\s*ether-ros\s+sim\b", block.text, re.M)
     with VethPair.create(netns=True) as veth, ExitStack() as stack:
@@ -234,6 +232,27 @@ def test_example_runs(block: Block, scratches: dict[Path, Path]) -> None:
             assert re.search(block.expect, printed, re.M), _report(
                 block, f"did not print what it claims (/{block.expect}/)", out, err, 0
             )
+
+
+def _examples_of(path: Path) -> type:
+    """The class of one page's examples. A class per page, because the tests run on several
+    workers a scope (a module, or a class) at a time (``--dist loadscope``): the pages run side
+    by side while each page's examples still run in order on one worker, in one scratch
+    directory (an example may use the file the one before it wrote)."""
+    page = [b for b in RUNNABLE if b.path == path]
+
+    @pytest.mark.timeout(TIMEOUT_S + 120)  # the trot and its figures are slow on a loaded host
+    @pytest.mark.parametrize("block", page, ids=[b.where for b in page])
+    def test_example_runs(self: object, block: Block, scratches: dict[Path, Path]) -> None:
+        run_example(block, scratches)
+
+    name = "TestExamplesOf" + "".join(w.capitalize() for w in re.split(r"[^A-Za-z0-9]+", path.stem))
+    return type(name, (), {"test_example_runs": test_example_runs, "__doc__": f"{path.name}"})
+
+
+for _page in sorted({b.path for b in RUNNABLE}):
+    _cls = _examples_of(_page)
+    globals()[_cls.__name__] = _cls
 
 
 def test_not_run_examples_are_listed(capsys: pytest.CaptureFixture[str]) -> None:

@@ -11,16 +11,14 @@ not executed and why; after an explicit enable it moves again.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
-from pathlib import Path
 from typing import Any
 
 import pytest
 
+from arm_ros import enabled_arm_rig
 from ether_ros.console.app import Console, run_lines
 from ether_ros.ros.rig import RosRig
 from ether_ros.tools.live import axes_text, snapshot_from_diagnostics
-
-from arm_ros import enabled_arm_rig
 
 pytestmark = [pytest.mark.netns, pytest.mark.ros, pytest.mark.slow]
 

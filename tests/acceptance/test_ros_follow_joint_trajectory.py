@@ -18,15 +18,13 @@ import itertools
 import math
 import time
 from collections.abc import Iterator
-from pathlib import Path
 
 import pytest
 
+from arm_ros import JOINTS, enabled_arm_rig, positions, settled, stamped_positions
 from ether_ros.ros.client import EtherRosClient
 from ether_ros.ros.rig import RosRig
 from ether_ros.ros.trajectory_client import Result, TrajectoryActionClient, make_goal
-
-from arm_ros import JOINTS, enabled_arm_rig, positions, settled, stamped_positions
 
 pytestmark = [pytest.mark.netns, pytest.mark.ros, pytest.mark.slow]
 

@@ -11,17 +11,14 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Iterator
-from pathlib import Path
 
 import pytest
 
+from arm_ros import JOINTS, enabled_arm_rig, positions
 from ether_ros.ros.client import EtherRosClient
 from ether_ros.ros.rig import RosRig
 
-from arm_ros import JOINTS, enabled_arm_rig, positions
-
 pytestmark = [pytest.mark.netns, pytest.mark.ros, pytest.mark.slow]
-
 
 
 @pytest.fixture(scope="module")
