@@ -21,6 +21,9 @@ if _WORKER.startswith("gw"):
     os.environ["ETHER_ROS_DOMAIN_SLICE"] = (
         f"{int(_WORKER[2:])}/{os.environ.get('PYTEST_XDIST_WORKER_COUNT', '1')}"
     )
+# The parsed ESI files are cached on disk (config/esi_cache.py): the tests share one cache
+# beside their virtual environment, never the user's own.
+os.environ.setdefault("ETHER_ROS_CACHE_DIR", str(REPO / ".venv" / "ether_ros-cache"))
 LAELAPS = REPO / "config" / "laelaps.yaml"
 
 

@@ -27,6 +27,7 @@ import re
 import stat
 import threading
 from collections.abc import Iterable, Iterator
+from contextvars import ContextVar
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -36,6 +37,7 @@ from lxml import etree
 from ether_ros._native.protocol import dc as reg_dc
 from ether_ros._native.protocol import sii_syncm
 from ether_ros._native.protocol import sm as reg_sm
+from ether_ros.config import esi_cache
 from ether_ros.config import types as dt
 from ether_ros.errors import ConfigError
 
@@ -693,7 +695,7 @@ def load_esi_file(path: str | Path) -> EsiFile:
         cached = _cache.get(key)
     if cached is not None:
         return cached
-    esi = _parse_file(p)
+    esi = _from_disk_cache_or_parsed(p)
     for w in esi.warnings:
         log.warning("%s", w)
     with _cache_lock:
@@ -701,6 +703,47 @@ def load_esi_file(path: str | Path) -> EsiFile:
             _cache.clear()
         _cache[key] = esi
     return esi
+
+
+# The files a parse looks up beside its ESI (``<DictionaryFile>``), recorded for the disk cache.
+_LOOKUPS: ContextVar[list[esi_cache.Lookup] | None] = ContextVar("esi_lookups", default=None)
+
+
+def _from_disk_cache_or_parsed(p: Path) -> EsiFile:
+    """The parse from the disk cache (``esi_cache``) when its entry still holds, else a
+    fresh parse, then stored there."""
+    digest = esi_cache.file_digest(p)
+    key = f"{p}\0{p.resolve()}"
+    if digest is not None:
+        cached = esi_cache.load(key, digest, _lookup_still_true)
+        if isinstance(cached, EsiFile):
+            return cached
+    lookups: list[esi_cache.Lookup] = []
+    token = _LOOKUPS.set(lookups)
+    try:
+        esi = _parse_file(p)
+    finally:
+        _LOOKUPS.reset(token)
+    if digest is not None:
+        esi_cache.store(key, digest, esi, lookups)
+    return esi
+
+
+def _record_lookup(folder: Path, name: str, target: Path | None) -> None:
+    lookups = _LOOKUPS.get()
+    if lookups is not None:
+        digest = None if target is None else esi_cache.file_digest(target)
+        lookups.append(
+            esi_cache.Lookup(str(folder), name, None if target is None else str(target), digest)
+        )
+
+
+def _lookup_still_true(lookup: esi_cache.Lookup) -> bool:
+    """The same lookup, done now, finds the same file with the same bytes (or again none)."""
+    target = _dictionary_path(Path(lookup.folder), lookup.name)
+    if (None if target is None else str(target)) != lookup.resolved:
+        return False
+    return (None if target is None else esi_cache.file_digest(target)) == lookup.digest
 
 
 def _stat_regular(p: Path) -> os.stat_result:
@@ -1496,6 +1539,7 @@ def _dictionary_file_of(ctx: _Ctx, dev: etree._Element) -> tuple[_Ctx, etree._El
         name = _text(ref)
         folder = ctx.path.parent.resolve()
         target = _dictionary_path(folder, name)
+        _record_lookup(folder, name, target)
         if target is None:
             ctx.warn(ref, "DictionaryFile must name a file in the ESI's folder (not read)", name)
             return None

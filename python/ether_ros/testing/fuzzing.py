@@ -49,6 +49,10 @@ class Outcome:
 
 def _worker(target: str, suffix: str, jobs: Any, results: Any, memory: int) -> None:
     """Run ``target`` (``module:function``) on each mutant received until None."""
+    # Every mutant is a new file: the ESI disk cache would only fill up with them.
+    from ether_ros.config.esi_cache import CACHE_SWITCH_ENV
+
+    os.environ[CACHE_SWITCH_ENV] = "0"
     module, name = target.split(":")
     fn: Callable[[Path], Any] = getattr(importlib.import_module(module), name)
     from ether_ros.errors import EtherRosError
