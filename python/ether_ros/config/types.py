@@ -159,3 +159,19 @@ def decode_value(dtype: DataType, data: bytes, bit_length: int) -> object:
     if dtype.kind == "string":
         return data.split(b"\0", 1)[0].decode("utf-8", "replace")
     return bytes(data)
+
+
+def format_number(value: float, type_name: str | None = None) -> str:
+    """A value as a person reads it, never in exponent notation when it is a whole number:
+    an integer, a boolean and a counter (``type_name`` None: a count sent as a float) print as
+    integers; REAL32 to the 7 significant digits it has; REAL64 and anything else to the
+    shortest text that reads back as the same float."""
+    if value != value or value in (float("inf"), float("-inf")):
+        return str(value)
+    t = config_type(type_name) if type_name is not None else None
+    whole = float(value).is_integer() and abs(value) <= 2**64
+    if whole and (t is None or t.kind in ("bool", "int", "uint")):
+        return str(int(value))
+    if t is not None and t.code == dtype.REAL32:
+        return f"{value:.7g}"
+    return repr(float(value))

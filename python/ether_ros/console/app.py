@@ -23,6 +23,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import replace
 from typing import IO
 
+from ether_ros.config.types import format_number
 from ether_ros.console.commands import (
     AxisOp,
     Command,
@@ -383,7 +384,8 @@ class Console:
         if command.variable is not None:
             for label, kind, values in groups:
                 if command.variable in values:
-                    self.out(f"{command.slave}.{command.variable} = {values[command.variable]:g}")
+                    shown = self._format(command.slave, command.variable, values[command.variable])
+                    self.out(f"{command.slave}.{command.variable} = {shown}")
                     self.out(f"  ({label}{self._staleness(f'{kind}/{command.slave}')})")
                     return
             self.out(f"no value of {command.variable} received yet")
@@ -393,7 +395,17 @@ class Console:
             if not values:
                 self.out("  (nothing received yet)")
             for name, value in values.items():
-                self.out(f"  {name:24} {value:g}")
+                self.out(f"  {name:24} {self._format(command.slave, name, value)}")
+
+    def _format(self, slave: str, variable: str, value: float) -> str:
+        """A value as its variable's type prints (an int32 never in exponent notation)."""
+        layout = self.client.latest.layout
+        for s in layout.slaves if layout is not None else ():
+            if s.name == slave:
+                for v in (*s.outputs, *s.inputs):
+                    if v.name == variable:
+                        return format_value(value, v)
+        return format_number(value)
 
     def _staleness(self, key: str) -> str:
         """ "" for a fresh report; else what to print after its label."""

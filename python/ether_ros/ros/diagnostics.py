@@ -31,6 +31,7 @@ from typing import Any
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
 from ether_ros._native.protocol import emergency_text
+from ether_ros.config.types import format_number
 from ether_ros.ros import bridge
 
 OK = DiagnosticStatus.OK
@@ -201,7 +202,7 @@ def master_status(
     values.append(("input_age_ms", age))
     values.append(("stale_frames", " ".join(str(k) for k in stale)))
     for key, value in ros.items():
-        values.append((f"ros_{key}", f"{value:g}"))
+        values.append((f"ros_{key}", format_number(value)))
     for k, problem in enumerate(link_problems):
         values.append((f"link_problem_{k}", problem))
     st.values = [KeyValue(key=k, value=v) for k, v in values]

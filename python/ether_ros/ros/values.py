@@ -104,9 +104,8 @@ def check_value(value: float, var: VariableSpec) -> float:
 
 
 def format_value(value: float, var: VariableSpec) -> str:
-    if is_integer_type(var.type) and float(value).is_integer():
-        return str(int(value))
-    return f"{value:g}"
+    """A variable's value as its type prints (``config.types.format_number``)."""
+    return dt.format_number(value, var.type)
 
 
 def to_python(value: float, type_name: str) -> bool | int | float:
