@@ -313,6 +313,10 @@ def _maps(p: Pdo, key: tuple[int, int]) -> bool:
 SOFTWARE_POSITION_LIMIT = cia402_facts.SOFTWARE_POSITION_LIMIT
 INT32_MIN, INT32_MAX = (int(x) for x in protocol.value_range("int", 32))
 UINT32_MAX = int(protocol.value_range("uint", 32)[1])
+# A position, velocity or torque scale (SI units per count) outside this range is refused: a
+# 32-bit encoder behind a 10⁴:1 gear is 1.5e-13 rad per count, and no drive counts in
+# kilometres or kiloradians. Beyond it the conversions to counts overflow or round to 0.
+SCALE_RANGE = (1e-15, 1e3)
 # The pp/pv profile (config key → object): in the drive's velocity units (per second for the
 # accelerations), i.e. SI / velocity_scale.
 PROFILE_OBJECTS = {
@@ -359,11 +363,12 @@ HOMING_OBJECTS = {
 def profile_raw(cfg: AxisConfig, key: str, value: float) -> int:
     """A profile value in SI as the drive's raw UDINT (velocity units, /s for accelerations);
     ValueError when it does not fit."""
-    raw = round(value / cfg.velocity_scale)
+    ratio = value / cfg.velocity_scale
+    raw = round(ratio) if math.isfinite(ratio) else ratio
     if not 1 <= raw <= UINT32_MAX:
-        raise ValueError(f"{key} {value:g} is {raw} in the drive's units (velocity_scale "
+        raise ValueError(f"{key} {value:g} is {raw:g} in the drive's units (velocity_scale "
                          f"{cfg.velocity_scale:g}): outside 1..{UINT32_MAX}")  # fmt: skip
-    return raw
+    return int(raw)
 
 
 def software_limits_raw(cfg: AxisConfig) -> tuple[int, int] | None:
@@ -372,9 +377,11 @@ def software_limits_raw(cfg: AxisConfig) -> tuple[int, int] | None:
     lo, hi = cfg.position_limits
     if not (math.isfinite(lo) and math.isfinite(hi)):
         return None
-    raw_lo = math.ceil((lo - cfg.position_offset) / cfg.position_scale - 1e-9)
-    raw_hi = math.floor((hi - cfg.position_offset) / cfg.position_scale + 1e-9)
-    return max(raw_lo, INT32_MIN), min(raw_hi, INT32_MAX)
+    # A limit beyond what an INT32 holds is the drive's own end of range (clamped before the
+    # rounding: a huge limit over a tiny scale is no integer at all, but infinity).
+    raw_lo = min(max((lo - cfg.position_offset) / cfg.position_scale, INT32_MIN), INT32_MAX)
+    raw_hi = min(max((hi - cfg.position_offset) / cfg.position_scale, INT32_MIN), INT32_MAX)
+    return max(math.ceil(raw_lo - 1e-9), INT32_MIN), min(math.floor(raw_hi + 1e-9), INT32_MAX)
 
 
 def axis_sdo_inits(specs: Sequence[AxisSpec], dev: EsiDevice) -> list[tuple[int, int, int, str]]:
@@ -420,8 +427,8 @@ def homing_sdo_inits(cfg: AxisConfig, n: int) -> list[tuple[int, int, int, str]]
     if h.acceleration is not None:
         raw = profile_raw(cfg, "acceleration", h.acceleration)
         out.append((HOMING_OBJECTS["acceleration"] + at, 0, raw, "uint32"))
-    offset = round((h.offset - cfg.position_offset) / cfg.position_scale)
-    out.append((HOMING_OBJECTS["offset"] + at, 0, max(INT32_MIN, min(INT32_MAX, offset)), "int32"))
+    offset = min(max((h.offset - cfg.position_offset) / cfg.position_scale, INT32_MIN), INT32_MAX)
+    out.append((HOMING_OBJECTS["offset"] + at, 0, round(offset), "int32"))
     return out
 
 
@@ -440,6 +447,9 @@ def check_axis(cfg: AxisConfig, path: tuple[Any, ...], err: ErrorFn) -> None:
     for key, v in scales:
         if not math.isfinite(v) or v <= 0:
             raise err((*path, key), "must be a positive finite number", v)
+        if not SCALE_RANGE[0] <= v <= SCALE_RANGE[1]:
+            raise err((*path, key), f"must be within {SCALE_RANGE[0]:g}..{SCALE_RANGE[1]:g} "
+                      "(SI units per count: a bigger or smaller one is a typo)", v)  # fmt: skip
     if not math.isfinite(cfg.position_offset):
         raise err((*path, "position_offset"), "must be a finite number", cfg.position_offset)
     lo, hi = cfg.position_limits
@@ -472,9 +482,9 @@ def check_axis(cfg: AxisConfig, path: tuple[Any, ...], err: ErrorFn) -> None:
         if not math.isfinite(profile) or profile <= 0:
             raise err((*path, key), "must be a positive finite number", profile)
         try:
-            profile_raw(cfg, key, v)
+            profile_raw(cfg, key, profile)
         except ValueError as exc:
-            raise err((*path, key), str(exc), v) from None
+            raise err((*path, key), str(exc), profile) from None
 
 
 def resolve_axes(

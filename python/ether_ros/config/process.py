@@ -18,6 +18,7 @@ Example::
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, replace
 
@@ -105,6 +106,11 @@ class SmSegment:
     pdos: tuple[int, ...]
 
 
+# Layouts made, by (device, rx assignment, tx assignment): see ProcessLayout.for_device.
+_layouts: dict[tuple[int, object, object], tuple[EsiDevice, ProcessLayout]] = {}
+_layouts_lock = threading.Lock()
+
+
 class ProcessLayout:
     """The output and input variables of one slave for a given PDO assignment."""
 
@@ -152,7 +158,31 @@ class ProcessLayout:
         tx_pdos: Iterable[int | Pdo] | None = None,
     ) -> ProcessLayout:
         """Layout of ``device`` with the given PDO assignment (default: the ESI's). PDOs are
-        given by index or as :class:`Pdo` objects (an ESI may give two PDOs one index)."""
+        given by index or as :class:`Pdo` objects (an ESI may give two PDOs one index).
+
+        A layout is never changed once made, so the slaves of one device type with the same
+        assignment share one: a bus of a thousand identical terminals lays it out once."""
+        rx_key = None if rx_pdos is None else tuple(rx_pdos)
+        tx_key = None if tx_pdos is None else tuple(tx_pdos)
+        key = (id(device), rx_key, tx_key)
+        with _layouts_lock:
+            hit = _layouts.get(key)
+        if hit is not None and hit[0] is device:
+            return hit[1]
+        layout = cls._for_device(device, rx_key, tx_key)
+        with _layouts_lock:
+            if len(_layouts) > 1024:
+                _layouts.clear()
+            _layouts[key] = (device, layout)  # the device kept: its id is not reused meanwhile
+        return layout
+
+    @classmethod
+    def _for_device(
+        cls,
+        device: EsiDevice,
+        rx_pdos: Iterable[int | Pdo] | None,
+        tx_pdos: Iterable[int | Pdo] | None,
+    ) -> ProcessLayout:
         rx = device.default_rx() if rx_pdos is None else _resolve(device, rx_pdos, "rx")
         tx = device.default_tx() if tx_pdos is None else _resolve(device, tx_pdos, "tx")
         outs, obits, oseg = _place(device, rx, "rx", "output")

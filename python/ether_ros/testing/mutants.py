@@ -166,6 +166,15 @@ def _plausible_values(value: Any) -> list[tuple[str, Any]]:
     return out
 
 
+def _huge_values(value: Any) -> list[tuple[str, Any]]:
+    """The float extremes a number may be given: taken or refused, never an overflow (a scale
+    of 1e-308 turned a position limit into infinity, and its conversion to counts into an
+    OverflowError)."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return []
+    return [("1e308", 1e308), ("-1e308", -1e308), ("1e-308", 1e-308)]
+
+
 def _dump(data: Any) -> bytes:
     # allow_unicode so that NUL and escapes stay escapes in double quotes; width: one line
     return yaml.safe_dump(data, sort_keys=False, allow_unicode=True, width=10_000).encode()
@@ -205,6 +214,10 @@ def config_mutants(
             for label, maybe in rng.sample(_plausible_values(value), 3):
                 out.append(
                     Mutant(f"{file.name}:{field}={label}", _dump(_replaced(base, path, maybe)))
+                )
+            for label, huge in _huge_values(value):  # every number: an overflow is a traceback
+                out.append(
+                    Mutant(f"{file.name}:{field}={label}", _dump(_replaced(base, path, huge)))
                 )
             out.append(Mutant(f"{file.name}:{field} removed", _dump(_removed(base, path))))
             parent = path[:-1]
