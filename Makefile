@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 export PATH := $(CURDIR)/$(VENV)/bin:$(HOME)/.cargo/bin:$(PATH)
 export CARGO_TERM_COLOR := never
 
-.PHONY: all bootstrap build lint test test-rust test-python demo bench fuzz clean
+.PHONY: all bootstrap build lint probe test test-rust test-python demo bench fuzz clean
 
 all: build
 
@@ -35,7 +35,12 @@ test-rust:
 # this 2-core machine at a load of about 0.8), so three files at once cut the wall time to about
 # a third; PYTEST_WORKERS=0 runs them in this one process.
 PYTEST_WORKERS ?= $(shell echo $$(( $$(nproc) + 1 )))
-test-python: build
+# The ethercrab probe (a third-party master the tests check the simulator with) is built before
+# the tests start: built inside a test, under a loaded machine, it ran into the test's timeout.
+probe:
+	cd tests/ethercrab_probe && cargo build --release --locked -q
+
+test-python: build probe
 	$(PY) -m pytest -q -p no:cacheprovider -n $(PYTEST_WORKERS) --dist loadscope $(PYTEST_ARGS)
 
 test: build lint test-rust test-python
