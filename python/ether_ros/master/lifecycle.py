@@ -104,6 +104,9 @@ def start(bus: Bus) -> None:
             if bus.running:
                 _shutdown_cyclic(bus)
             raise
+    # While it runs, the worker reads what idle slaves put into their mailboxes (emergencies)
+    # and the supervisor reports them.
+    bus.worker.start_polling(bus.setup.mailbox_poll_s)
     bus.supervisor = Supervisor(bus)
     bus.supervisor.start()
 
@@ -127,6 +130,7 @@ def stop(bus: Bus) -> None:
     if bus.supervisor is not None:
         bus.supervisor.stop()
         bus.supervisor = None
+    bus.worker.stop_polling()
     with bus.acyclic():
         axis_mod.stop_all(bus.engine, len(bus.setup.axes), AXIS_STOP_WAIT_S)
         bus.image.to_safe(on_wire=True)
