@@ -141,7 +141,7 @@ class BusSetup:
 
 def device_of(slave_cfg: Any) -> EsiDevice | None:
     """The ESI device of a configured slave, as resolved by ``load_bus_config``."""
-    dev = getattr(slave_cfg, "_esi", None)
+    dev = getattr(slave_cfg, "resolved_esi", None)
     return dev if isinstance(dev, EsiDevice) else None
 
 
