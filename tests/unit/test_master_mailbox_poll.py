@@ -4,29 +4,21 @@ SM1 status reads of every idle slave in shared frames, leaving a slave in an exc
 
 from __future__ import annotations
 
-from pathlib import Path
+import threading
 from typing import Any
 
 from ether_ros._native import DriveFault
-from ether_ros.config import load_bus_config
 from ether_ros.config.bus import BusConfig
-from ether_ros.master import Bus
 from ether_ros.master.datagrams import Cmd
 from ether_ros.master.events import BusEvent
 from ether_ros.master.mailbox import SM1_STATUS
 from ether_ros.master.worker import AcyclicWorker
 from ether_ros.testing.wait import wait_for
-
-REPO = Path(__file__).resolve().parents[2]
+from master_rigs import relaxed_config, sim_bus
 
 
 def _drives() -> BusConfig:
-    cfg = load_bus_config(REPO / "config" / "arm6.yaml")
-    cfg.bus.cycle_us = 2000
-    cfg.bus.realtime.policy = "other"
-    cfg.bus.realtime.cpu = None
-    cfg.bus.realtime.lock_memory = False
-    cfg.bus.watchdog_ms = 0
+    cfg = relaxed_config("arm6.yaml")
     for s in cfg.slaves:
         s.sim.device = None  # the CiA 402 drive model: it can fault
         for a in s.axes:
@@ -35,11 +27,7 @@ def _drives() -> BusConfig:
 
 
 def test_an_emergency_raised_while_no_sdo_is_pending_is_read_and_routed() -> None:
-    from ether_ros.sim.network import build_network
-
-    cfg = _drives()
-    net = build_network(cfg)
-    with Bus.open(cfg, link=net, drift_frames=100) as bus:
+    with sim_bus(_drives()) as (bus, net):
         bus.start()
         assert bus.worker.polling
         drive = bus.slave(1)
@@ -106,8 +94,6 @@ def test_a_polling_round_shares_frames_and_skips_a_slave_in_an_exchange() -> Non
     worker.mailbox(0x1020)  # a slave without a mailbox: never polled
     busy = worker.mailbox(0x1005)
     with busy.lock:  # an exchange with 0x1005 runs in another thread: the poll leaves it alone
-        import threading
-
         result: list[int] = []
         t = threading.Thread(target=lambda: result.append(worker.poll_idle_mailboxes()))
         t.start()

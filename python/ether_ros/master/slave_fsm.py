@@ -158,14 +158,14 @@ class SlaveFsm:
     def inspect(self) -> None:
         """To PREOP with the mailbox usable, never down from a working state (module doc)."""
         status = self._status()
-        if status is not None and status.answered and not status.error:
-            if status.state in _MAILBOX_LIVE:
-                self._write_sms = False
-                try:
-                    self.run("mailbox", "mailbox")
-                finally:
-                    self._write_sms = True
-                return
+        live = status is not None and status.answered and status.state in _MAILBOX_LIVE
+        if live and status is not None and not status.error:
+            self._write_sms = False
+            try:
+                self.run("mailbox", "mailbox")
+            finally:
+                self._write_sms = True
+            return
         self.run("address", "preop")
 
     def _status(self) -> AlStatus | None:
