@@ -137,3 +137,25 @@ def test_bring_up_and_recovery_are_the_same_machine(opened: tuple[Bus, Any]) -> 
     finally:
         SlaveFsm.run = original  # type: ignore[method-assign]
     time.sleep(0)
+
+
+def test_inspection_takes_a_slave_in_init_to_preop_and_leaves_a_working_one_alone(
+    opened: tuple[Bus, Any],
+) -> None:
+    """The inspection mode of the machine (the tools' bring-up without a running master): a
+    slave in INIT runs address..preop; a slave in OP keeps its state, and only its mailbox
+    owner is set up (its SyncManagers are live)."""
+    from ether_ros.master import slave_fsm
+
+    bus, _net = opened
+    s = bus.slave("front_left_leg")
+    assert bus.states()[s.position].state == "INIT"
+    slave_fsm.inspect(bus.worker, [s])
+    assert bus.states()[s.position].state == "PREOP"
+    assert isinstance(bus.sdo_read("front_left_leg", 0x1018, 1), int)
+    bus.start()
+    others = [o for o in bus.slaves if o is not s]
+    slave_fsm.inspect(bus.worker, others)
+    assert [st.state for st in bus.states()] == ["OP"] * 4
+    assert all(o.runtime.last_error == "" for o in others)
+    assert isinstance(bus.sdo_read(others[0].name, 0x1018, 1), int)
