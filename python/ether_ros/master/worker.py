@@ -273,13 +273,17 @@ class AcyclicWorker:
             if not held:
                 return 0
             self.stats.mailbox_polls += 1
-            requests = [[(int(Cmd.FPRD), fixed_address(b.station, SM1_STATUS), 1)] for b in held]
+            reads = [(int(Cmd.FPRD), fixed_address(b.station, SM1_STATUS), 1) for b in held]
+            # As many reads a request as fill a frame: few requests to queue, frames full.
+            per_frame = FRAME_PAYLOAD // (DATAGRAM_OVERHEAD + 1)
+            requests = [reads[k : k + per_frame] for k in range(0, len(reads), per_frame)]
             try:
                 replies = self.transact_each(requests, self.timeout_us, retries=0)
             except EtherRosError as exc:
                 log.debug("idle mailbox poll: %s", exc)
                 return 0
-            for box, ((data, wkc),) in zip(held, replies, strict=True):
+            flat = [reply for request in replies for reply in request]
+            for box, (data, wkc) in zip(held, flat, strict=True):
                 if wkc == 1 and data and data[0] & sm.STATUS_MAILBOX_FULL:
                     read += 1
                     self.stats.mailbox_reads += 1
