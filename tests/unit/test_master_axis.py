@@ -20,18 +20,13 @@ from ether_ros.config.process import ProcessValueError
 from ether_ros.master import Bus
 from ether_ros.master.axis import AxisCommandError, AxisError
 from ether_ros.testing.wait import wait_for
+from master_rigs import relaxed_config
 
 REPO = Path(__file__).resolve().parents[2]
 
 
 def _config(path: Path = REPO / "config" / "arm6.yaml") -> BusConfig:
-    cfg = load_bus_config(path)
-    # The in-process link takes the GIL per frame: a relaxed cycle, no RT policy needed.
-    cfg.bus.cycle_us = 2000
-    cfg.bus.realtime.policy = "other"
-    cfg.bus.realtime.cpu = None
-    cfg.bus.realtime.lock_memory = False
-    cfg.bus.watchdog_ms = 0
+    cfg = relaxed_config(path)
     for s in cfg.slaves:
         s.sim.device = "loopback"
         # Without real-time scheduling a loaded machine can starve the loop past the slaves'

@@ -5,42 +5,21 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterator
-from pathlib import Path
 
 import pytest
 
 from ether_ros._native import Reset
-from ether_ros.config import load_bus_config
-from ether_ros.config.bus import BusConfig, PdoAssign
+from ether_ros.config.bus import PdoAssign
 from ether_ros.config.process import ProcessValueError
 from ether_ros.errors import BusError
 from ether_ros.master import Bus
 from ether_ros.testing.wait import wait_for
-
-REPO = Path(__file__).resolve().parents[2]
-
-
-def _config(name: str = "laelaps.yaml") -> BusConfig:
-    cfg = load_bus_config(REPO / "config" / name)
-    # The in-process link takes the GIL per frame: a relaxed cycle, no RT policy needed.
-    cfg.bus.cycle_us = 2000
-    cfg.bus.realtime.policy = "other"
-    cfg.bus.realtime.cpu = None
-    cfg.bus.realtime.lock_memory = False
-    cfg.bus.watchdog_ms = 0
-    return cfg
-
-
-def _network(cfg: BusConfig) -> object:
-    from ether_ros.sim.network import build_network
-
-    return build_network(cfg)
+from master_rigs import relaxed_config, sim_bus, sim_network
 
 
 @pytest.fixture
 def bus() -> Iterator[Bus]:
-    cfg = _config()
-    with Bus.open(cfg, link=_network(cfg), drift_frames=100) as b:
+    with sim_bus() as (b, _net):
         yield b
 
 
@@ -76,8 +55,8 @@ def test_start_to_op_exchange_and_stop(bus: Bus) -> None:
 
 
 def test_identity_mismatch_is_named() -> None:
-    cfg = _config()
-    net = _network(cfg)
+    cfg = relaxed_config()
+    net = sim_network(cfg)
     cfg.slaves[2].product_code = 0x0BADBEEF
     message = (
         r"slave 2 \(front_left_leg\): expected vendor 0x00000A12 product 0x0BADBEEF, "
@@ -88,8 +67,8 @@ def test_identity_mismatch_is_named() -> None:
 
 
 def test_reset_reference_clock_comes_back_in_sync() -> None:
-    cfg = _config()
-    net = _network(cfg)
+    cfg = relaxed_config()
+    net = sim_network(cfg)
     with Bus.open(cfg, link=net, drift_frames=100) as bus:
         bus.start()
         events: list[str] = []
@@ -109,8 +88,8 @@ def test_reset_reference_clock_comes_back_in_sync() -> None:
 
 
 def test_pdo_assignment_override_is_written_over_coe() -> None:
-    cfg = _config("mixed.yaml")
-    net = _network(cfg)
+    cfg = relaxed_config("mixed.yaml")
+    net = sim_network(cfg)
     io = cfg.slaves[4]
     io.pdo_assign = PdoAssign(rx=[0x1601], tx=[0x1A01])  # analog only
     with Bus.open(cfg, link=net, drift_frames=100) as bus:
@@ -127,8 +106,8 @@ def test_pdo_assignment_override_is_written_over_coe() -> None:
 
 
 def test_pdo_override_on_a_fixed_device_is_refused_by_name() -> None:
-    cfg = _config()
-    net = _network(cfg)
+    cfg = relaxed_config()
+    net = sim_network(cfg)
     cfg.slaves[1].pdo_assign = PdoAssign(rx=[0x1600], tx=[])
     message = r"slave 1 \(hind_left_leg\): .* cannot change its PDO"
     with Bus.open(cfg, link=net, drift_frames=100) as bus, pytest.raises(BusError, match=message):
@@ -136,8 +115,8 @@ def test_pdo_override_on_a_fixed_device_is_refused_by_name() -> None:
 
 
 def test_writers_of_different_variables_keep_each_others_values() -> None:
-    cfg = _config("mixed.yaml")
-    with Bus.open(cfg, link=_network(cfg), drift_frames=100) as bus:
+    cfg = relaxed_config("mixed.yaml")
+    with Bus.open(cfg, link=sim_network(cfg), drift_frames=100) as bus:
         bus.start()
         io = bus.slave("io_box")
         assert io.area is not None and io.layout is not None
@@ -198,8 +177,8 @@ def test_engine_refuses_bad_output_fields_by_name(bus: Bus) -> None:
 
 
 def test_branched_bus_to_op_with_delays_per_branch() -> None:
-    cfg = _config("branched.yaml")
-    with Bus.open(cfg, link=_network(cfg), drift_frames=100) as b:
+    cfg = relaxed_config("branched.yaml")
+    with Bus.open(cfg, link=sim_network(cfg), drift_frames=100) as b:
         assert b.tree == cfg.tree()
         b.start()
         assert all(s.state == "OP" for s in b.states())
@@ -217,11 +196,11 @@ def test_links_without_a_configured_delay_have_a_real_links_delay() -> None:
     # ether_ros.sim.spec.DELAY_MII_NS, measured by the master on the ESC's 10 ns clock.
     from ether_ros.sim.spec import DELAY_MII_NS
 
-    cfg = _config()
+    cfg = relaxed_config()
     for s in cfg.slaves:
         assert s.sim is not None
         s.sim.delay_ns = None
-    with Bus.open(cfg, link=_network(cfg), drift_frames=100) as b:
+    with Bus.open(cfg, link=sim_network(cfg), drift_frames=100) as b:
         b.start()
         delays = [s.dc.delay_ns for s in b.slaves if s.dc is not None]
     expected = [k * DELAY_MII_NS for k in range(len(cfg.slaves))]
@@ -232,8 +211,8 @@ def test_the_eeprom_is_handed_back_to_the_pdi_after_the_sii_is_read() -> None:
     # Issue 17: the master took the EEPROM (0x0500 = 2, "force ECAT access") and never gave it
     # back; as SOEM, it offers it to the PDI (0x0500 = 1) once the SII is read, and the slave
     # application takes it (0x0501 bit 0, ESC datasheet "EEPROM access").
-    cfg = _config()
-    net = _network(cfg)
+    cfg = relaxed_config()
+    net = sim_network(cfg)
     with Bus.open(cfg, link=net, drift_frames=100) as b:
         b.start()
         assert all(s.state == "OP" for s in b.states())

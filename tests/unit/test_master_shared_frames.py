@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import threading
-from collections.abc import Sequence
 from typing import Any
 
 import pytest
@@ -11,34 +9,7 @@ import pytest
 from ether_ros.errors import LinkError
 from ether_ros.master.datagrams import Cmd, DatagramService, fixed_address
 from ether_ros.master.shared_frames import SharedFrames, run_in_parallel
-
-
-class Wire:
-    """A transport that answers FPRD with the station's low byte and FPWR with wkc 1, and
-    records the frames it was given."""
-
-    def __init__(self) -> None:
-        self.frames: list[list[tuple[int, int, bytes | int]]] = []
-        self.fail_station: int | None = None
-        self.lock = threading.Lock()
-
-    def transact(
-        self, datagrams: Sequence[tuple[int, int, bytes | int]], timeout_us: int = 0,
-        retries: int = 0,
-    ) -> list[tuple[bytes, int]]:  # fmt: skip
-        with self.lock:
-            self.frames.append(list(datagrams))
-        out = []
-        for cmd, address, payload in datagrams:
-            station = address & 0xFFFF
-            if station == self.fail_station:
-                raise LinkError("no answer")
-            if cmd == Cmd.FPRD:
-                assert isinstance(payload, int)
-                out.append((bytes([station & 0xFF]) * payload, 1))
-            else:
-                out.append((bytes(payload) if isinstance(payload, bytes) else b"", 1))
-        return out
+from master_rigs import RecordingWire
 
 
 def _work(results: dict[int, list[bytes]]) -> Any:
@@ -53,7 +24,7 @@ def _work(results: dict[int, list[bytes]]) -> Any:
 
 
 def test_workers_share_frames_and_each_gets_its_own_replies() -> None:
-    wire = Wire()
+    wire = RecordingWire()
     results: dict[int, list[bytes]] = {}
     stations = list(range(0x1001, 0x1011))
     run_in_parallel(DatagramService(wire), stations, _work(results))
@@ -68,15 +39,14 @@ def test_workers_share_frames_and_each_gets_its_own_replies() -> None:
 
 
 def test_a_failure_reaches_its_worker_and_the_caller() -> None:
-    wire = Wire()
-    wire.fail_station = 0x1003
+    wire = RecordingWire(fail_station=0x1003)
     results: dict[int, list[bytes]] = {}
     with pytest.raises(LinkError, match="no answer"):
         run_in_parallel(DatagramService(wire), [0x1001, 0x1002, 0x1003], _work(results))
 
 
 def test_a_frame_never_exceeds_the_budget() -> None:
-    wire = Wire()
+    wire = RecordingWire()
     shared = SharedFrames(wire, 1)
     big = [(int(Cmd.FPRD), fixed_address(0x1001, 0x1000), 1000)]
     assert len(shared.transact(big)) == 1

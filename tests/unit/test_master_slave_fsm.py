@@ -7,44 +7,22 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 import pytest
 
 from ether_ros._native import RefuseOp, Reset, StallMailbox
-from ether_ros.config import load_bus_config
-from ether_ros.config.bus import BusConfig
 from ether_ros.errors import AlStateRefused, BusError
 from ether_ros.master import Bus
 from ether_ros.master.slave_fsm import STEPS, Hooks, SlaveFsm, SlaveStepError
 from ether_ros.testing.wait import wait_for
-
-REPO = Path(__file__).resolve().parents[2]
-
-
-def _config(name: str = "laelaps.yaml") -> BusConfig:
-    cfg = load_bus_config(REPO / "config" / name)
-    cfg.bus.cycle_us = 2000
-    cfg.bus.realtime.policy = "other"
-    cfg.bus.realtime.cpu = None
-    cfg.bus.realtime.lock_memory = False
-    cfg.bus.watchdog_ms = 0
-    return cfg
-
-
-def _network(cfg: BusConfig) -> Any:
-    from ether_ros.sim.network import build_network
-
-    return build_network(cfg)
+from master_rigs import relaxed_config, sim_bus, sim_network
 
 
 @pytest.fixture
 def opened() -> Iterator[tuple[Bus, Any]]:
-    cfg = _config()
-    net = _network(cfg)
-    with Bus.open(cfg, link=net, drift_frames=100) as bus:
-        yield bus, net
+    with sim_bus() as opened:
+        yield opened
 
 
 def test_the_steps_run_in_order_and_each_has_a_timeout() -> None:
@@ -92,8 +70,8 @@ def test_a_refused_op_names_the_step_and_the_al_status_code(opened: tuple[Bus, A
 def test_a_stalled_mailbox_fails_its_step_after_its_timeout() -> None:
     """The drives' PDO assignment is read over CoE in the ``coe`` step: a drive whose mailbox
     stalls fails that step, naming it and its timeout."""
-    cfg = _config("arm6.yaml")
-    net = _network(cfg)
+    cfg = relaxed_config("arm6.yaml")
+    net = sim_network(cfg)
     with Bus.open(cfg, link=net, drift_frames=100) as bus:
         net.inject(StallMailbox(slave=1))
         with pytest.raises(SlaveStepError) as err:
@@ -131,8 +109,8 @@ def test_a_power_cycled_slave_comes_back_while_the_others_keep_cycling(
 
 
 def test_a_configured_slave_missing_is_named() -> None:
-    cfg = _config()
-    net = _network(cfg)
+    cfg = relaxed_config()
+    net = sim_network(cfg)
     extra = cfg.slaves[-1].model_copy(update={"name": "fifth_leg", "position": None})
     cfg.slaves.append(extra)
     with pytest.raises(BusError, match=r"slave 4 \(fifth_leg\) is missing"):
@@ -159,3 +137,25 @@ def test_bring_up_and_recovery_are_the_same_machine(opened: tuple[Bus, Any]) -> 
     finally:
         SlaveFsm.run = original  # type: ignore[method-assign]
     time.sleep(0)
+
+
+def test_inspection_takes_a_slave_in_init_to_preop_and_leaves_a_working_one_alone(
+    opened: tuple[Bus, Any],
+) -> None:
+    """The inspection mode of the machine (the tools' bring-up without a running master): a
+    slave in INIT runs address..preop; a slave in OP keeps its state, and only its mailbox
+    owner is set up (its SyncManagers are live)."""
+    from ether_ros.master import slave_fsm
+
+    bus, _net = opened
+    s = bus.slave("front_left_leg")
+    assert bus.states()[s.position].state == "INIT"
+    slave_fsm.inspect(bus.worker, [s])
+    assert bus.states()[s.position].state == "PREOP"
+    assert isinstance(bus.sdo_read("front_left_leg", 0x1018, 1), int)
+    bus.start()
+    others = [o for o in bus.slaves if o is not s]
+    slave_fsm.inspect(bus.worker, others)
+    assert [st.state for st in bus.states()] == ["OP"] * 4
+    assert all(o.runtime.last_error == "" for o in others)
+    assert isinstance(bus.sdo_read(others[0].name, 0x1018, 1), int)

@@ -4,45 +4,17 @@ a slave that never answers does not stall the exchanges of the others."""
 from __future__ import annotations
 
 import threading
-from collections.abc import Sequence
 
-from ether_ros.master.datagrams import Cmd, DatagramService
+from ether_ros.master.datagrams import DatagramService
 from ether_ros.master.worker import AcyclicWorker, run_in_parallel
-
-
-class Wire:
-    """FPRD answers the station's low byte; a ``silent`` station never answers (wkc 0), as a
-    slave whose mailbox stays empty. Records every frame."""
-
-    def __init__(self, silent: int | None = None) -> None:
-        self.silent = silent
-        self.frames: list[list[tuple[int, int, bytes | int]]] = []
-        self.lock = threading.Lock()
-
-    def transact(
-        self, datagrams: Sequence[tuple[int, int, bytes | int]], timeout_us: int = 0,
-        retries: int = 0,
-    ) -> list[tuple[bytes, int]]:  # fmt: skip
-        with self.lock:
-            self.frames.append(list(datagrams))
-        out = []
-        for cmd, address, payload in datagrams:
-            station = address & 0xFFFF
-            n = payload if isinstance(payload, int) else len(payload)
-            if station == self.silent:
-                out.append((bytes(n), 0))
-            elif cmd == Cmd.FPRD:
-                out.append((bytes([station & 0xFF]) * n, 1))
-            else:
-                out.append((b"", 1))
-        return out
+from master_rigs import RecordingWire
 
 
 def test_a_slow_slave_does_not_stall_the_others() -> None:
     """One user polls a slave that never answers, as a mailbox poll of a stalled slave does,
     until the other users are done; with a bus-wide lock around a slave's exchange the others
     would wait for it for ever."""
-    wire = Wire(silent=0x1001)
+    wire = RecordingWire(silent=0x1001)
     worker = AcyclicWorker(wire)
     done = threading.Event()
     polls = [0]
@@ -75,7 +47,7 @@ def test_a_slow_slave_does_not_stall_the_others() -> None:
 
 
 def test_rounds_batch_parallel_users_and_keep_each_users_order() -> None:
-    wire = Wire()
+    wire = RecordingWire()
     worker = AcyclicWorker(wire)
     stations = list(range(0x1001, 0x1021))
 
@@ -92,7 +64,7 @@ def test_rounds_batch_parallel_users_and_keep_each_users_order() -> None:
 
 
 def test_a_lone_user_sends_at_once_in_its_own_thread() -> None:
-    wire = Wire()
+    wire = RecordingWire()
     worker = AcyclicWorker(wire)
     dg = worker.service()
     assert dg.fprd(0x1005, 0x0130, 2) == (b"\x05\x05", 1)
@@ -100,7 +72,7 @@ def test_a_lone_user_sends_at_once_in_its_own_thread() -> None:
 
 
 def test_a_slaves_mailbox_has_one_owner() -> None:
-    worker = AcyclicWorker(Wire())
+    worker = AcyclicWorker(RecordingWire())
     assert worker.mailbox(0x1001) is worker.mailbox(0x1001)
     assert worker.mailbox(0x1001) is not worker.mailbox(0x1002)
     assert worker.mailbox(0x1001).client("a") is None  # no mailbox set up yet

@@ -488,6 +488,11 @@ class SlaveConfig(_Model):
         return self._esi
 
     @property
+    def resolved_esi(self) -> EsiDevice | None:
+        """The ESI device ``load_bus_config`` matched this slave to (None: not resolved)."""
+        return self._esi
+
+    @property
     def layout(self) -> ProcessLayout:
         """Process variables for this slave's PDO assignment."""
         assert self._layout is not None, "only configs from load_bus_config are resolved"

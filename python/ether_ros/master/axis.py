@@ -194,8 +194,8 @@ def hand_over(bus: Bus, checked: Mapping[Axis, Sequence[TrajectoryPoint]], start
     times from ``start_ns`` on its clock (a start in the past: the engine trims the points
     already past). Returns the command's number (``status()['command_seq']`` once taken)."""
     for axis in checked:
-        axis._require_running()
-        axis._require_enabled("a trajectory")
+        axis.require_running()
+        axis.require_enabled("a trajectory")
     faults_before = [int(axis.status()["faults"]) for axis in checked]
     try:
         seq = int(
@@ -228,7 +228,7 @@ class Axis:
         return f"Axis({self.name!r}, slave {self.spec.slave!r}, axis {self.spec.axis_index + 1})"
 
     def __eq__(self, other: object) -> bool:
-        return isinstance(other, Axis) and other._bus is self._bus and other._index == self._index
+        return isinstance(other, Axis) and other.bus is self._bus and other.index == self._index
 
     def __hash__(self) -> int:
         return hash((id(self._bus), self._index))
@@ -256,7 +256,7 @@ class Axis:
     # ------------------------------------------------------------------------ status
     def status(self) -> dict[str, Any]:
         """Everything the RT thread published about the axis this cycle."""
-        self._require_running()
+        self.require_running()
         return dict(self._bus.engine.axis_status(self._index))
 
     @property
@@ -293,7 +293,7 @@ class Axis:
         :class:`AxisError` naming the state it stuck in and its error code after ``timeout``
         seconds (or at once when a fault will not be reset, or the bus is in panic), never
         hangs."""
-        self._require_running()
+        self.require_running()
         engine = self._bus.engine
         st = self.status()
         if engine.is_panicked:
@@ -325,7 +325,7 @@ class Axis:
     def disable(self, timeout: float = 1.0) -> None:
         """The configured stop (``on_stop``: quick stop or disable voltage); returns once the
         drive has left Operation Enabled."""
-        self._require_running()
+        self.require_running()
         self._bus.engine.axis_enable(self._index, False)
         self._wait(
             lambda st: st["state"] != "operation_enabled", timeout, "leave operation_enabled"
@@ -336,7 +336,7 @@ class Axis:
         automatic reset its retries back). It does not enable the axis: with ``restart:
         manual`` call :meth:`enable` afterwards (``restart: auto`` re-enables an axis that is
         wanted enabled and inside its limits)."""
-        self._require_running()
+        self.require_running()
         self._bus.engine.axis_reset_fault(self._index)
 
     def set_mode(self, mode: str, timeout: float = 1.0) -> None:
@@ -346,7 +346,7 @@ class Axis:
         from the actual position, velocity from the actual velocity or zero, torque from zero;
         docs/cia402.md, "Mode changes"). To or from hm only at standstill or while disabled.
         Raises :class:`AxisError` naming what the axis did instead (never a hang)."""
-        self._require_running()
+        self.require_running()
         if mode not in MODES:
             raise AxisCommandError(f"axis {self.name}: unknown mode {mode!r} (modes: "
                                    f"{', '.join(MODES)})")  # fmt: skip
@@ -420,7 +420,7 @@ class Axis:
                                      ("profile_deceleration", profile_deceleration))
                    if v is not None}  # fmt: skip
         raws = self._profile_raws(profile)
-        self._require_running()
+        self.require_running()
         for key, raw in raws.items():
             index = PROFILE_OBJECTS[key] + self.spec.axis_index * AXIS_STRIDE
             self._bus.sdo_write(self.spec.slave, index, 0, raw, "uint32")
@@ -509,7 +509,7 @@ class Axis:
         """Decelerate from the motion the axis is commanded to have to rest at its
         ``deceleration`` and hold (ends a trajectory or a setpoint stream; pp: a set-point where
         that stop ends; cst: zero torque). Several axes in the same cycle: ``bus.quiet_stop``."""
-        self._require_running()
+        self.require_running()
         self._bus.engine.axis_stop([self._index])
 
     def wait_trajectory(self, timeout: float) -> None:
@@ -581,7 +581,7 @@ class Axis:
     def extras(self) -> dict[str, float]:
         """The axis's extras (``extras:`` in the configuration) in SI units: inputs as last
         received, outputs as commanded."""
-        self._require_running()
+        self.require_running()
         out = {}
         for name, e in self.spec.extras.items():
             raw = self._bus.read(self.spec.slave, e.variable.key)
@@ -616,7 +616,7 @@ class Axis:
             except ProcessValueError as exc:
                 raise AxisCommandError(f"axis {self.name}: extra {name!r}: {exc}") from None
             raws[e.variable.key] = raw
-        self._require_running()
+        self.require_running()
         self._bus.write_many(self.spec.slave, raws)
 
     # ------------------------------------------------------------------------ homing
@@ -626,7 +626,7 @@ class Axis:
         in PREOP with its speeds, acceleration and offset). Returns once the drive reports
         homing attained, the axis back in its previous mode, holding where homing left it;
         :class:`AxisError` for a homing error or no end within ``timeout``."""
-        self._require_running()
+        self.require_running()
         if "hm" not in self.spec.modes:
             raise AxisCommandError(f"axis {self.name}: the drive does not offer homing (mode hm; "
                                    f"it offers {', '.join(self.spec.modes)})")  # fmt: skip
@@ -693,11 +693,11 @@ class Axis:
                 raise AxisCommandError(f"axis {self.name}: {what}{kind} {value:g} is beyond the "
                                        f"limit ±{limit:g}")  # fmt: skip
 
-    def _require_running(self) -> None:
+    def require_running(self) -> None:
         if not self._bus.running:
             raise AxisCommandError(f"axis {self.name}: the bus is not in OP (call start())")
 
-    def _require_enabled(self, what: str) -> None:
+    def require_enabled(self, what: str) -> None:
         """Refuse ``what`` while the drive is not in Operation Enabled: the engine would take
         it and never run it (the targets follow the actual state until the drive runs), so
         the caller gets the reason and what to do instead of an 'accepted' that moves

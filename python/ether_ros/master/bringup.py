@@ -41,13 +41,16 @@ from ether_ros.master.slave import Slave
 log = logging.getLogger(__name__)
 
 
-def setup_mailbox(dg: DatagramService, slave: Slave) -> None:
-    """INIT: SM0/SM1 and the Mailbox/SdoClient objects (if the slave has a mailbox)."""
+def setup_mailbox(dg: DatagramService, slave: Slave, write: bool = True) -> None:
+    """INIT: SM0/SM1 and the Mailbox/SdoClient objects (if the slave has a mailbox).
+    ``write`` False: the slave's mailbox SyncManagers are live already (a slave found in PREOP
+    or above by an inspection), only the objects are made."""
     sms = mailbox_sync_managers(str(slave), slave.found.header, slave.device)
     if not sms:
         slave.mailbox = slave.sdo = slave.sdo_client = None
         return
-    write_sync_managers(dg, slave.station, str(slave), sms)
+    if write:
+        write_sync_managers(dg, slave.station, str(slave), sms)
     from ether_ros.master.mailbox import Mailbox
 
     out_sm, in_sm = sms

@@ -87,7 +87,7 @@ class Bus:
         bus and check it against the configuration. The slaves stay in INIT until ``start``."""
         return lifecycle.open_bus(cls, config, interface, link, drift_frames)
 
-    def _bind(self, bound: bind.Bound) -> None:
+    def set_bound(self, bound: bind.Bound) -> None:  # the bus as bound (lifecycle.open_bus)
         self._bound, self.slaves, self.tree = bound, bound.slaves, bound.tree
         self.dc_reference, self.layout = bound.dc_reference, bound.layout
         self.image.bind(bound.layout, bound.slaves, bound.safe)
@@ -102,6 +102,14 @@ class Bus:
     def running(self) -> bool:
         return self._running
 
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    @property
+    def bound(self) -> bind.Bound | None:
+        return self._bound
+
     def start(self) -> None:
         """Every slave's state machine to OP, in parallel (``slave_fsm.bring_up``), then
         supervise."""
@@ -111,7 +119,8 @@ class Bus:
         """Safe outputs on the wire, slaves to SAFEOP then INIT, cyclic exchange stopped."""
         lifecycle.stop(self)
 
-    def _set_running(self, running: bool) -> None:
+    def set_running(self, running: bool) -> None:
+        """The cyclic exchange started or stopped (``lifecycle``'s, not a command)."""
         self._running = running
 
     def close(self) -> None:

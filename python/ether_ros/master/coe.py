@@ -128,17 +128,28 @@ class SdoClient:
     # ---- emergencies ----------------------------------------------------------------------
 
     def _on_emergency(self, payload: bytes) -> None:
+        self.record_emergency(payload)
+
+    def record_emergency(self, payload: bytes) -> Emergency | None:
+        """Keep the emergency of ``payload`` (the CoE payload, from the CoE header on) among
+        the collected ones and return it (None: too short to be one)."""
         if len(payload) < 5:
-            return
+            return None
         code, register = struct.unpack_from("<HB", payload, 2)
-        self.emergencies.append(Emergency(self.slave_name, code, register, payload[5:10]))
+        em = Emergency(self.slave_name, code, register, payload[5:10])
+        self.emergencies.append(em)
+        return em
+
+    def take_emergencies(self) -> list[Emergency]:
+        """Return and forget the collected emergencies (no mailbox read)."""
+        out = list(self.emergencies)
+        self.emergencies.clear()
+        return out
 
     def poll_emergencies(self) -> list[Emergency]:
         """Read pending mailbox messages, then return and forget the collected emergencies."""
         self.mailbox.poll_emergencies()
-        out = list(self.emergencies)
-        self.emergencies.clear()
-        return out
+        return self.take_emergencies()
 
     # ---- helpers ----------------------------------------------------------------------------
 

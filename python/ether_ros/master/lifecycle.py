@@ -55,7 +55,7 @@ def open_bus(
     bus = cls(setup, engine, drift_frames=drift_frames)
     try:
         with bus.acyclic():
-            bus._bind(bind.bind(setup, scan(bus.dg)))
+            bus.set_bound(bind.bind(setup, scan(bus.dg)))
     except BaseException:
         engine.close()
         if claim is not None:
@@ -69,7 +69,7 @@ def open_bus(
 
 def start(bus: Bus) -> None:
     """Every slave's machine to OP in parallel, then supervision."""
-    if bus._closed:
+    if bus.closed:
         raise BusError("the bus is closed")
     if bus.running:
         return
@@ -81,11 +81,11 @@ def start(bus: Bus) -> None:
         sync0[0] = _bus_dc(bus)
 
     def start_cyclic() -> None:
-        assert bus._bound is not None
+        assert bus.bound is not None
         bus.image.to_safe()  # the cyclic frame starts with the safe outputs
-        bus.plan = bind.engine_plan(bus.setup, bus._bound, bus.time_offset_ns, bus.image.safe)
+        bus.plan = bind.engine_plan(bus.setup, bus.bound, bus.time_offset_ns, bus.image.safe)
         bus.engine.start_cyclic(bus.plan)
-        bus._set_running(True)
+        bus.set_running(True)
 
     def op_ready(_s: Slave) -> None:
         # Slaves check for valid outputs (and running SYNC0) before they accept OP.
@@ -104,6 +104,9 @@ def start(bus: Bus) -> None:
             if bus.running:
                 _shutdown_cyclic(bus)
             raise
+    # While it runs, the worker reads what idle slaves put into their mailboxes (emergencies)
+    # and the supervisor reports them.
+    bus.worker.start_polling(bus.setup.mailbox_poll_s)
     bus.supervisor = Supervisor(bus)
     bus.supervisor.start()
 
@@ -127,6 +130,7 @@ def stop(bus: Bus) -> None:
     if bus.supervisor is not None:
         bus.supervisor.stop()
         bus.supervisor = None
+    bus.worker.stop_polling()
     with bus.acyclic():
         axis_mod.stop_all(bus.engine, len(bus.setup.axes), AXIS_STOP_WAIT_S)
         bus.image.to_safe(on_wire=True)
@@ -148,7 +152,7 @@ def _shutdown_cyclic(bus: Bus) -> None:
     try:
         bus.engine.stop_cyclic()
     finally:
-        bus._set_running(False)
+        bus.set_running(False)
 
 
 def recover(bus: Bus, s: Slave) -> None:

@@ -62,6 +62,8 @@ class Mailbox:
 
     Emergency messages (CoE service 1) can arrive at any time; they are handed to
     ``emergency_handler`` (the CoE payload, starting with the CoE header) and never end a wait.
+    A message of another type that nobody waits for goes to ``message_handler`` (type, payload;
+    it returns whether it took it), else it is counted in ``discarded``.
     """
 
     def __init__(
@@ -89,6 +91,7 @@ class Mailbox:
         self.tx_size = tx_size
         self._counter: int | None = None
         self.emergency_handler: Callable[[bytes], None] | None = None
+        self.message_handler: Callable[[int, bytes], bool] | None = None
         # Messages of other types that arrived while waiting for something else.
         self.discarded = 0
         # Repeat requests sent because a read mailbox answer got lost.
@@ -241,8 +244,11 @@ class Mailbox:
         if mbx_type == MailboxType.ERROR:
             code = struct.unpack_from("<H", payload, 2)[0] if len(payload) >= 4 else 0
             raise MailboxErrorReply(self.slave_name, code)
-        if self._is_emergency(mbx_type, payload) and self.emergency_handler is not None:
-            self.emergency_handler(payload)
+        if self._is_emergency(mbx_type, payload):
+            if self.emergency_handler is not None:
+                self.emergency_handler(payload)
+                return
+        elif self.message_handler is not None and self.message_handler(mbx_type, payload):
             return
         self.discarded += 1
 

@@ -33,6 +33,9 @@ from ether_ros.topology import Link
 DEFAULT_CYCLE_ORDER = "send_at_wake"
 DEFAULT_DC_MODE = "ref_follows_master"
 DEFAULT_DEADLINE_RUNTIME_US = 100
+#: How often the acyclic worker polls idle mailboxes while the bus runs (emergencies read
+#: within this; ``worker.py``).
+DEFAULT_MAILBOX_POLL_S = 0.02
 
 
 @dataclass(frozen=True)
@@ -72,6 +75,7 @@ class BusSetup:
     cycle_order: str
     watchdog_ns: int
     axes: tuple[AxisSpec, ...]
+    mailbox_poll_s: float = DEFAULT_MAILBOX_POLL_S
 
     @classmethod
     def compile(cls, config: Any) -> BusSetup:
@@ -137,7 +141,7 @@ class BusSetup:
 
 def device_of(slave_cfg: Any) -> EsiDevice | None:
     """The ESI device of a configured slave, as resolved by ``load_bus_config``."""
-    dev = getattr(slave_cfg, "_esi", None)
+    dev = getattr(slave_cfg, "resolved_esi", None)
     return dev if isinstance(dev, EsiDevice) else None
 
 

@@ -39,6 +39,21 @@ class Slave:
     extra: dict[str, Any] = field(default_factory=dict)
     setup: SlaveSetup | None = None  # the configured slave (setup.py)
 
+    @classmethod
+    def unconfigured(cls, found: FoundSlave, device: EsiDevice | None, name: str) -> Slave:
+        """A slave found on the wire with no configuration behind it (an inspection: its state
+        machine up to PREOP, its mailbox; no process data)."""
+        return cls(
+            name=name,
+            position=found.position,
+            station=found.station,
+            found=found,
+            config=None,
+            device=device,
+            selection=PdoSelection(),
+            layout=None,
+        )
+
     # Supervision's view, kept on the runtime (these names are the API's).
     @property
     def lost(self) -> bool:

@@ -21,7 +21,11 @@ Bring-up (``bring_up``) runs every slave's machine in parallel over the acyclic 
 phases around what is bus-wide: ``address``..``process`` for every slave, the DC delay
 measurement and SYNC0 of the whole bus, ``safeop``..``so``, the cyclic frame started, then
 ``outputs``..``op``. Recovery (``recover``) runs one slave's machine from ``address`` to ``op``
-while the others keep cycling; ``inspect`` takes a slave to PREOP (its mailbox usable).
+while the others keep cycling; inspection (``inspect``: the tools' bus opened without a running
+master) takes a slave to PREOP, its mailbox usable: ``address``..``preop`` for a slave in INIT or
+with an AL error, only the ``mailbox`` step's owner set-up (its SyncManagers live already, left
+as they are) for one already in PREOP, SAFEOP, OP or BOOT without an error — an inspection never
+takes a working slave down.
 """
 
 from __future__ import annotations
@@ -120,6 +124,8 @@ class SlaveFsm:
         self.dg: DatagramService = worker.service()
         self.al = AlStateMachine(self.dg)
         self.owner = worker.mailbox(slave.station)
+        # False while an inspection attaches to a slave whose mailbox SyncManagers are live.
+        self._write_sms = True
         self._run = {
             "address": self._address,
             "init": lambda: self._transition(AlState.INIT),
@@ -149,6 +155,19 @@ class SlaveFsm:
                     raise SlaveStepError(str(self.slave), step, self._status(), exc) from exc
             runtime.step = ""
 
+    def inspect(self) -> None:
+        """To PREOP with the mailbox usable, never down from a working state (module doc)."""
+        status = self._status()
+        live = status is not None and status.answered and status.state in _MAILBOX_LIVE
+        if live and status is not None and not status.error:
+            self._write_sms = False
+            try:
+                self.run("mailbox", "mailbox")
+            finally:
+                self._write_sms = True
+            return
+        self.run("address", "preop")
+
     def _status(self) -> AlStatus | None:
         try:
             return self.al.read([self.slave.ref])[0]
@@ -160,7 +179,7 @@ class SlaveFsm:
         self.slave.runtime.al_state = int(state)
 
     def _mailbox(self) -> None:
-        bringup.setup_mailbox(self.dg, self.slave)
+        bringup.setup_mailbox(self.dg, self.slave, write=self._write_sms)
         s = self.slave
         self.owner.attach(s.mailbox, s.sdo_client)
         s.sdo = self.owner.client(s.name)
@@ -196,6 +215,9 @@ class SlaveFsm:
             raise BusError("does not answer", slave=str(s))
 
 
+#: States in which a slave's mailbox SyncManagers are set up already (by whoever took it there).
+_MAILBOX_LIVE = (AlState.PREOP, AlState.SAFEOP, AlState.OP, AlState.BOOT)
+
 _STEP_OF = {
     AlState.INIT: "init",
     AlState.PREOP: "preop",
@@ -213,7 +235,12 @@ def run_phase(
     def work(_dg: DatagramService, s: Slave) -> None:
         SlaveFsm(s, worker, hooks).run(first, last)
 
-    errors = run_in_parallel(worker, slaves, work)
+    _raise_first(slaves, run_in_parallel(worker, slaves, work))
+
+
+def _raise_first(slaves: Sequence[Slave], errors: Sequence[BaseException | None]) -> None:
+    """Each slave's error on its runtime; the first failure in bus order raised, naming how
+    many others failed."""
     for s, exc in zip(slaves, errors, strict=True):
         s.runtime.last_error = str(exc) if exc is not None else ""
     failed = [(s, e) for s, e in zip(slaves, errors, strict=True) if e is not None]
@@ -252,9 +279,21 @@ def recover(worker: AcyclicWorker, slave: Slave, hooks: Hooks) -> None:
     SlaveFsm(slave, worker, hooks).run("address", "op")
 
 
-def inspect(worker: AcyclicWorker, slave: Slave, hooks: Hooks) -> None:
-    """One slave to PREOP with its mailbox set up (for inspection of its dictionary)."""
-    SlaveFsm(slave, worker, hooks).run("address", "preop")
+def inspect(worker: AcyclicWorker, slaves: Sequence[Slave]) -> None:
+    """Inspection: every slave of ``slaves`` to PREOP with its mailbox set up, their machines
+    in parallel (a slave already working is only attached to, module doc); raises the first
+    failure in bus order."""
+    hooks = Hooks(outputs=_no_outputs)
+
+    def work(_dg: DatagramService, s: Slave) -> None:
+        SlaveFsm(s, worker, hooks).inspect()
+
+    errors = run_in_parallel(worker, slaves, work)
+    _raise_first(slaves, errors)
+
+
+def _no_outputs(_slave: Slave) -> None:
+    """Inspection never reaches the ``outputs`` step (it stops at PREOP)."""
 
 
 def outputs_after(cycles: int, cycle_ns: int, minimum_s: float) -> Callable[[Any], None]:

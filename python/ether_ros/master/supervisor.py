@@ -15,8 +15,10 @@ What it sees and does:
   on that port in its DL status (a cable pulled behind a junction): ``branch_lost`` once,
   naming the slave and port and the slaves cut off, ``branch_restored`` when they answer
   again;
-- CoE emergency messages in the slaves' mailboxes (polled every ``emergency_period_s``):
-  ``emergency``, one per message.
+- CoE emergency messages: ``emergency``, one per message, every round. The acyclic worker
+  reads them (``worker.py``: its exchanges, and its polls of idle mailboxes) and the slave's SDO
+  client keeps them; the supervisor only takes them (no mailbox read of its own), except after
+  a failed recovery, when it reads the mailbox before the next attempt's INIT empties it.
 """
 
 from __future__ import annotations
@@ -79,15 +81,12 @@ class Supervisor:
         period_s: float = 0.05,
         retry_s: float = 0.2,
         max_retry_s: float = 2.0,
-        emergency_period_s: float = 0.5,
         recover_in_threads: bool = True,
     ) -> None:
         self.bus = bus
         self.period_s = period_s
         self.retry_s = retry_s
         self.max_retry_s = max_retry_s
-        self.emergency_period_s = emergency_period_s
-        self._next_emergency_poll = 0.0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="ether_ros-supervisor", daemon=True)
         # Working-counter errors seen so far and groups in a burst of them, per slave group.
@@ -172,9 +171,7 @@ class Supervisor:
             if self._stop.is_set() or now < self._next_try.get(s.name, 0.0):
                 continue
             self._try_recover(s)
-        if now >= self._next_emergency_poll:
-            self._next_emergency_poll = now + self.emergency_period_s
-            self._poll_emergencies()
+        self._report_emergencies()
 
     def _locate_cuts(self, answered: list[bool]) -> None:
         """Report each branch that fell silent behind a slave that still answers (once), and
@@ -253,14 +250,14 @@ class Supervisor:
                 self._wkc_burst.discard(name)
             self._wkc_errors[name] = errors
 
-    def _poll_emergencies(self) -> None:
+    def _report_emergencies(self) -> None:
+        """The emergencies the worker read since the last round (a slave whose machine runs
+        reports its own when it is done)."""
         for s in self.bus.slaves:
-            if not s.lost and not self._stop.is_set() and s.name not in self._recovering:
-                self._poll_emergencies_of(s)
-
-    def _poll_emergencies_of(self, s: Slave) -> None:
-        for em in self._read_emergencies(s):
-            self._emit("emergency", s, em.text)
+            if s.sdo is None or self._stop.is_set() or s.name in self._recovering:
+                continue
+            for em in s.sdo.take_emergencies():
+                self._emit("emergency", s, em.text)
 
     def _read_emergencies(self, s: Slave) -> list[Any]:
         if s.sdo is None:

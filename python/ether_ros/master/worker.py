@@ -18,27 +18,44 @@ the engine's real-time thread has its own frames (``crates/engine``).
 Mailboxes: ``mailbox(slave)`` is the slave's one :class:`SlaveMailbox` — its mailbox counter,
 repeat requests, polling of SM1's mailbox-full bit (``mailbox.py``) and its SDO client — used
 by one exchange at a time (a lock per slave, never one for the bus), and the emergencies and
-unsolicited messages it receives go to the slave's owner callbacks (``on_emergency``).
+unsolicited messages it receives go to the slave's owner callbacks (``on_emergency``,
+``on_message``). An exchange reads SM1 while it waits for its reply; between exchanges the
+worker polls the idle mailboxes itself (``start_polling``, every ``poll_period_s``): one round
+carries the SM1 status read of every idle slave with a mailbox (they share frames), and only a
+slave whose mailbox is full is read — so an emergency a slave raises while nobody talks to it
+is read and routed within a period, not at the next request. A slave in an exchange (its lock
+held) is skipped: the exchange reads its mailbox.
 """
 
 from __future__ import annotations
 
 import contextlib
+import logging
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from ether_ros._native.protocol import sm
+from ether_ros.errors import EtherRosError
 from ether_ros.master.datagrams import (
     DATAGRAM_OVERHEAD,
     FRAME_PAYLOAD,
+    Cmd,
     DatagramService,
     Transport,
+    fixed_address,
 )
+from ether_ros.master.mailbox import SM1_STATUS
+
+log = logging.getLogger(__name__)
 
 #: How long a round waits for the datagrams of the other parallel users before it goes out.
 LINGER_S = 0.002
+#: How often idle mailboxes are polled (``start_polling``): an emergency is read within this,
+#: at the cost of one small datagram per slave with a mailbox per period (sharing frames).
+MAILBOX_POLL_PERIOD_S = 0.02
 
 Request = Sequence[tuple[int, int, bytes | int]]
 
@@ -67,6 +84,8 @@ class WorkerStats:
     frames: int = 0
     requests: int = 0
     datagrams: int = 0
+    mailbox_polls: int = 0  # rounds of idle-mailbox polling
+    mailbox_reads: int = 0  # idle mailboxes found full and read
 
 
 class AcyclicWorker:
@@ -85,6 +104,8 @@ class AcyclicWorker:
         self._parallel = 0
         self._mailboxes: dict[int, SlaveMailbox] = {}
         self._mailbox_guard = threading.Lock()
+        self._poller: threading.Thread | None = None
+        self._stop_polling = threading.Event()
 
     # -- datagrams ------------------------------------------------------------------------------
     def service(self) -> DatagramService:
@@ -117,12 +138,20 @@ class AcyclicWorker:
     def transact(self, request: Request, timeout_us: int = 20_000, retries: int = 3) -> list[Any]:
         """Queue ``request`` (datagrams that go in one frame, never split) and return its
         replies once the round that carried it is back."""
-        mine = _Queued(list(request), timeout_us, retries)
+        return self.transact_each([request], timeout_us, retries)[0]
+
+    def transact_each(
+        self, requests: Sequence[Request], timeout_us: int = 20_000, retries: int = 3
+    ) -> list[list[Any]]:
+        """Several requests queued at once (each one frame at most; together in as few frames
+        as hold them) and each one's replies; the first failure is raised."""
+        queued = [_Queued(list(r), timeout_us, retries) for r in requests]
         with self._cond:
-            self._queue.append(mine)
+            self._queue.extend(queued)
             self._cond.notify_all()
-            while not mine.done:
-                if not self._sending and mine in self._queue and self._round_ready():
+            while not all(q.done for q in queued):
+                mine = any(q in self._queue for q in queued)
+                if not self._sending and mine and self._round_ready():
                     batch, self._queue = self._queue, []
                     self._sending = True
                     self._cond.release()
@@ -134,10 +163,13 @@ class AcyclicWorker:
                         self._cond.notify_all()
                     continue
                 self._cond.wait(LINGER_S / 2)
-        if mine.error is not None:
-            raise mine.error
-        assert mine.replies is not None
-        return mine.replies
+        out = []
+        for q in queued:
+            if q.error is not None:
+                raise q.error
+            assert q.replies is not None
+            out.append(q.replies)
+        return out
 
     def _round_ready(self) -> bool:
         """A round goes out when every parallel user has queued, or the oldest request has
@@ -193,11 +225,82 @@ class AcyclicWorker:
         with self._mailbox_guard:
             return list(self._mailboxes.values())
 
+    # -- polling of idle mailboxes ----------------------------------------------------------
+    def start_polling(self, period_s: float = MAILBOX_POLL_PERIOD_S) -> None:
+        """Poll the idle mailboxes every ``period_s`` in a thread of the worker's (module doc)
+        until ``stop_polling``; the cyclic frame never waits for it (the engine's own)."""
+        if period_s <= 0:
+            raise ValueError(f"mailbox poll period must be positive, got {period_s} s")
+        if self._poller is not None:
+            return
+        self._stop_polling.clear()
+
+        def run() -> None:
+            while not self._stop_polling.wait(period_s):
+                try:
+                    self.poll_idle_mailboxes()
+                except Exception:  # a bad round must not end the polling
+                    log.exception("polling the idle mailboxes failed")
+
+        self._poller = threading.Thread(target=run, name="ether_ros-mailbox-poll", daemon=True)
+        self._poller.start()
+
+    def stop_polling(self) -> None:
+        poller, self._poller = self._poller, None
+        if poller is None:
+            return
+        self._stop_polling.set()
+        if poller is not threading.current_thread():
+            poller.join(timeout=30)
+
+    @property
+    def polling(self) -> bool:
+        return self._poller is not None
+
+    def poll_idle_mailboxes(self) -> int:
+        """One polling round: SM1's status of every idle slave with a mailbox in one round of
+        requests (sharing frames), then the full ones read and their messages routed to the
+        slave's owners. Returns how many mailboxes were read."""
+        held: list[SlaveMailbox] = []
+        for box in self.mailboxes():
+            if box.lock.acquire(blocking=False):
+                if box.mailbox is None:
+                    box.lock.release()
+                else:
+                    held.append(box)
+        read = 0
+        try:
+            if not held:
+                return 0
+            self.stats.mailbox_polls += 1
+            reads = [(int(Cmd.FPRD), fixed_address(b.station, SM1_STATUS), 1) for b in held]
+            # As many reads a request as fill a frame: few requests to queue, frames full.
+            per_frame = FRAME_PAYLOAD // (DATAGRAM_OVERHEAD + 1)
+            requests = [reads[k : k + per_frame] for k in range(0, len(reads), per_frame)]
+            try:
+                replies = self.transact_each(requests, self.timeout_us, retries=0)
+            except EtherRosError as exc:
+                log.debug("idle mailbox poll: %s", exc)
+                return 0
+            flat = [reply for request in replies for reply in request]
+            for box, (data, wkc) in zip(held, flat, strict=True):
+                if wkc == 1 and data and data[0] & sm.STATUS_MAILBOX_FULL:
+                    read += 1
+                    self.stats.mailbox_reads += 1
+                    box.read_idle()
+            return read
+        finally:
+            for box in held:
+                box.lock.release()
+
 
 class SlaveMailbox:
     """One slave's mailbox, owned by the worker: the ``Mailbox`` (counter, repeat requests,
     SM1 polling) and its ``SdoClient``, used by one exchange at a time. Set up again after
-    every INIT (the slave's SyncManagers change); emergencies go to ``on_emergency``."""
+    every INIT (the slave's SyncManagers change). Its owners: an emergency is kept by the SDO
+    client (``take_emergencies``) and handed to ``on_emergency``; a message of another type
+    that nobody waits for to ``on_message`` (``(type, payload)``; counted as discarded when
+    nobody takes it)."""
 
     def __init__(self, station: int) -> None:
         self.station = station
@@ -205,22 +308,39 @@ class SlaveMailbox:
         self.mailbox: Any = None
         self.sdo: Any = None
         self.on_emergency: list[Callable[[Any], None]] = []
+        self.on_message: list[Callable[[int, bytes], None]] = []
 
     def attach(self, mailbox: Any, sdo: Any) -> None:
         """The slave's mailbox after its SyncManagers were (re)configured; None: it has none."""
         with self.lock:
             self.mailbox, self.sdo = mailbox, sdo
+            if mailbox is None:
+                return
+            mailbox.message_handler = self._unsolicited
             if sdo is not None:
-                handler = sdo._on_emergency
+                mailbox.emergency_handler = self._emergency
 
-                def route(payload: bytes) -> None:
-                    before = len(sdo.emergencies)
-                    handler(payload)
-                    if len(sdo.emergencies) > before:
-                        for cb in list(self.on_emergency):
-                            cb(sdo.emergencies[-1])
+    def _emergency(self, payload: bytes) -> None:
+        em = self.sdo.record_emergency(payload)
+        if em is not None:
+            for cb in list(self.on_emergency):
+                cb(em)
 
-                mailbox.emergency_handler = route
+    def _unsolicited(self, mbx_type: int, payload: bytes) -> bool:
+        for cb in list(self.on_message):
+            cb(mbx_type, payload)
+        return bool(self.on_message)
+
+    def read_idle(self) -> None:
+        """Read what an idle slave put into its mailbox and route it (the caller holds the
+        lock); a mailbox error reply or a failed read is logged, not raised: nobody asked."""
+        with self.lock:
+            if self.mailbox is None:
+                return
+            try:
+                self.mailbox.poll_emergencies()
+            except EtherRosError as exc:
+                log.debug("station 0x%04X: reading its idle mailbox: %s", self.station, exc)
 
     def client(self, name: str) -> LockedSdo | None:
         """The SDO client as its users see it: every call holds this slave's lock."""

@@ -1,11 +1,13 @@
 """Look into a bus without running it, like IgH's ``ethercat`` tool: states, registers, SII,
 PDOs, the object dictionary, SDO upload/download, an ESI from the SII, the topology.
 
-An :class:`Inspector` owns an engine on an interface (or an in-process simulator) and the
-acyclic datagram service; it scans without resetting the slaves (station addresses 0x1001 +
-position, as a running ether_ros master uses too). Only commands that need the mailbox change
-anything: a slave still in INIT gets its mailbox SyncManagers and goes to PREOP, as the IgH
-master does before any SDO access.
+An :class:`Inspector` owns an engine on an interface (or an in-process simulator) and an
+acyclic worker over it (``master/worker.py``); it scans without resetting the slaves (station
+addresses 0x1001 + position, as a running ether_ros master uses too). Only commands that need
+the mailbox change anything, and they do it through the slave's state machine in its inspection
+mode (``master/slave_fsm.py``: ``inspect``), the one bring-up of the master: a slave in INIT (or
+with an AL error) gets its mailbox SyncManagers and goes to PREOP, as the IgH master does before
+any SDO access; a slave already in PREOP or above keeps its state.
 """
 
 from __future__ import annotations
@@ -32,10 +34,12 @@ from ether_ros.config import types as dt
 from ether_ros.config.esi import EsiDevice
 from ether_ros.config.sii import SiiInfo, parse_sii
 from ether_ros.errors import BusError, EtherRosError, LinkError, MailboxTimeout
+from ether_ros.master import slave_fsm
 from ether_ros.master.al import AlState, AlStateMachine, AlStatus, SlaveRef, al_code_text
-from ether_ros.master.datagrams import DatagramService
 from ether_ros.master.link import open_engine
 from ether_ros.master.scan import FoundSlave, bus_tree, scan
+from ether_ros.master.slave import Slave
+from ether_ros.master.worker import AcyclicWorker
 
 
 class InspectError(EtherRosError):
@@ -118,12 +122,14 @@ class Inspector:
     ) -> None:
         self.engine = engine
         self.interface = interface
-        self.dg = DatagramService(engine)
+        self.worker = AcyclicWorker(engine)
+        self.dg = self.worker.service()
         self.al = AlStateMachine(self.dg)
         self.devices = list(devices)
         self.found: list[FoundSlave] = scan(self.dg, reset=False)
         self.names = names or {}
-        self._sdo: dict[int, Any] = {}
+        # Slaves taken to PREOP by their state machine, by position (their mailbox set up).
+        self._inspected: dict[int, Slave] = {}
         self.claim: InterfaceClaim | None = None
 
     @classmethod
@@ -255,12 +261,13 @@ class Inspector:
                 "`ether-ros run` or the Bus API for that; `states` goes to INIT, "
                 "PREOP or BOOT"
             )
-        refs = [self.ref(f) for f in slaves]
         if target == AlState.PREOP:
-            for f in slaves:
-                self._mailbox_sms(f, write_if_init=True)
-        self.al.transition(refs, target)
-        self._sdo.clear()
+            # INIT (or an AL error) → PREOP through each slave's state machine; a slave in
+            # SAFEOP or OP is then asked down to PREOP like the others.
+            self._to_preop(slaves)
+        self.al.transition([self.ref(f) for f in slaves], target)
+        if target != AlState.PREOP:
+            self._inspected.clear()  # a slave back in INIT has its mailbox set up anew
         return self.states(which)
 
     # ---- registers ------------------------------------------------------------------------
@@ -287,49 +294,36 @@ class Inspector:
 
     # ---- mailbox / CoE --------------------------------------------------------------------
 
-    def _mailbox_sms(self, f: FoundSlave, write_if_init: bool) -> list[Any]:
-        from ether_ros.master.configure import mailbox_sync_managers, write_sync_managers
-
-        who = str(self.ref(f))
-        sms = mailbox_sync_managers(who, f.header, self.device(f))
-        if not sms:
-            return []
-        status = self.al.read([self.ref(f)])[0]
-        if write_if_init and status.answered and status.state == AlState.INIT:
-            write_sync_managers(self.dg, f.station, who, sms)
-        return sms
+    def _to_preop(self, slaves: Sequence[FoundSlave]) -> list[Slave]:
+        """``slaves`` to PREOP with their mailboxes set up, through their state machines
+        (``slave_fsm.inspect``, in parallel): the one bring-up of the master."""
+        out = [
+            self._inspected.get(f.position)
+            or Slave.unconfigured(f, self.device(f), self.name_of(f))
+            for f in slaves
+        ]
+        todo = [s for s in out if s.position not in self._inspected]
+        slave_fsm.inspect(self.worker, todo)
+        for s in todo:
+            self._inspected[s.position] = s
+        return out
 
     def sdo_client(self, which: str | int) -> Any:
         """The slave's SDO client; a slave in INIT is taken to PREOP first."""
-        from ether_ros.master import coe
-        from ether_ros.master.mailbox import Mailbox
-
         f = self.slave(which)
-        if f.position in self._sdo:
-            return self._sdo[f.position]
+        known = self._inspected.get(f.position)
+        if known is not None and known.sdo is not None:
+            return known.sdo
         device = self.device(f)
         if not f.header.has_coe and not (device is not None and device.mailbox is not None):
             raise InspectError(f"{self.ref(f)}: has no CoE mailbox")
-        sms = self._mailbox_sms(f, write_if_init=True)
-        if not sms:
-            raise InspectError(f"{self.ref(f)}: has no mailbox")
-        status = self.al.read([self.ref(f)])[0]
-        if status.state == AlState.INIT or status.error:
-            self.al.transition([self.ref(f)], AlState.PREOP)
-        out_sm, in_sm = sms
-        mailbox = Mailbox(
-            self.dg,
-            f.station,
-            self.name_of(f),
-            out_sm.start,
-            out_sm.length,
-            in_sm.start,
-            in_sm.length,
-        )
-        _sync_mailbox_counter(coe.SdoClient(mailbox, self.name_of(f), timeout_s=0.3))
-        client = coe.SdoClient(mailbox, self.name_of(f))
-        self._sdo[f.position] = client
-        return client
+        (s,) = self._to_preop([f])
+        if s.sdo is None:
+            what = "no mailbox" if s.mailbox is None else "no CoE mailbox"
+            raise InspectError(f"{self.ref(f)}: has {what}")
+        with self.worker.mailbox(s.station).lock:
+            _sync_mailbox_counter(s.sdo_client)
+        return s.sdo
 
     def resolve_object(
         self, which: str | int, spec: str, type_name: str | None = None
@@ -667,7 +661,7 @@ class RemoteInspector(Inspector):
         self.engine = None
         self.interface = interface
         self.devices = list(devices)
-        self._sdo = {}
+        self._inspected = {}
         self.claim = None
         self.found = []
         running: dict[int, str] = {}
@@ -805,7 +799,7 @@ def _interface_counters(interface: str) -> dict[str, Any]:
     return sys_stats
 
 
-def _sync_mailbox_counter(probe: Any) -> None:
+def _sync_mailbox_counter(client: Any) -> None:
     """Make sure the slave takes our next mailbox message.
 
     A slave drops a message whose counter equals the one of the message before (it takes it
@@ -814,14 +808,18 @@ def _sync_mailbox_counter(probe: Any) -> None:
     read of 0x1000 (device type) with a short timeout, repeated with the next counter until
     the slave answers (with data or an abort: both mean it took the message), settles that.
     """
-    for _attempt in range(3):
-        try:
-            probe.upload(coe_facts.DEVICE_TYPE, 0)
-            return
-        except MailboxTimeout:
-            continue  # the message may have vanished as a repeat: try with the next counter
-        except EtherRosError:
-            return  # an abort is an answer: the counter was accepted
+    saved, client.timeout_s = client.timeout_s, 0.3
+    try:
+        for _attempt in range(3):
+            try:
+                client.upload(coe_facts.DEVICE_TYPE, 0)
+                return
+            except MailboxTimeout:
+                continue  # the message may have vanished as a repeat: try the next counter
+            except EtherRosError:
+                return  # an abort is an answer: the counter was accepted
+    finally:
+        client.timeout_s = saved
 
 
 def _check_register(address: int, length: int) -> None:
