@@ -9,6 +9,7 @@ pub mod devices;
 pub mod esc;
 pub mod faults;
 pub mod firmware;
+pub mod foe;
 pub mod fmmu;
 pub mod network;
 pub mod od;
@@ -22,4 +23,5 @@ pub mod spec;
 pub mod topology;
 
 pub use network::Network;
+pub use foe::FoeSpec;
 pub use spec::{MailboxSpec, SlaveSpec};
