@@ -19,6 +19,7 @@ from __future__ import annotations
 import socket
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -206,9 +207,8 @@ def test_firmware_update_in_boot_changes_the_reported_version(
     slave.write_state()
     assert slave.state_check(pysoem.BOOT_STATE, 3_000_000) == pysoem.BOOT_STATE
     # In BOOT only the firmware file.
-    assert wire.foe_errors(
-        lambda: slave.foe_read("params.txt", PASSWORD, 4096, TIMEOUT_US)
-    ) == {foe_error.ERR_NOT_BOOTSTRAP}
+    boot_read = read_of(slave, "params.txt")
+    assert wire.foe_errors(boot_read) == {foe_error.ERR_NOT_BOOTSTRAP}
     assert slave.foe_write("firmware.efw", PASSWORD, image, TIMEOUT_US) > 0
     # Not before the restart: back to INIT, the device restarts with the image; re-read
     # (SOEM's config_init: SII, mailbox, PREOP), it reports the image's version.
@@ -220,6 +220,11 @@ def test_firmware_update_in_boot_changes_the_reported_version(
     assert slave.sdo_read(0x100A, 0) == b"2.0.7" != before
     # The files are still there.
     assert slave.foe_read("params.txt", PASSWORD, 4096, TIMEOUT_US) == b"gain=3\n"
+
+
+def read_of(slave: Any, name: str) -> Callable[[], object]:
+    """A read of ``name`` by pysoem, for ``Wire.foe_errors``."""
+    return lambda: slave.foe_read(name, PASSWORD, 4096, TIMEOUT_US)
 
 
 def _word(data: bytes, k: int) -> int:

@@ -480,7 +480,11 @@ fn foe_message<'py>(
             entire: (field >> 16) as u16,
             text: body,
         },
-        op => return Err(PyValueError::new_err(p::foe::ParseError::UnknownOpcode(op).to_string())),
+        op => {
+            return Err(PyValueError::new_err(
+                p::foe::ParseError::UnknownOpcode(op).to_string(),
+            ))
+        }
     };
     Ok(PyBytes::new(py, &m.encode()))
 }
@@ -492,7 +496,11 @@ fn foe_message<'py>(
 fn parse_foe<'py>(py: Python<'py>, data: &[u8]) -> PyResult<(u8, u32, Bound<'py, PyBytes>)> {
     let m = p::foe::Message::parse(data).map_err(|e| PyValueError::new_err(e.to_string()))?;
     let field = u32::from_le_bytes([data[2], data[3], data[4], data[5]]);
-    Ok((m.opcode(), field, PyBytes::new(py, &data[p::foe::HEADER_LEN..])))
+    Ok((
+        m.opcode(),
+        field,
+        PyBytes::new(py, &data[p::foe::HEADER_LEN..]),
+    ))
 }
 
 /// Text of an FoE error code.

@@ -135,7 +135,9 @@ impl PyFoeSpec {
         inner.firmware = firmware.unwrap_or(inner.firmware);
         inner.busy = busy.unwrap_or(inner.busy);
         if inner.firmware.is_empty() {
-            return Err(PyValueError::new_err("FoeSpec.firmware: expected a file name"));
+            return Err(PyValueError::new_err(
+                "FoeSpec.firmware: expected a file name",
+            ));
         }
         inner
             .check()

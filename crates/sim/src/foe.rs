@@ -392,11 +392,10 @@ pub fn set_software_version(od: &mut ObjectDictionary, version: &str) {
             object_code: coe::OBJECT_VAR,
         });
     }
-    let (name, access) = od
-        .entry(coe::SOFTWARE_VERSION, 0)
-        .map_or(("Manufacturer software version".into(), Access::ReadOnly), |e| {
-            (e.name.clone(), e.access)
-        });
+    let (name, access) = od.entry(coe::SOFTWARE_VERSION, 0).map_or(
+        ("Manufacturer software version".into(), Access::ReadOnly),
+        |e| (e.name.clone(), e.access),
+    );
     od.add_entry(Entry {
         index: coe::SOFTWARE_VERSION,
         subindex: 0,
@@ -444,12 +443,11 @@ mod tests {
             state,
         );
         assert_eq!(reply, Some((facts::OPCODE_ACK, 0, vec![])));
-        let mut packet = 1;
         let mut chunks: Vec<&[u8]> = data.chunks(CHUNK).collect();
-        if data.len() % CHUNK == 0 {
+        if data.len().is_multiple_of(CHUNK) {
             chunks.push(&[]);
         }
-        for chunk in chunks {
+        for (packet, chunk) in (1..).zip(chunks) {
             let reply = ask(
                 s,
                 Message::Data {
@@ -459,7 +457,6 @@ mod tests {
                 state,
             );
             assert_eq!(reply, Some((facts::OPCODE_ACK, packet, vec![])));
-            packet += 1;
         }
         assert!(!s.busy_with_transfer());
     }
@@ -508,7 +505,10 @@ mod tests {
             files: vec![("cfg.txt".into(), b"gain=3".to_vec())],
             ..FoeSpec::default()
         });
-        assert_eq!(read_file(&mut s, "cfg.txt", al::PREOP), Ok(b"gain=3".to_vec()));
+        assert_eq!(
+            read_file(&mut s, "cfg.txt", al::PREOP),
+            Ok(b"gain=3".to_vec())
+        );
         assert_eq!(
             read_file(&mut s, "nope", al::PREOP),
             Err(facts::ERR_NOT_FOUND)
@@ -531,7 +531,11 @@ mod tests {
         );
         assert_eq!(
             reply,
-            Some((facts::OPCODE_ERROR, facts::ERR_NO_RIGHTS, b"no rights".to_vec()))
+            Some((
+                facts::OPCODE_ERROR,
+                facts::ERR_NO_RIGHTS,
+                b"no rights".to_vec()
+            ))
         );
         let reply = ask(
             &mut s,
@@ -659,7 +663,11 @@ mod tests {
         );
         assert_eq!(
             reply,
-            Some((facts::OPCODE_ERROR, facts::ERR_DISK_FULL, b"disk full".to_vec()))
+            Some((
+                facts::OPCODE_ERROR,
+                facts::ERR_DISK_FULL,
+                b"disk full".to_vec()
+            ))
         );
         assert_eq!(s.used(), 30);
         // Replacing a file counts only the new contents.
@@ -713,7 +721,12 @@ mod tests {
             ask(&mut s, write(b"other"), al::BOOT).map(|r| r.1),
             Some(facts::ERR_NOT_BOOTSTRAP)
         );
-        write_file(&mut s, "firmware.efw", b"\x7fELF..version=2.1.0\0rest", al::BOOT);
+        write_file(
+            &mut s,
+            "firmware.efw",
+            b"\x7fELF..version=2.1.0\0rest",
+            al::BOOT,
+        );
         // Nothing changes before the restart, and only a restart out of BOOT applies it.
         assert_eq!(od.get_bytes(coe::SOFTWARE_VERSION, 0), None);
         assert_eq!(s.restart(&mut od, true), Some("2.1.0".into()));

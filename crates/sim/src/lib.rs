@@ -9,8 +9,8 @@ pub mod devices;
 pub mod esc;
 pub mod faults;
 pub mod firmware;
-pub mod foe;
 pub mod fmmu;
+pub mod foe;
 pub mod network;
 pub mod od;
 pub mod pdo;
@@ -22,6 +22,6 @@ pub mod soe;
 pub mod spec;
 pub mod topology;
 
-pub use network::Network;
 pub use foe::FoeSpec;
+pub use network::Network;
 pub use spec::{MailboxSpec, SlaveSpec};

@@ -76,15 +76,29 @@ fn firmware_update_in_boot_changes_the_software_version_after_restart() {
     // With the SII's bootstrap mailbox it enters BOOT (an enabled SM is locked: off first).
     fpwr(&mut net, st, 0x0800, &sm_bytes(MBX_RX.0, MBX_RX.1, 0x26, 0));
     fpwr(&mut net, st, 0x0808, &sm_bytes(MBX_TX.0, MBX_TX.1, 0x22, 0));
-    fpwr(&mut net, st, 0x0800, &sm_bytes(BOOT_RX.0, BOOT_RX.1, 0x26, 1));
-    fpwr(&mut net, st, 0x0808, &sm_bytes(BOOT_TX.0, BOOT_TX.1, 0x22, 1));
+    fpwr(
+        &mut net,
+        st,
+        0x0800,
+        &sm_bytes(BOOT_RX.0, BOOT_RX.1, 0x26, 1),
+    );
+    fpwr(
+        &mut net,
+        st,
+        0x0808,
+        &sm_bytes(BOOT_TX.0, BOOT_TX.1, 0x22, 1),
+    );
     fpwr(&mut net, st, 0x0120, &[0x13, 0]);
     assert_eq!(al_status(&mut net, st), (3, 0));
     // The bootstrap mailbox carries FoE only: an SDO upload is refused.
     let sdo = [0x00, 0x20, 0x40, 0x0A, 0x10, 0x00, 0, 0, 0, 0];
     mbx_send(&mut net, st, BOOT_RX, mailbox::TYPE_COE, 1, &sdo);
     let (kind, body) = mbx_receive(&mut net, st, BOOT_TX);
-    assert_eq!((kind, body[2]), (mailbox::TYPE_ERR, 2), "unsupported protocol");
+    assert_eq!(
+        (kind, body[2]),
+        (mailbox::TYPE_ERR, 2),
+        "unsupported protocol"
+    );
     // A wrong password: "no rights".
     let bad = Message::Write {
         password: 1,
@@ -109,7 +123,14 @@ fn firmware_update_in_boot_changes_the_software_version_after_restart() {
         name: b"firmware.efw",
     };
     let mut counter = 3;
-    mbx_send(&mut net, st, BOOT_RX, mailbox::TYPE_FOE, counter, &write.encode());
+    mbx_send(
+        &mut net,
+        st,
+        BOOT_RX,
+        mailbox::TYPE_FOE,
+        counter,
+        &write.encode(),
+    );
     let (_, body) = mbx_receive(&mut net, st, BOOT_TX);
     assert_eq!(Message::parse(&body), Ok(Message::Ack { packet: 0 }));
     let chunk = foe::max_data(BOOT_RX.1 as usize);
@@ -118,7 +139,14 @@ fn firmware_update_in_boot_changes_the_software_version_after_restart() {
         counter = counter % 7 + 1;
         let packet = n as u32 + 1;
         let data = Message::Data { packet, data: part };
-        mbx_send(&mut net, st, BOOT_RX, mailbox::TYPE_FOE, counter, &data.encode());
+        mbx_send(
+            &mut net,
+            st,
+            BOOT_RX,
+            mailbox::TYPE_FOE,
+            counter,
+            &data.encode(),
+        );
         let (_, body) = mbx_receive(&mut net, st, BOOT_TX);
         assert_eq!(Message::parse(&body), Ok(Message::Ack { packet }));
     }
