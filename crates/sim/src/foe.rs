@@ -734,4 +734,43 @@ mod tests {
         assert_eq!(s.restart(&mut od, true), None, "applied once");
         assert_eq!(firmware_version(b"no marker"), "image of 9 bytes");
     }
+
+    #[test]
+    fn random_messages_never_panic_and_get_at_most_one_answer() {
+        let mut s = server(FoeSpec {
+            capacity: 300,
+            password: Some(7),
+            busy: 1,
+            files: vec![("firmware.efw".into(), vec![1; 40])],
+            ..FoeSpec::default()
+        });
+        let mut od = ObjectDictionary::new();
+        let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
+        let mut next = move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        for _ in 0..20_000 {
+            let r = next();
+            let len = (r % 40) as usize;
+            let mut msg: Vec<u8> = (0..len).map(|_| next() as u8).collect();
+            if len > 0 {
+                msg[0] = (r >> 8) as u8 % 8; // mostly valid opcodes
+            }
+            if len > 5 && r & 0x1_0000 != 0 {
+                msg[2..6].copy_from_slice(&((r >> 20) as u32 % 4).to_le_bytes());
+            }
+            let state = [al::PREOP, al::BOOT, al::OP][(r >> 24) as usize % 3];
+            let mut out = Vec::new();
+            let mbx = 12 + (r >> 32) as usize % 64;
+            let _ = s.handle(&msg, state, mbx, mbx, &mut out);
+            assert!(out.len() <= 1);
+            if r % 97 == 0 {
+                s.restart(&mut od, r % 2 == 0);
+            }
+        }
+        assert!(s.used() <= 300);
+    }
 }
