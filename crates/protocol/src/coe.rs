@@ -105,6 +105,8 @@ crate::named_constants! {
     pub const DEVICE_TYPE: u16 = 0x1000;
     /// Communication area: error register (u8).
     pub const ERROR_REGISTER: u16 = 0x1001;
+    /// Communication area: manufacturer software version (VISIBLE_STRING).
+    pub const SOFTWARE_VERSION: u16 = 0x100A;
     /// Communication area: identity object (1 vendor, 2 product, 3 revision, 4 serial).
     pub const IDENTITY: u16 = 0x1018;
     /// First RxPDO mapping object.

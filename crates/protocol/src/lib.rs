@@ -3,8 +3,8 @@
 //! Everything a master, a slave or a tool must agree on lives here and nowhere else: the frame
 //! and datagram layout (`frame`, re-exported at the root), the ESC register map with its bit
 //! fields (`reg`, `al`, `sii`, `sm`, `fmmu`, `dl`, `dc`, `esc`), the SII EEPROM layout and its
-//! CRC-8 (`sii`), mailbox, CoE and SoE facts with the SDO abort, SoE error and emergency code
-//! texts (`mailbox`, `coe`, `soe`, `emergency`), the AL status codes with their texts (`al`),
+//! CRC-8 (`sii`), mailbox, CoE, FoE and SoE facts with the SDO abort, FoE and SoE error and
+//! emergency code texts (`mailbox`, `coe`, `foe`, `soe`, `emergency`), the AL status codes with their texts (`al`),
 //! the CoE data types and the value checks of process variables and SDO values (`dtype`,
 //! `value`), the object address grammar (`address`), the CiA 402 words, states and modes
 //! (`cia402`) and the port order (`topology`).
@@ -68,6 +68,7 @@ pub mod cia402;
 pub mod coe;
 pub mod dtype;
 pub mod emergency;
+pub mod foe;
 pub mod frame;
 pub mod mailbox;
 pub mod reg;

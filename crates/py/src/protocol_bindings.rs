@@ -441,6 +441,74 @@ fn parse_mailbox_header(data: &[u8]) -> Option<(u16, u16, u8, u8, u8)> {
         .map(|h| (h.length, h.address, h.channel, h.mbx_type, h.counter))
 }
 
+/// An FoE message (the bytes after the mailbox header): `opcode` (`foe.OPCODE_*`), the 32-bit
+/// field of bytes 2..=5 (password, packet number, error code; for busy `done | entire << 16`)
+/// and the variable part (file name, data, error or busy text). An opcode that is not one is
+/// a `ValueError` naming it.
+#[pyfunction]
+#[pyo3(signature = (opcode, field, body = b"".as_slice()))]
+fn foe_message<'py>(
+    py: Python<'py>,
+    opcode: u8,
+    field: u32,
+    body: &[u8],
+) -> PyResult<Bound<'py, PyBytes>> {
+    use p::foe::Message;
+    let m = match opcode {
+        p::foe::OPCODE_READ => Message::Read {
+            password: field,
+            name: body,
+        },
+        p::foe::OPCODE_WRITE => Message::Write {
+            password: field,
+            name: body,
+        },
+        p::foe::OPCODE_DATA => Message::Data {
+            packet: field,
+            data: body,
+        },
+        p::foe::OPCODE_ACK if body.is_empty() => Message::Ack { packet: field },
+        p::foe::OPCODE_ACK => {
+            return Err(PyValueError::new_err("an FoE acknowledge carries no data"));
+        }
+        p::foe::OPCODE_ERROR => Message::Error {
+            code: field,
+            text: body,
+        },
+        p::foe::OPCODE_BUSY => Message::Busy {
+            done: (field & 0xFFFF) as u16,
+            entire: (field >> 16) as u16,
+            text: body,
+        },
+        op => {
+            return Err(PyValueError::new_err(
+                p::foe::ParseError::UnknownOpcode(op).to_string(),
+            ))
+        }
+    };
+    Ok(PyBytes::new(py, &m.encode()))
+}
+
+/// `(opcode, field, body)` of an FoE message (the bytes after the mailbox header, trimmed to
+/// its length), as `foe_message` takes them; a message shorter than the FoE header or of an
+/// unknown opcode is a `ValueError` saying which.
+#[pyfunction]
+fn parse_foe<'py>(py: Python<'py>, data: &[u8]) -> PyResult<(u8, u32, Bound<'py, PyBytes>)> {
+    let m = p::foe::Message::parse(data).map_err(|e| PyValueError::new_err(e.to_string()))?;
+    let field = u32::from_le_bytes([data[2], data[3], data[4], data[5]]);
+    Ok((
+        m.opcode(),
+        field,
+        PyBytes::new(py, &data[p::foe::HEADER_LEN..]),
+    ))
+}
+
+/// Text of an FoE error code.
+#[pyfunction]
+fn foe_error_text(code: u32) -> &'static str {
+    p::foe::error_text(code)
+}
+
 /// Text of an emergency / CiA 402 error code (its class when the exact code is not listed).
 #[pyfunction]
 fn emergency_text(code: u32) -> &'static str {
@@ -757,7 +825,7 @@ pub fn register(parent: &Bound<'_, PyModule>) -> PyResult<()> {
         .iter()
         .map(|c| (c.name(), *c as u64))
         .collect();
-    let namespaces: [(&str, &str, Vec<Table<'_>>); 30] = [
+    let namespaces: [(&str, &str, Vec<Table<'_>>); 32] = [
         ("frame", "Frame and datagram layout.", vec![p::frame::TABLE]),
         ("cmd", "Datagram command codes.", vec![&commands]),
         ("reg", "ESC register addresses.", vec![p::reg::TABLE]),
@@ -851,6 +919,8 @@ pub fn register(parent: &Bound<'_, PyModule>) -> PyResult<()> {
             vec![p::soe::TABLE],
         ),
         ("soe_error", "SoE error codes.", vec![p::soe::ERRORS]),
+        ("foe", "FoE header length and opcodes.", vec![p::foe::TABLE]),
+        ("foe_error", "FoE error codes.", vec![p::foe::ERRORS]),
         ("dtype", "CoE data type codes.", vec![p::dtype::TABLE]),
         (
             "cw",
@@ -895,6 +965,11 @@ pub fn register(parent: &Bound<'_, PyModule>) -> PyResult<()> {
         emergency.set_item(code, text)?;
     }
     m.add("EMERGENCY_TEXTS", emergency)?;
+    let foe_texts = PyDict::new(py);
+    for (code, text) in p::foe::ERROR_TEXTS {
+        foe_texts.set_item(code, text)?;
+    }
+    m.add("FOE_ERROR_TEXTS", foe_texts)?;
     m.add("ValueCheckError", value_check_error(py))?;
     m.add_class::<AreaDecoder>()?;
     m.add_function(wrap_pyfunction!(al_state_name, &m)?)?;
@@ -945,6 +1020,9 @@ pub fn register(parent: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(sdo_segment, &m)?)?;
     m.add_function(wrap_pyfunction!(sdo_toggle_message, &m)?)?;
     m.add_function(wrap_pyfunction!(parse_sdo_segment, &m)?)?;
+    m.add_function(wrap_pyfunction!(foe_message, &m)?)?;
+    m.add_function(wrap_pyfunction!(parse_foe, &m)?)?;
+    m.add_function(wrap_pyfunction!(foe_error_text, &m)?)?;
     parent.add("protocol", &m)?;
     py.import("sys")?.getattr("modules")?.set_item(MODULE, &m)?;
     Ok(())

@@ -31,6 +31,7 @@
 //! | `esc` | str | slave controller chip whose registers the ESC presents: "et1100" (default), "et1200", "lan9252" |
 //! | `lrw` | bool | False: the ESC reports "LRW not supported" (0x0008 bit 9) and ignores LRW datagrams (no data, no working counter); default True |
 //! | `safeop_op_timeout_ms` | int | how long a SAFEOP->OP request waits for valid outputs before it is refused (ESI `<SafeopOpTimeout>`, default 10000) |
+//! | `foe` | `FoeSpec(capacity, password, files, firmware, busy)` or None | the FoE server's store of a slave whose SII announces FoE (`ether_ros_sim::foe`); None: an empty 64 KiB store without password |
 
 use std::collections::BTreeMap;
 use std::sync::atomic::Ordering;
@@ -51,7 +52,7 @@ use ether_ros_sim::od::{Access, Entry, Object};
 use ether_ros_sim::pi_mutex::PiGuard;
 use ether_ros_sim::runner::{Runner, RunnerOptions, Timing};
 use ether_ros_sim::soe::IdnSpec;
-use ether_ros_sim::{MailboxSpec, Network, SlaveSpec};
+use ether_ros_sim::{FoeSpec, MailboxSpec, Network, SlaveSpec};
 
 use crate::sim_faults::Fault;
 
@@ -104,6 +105,83 @@ impl PyMailboxSpec {
     }
 }
 
+/// The FoE store of a slave that announces FoE (`ether_ros_sim::foe::FoeSpec`): `capacity`
+/// (bytes all files may take), `password` (None: any), `files` ((name, contents) at power-on),
+/// `firmware` (the firmware image's name, written in BOOT only), `busy` (data packets of each
+/// write answered with BUSY first). Each left None takes the simulator's default; files that
+/// do not fit the capacity are a `ValueError` saying by how much.
+#[pyclass(name = "FoeSpec", module = "ether_ros._native", frozen)]
+pub struct PyFoeSpec {
+    inner: FoeSpec,
+}
+
+#[pymethods]
+impl PyFoeSpec {
+    #[new]
+    #[pyo3(signature = (*, capacity = None, password = None, files = Vec::new(), firmware = None, busy = None))]
+    fn new(
+        capacity: Option<usize>,
+        password: Option<u32>,
+        files: Vec<(String, Vec<u8>)>,
+        firmware: Option<String>,
+        busy: Option<u32>,
+    ) -> PyResult<Self> {
+        let mut inner = FoeSpec {
+            password,
+            files,
+            ..FoeSpec::default()
+        };
+        inner.capacity = capacity.unwrap_or(inner.capacity);
+        inner.firmware = firmware.unwrap_or(inner.firmware);
+        inner.busy = busy.unwrap_or(inner.busy);
+        if inner.firmware.is_empty() {
+            return Err(PyValueError::new_err(
+                "FoeSpec.firmware: expected a file name",
+            ));
+        }
+        inner
+            .check()
+            .map_err(|e| PyValueError::new_err(format!("FoeSpec.files: {e}")))?;
+        Ok(Self { inner })
+    }
+
+    #[getter]
+    fn capacity(&self) -> usize {
+        self.inner.capacity
+    }
+    #[getter]
+    fn password(&self) -> Option<u32> {
+        self.inner.password
+    }
+    #[getter]
+    fn files<'py>(&self, py: Python<'py>) -> Vec<(String, Bound<'py, PyBytes>)> {
+        self.inner
+            .files
+            .iter()
+            .map(|(n, d)| (n.clone(), PyBytes::new(py, d)))
+            .collect()
+    }
+    #[getter]
+    fn firmware(&self) -> &str {
+        &self.inner.firmware
+    }
+    #[getter]
+    fn busy(&self) -> u32 {
+        self.inner.busy
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "FoeSpec(capacity={}, password={:?}, files={:?}, firmware={:?}, busy={})",
+            self.inner.capacity,
+            self.inner.password,
+            self.inner.files.iter().map(|(n, _)| n).collect::<Vec<_>>(),
+            self.inner.firmware,
+            self.inner.busy
+        )
+    }
+}
+
 /// One CoE entry of a spec: (index, subindex, name, data_type, bit_length, access,
 /// pdo_mappable, default).
 type EntryTuple<'py> = (u16, u8, String, u16, u16, String, bool, Bound<'py, PyAny>);
@@ -121,6 +199,7 @@ pub struct PySlaveSpec {
     entries: Py<PyTuple>,
     idns: Py<PyTuple>,
     mailbox: Option<Py<PyMailboxSpec>>,
+    foe: Option<Py<PyFoeSpec>>,
     #[pyo3(get)]
     device: String,
 }
@@ -133,7 +212,7 @@ impl PySlaveSpec {
         objects = Vec::new(), entries = Vec::new(), idns = Vec::new(), device = None,
         params = None, drift_ppm = None, delay_ns = None, upstream = None, dc_supported = None,
         dc_required = None, mailbox = None, pdram_kib = None, esc = None,
-        safeop_op_timeout_ms = None, loopback_links = Vec::new(), lrw = None,
+        safeop_op_timeout_ms = None, loopback_links = Vec::new(), lrw = None, foe = None,
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -161,6 +240,7 @@ impl PySlaveSpec {
         safeop_op_timeout_ms: Option<u32>,
         loopback_links: Vec<(u16, u8, u16, u8)>,
         lrw: Option<bool>,
+        foe: Option<Bound<'_, PyFoeSpec>>,
     ) -> PyResult<Self> {
         let mut s = SlaveSpec {
             name,
@@ -245,6 +325,9 @@ impl PySlaveSpec {
         s.lrw_supported = lrw.unwrap_or(s.lrw_supported);
         s.safeop_op_timeout_ms = safeop_op_timeout_ms.unwrap_or(s.safeop_op_timeout_ms);
         s.loopback_links = loopback_links;
+        if let Some(f) = &foe {
+            s.foe = f.get().inner.clone();
+        }
         Ok(Self {
             device: s.device.clone(),
             inner: s,
@@ -252,6 +335,7 @@ impl PySlaveSpec {
             entries: entries_py,
             idns: idns_py,
             mailbox: mailbox.map(Bound::unbind),
+            foe: foe.map(Bound::unbind),
         })
     }
 
@@ -302,6 +386,10 @@ impl PySlaveSpec {
     #[getter]
     fn mailbox<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyMailboxSpec>> {
         self.mailbox.as_ref().map(|m| m.bind(py).clone())
+    }
+    #[getter]
+    fn foe<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyFoeSpec>> {
+        self.foe.as_ref().map(|f| f.bind(py).clone())
     }
     #[getter]
     fn drift_ppm(&self) -> f64 {
@@ -778,5 +866,6 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<SimNetwork>()?;
     m.add_class::<PySlaveSpec>()?;
     m.add_class::<PyMailboxSpec>()?;
+    m.add_class::<PyFoeSpec>()?;
     Ok(())
 }

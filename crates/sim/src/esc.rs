@@ -16,6 +16,7 @@ use crate::coe::CoeServer;
 use crate::dc::{encode_time_difference, DcClock};
 use crate::device::DeviceApp;
 use crate::fmmu::Fmmu;
+use crate::foe::FoeServer;
 use crate::od::ObjectDictionary;
 use crate::pdo::PdoMap;
 use crate::sii::{self, Sii};
@@ -139,6 +140,8 @@ pub struct Esc {
     coe: CoeServer,
     /// The SoE server, for a slave whose SII announces SoE (word 0x1C bit 4).
     soe: Option<SoeServer>,
+    /// The FoE server, for a slave whose SII announces FoE (word 0x1C bit 3).
+    foe: Option<FoeServer>,
     pub device: Option<Box<dyn DeviceApp>>,
     pub mailbox: Option<MailboxSpec>,
     boot_mailbox: Option<MailboxSpec>,
@@ -226,6 +229,8 @@ impl Esc {
         let (pd_sms, mbx_sms) = process_sync_managers(&sii.image, mailbox.is_some());
         let soe = (w(sii_word::MBX_PROTOCOL) & mailbox::PROTOCOL_SOE != 0)
             .then(|| SoeServer::new(&spec.idns, &sii.image));
+        let foe = (w(sii_word::MBX_PROTOCOL) & mailbox::PROTOCOL_FOE != 0)
+            .then(|| FoeServer::new(&spec.foe));
         let partial_mappings = default_partial_mappings(&od, &sii.image);
         let chip = spec.esc.profile();
         let pdram_kib = if spec.pdram_kib == 0 {
@@ -245,6 +250,7 @@ impl Esc {
             od,
             coe: CoeServer::new(),
             soe,
+            foe,
             device: None,
             mailbox,
             boot_mailbox,
@@ -1165,6 +1171,10 @@ impl Esc {
             if let Some(soe) = self.soe.as_mut() {
                 soe.abandon_transfer();
             }
+            if let Some(foe) = self.foe.as_mut() {
+                // Out of BOOT the device restarts: a firmware written there takes effect.
+                foe.restart(&mut self.od, prev == BOOT);
+            }
             for k in 0..N_SM {
                 if self.sm[k].is_mailbox() {
                     self.sm[k].full = false;
@@ -1447,6 +1457,11 @@ impl Esc {
                 self.mailbox_error(mailbox::ERR_SIZE_TOO_SHORT);
             } else if repeated {
                 // A retry of the message already handled: ignore it.
+            } else if self.al_state == ether_ros_protocol::al::BOOT && kind != mailbox::TYPE_FOE {
+                // ETG.1000.6: the bootstrap mailbox carries FoE only.
+                self.mailbox_error(mailbox::ERR_UNSUPPORTED_PROTOCOL);
+            } else if kind == mailbox::TYPE_FOE && self.foe.is_some() {
+                self.service_foe(start, msg_len);
             } else if kind == mailbox::TYPE_COE {
                 let mut out = Vec::new();
                 let max_payload = (self.sm[1].len as usize).saturating_sub(mailbox::HEADER_LEN);
@@ -1490,6 +1505,30 @@ impl Esc {
                 self.counters.mailbox_sent += 1;
             }
         }
+    }
+
+    /// An FoE message of `msg_len` bytes in the write mailbox at `start` (crate::foe).
+    fn service_foe(&mut self, start: usize, msg_len: usize) {
+        let data_start = start + mailbox::HEADER_LEN;
+        let request = self.mem[data_start..data_start + msg_len].to_vec();
+        let (rx, tx) = (self.sm[0].len as usize, self.sm[1].len as usize);
+        let mut out = Vec::new();
+        let handled = self.foe.as_mut().map_or(Ok(()), |foe| {
+            foe.handle(&request, self.al_state, rx, tx, &mut out)
+        });
+        match handled {
+            Ok(()) => {
+                for p in out {
+                    self.queue_mailbox(mailbox::TYPE_FOE, p);
+                }
+            }
+            Err(code) => self.mailbox_error(code),
+        }
+    }
+
+    /// The FoE server, for a slave whose SII announces FoE.
+    pub fn foe(&self) -> Option<&FoeServer> {
+        self.foe.as_ref()
     }
 
     fn place_in_read_mailbox(&mut self, msg: &[u8]) {

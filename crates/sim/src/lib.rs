@@ -10,6 +10,7 @@ pub mod esc;
 pub mod faults;
 pub mod firmware;
 pub mod fmmu;
+pub mod foe;
 pub mod network;
 pub mod od;
 pub mod pdo;
@@ -21,5 +22,6 @@ pub mod soe;
 pub mod spec;
 pub mod topology;
 
+pub use foe::FoeSpec;
 pub use network::Network;
 pub use spec::{MailboxSpec, SlaveSpec};

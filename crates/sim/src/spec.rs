@@ -56,6 +56,8 @@ pub struct SlaveSpec {
     /// False: the ESC reports "LRW not supported" (0x0008 bit 9) and does not process LRW
     /// (no data, no working counter), as such ESCs do; the master must use LRD + LWR.
     pub lrw_supported: bool,
+    /// The FoE server's store, for a slave whose SII announces FoE (word 0x1C bit 3).
+    pub foe: crate::foe::FoeSpec,
 }
 
 impl Default for SlaveSpec {
@@ -84,6 +86,7 @@ impl Default for SlaveSpec {
             safeop_op_timeout_ms: 10_000,
             loopback_links: Vec::new(),
             lrw_supported: true,
+            foe: crate::foe::FoeSpec::default(),
         }
     }
 }

@@ -33,6 +33,7 @@ __all__ = [
     "Engine",
     "EngineError",
     "EngineTimeout",
+    "FoeSpec",
     "Frame",
     "JointTable",
     "LeaseGate",
@@ -299,6 +300,30 @@ class MailboxSpec:
     def tx_size(self) -> int: ...
 
 @final
+class FoeSpec:
+    """The FoE store of a slave that announces FoE (crates/py/src/sim_bindings.rs)."""
+
+    def __new__(
+        cls,
+        *,
+        capacity: int | None = None,
+        password: int | None = None,
+        files: Sequence[tuple[str, bytes]] = ...,
+        firmware: str | None = None,
+        busy: int | None = None,
+    ) -> Self: ...
+    @property
+    def capacity(self) -> int: ...
+    @property
+    def password(self) -> int | None: ...
+    @property
+    def files(self) -> list[tuple[str, bytes]]: ...
+    @property
+    def firmware(self) -> str: ...
+    @property
+    def busy(self) -> int: ...
+
+@final
 class SlaveSpec:
     """A virtual slave (crates/py/src/sim_bindings.rs); optional fields None: the simulator's
     default."""
@@ -329,6 +354,7 @@ class SlaveSpec:
         safeop_op_timeout_ms: int | None = None,
         loopback_links: Sequence[tuple[int, int, int, int]] = ...,
         lrw: bool | None = None,
+        foe: FoeSpec | None = None,
     ) -> Self: ...
     @property
     def name(self) -> str: ...
@@ -356,6 +382,8 @@ class SlaveSpec:
     def params(self) -> dict[str, float]: ...
     @property
     def mailbox(self) -> MailboxSpec | None: ...
+    @property
+    def foe(self) -> FoeSpec | None: ...
     @property
     def drift_ppm(self) -> float: ...
     @property

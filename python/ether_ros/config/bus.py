@@ -409,6 +409,39 @@ class AxisConfig(_Model):
     fault_backoff_ms: float = Field(default=100.0, ge=0.0, le=60_000.0)
 
 
+class SimFoeFile(_Model):
+    """A file of a simulated slave's FoE store: its contents as ``text`` (UTF-8), as ``hex``
+    or from the file at ``path`` (relative to the bus config), exactly one of them."""
+
+    name: Text
+    text: str | None = Field(default=None, max_length=1 << 20)
+    hex: str | None = Field(default=None, max_length=2 << 20)
+    path: PathText | None = None
+
+    @model_validator(mode="after")
+    def _one_source(self) -> SimFoeFile:
+        given = [k for k in ("text", "hex", "path") if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise ValueError(f"give exactly one of text, hex or path (got {given or 'none'})")
+        if self.hex is not None:
+            try:
+                bytes.fromhex(self.hex)
+            except ValueError:
+                raise ValueError("hex: not hexadecimal bytes") from None
+        return self
+
+
+class SimFoeConfig(_Model):
+    """The FoE server's store of a simulated slave whose ESI announces FoE (docs/simulator.md,
+    section FoE). Left out: the simulator's defaults (ether_ros_sim::foe::FoeSpec)."""
+
+    capacity: int | None = Field(default=None, ge=0, le=64 << 20)
+    password: HexInt | None = Field(default=None, ge=0, le=0xFFFFFFFF)
+    firmware: Text | None = None
+    busy: int | None = Field(default=None, ge=0, le=1000)
+    files: list[SimFoeFile] = Field(default_factory=list, max_length=1024)
+
+
 class SimConfig(_Model):
     device: Literal["laelaps_leg", "generic_io", "cia402", "loopback", "none"] | None = None
     # The slave controller chip whose registers the virtual slave presents (docs/simulator.md).
@@ -421,6 +454,8 @@ class SimConfig(_Model):
     serial: HexInt | None = Field(default=None, ge=0, le=0xFFFFFFFF)
     # False: the virtual ESC reports "LRW not supported" (0x0008 bit 9) and ignores LRW.
     lrw: bool = True
+    # The FoE file store of a device that announces FoE (ether_ros.sim.spec.foe_spec).
+    foe: SimFoeConfig | None = None
 
 
 class GroupConfig(_Model):

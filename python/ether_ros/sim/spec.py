@@ -6,17 +6,19 @@ keyword-only constructor, documented at the top of ``crates/py/src/sim_bindings.
 when made): identity, the SII EEPROM image, the CoE dictionary
 (objects and entries with their default values), the firmware model and its parameters, clock
 drift and propagation delay, where the slave is connected (``upstream``), DC capability, and
-the standard mailbox, and a Sercos drive's IDN dictionary (SoE).
+the standard mailbox, a Sercos drive's IDN dictionary (SoE) and the FoE file store
+(``foe_spec``, from the slave's ``sim: {foe: ...}``).
 """
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
-from ether_ros._native import MailboxSpec, SlaveSpec
+from ether_ros._native import FoeSpec, MailboxSpec, SlaveSpec
 from ether_ros._native.protocol import coe, soe
 from ether_ros.config import types as dt
-from ether_ros.config.bus import BusConfig, SlaveConfig
+from ether_ros.config.bus import BusConfig, SimFoeConfig, SlaveConfig
 from ether_ros.config.cia402 import AXIS_STRIDE, MAX_AXES, MODES, SUPPORTED_MODES, offered_modes
 from ether_ros.config.esi import EsiDevice, OdObject, Pdo, PdoEntry
 from ether_ros.config.process import pdo_sync_manager
@@ -39,6 +41,47 @@ def mailbox_spec(device: EsiDevice) -> MailboxSpec | None:
         tx_offset=inp.start,
         tx_size=inp.default_size,
     )
+
+
+def foe_spec(
+    foe: SimFoeConfig | None, device: EsiDevice, *, slave: str, base: Path | None = None
+) -> FoeSpec | None:
+    """The FoE store of a slave from its ``sim: {foe: ...}`` (None: the simulator's default,
+    an empty store). A file's ``path`` is read relative to ``base`` (the bus config's
+    directory). A store for a device whose ESI does not announce FoE, a file named twice, a
+    file that cannot be read or files beyond the capacity are a ``ConfigError`` naming the
+    slave."""
+    if foe is None:
+        return None
+    where = f"slave '{slave}': sim.foe"
+    if device.mailbox is None or not device.mailbox.foe:
+        raise ConfigError(f"{where}: the device's ESI does not announce FoE (<Mailbox><FoE/>)")
+    files: list[tuple[str, bytes]] = []
+    for f in foe.files:
+        if any(name == f.name for name, _ in files):
+            raise ConfigError(f"{where}: file '{f.name}' is given twice")
+        if f.text is not None:
+            data = f.text.encode()
+        elif f.hex is not None:
+            data = bytes.fromhex(f.hex)
+        else:
+            p = Path(f.path or "")
+            p = p if p.is_absolute() or base is None else base / p
+            try:
+                data = p.read_bytes()
+            except OSError as exc:
+                raise ConfigError(f"{where}: file '{f.name}': cannot read {p}: {exc}") from None
+        files.append((f.name, data))
+    try:
+        return FoeSpec(
+            capacity=foe.capacity,
+            password=foe.password,
+            files=files,
+            firmware=foe.firmware,
+            busy=foe.busy,
+        )
+    except ValueError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
 
 
 def loopback_pairs(device: EsiDevice) -> list[tuple[int, int, int, int]]:
@@ -435,12 +478,14 @@ def device_spec(
     esc: str | None = None,
     lrw: bool | None = None,
     upstream: tuple[int, int] | None = None,
+    foe: FoeSpec | None = None,
 ) -> SlaveSpec:
     """The ``add_slave`` spec of one slave running ``device``. ``sim_device``, ``drift_ppm``,
     ``esc`` and ``lrw`` None: ``SlaveSpec``'s defaults (no firmware model, no drift, an
     ET1100, LRW supported); ``delay_ns`` None: the device's physics (``default_delay_ns``);
     ``upstream`` None: port 1 of the slave before it. ``alias`` and ``serial`` go into the SII
-    image too, so they are given here."""
+    image too, so they are given here. ``foe``: the FoE store (``foe_spec``; None: an empty
+    one)."""
     objects, entries = _dictionary(device, sim_device or "none")
     entries = [
         (*e[:7], _default(e[7], serial, e[4])) if (e[0], e[1]) == _SERIAL_ENTRY else e
@@ -469,6 +514,7 @@ def device_spec(
         lrw=lrw,
         loopback_links=loopback_pairs(device) if sim_device == "loopback" else [],
         safeop_op_timeout_ms=device.timeouts.safeop_op_ms,
+        foe=foe,
     )
 
 
@@ -480,10 +526,14 @@ def _default(esi_default: bytes, override: int | None, bit_length: int) -> bytes
 
 
 def slave_spec(
-    slave: SlaveConfig, position: int, upstream: tuple[int, int] | None = None
+    slave: SlaveConfig,
+    position: int,
+    upstream: tuple[int, int] | None = None,
+    base: Path | None = None,
 ) -> SlaveSpec:
     """The spec of a configured slave at ``position`` on the simulated bus; ``upstream``:
-    (parent position, port) where its port 0 is connected (None: the slave before it)."""
+    (parent position, port) where its port 0 is connected (None: the slave before it);
+    ``base``: the directory the paths of its FoE files are relative to."""
     serial = slave.sim.serial if slave.sim.serial is not None else SERIAL_BASE + position
     return device_spec(
         slave.esi,
@@ -497,6 +547,7 @@ def slave_spec(
         esc=slave.sim.esc,
         lrw=slave.sim.lrw,
         upstream=upstream,
+        foe=foe_spec(slave.sim.foe, slave.esi, slave=slave.name, base=base),
     )
 
 
@@ -519,10 +570,11 @@ def network_specs(cfg: BusConfig) -> list[SlaveSpec]:
     """Specs for every slave of ``cfg`` in bus order, each connected where ``connected_to``
     says (default: port 1 of the slave before it)."""
     slaves = bus_order(cfg)
+    base = cfg.source.parent if cfg.source is not None else None
     if not cfg.declares_topology:
-        return [slave_spec(s, i) for i, s in enumerate(slaves)]
+        return [slave_spec(s, i, base=base) for i, s in enumerate(slaves)]
     links = cfg.tree()
     return [
-        slave_spec(s, i, (link.parent, link.port) if link.parent is not None else None)
+        slave_spec(s, i, (link.parent, link.port) if link.parent is not None else None, base)
         for i, (s, link) in enumerate(zip(slaves, links, strict=True))
     ]
