@@ -106,3 +106,47 @@ def test_an_axis_stopped_by_the_watchdog_says_so_and_refuses_commands(rig: RosRi
     assert text.startswith("accepted"), text
     ok, message, _ = c.set_mode("csp", [JOINT])
     assert ok, message
+
+
+def test_a_native_joint_command_to_a_blocked_axis_is_refused_and_never_applied(
+    rig: RosRig,
+) -> None:
+    """The native path (crates/commands) refuses a joint command for an axis that cannot move
+    by itself, from the state the RT thread published last cycle — not after the node's
+    20 ms axis watch — answering "not executed" with the reason; nothing of it reaches the
+    axis, not even after the axis is enabled again."""
+    c = rig.client
+    ok, message = c.set_parameter("diagnostics_period_ms", 200)
+    assert ok, message
+    ok, message, _ = c.set_mode("csp", [JOINT])
+    assert ok, message
+    ok, message, _ = c.axis_command("disable", [JOINT])
+    assert ok, message
+    c.wait_for(lambda _l: c.axis_states().get(JOINT, {}).get("state") == "switch_on_disabled", 15)
+    c.wait_for(lambda _l: "ros_joint_commands_refused_blocked" in c.master_status(), 15)
+    before = c.master_status()
+    here = float(c.axis_states()[JOINT]["position"])
+    why = refusal(c, lambda: c.publish_joint_command([JOINT], position=[here + 0.3]))
+    assert why == (
+        f"joint_commands refused: joint '{JOINT}' not executed: not enabled "
+        "(switch_on_disabled): enable it first"
+    ), why
+    # Refused by the native receiver itself (its counter), not handed to Python.
+    c.wait_for(
+        lambda _l: (
+            int(float(c.master_status()["ros_joint_commands_refused_blocked"]))
+            > int(float(before["ros_joint_commands_refused_blocked"]))
+        ),
+        10,
+    )
+    after = c.master_status()
+    assert after["ros_joint_commands_deferred"] == before["ros_joint_commands_deferred"], after
+    assert after["ros_joint_commands_native"] == before["ros_joint_commands_native"], after
+    # Enabled again, the axis holds where it is: the refused setpoint was never applied.
+    ok, message, _ = c.axis_command("enable", [JOINT])
+    assert ok, message
+    c.wait_for(lambda _l: c.axis_states().get(JOINT, {}).get("blocked") == "", 10)
+    c.wait_for(lambda _l: c.axis_states()[JOINT]["state"] == "operation_enabled", 10)
+    st = c.axis_states()[JOINT]
+    assert abs(float(st["target_position"]) - here) < 0.01, (st, here)
+    assert abs(float(st["position"]) - here) < 0.01, (st, here)

@@ -20,8 +20,8 @@ pub use motion::{
     CstLimiter, Interpolator, StopRamp,
 };
 pub use records::{
-    status_flags, AxisCommand, AxisExchange, AxisStatus, Point, COMMAND_LEN, POINT_LEN, STATUS_LEN,
-    TRAJECTORY_HEADER,
+    status_flags, AxisCommand, AxisExchange, AxisGate, AxisStatus, Point, COMMAND_LEN, POINT_LEN,
+    STATUS_LEN, TRAJECTORY_HEADER,
 };
 
 use crate::handover::SeqBuffer;
@@ -1346,6 +1346,16 @@ impl Axes {
             c.status.cycle = self.cycle;
             c.status
                 .encode(&mut self.status_bytes[i * STATUS_LEN..(i + 1) * STATUS_LEN]);
+            let gate = AxisGate {
+                state: c.status.state,
+                flags: c.status.flags,
+                error_code: c.status.error_code,
+                last_fault_code: c.status.last_fault_code,
+                published: true,
+            };
+            if let Some(g) = ex.gates.get(i) {
+                g.store(gate.pack(), std::sync::atomic::Ordering::Release);
+            }
         }
         ex.status.write(0, &self.status_bytes);
         self.cycle += 1;
@@ -2767,6 +2777,32 @@ mod tests {
                 "delay {delay}: it chatters at the limit ({still})"
             );
         }
+    }
+
+    #[test]
+    fn the_axis_gate_is_published_every_cycle() {
+        let mut b = Bench::new(plan(), DriveState::SwitchOnDisabled, 0);
+        let gate =
+            |b: &Bench| AxisGate::unpack(b.ex.gates[0].load(std::sync::atomic::Ordering::Acquire));
+        assert!(!gate(&b).published);
+        b.cycle(false);
+        let g = gate(&b);
+        assert!(g.published && g.state == DriveState::SwitchOnDisabled as u8);
+        b.command.enable = true;
+        b.send();
+        b.run(10);
+        let g = gate(&b);
+        assert_eq!(g.state, DriveState::OperationEnabled as u8);
+        assert_ne!(g.flags & status_flags::ENABLE_WANTED, 0);
+        assert_eq!(g.flags, b.status().flags);
+        let w = AxisGate {
+            state: 7,
+            flags: 0xABCD,
+            error_code: 0x7500,
+            last_fault_code: 0x2310,
+            published: true,
+        };
+        assert_eq!(AxisGate::unpack(w.pack()), w);
     }
 
     #[test]

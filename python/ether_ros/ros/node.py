@@ -407,13 +407,15 @@ class EtherRosNode(LifecycleNode):
         )
         self._topic_watcher.start()
         # Joint commands for an axis that cannot move (in fault, restart blocked, disabled, the
-        # bus in panic) are left to Python, which refuses them saying why, instead of being
-        # written natively to an axis that will not follow them; a thread of its own looks at
-        # the axes every AXIS_WATCH_PERIOD_S and holds those joints in Python (as a mode change
-        # does for its joints).
+        # bus in panic) are refused, saying why, instead of being written to an axis that will
+        # not follow them: on the native path by the receiver itself, from the state the RT
+        # thread published last cycle (crates/commands, `JointTable::blocked`); in Python by
+        # `_refuse_blocked`. A thread of its own looks at the axes every AXIS_WATCH_PERIOD_S to
+        # note what stopped each one (`_stop_cause`), which both name in their answers.
         self._hold_lock = threading.Lock()
         self._held_mode: set[str] = set()
         self._held_blocked: frozenset[str] = frozenset()
+        self._causes_sent: dict[str, str] = {}
         # What stopped an axis it did not ask to stop, by joint (``_note_stop_cause``).
         self._stop_cause: dict[str, str] = {}
         self._axis_watch_stop = threading.Event()
@@ -861,6 +863,7 @@ class EtherRosNode(LifecycleNode):
                 ros_numbers["joint_commands_deferred"] = joint_commands["deferred"]
                 ros_numbers["joint_commands_refused"] = joint_commands["refused"]
                 ros_numbers["joint_commands_refused_lease"] = joint_commands["refused_lease"]
+                ros_numbers["joint_commands_refused_blocked"] = joint_commands["blocked"]
                 ros_numbers["joint_commands_refused_throttled"] = joint_commands["throttled"]
         supervisor = getattr(bus, "supervisor", None)
         problems = supervisor.branch_problems() if supervisor is not None else []
@@ -1147,11 +1150,15 @@ class EtherRosNode(LifecycleNode):
             self._stop_cause.setdefault(name, "the command watchdog")
 
     def _apply_holds(self) -> None:
-        """Leave to Python the joint commands of the axes changing mode or blocked."""
+        """Leave to Python the joint commands of the axes changing mode, and tell the native
+        path what stopped each axis (it refuses commands to a blocked axis by itself)."""
         with self._hold_lock:
             native, axes = self._native_joints, self._axes
             if native is not None and axes:
-                native.set_held(axes, self._held_mode | self._held_blocked)
+                native.set_held(axes, self._held_mode)
+                causes = dict(self._stop_cause)
+                native.set_causes(axes, causes)
+                self._causes_sent = causes
 
     def _axis_watch_loop(self) -> None:
         while not self._axis_watch_stop.wait(AXIS_WATCH_PERIOD_S):
@@ -1159,7 +1166,7 @@ class EtherRosNode(LifecycleNode):
                 continue
             try:
                 blocked = self._blocked_axes()
-                if blocked != self._held_blocked:
+                if blocked != self._held_blocked or self._stop_cause != self._causes_sent:
                     self._held_blocked = blocked
                     self._apply_holds()
             except Exception as exc:  # the watch must outlive a bad round (a closing bus)
