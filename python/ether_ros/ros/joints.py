@@ -288,3 +288,36 @@ def axis_extra_values(axes: Mapping[str, Any]) -> list[tuple[str, str, float]]:
 def has_extras(axes: Mapping[str, Any]) -> bool:
     """Whether some axis has ``extras:`` configured (``joint_extras`` is published then)."""
     return any(axis.spec.extras for axis in axes.values())
+
+
+@dataclass(frozen=True)
+class AxisState:
+    """One axis's entry in ``joint_extras``' per-axis arrays: the state the diagnostics report
+    for it (``diagnostics.axis_statuses``), from its status, its commanded mode, the bus's panic
+    and what stopped it as the node saw it."""
+
+    joint: str
+    state: str
+    enable_wanted: bool
+    mode_reached: bool
+    restart_blocked: bool
+    limit_active: bool
+    outside_limits: bool
+    stopped_by: str
+    blocked: str
+
+
+def axis_state(joint: str, mode: str, st: Mapping[str, Any], panic: bool, cause: str) -> AxisState:
+    """The ``AxisState`` of axis ``joint`` from its ``Axis.status()`` ``st``: ``blocked`` is
+    ``bridge.axis_blocker``'s sentence, as in the diagnostics."""
+    return AxisState(
+        joint=joint,
+        state=str(st.get("state", "")),
+        enable_wanted=bool(st.get("enable_wanted", False)),
+        mode_reached=bool(st.get("mode_reached", False)),
+        restart_blocked=bool(st.get("restart_blocked", False)),
+        limit_active=bool(st.get("limit_active", False)),
+        outside_limits=bool(st.get("outside_limits", False)),
+        stopped_by=cause,
+        blocked=bridge.axis_blocker(st, mode, panic, cause=cause),
+    )

@@ -680,6 +680,7 @@ class EtherRosNode(LifecycleNode):
                 if joints.has_extras(self._axes)
                 else None
             ),
+            axis_states=self._axis_states if self._axes else None,
         )
         self._samples.start()
         self._restart_snapshot_timer(self._param_ms("ros.snapshot_period_ms"))
@@ -908,6 +909,14 @@ class EtherRosNode(LifecycleNode):
         )
         statuses.append(security.status(name, self._security, self._lease.status()))
         self._diag_pub.publish(diagnostics.array(statuses, self.get_clock().now().to_msg()))
+
+    def _axis_states(self) -> list[joints.AxisState]:
+        """Every axis's state for ``joint_extras``, as the diagnostics report it."""
+        causes = dict(self._stop_cause)
+        return [
+            joints.axis_state(name, mode, st, self._panic, causes.get(name, ""))
+            for name, mode, st in self._axis_reports()
+        ]
 
     def _axis_reports(self) -> list[tuple[str, str, dict[str, Any]]]:
         """(joint, commanded mode, status) of every axis, for the diagnostics."""
