@@ -1481,6 +1481,9 @@ mod tests {
         /// drive (a torque acts this many cycles later than the next).
         torque_gain: f64,
         torque_delay: std::collections::VecDeque<i16>,
+        /// Inputs that stay stale (the position read repeats) in the cycles k with
+        /// k % n == 0 for an n of these (a loaded host's late frames).
+        stale_every: &'static [i64],
     }
 
     const CYCLE: i64 = 1_000_000;
@@ -1505,6 +1508,7 @@ mod tests {
                 extra_sw: 0,
                 torque_gain: TORQUE_GAIN,
                 torque_delay: Default::default(),
+                stale_every: &[],
             }
         }
 
@@ -1517,7 +1521,10 @@ mod tests {
         fn cycle(&mut self, halt: bool) {
             let word = statusword(self.state) | self.extra_sw;
             self.io[SW..SW + 2].copy_from_slice(&word.to_le_bytes());
-            self.io[POS..POS + 4].copy_from_slice(&self.position_raw.to_le_bytes());
+            let k = self.now / CYCLE;
+            if !self.stale_every.iter().any(|n| k % n == 0) {
+                self.io[POS..POS + 4].copy_from_slice(&self.position_raw.to_le_bytes());
+            }
             self.io[VEL..VEL + 4].copy_from_slice(&(self.velocity.round() as i32).to_le_bytes());
             self.io[ERR..ERR + 2].copy_from_slice(&self.error.to_le_bytes());
             self.axes
@@ -2733,7 +2740,8 @@ mod tests {
     }
 
     /// A drive as the simulator's arm joints: 8 N·m takes the axis from rest to its velocity
-    /// limit of 3 rad/s in about 7 cycles, and a torque written acts three cycles later.
+    /// limit of 3 rad/s in about 7 cycles, and a torque written acts one to five cycles later;
+    /// the inputs are stale in some cycles.
     /// Holding the limit then needs the speed predicted for when the torque takes effect.
     #[test]
     fn cst_holds_the_velocity_limit_against_a_fast_drive_with_latency() {
@@ -2747,7 +2755,9 @@ mod tests {
             let mut b = enabled(p, (-1.8 / 7.67e-6) as i32);
             // 457 rad/s² at 8 N·m (800 raw).
             b.torque_gain = 457.0 / 7.67e-6 / 800.0;
-            b.torque_delay = std::iter::repeat(0).take(delay).collect();
+            b.torque_delay = std::iter::repeat_n(0, delay).collect();
+            // Stale inputs now and then (the position read repeats), as on a loaded host.
+            b.stale_every = &[7, 11];
             set_mode(&mut b, Mode::CyclicTorque);
             b.run(5);
             command(&mut b, SetpointKind::Torque, 8.0);
