@@ -158,13 +158,6 @@ def test_follow_replacing_a_trajectory_from_a_stale_state_is_joined_within_the_l
     assert abs(targets[-1] * scale - 1.2) < 1e-3
 
 
-@pytest.mark.xfail(
-    reason="open (issue 24 item 2): on the simulator the joint still reached 5.1 rad/s against "
-    "3 rad/s (speed from positions over 10 cycles) — the engine unit test holds the limit, the "
-    "simulated drive's latency and velocity-actual jitter need more than the fade; not yet "
-    "analysed. Strict: the day it holds, this fails and the mark goes",
-    strict=True,
-)
 def test_cst_held_at_a_limit_keeps_the_velocity_limit_and_does_not_chatter(
     arm: tuple[Bus, BusConfig],
 ) -> None:

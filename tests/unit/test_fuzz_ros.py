@@ -112,7 +112,13 @@ class FakeAxis:
 
     def __init__(self, name: str, index: int) -> None:
         self.name, self.index, self.mode = name, index, "csp"
-        config = SimpleNamespace(position_limits=(-2.0, 2.0), velocity_limit=3.0, torque_limit=1.0)
+        config = SimpleNamespace(
+            position_limits=(-2.0, 2.0),
+            velocity_limit=3.0,
+            torque_limit=1.0,
+            max_acceleration=None,
+            deceleration=math.inf,
+        )
         self.spec = SimpleNamespace(modes=("csp", "csv"), config=config)
 
     def status(self) -> dict[str, Any]:

@@ -11,7 +11,10 @@
 use std::sync::atomic::{AtomicU8, Ordering};
 use std::sync::Arc;
 
-use ether_ros_engine::SetpointKind;
+use ether_ros_engine::cia402::status_flags;
+use ether_ros_engine::{AxisGate, SetpointKind};
+use ether_ros_protocol::cia402::State;
+use ether_ros_protocol::emergency;
 
 use crate::cdr::{F64Seq, JointCommand};
 use crate::table::Resolution;
@@ -34,7 +37,19 @@ pub struct JointTable {
     joints: Arc<[JointEntry]>,
     /// SetpointKind as u8 per joint; 0: none (homing, or a mode switch in progress).
     kinds: Arc<[AtomicU8]>,
+    /// What stopped each joint's axis that it did not ask to stop, as the node saw it: an
+    /// index into `STOP_CAUSES` (0: nothing), set by the node's axis watch (`set_cause`).
+    causes: Arc<[AtomicU8]>,
 }
+
+/// The stop causes the node reports (`ros/node.py`, `_note_stop_cause`), in the words of
+/// `axis_blocker`'s `cause`; index 0: none.
+pub const STOP_CAUSES: [&str; 4] = [
+    "",
+    "the command watchdog",
+    "a panic",
+    "a lapse of the control lease",
+];
 
 /// One setpoint to write: (engine axis index, kind, SI value).
 pub type Setpoint = (usize, SetpointKind, f64);
@@ -51,9 +66,11 @@ impl JointTable {
             .iter()
             .map(|(_, k)| AtomicU8::new(k.map_or(0, |k| k as u8)))
             .collect();
+        let causes = joints.iter().map(|_| AtomicU8::new(0)).collect();
         Ok(JointTable {
             joints: joints.into_iter().map(|(j, _)| j).collect(),
             kinds,
+            causes,
         })
     }
 
@@ -63,6 +80,19 @@ impl JointTable {
         if let Some(k) = self.kinds.get(joint) {
             k.store(kind.map_or(0, |k| k as u8), Ordering::Release);
         }
+    }
+
+    /// What stopped joint number `joint`'s axis (one of `STOP_CAUSES`; "" nothing): named in
+    /// the answer to a command refused because of it. Err for a cause not in the list.
+    pub fn set_cause(&self, joint: usize, cause: &str) -> Result<(), String> {
+        let code = STOP_CAUSES
+            .iter()
+            .position(|c| *c == cause)
+            .ok_or_else(|| format!("unknown stop cause {cause:?} (known: {STOP_CAUSES:?})"))?;
+        if let Some(c) = self.causes.get(joint) {
+            c.store(code as u8, Ordering::Release);
+        }
+        Ok(())
     }
 
     pub fn len(&self) -> usize {
@@ -167,6 +197,122 @@ impl JointTable {
             out.push((entry.axis, kind, v));
         }
         Resolution::Apply
+    }
+}
+
+/// Why an axis in the state `gate` cannot follow a setpoint now (false: it can), written to
+/// `why` (cleared first) in the words of `ether_ros.master.axis.axis_blocker` with
+/// `check_mode=False` (a mode change under way is held for Python by `set_kind`): a fault, a
+/// panic of the bus, a blocked restart, a drive not in Operation Enabled; `cause`: what stopped
+/// the axis as the node saw it ("" unknown). A halt alone (the
+/// command watchdog's stop) does not block: the next command ends it. No allocation beyond
+/// `why`'s capacity.
+pub fn axis_blocker(gate: AxisGate, panic: bool, cause: &str, why: &mut String) -> bool {
+    use std::fmt::Write as _;
+    why.clear();
+    let state = State::ALL
+        .get(gate.state as usize)
+        .copied()
+        .unwrap_or(State::NotReadyToSwitchOn);
+    let name = state.name();
+    if matches!(state, State::Fault | State::FaultReactionActive) {
+        let code = if gate.error_code != 0 {
+            gate.error_code
+        } else {
+            gate.last_fault_code
+        };
+        if code != 0 {
+            let _ = write!(
+                why,
+                "in fault (0x{code:04X} {}): reset_fault, then enable",
+                emergency::text(code)
+            );
+        } else {
+            why.push_str("in fault (no code): reset_fault, then enable");
+        }
+        return true;
+    }
+    if panic {
+        why.push_str("the bus is in panic: clear_panic, then enable");
+        return true;
+    }
+    if gate.flags & status_flags::RESTART_BLOCKED != 0 {
+        let by = if cause.is_empty() {
+            "the watchdog, a panic, a lease lapse or a fault"
+        } else {
+            cause
+        };
+        let _ = write!(
+            why,
+            "restart blocked: stopped by {by} ({name}) and waiting for an explicit enable"
+        );
+        if gate.last_fault_code != 0 {
+            let _ = write!(
+                why,
+                "; last fault 0x{:04X} {}",
+                gate.last_fault_code,
+                emergency::text(gate.last_fault_code)
+            );
+        }
+        return true;
+    }
+    if state != State::OperationEnabled {
+        if cause.is_empty() {
+            let _ = write!(why, "not enabled ({name}): enable it first");
+        } else {
+            let _ = write!(why, "disabled by {cause} ({name}): enable it again");
+        }
+        return true;
+    }
+    false
+}
+
+impl JointTable {
+    /// The joint name of engine axis `axis` ("?" when no joint has it).
+    pub fn name_of(&self, axis: usize) -> &str {
+        self.joints
+            .iter()
+            .find(|j| j.axis == axis)
+            .map_or("?", |j| j.name.as_str())
+    }
+
+    /// True, with `why` as Python's answer ("joint 'a' not executed: in fault (...)"), when
+    /// one of the axes of `setpoints` cannot follow a setpoint now (`gate_of` its state;
+    /// `None`: unknown, which blocks too); then none of them is applied.
+    pub fn blocked(
+        &self,
+        setpoints: &[Setpoint],
+        mut gate_of: impl FnMut(usize) -> Option<AxisGate>,
+        panic: bool,
+        why: &mut String,
+    ) -> bool {
+        use std::fmt::Write as _;
+        for &(axis, _, _) in setpoints {
+            let gate = gate_of(axis).unwrap_or_default();
+            let cause = self
+                .joints
+                .iter()
+                .position(|j| j.axis == axis)
+                .and_then(|j| STOP_CAUSES.get(self.causes[j].load(Ordering::Acquire) as usize))
+                .copied()
+                .unwrap_or("");
+            let mut reason = std::mem::take(why);
+            let stop = if gate.published {
+                axis_blocker(gate, panic, cause, &mut reason)
+            } else {
+                reason.clear();
+                reason.push_str("the axis has not run a cycle yet");
+                true
+            };
+            if stop {
+                why.clear();
+                let _ = write!(why, "joint '{}' not executed: {reason}", self.name_of(axis));
+                return true;
+            }
+            *why = reason;
+        }
+        why.clear();
+        false
     }
 }
 
@@ -325,5 +471,83 @@ mod tests {
         for (data, want) in cases {
             assert_eq!(refusal(&t, &data).as_deref(), want);
         }
+    }
+
+    fn gate(state: State, flags: u16, code: u16) -> AxisGate {
+        AxisGate {
+            state: state as u8,
+            flags,
+            error_code: code,
+            last_fault_code: code,
+            published: true,
+        }
+    }
+
+    #[test]
+    fn a_command_for_an_axis_that_cannot_move_is_refused_with_the_reason() {
+        let t = table();
+        let sp = [
+            (0, SetpointKind::Position, 0.5),
+            (1, SetpointKind::Velocity, 1.0),
+        ];
+        let mut why = String::new();
+        let enabled = gate(State::OperationEnabled, status_flags::ENABLE_WANTED, 0);
+        // Both can move (a halt alone does not block: the next command ends it).
+        let halted = AxisGate {
+            flags: status_flags::HALTED,
+            ..enabled
+        };
+        assert!(!t.blocked(&sp, |a| Some([enabled, halted][a]), false, &mut why));
+        assert_eq!(why, "");
+        // The second is in fault: nothing is applied, and the answer names it and the code.
+        let fault = gate(State::Fault, 0, 0x7500);
+        assert!(t.blocked(&sp, |a| Some([enabled, fault][a]), false, &mut why));
+        assert!(
+            why.starts_with("joint 'b' not executed: in fault (0x7500 ")
+                && why.ends_with("): reset_fault, then enable"),
+            "{why}"
+        );
+        // Stopped by the watchdog with restart: manual, the drive disabled.
+        let stopped = gate(
+            State::SwitchOnDisabled,
+            status_flags::RESTART_BLOCKED | status_flags::ENABLE_WANTED,
+            0,
+        );
+        assert!(t.blocked(&sp, |a| Some([stopped, enabled][a]), false, &mut why));
+        assert_eq!(
+            why,
+            "joint 'a' not executed: restart blocked: stopped by the watchdog, a panic, a lease \
+             lapse or a fault (switch_on_disabled) and waiting for an explicit enable"
+        );
+        // With the cause the node saw, in its words.
+        t.set_cause(0, "the command watchdog").unwrap();
+        assert!(t.blocked(&sp, |a| Some([stopped, enabled][a]), false, &mut why));
+        assert!(
+            why.contains("restart blocked: stopped by the command watchdog (switch_on_disabled)"),
+            "{why}"
+        );
+        let off = gate(State::SwitchOnDisabled, 0, 0);
+        assert!(t.blocked(&sp, |a| Some([off, enabled][a]), false, &mut why));
+        assert_eq!(
+            why,
+            "joint 'a' not executed: disabled by the command watchdog (switch_on_disabled): \
+             enable it again"
+        );
+        assert!(t.set_cause(0, "a meteor").is_err());
+        t.set_cause(0, "").unwrap();
+        // Disabled, in panic, never run, unknown.
+        assert!(t.blocked(&sp, |a| Some([off, enabled][a]), false, &mut why));
+        assert_eq!(
+            why,
+            "joint 'a' not executed: not enabled (switch_on_disabled): enable it first"
+        );
+        assert!(t.blocked(&sp, |_| Some(enabled), true, &mut why));
+        assert_eq!(
+            why,
+            "joint 'a' not executed: the bus is in panic: clear_panic, then enable"
+        );
+        assert!(t.blocked(&sp, |_| Some(AxisGate::default()), false, &mut why));
+        assert!(why.contains("has not run a cycle"), "{why}");
+        assert!(t.blocked(&sp, |_| None, false, &mut why));
     }
 }

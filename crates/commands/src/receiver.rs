@@ -130,6 +130,9 @@ pub struct ReceiverCounters {
     pub refused: u64,
     /// Refused because the publisher does not hold the control lease.
     pub refused_lease: u64,
+    /// Joint commands refused (not executed) because an axis they name cannot move (also
+    /// counted in `refused`).
+    pub blocked: u64,
     /// Refused because their publisher sent more than `DEFERRALS_PER_S` requests for Python.
     pub throttled: u64,
     /// Refusals not answered because their publisher's answer budget was spent (a flood).
@@ -149,7 +152,7 @@ pub struct ReceiverCounters {
 
 impl ReceiverCounters {
     /// (name, value) of every counter, named as the fields.
-    pub fn pairs(&self) -> [(&'static str, u64); 15] {
+    pub fn pairs(&self) -> [(&'static str, u64); 16] {
         [
             ("received", self.received),
             ("applied", self.applied),
@@ -157,6 +160,7 @@ impl ReceiverCounters {
             ("overflowed", self.overflowed),
             ("refused", self.refused),
             ("refused_lease", self.refused_lease),
+            ("blocked", self.blocked),
             ("throttled", self.throttled),
             ("refusals_unanswered", self.refusals_unanswered),
             ("undecodable", self.undecodable),
@@ -178,6 +182,7 @@ struct Counters {
     overflowed: AtomicU64,
     refused: AtomicU64,
     refused_lease: AtomicU64,
+    blocked: AtomicU64,
     throttled: AtomicU64,
     refusals_unanswered: AtomicU64,
     undecodable: AtomicU64,
@@ -314,6 +319,7 @@ impl CommandReceiver {
             overflowed: get(&c.overflowed),
             refused: get(&c.refused),
             refused_lease: get(&c.refused_lease),
+            blocked: get(&c.blocked),
             throttled: get(&c.throttled),
             refusals_unanswered: get(&c.refusals_unanswered),
             undecodable: get(&c.undecodable),
@@ -633,6 +639,22 @@ impl Worker {
                         &mut scratch.setpoints,
                         &mut scratch.why,
                     ) {
+                        // An axis that cannot move (a fault, a blocked restart, disabled by
+                        // the watchdog, a panic) gets no setpoint: the command is refused as
+                        // not executed, with the reason, from the state the RT thread
+                        // published last cycle (one atomic word per axis) — not the node's
+                        // watch, which sees it only up to 20 ms later.
+                        Resolution::Apply
+                            if table.blocked(
+                                &scratch.setpoints,
+                                |axis| engine.axis_gate(axis).ok(),
+                                engine.is_panicked(),
+                                &mut scratch.why,
+                            ) =>
+                        {
+                            c.blocked.fetch_add(1, Ordering::Relaxed);
+                            Resolution::Refuse
+                        }
                         Resolution::Apply if self.write_setpoints(engine, &scratch.setpoints) => {
                             Resolution::Apply
                         }

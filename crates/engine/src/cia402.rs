@@ -17,11 +17,11 @@ mod records;
 
 pub use motion::{
     blend, braking_speed, limit_torque, limit_velocity, sample_trajectory, sample_velocity,
-    Interpolator, StopRamp,
+    CstLimiter, Interpolator, StopRamp,
 };
 pub use records::{
-    status_flags, AxisCommand, AxisExchange, AxisStatus, Point, COMMAND_LEN, POINT_LEN, STATUS_LEN,
-    TRAJECTORY_HEADER,
+    status_flags, AxisCommand, AxisExchange, AxisGate, AxisStatus, Point, COMMAND_LEN, POINT_LEN,
+    STATUS_LEN, TRAJECTORY_HEADER,
 };
 
 use crate::handover::SeqBuffer;
@@ -322,11 +322,6 @@ fn read_i16(io: &[u8], off: usize) -> i16 {
 /// target at its next SYNC0 and, in csp, interpolates over one more period): position targets
 /// that follow a moving axis, and the braking envelope, look that far ahead.
 const COMMAND_LATENCY_CYCLES: f64 = 3.0;
-/// Share of each cycle's velocity actual in the smoothed velocity cst limits (an exponential
-/// filter with a time constant of about four cycles).
-const VELOCITY_SMOOTHING: f64 = 0.2;
-/// cst: the torque fades out over this share of the velocity limit below it.
-const CST_BAND_SHARE: f64 = 0.2;
 /// Cycles after a homing start before the drive's homing bits count: the statuswords of the
 /// frames in flight were latched before the drive saw the start.
 const HOMING_ACK_CYCLES: u32 = 5;
@@ -387,9 +382,8 @@ pub struct AxisController {
     /// csp: the velocity of the last target step as it went on the wire ((target − the one
     /// before) / cycle): what the acceleration limit bounds the change of (`blend`).
     step_velocity: f64,
-    /// The velocity actual smoothed over a few cycles (`VELOCITY_SMOOTHING`): what cst's
-    /// velocity limit and braking envelope act on.
-    velocity_filtered: f64,
+    /// cst: the velocity limit and braking envelope on the predicted speed.
+    cst: CstLimiter,
     /// The last velocity or torque setpoint of the current mode (SI).
     setpoint_value: f64,
     /// Setpoint command already taken over.
@@ -446,7 +440,7 @@ impl AxisController {
             target_position: 0.0,
             desired_velocity: 0.0,
             step_velocity: 0.0,
-            velocity_filtered: 0.0,
+            cst: CstLimiter::default(),
             setpoint_value: 0.0,
             seq_seen: 0,
             reset_seen: 0,
@@ -638,6 +632,7 @@ impl AxisController {
         self.interpolator.reset(p0);
         self.target_position = p0;
         self.setpoint_value = 0.0;
+        self.cst.restart();
         self.desired_velocity = 0.0;
         self.step_velocity = v0;
         self.trajectory_running = false;
@@ -791,7 +786,6 @@ impl AxisController {
         // Where the axis will be when the drive takes a target written now (moving, it is
         // ahead of the position read).
         let ahead = fb.position + fb.velocity * dt * COMMAND_LATENCY_CYCLES;
-        self.velocity_filtered += VELOCITY_SMOOTHING * (fb.velocity - self.velocity_filtered);
         if cmd.mode != self.mode_commanded {
             // A new mode starts from the actual state once the drive shows it. Until then the
             // drive runs the old mode: its targets make a quiet stop from the actual state.
@@ -883,6 +877,7 @@ impl AxisController {
             }
             // Whatever ran ends; the mode starts afresh from the actual state once it runs.
             self.setpoint_value = 0.0;
+            self.cst.restart();
             self.entry_pending = true;
             self.interpolator.reset(self.target_position);
             self.trajectory_running = false;
@@ -1046,42 +1041,25 @@ impl AxisController {
                     if t_out != t {
                         st.torque_clamps += 1;
                     }
-                    // Braking in proportion to the excess speed over the envelope, with the
-                    // torque limit at the speed the deceleration takes off in 10 ms.
-                    let band = if decel.is_finite() {
-                        (decel * 0.01).max(1e-3)
-                    } else if limits.velocity_max.is_finite() {
-                        (limits.velocity_max * 0.1).max(1e-3)
-                    } else {
-                        0.1
-                    };
-                    // A drive's velocity actual jitters by a good part of the limit from one
-                    // cycle to the next: a narrower band would turn the fade below the
-                    // velocity limit into bang-bang braking (chatter).
-                    let vband = if limits.velocity_max.is_finite() {
-                        band.max(limits.velocity_max * CST_BAND_SHARE)
-                    } else {
-                        band
-                    };
-                    // The velocity limit holds in cst too: the torque fades out over the band
-                    // below it (at the speed expected when the torque takes effect) and brakes
-                    // above it, as it does before the position limits.
-                    let braked = limit_torque(
+                    // The velocity limit holds in cst too, and the braking envelope before the
+                    // position limits: on the speed predicted for when the torque takes effect
+                    // (the drive's latency; `CstLimiter`), faded below a bound, braking above.
+                    let (braked, cut) = self.cst.step(
+                        fb.position,
                         t_out,
-                        ahead,
-                        self.velocity_filtered,
                         (limits.position_min, limits.position_max),
                         decel,
                         limits.velocity_max,
                         if limits.torque_max.is_finite() {
                             limits.torque_max
                         } else {
-                            t_out.abs()
+                            t_out.abs().max(1e-9)
                         },
-                        (band, vband),
+                        COMMAND_LATENCY_CYCLES as usize,
+                        dt,
                     );
-                    if braked != t_out {
-                        if self.velocity_filtered.abs() + vband >= limits.velocity_max {
+                    if cut {
+                        if self.cst.near_velocity_limit(limits.velocity_max) {
                             st.velocity_clamps += 1;
                         } else {
                             st.position_clamps += 1;
@@ -1368,6 +1346,16 @@ impl Axes {
             c.status.cycle = self.cycle;
             c.status
                 .encode(&mut self.status_bytes[i * STATUS_LEN..(i + 1) * STATUS_LEN]);
+            let gate = AxisGate {
+                state: c.status.state,
+                flags: c.status.flags,
+                error_code: c.status.error_code,
+                last_fault_code: c.status.last_fault_code,
+                published: true,
+            };
+            if let Some(g) = ex.gates.get(i) {
+                g.store(gate.pack(), std::sync::atomic::Ordering::Release);
+            }
         }
         ex.status.write(0, &self.status_bytes);
         self.cycle += 1;
@@ -1489,6 +1477,13 @@ mod tests {
         velocity: f64,
         /// Mode-specific statusword bits the drive shows besides its state (homing, pp).
         extra_sw: u16,
+        /// cst: raw/s² per raw torque, and the torques written still on their way to the
+        /// drive (a torque acts this many cycles later than the next).
+        torque_gain: f64,
+        torque_delay: std::collections::VecDeque<i16>,
+        /// Inputs that stay stale (the position read repeats) in the cycles k with
+        /// k % n == 0 for an n of these (a loaded host's late frames).
+        stale_every: &'static [i64],
     }
 
     const CYCLE: i64 = 1_000_000;
@@ -1511,6 +1506,9 @@ mod tests {
                 position: position_raw as f64,
                 velocity: 0.0,
                 extra_sw: 0,
+                torque_gain: TORQUE_GAIN,
+                torque_delay: Default::default(),
+                stale_every: &[],
             }
         }
 
@@ -1523,7 +1521,10 @@ mod tests {
         fn cycle(&mut self, halt: bool) {
             let word = statusword(self.state) | self.extra_sw;
             self.io[SW..SW + 2].copy_from_slice(&word.to_le_bytes());
-            self.io[POS..POS + 4].copy_from_slice(&self.position_raw.to_le_bytes());
+            let k = self.now / CYCLE;
+            if !self.stale_every.iter().any(|n| k % n == 0) {
+                self.io[POS..POS + 4].copy_from_slice(&self.position_raw.to_le_bytes());
+            }
             self.io[VEL..VEL + 4].copy_from_slice(&(self.velocity.round() as i32).to_le_bytes());
             self.io[ERR..ERR + 2].copy_from_slice(&self.error.to_le_bytes());
             self.axes
@@ -1543,7 +1544,9 @@ mod tests {
                         self.position += self.velocity * dt;
                     }
                     10 => {
-                        self.velocity += read_i16(&self.io, TTRQ) as f64 * TORQUE_GAIN * dt;
+                        self.torque_delay.push_back(read_i16(&self.io, TTRQ));
+                        let torque = self.torque_delay.pop_front().unwrap_or(0);
+                        self.velocity += torque as f64 * self.torque_gain * dt;
                         self.position += self.velocity * dt;
                     }
                     _ => self.velocity = 0.0,
@@ -1762,7 +1765,8 @@ mod tests {
         b.command.setpoint_kind = SetpointKind::Torque as u8;
         b.command.value = -3.0;
         b.send();
-        b.run(3);
+        // Until the axis's gain is known the torque rises over `CST_RISE_CYCLES`.
+        b.run(60);
         assert_eq!(read_i16(&b.io, TTRQ), -200);
         assert!(b.status().torque_clamps >= 1);
     }
@@ -1940,8 +1944,8 @@ mod tests {
         b.cycle(false);
         b.cycle(false);
         let first = read_i32(&b.io, TVEL) as f64;
-        // Two cycles of the ramp at 10 raw/s per cycle.
-        assert!((first - v0).abs() <= 20.0 + 1e-6, "{first} vs {v0}");
+        // Two cycles of the ramp at 10 raw/s per cycle, and the velocity actual's rounding.
+        assert!((first - v0).abs() <= 21.0, "{first} vs {v0}");
         let rest = settle(&mut b, 500);
         assert_eq!(read_i32(&b.io, TVEL), 0);
         assert!(rest < b.targets[b.targets.len() - 1] as f64 + 1.0);
@@ -1972,10 +1976,14 @@ mod tests {
     #[test]
     fn position_limits_hold_in_the_velocity_and_torque_modes() {
         // Limits ±10 rad, 5 rad/s max, braking at 10 rad/s² (the bench's drive makes
-        // 20 rad/s² at the torque limit: the deceleration must be one the axis can do).
+        // 20 rad/s² at the torque limit: the deceleration must be one the axis can do). A µrad
+        // encoder: cst acts on the velocity from the positions read.
         let mut p = plan();
         p.deceleration = 10.0;
-        let mut b = enabled(p, 8_000);
+        p.position_scale = 1e-6;
+        p.velocity_scale = 1e-6;
+        let mut b = enabled(p, 8_000_000);
+        b.torque_gain = TORQUE_GAIN * 1000.0;
         set_mode(&mut b, Mode::CyclicVelocity);
         command(&mut b, SetpointKind::Velocity, 5.0);
         let mut top = 0.0f64;
@@ -1983,15 +1991,15 @@ mod tests {
             b.cycle(false);
             top = top.max(b.position);
         }
-        assert!(top <= 10_000.0 + 1.0, "{top}");
-        assert!(b.position > 9_900.0, "it went close: {}", b.position);
+        assert!(top <= 10_000_000.0 + 1000.0, "{top}");
+        assert!(b.position > 9_900_000.0, "it went close: {}", b.position);
         assert_eq!(read_i32(&b.io, TVEL), 0);
         let st = b.status();
         assert!(st.position_clamps > 0 && st.flags & status_flags::LIMIT_ACTIVE != 0);
         // Inward is never cut.
         command(&mut b, SetpointKind::Velocity, -2.0);
         b.run(3);
-        assert_eq!(read_i32(&b.io, TVEL), -2000);
+        assert_eq!(read_i32(&b.io, TVEL), -2_000_000);
         b.run(500);
         // Torque outward: the axis is braked before the limit.
         set_mode(&mut b, Mode::CyclicTorque);
@@ -2001,8 +2009,8 @@ mod tests {
             b.cycle(false);
             top = top.max(b.position);
         }
-        assert!(top <= 10_000.0 + 10.0, "{top}");
-        assert!(b.velocity.abs() < 200.0, "{}", b.velocity);
+        assert!(top <= 10_000_000.0 + 10_000.0, "{top}");
+        assert!(b.velocity.abs() < 200_000.0, "{}", b.velocity);
     }
 
     #[test]
@@ -2694,11 +2702,16 @@ mod tests {
 
     #[test]
     fn cst_holds_the_velocity_limit_and_rests_at_a_position_limit_without_chatter() {
-        // plan(): 5 rad/s; the bench's drive makes 20 rad/s² at 2 N·m.
+        // plan(): 5 rad/s; the bench's drive makes 20 rad/s² at 2 N·m. The velocity cst acts
+        // on comes from the positions read: a µrad encoder (as real joints have), not plan()'s
+        // mrad, whose count steps would be most of a cycle's motion.
         let mut p = plan();
         p.deceleration = 10.0;
         p.limits.position_max = 4.0;
+        p.position_scale = 1e-6;
+        p.velocity_scale = 1e-6;
         let mut b = enabled(p, 0);
+        b.torque_gain = TORQUE_GAIN * 1000.0;
         set_mode(&mut b, Mode::CyclicTorque);
         b.run(5);
         command(&mut b, SetpointKind::Torque, 2.0);
@@ -2706,15 +2719,15 @@ mod tests {
         let mut velocities = vec![];
         for _ in 0..4000 {
             b.cycle(false);
-            top_speed = top_speed.max(b.velocity.abs() * 1e-3);
-            velocities.push(b.velocity * 1e-3);
+            top_speed = top_speed.max(b.velocity.abs() * 1e-6);
+            velocities.push(b.velocity * 1e-6);
         }
         assert!(top_speed <= 5.0, "{top_speed} rad/s against the limit of 5");
         assert!(top_speed > 4.5, "it went near the limit: {top_speed}");
         assert!(b.status().velocity_clamps > 0);
         // Held at the position limit by the same outward torque: at rest, no chatter.
         assert!(
-            b.position <= 4_000.0 + 5.0 && b.position > 3_990.0,
+            b.position <= 4.005e6 && b.position > 3.99e6,
             "{}",
             b.position
         );
@@ -2724,6 +2737,82 @@ mod tests {
             "it chatters: {:?}",
             &last[..20]
         );
+    }
+
+    /// A drive as the simulator's arm joints: 8 N·m takes the axis from rest to its velocity
+    /// limit of 3 rad/s in about 7 cycles, and a torque written acts one to five cycles later;
+    /// the inputs are stale in some cycles.
+    /// Holding the limit then needs the speed predicted for when the torque takes effect.
+    #[test]
+    fn cst_holds_the_velocity_limit_against_a_fast_drive_with_latency() {
+        for delay in [1usize, 2, 3, 4, 5] {
+            let mut p = fine_plan();
+            p.position_scale = 7.67e-6;
+            p.velocity_scale = 7.67e-6;
+            p.limits.torque_max = 8.0;
+            p.limits.position_min = -2.0;
+            p.limits.position_max = 2.0;
+            let mut b = enabled(p, (-1.8 / 7.67e-6) as i32);
+            // 457 rad/s² at 8 N·m (800 raw).
+            b.torque_gain = 457.0 / 7.67e-6 / 800.0;
+            b.torque_delay = std::iter::repeat_n(0, delay).collect();
+            // Stale inputs now and then (the position read repeats), as on a loaded host.
+            b.stale_every = &[7, 11];
+            set_mode(&mut b, Mode::CyclicTorque);
+            b.run(5);
+            command(&mut b, SetpointKind::Torque, 8.0);
+            let mut positions = vec![];
+            for _ in 0..3000 {
+                b.cycle(false);
+                positions.push(b.position_raw as f64 * 7.67e-6);
+            }
+            let speed: Vec<f64> = positions
+                .windows(11)
+                .map(|w| (w[10] - w[0]).abs() / 0.01)
+                .collect();
+            let top = speed.iter().cloned().fold(0.0, f64::max);
+            assert!(top <= 3.0 * 1.05, "delay {delay}: {top} rad/s against 3");
+            assert!(top > 2.4, "delay {delay}: it never went fast ({top})");
+            assert!(b.status().velocity_clamps > 0);
+            let last = &positions[positions.len() - 1000..];
+            let hi = last.iter().cloned().fold(f64::MIN, f64::max);
+            let lo = last.iter().cloned().fold(f64::MAX, f64::min);
+            assert!(hi <= 2.02 && lo > 1.95, "delay {delay}: {lo}..{hi}");
+            let still = speed[speed.len() - 990..]
+                .iter()
+                .cloned()
+                .fold(0.0, f64::max);
+            assert!(
+                still < 0.1,
+                "delay {delay}: it chatters at the limit ({still})"
+            );
+        }
+    }
+
+    #[test]
+    fn the_axis_gate_is_published_every_cycle() {
+        let mut b = Bench::new(plan(), DriveState::SwitchOnDisabled, 0);
+        let gate =
+            |b: &Bench| AxisGate::unpack(b.ex.gates[0].load(std::sync::atomic::Ordering::Acquire));
+        assert!(!gate(&b).published);
+        b.cycle(false);
+        let g = gate(&b);
+        assert!(g.published && g.state == DriveState::SwitchOnDisabled as u8);
+        b.command.enable = true;
+        b.send();
+        b.run(10);
+        let g = gate(&b);
+        assert_eq!(g.state, DriveState::OperationEnabled as u8);
+        assert_ne!(g.flags & status_flags::ENABLE_WANTED, 0);
+        assert_eq!(g.flags, b.status().flags);
+        let w = AxisGate {
+            state: 7,
+            flags: 0xABCD,
+            error_code: 0x7500,
+            last_fault_code: 0x2310,
+            published: true,
+        };
+        assert_eq!(AxisGate::unpack(w.pack()), w);
     }
 
     #[test]

@@ -21,7 +21,7 @@ use std::thread::JoinHandle;
 use std::time::Duration;
 
 use cia402::AxisCommand;
-pub use cia402::{AxisStatus, Mode, Point, SetpointKind};
+pub use cia402::{AxisGate, AxisStatus, Mode, Point, SetpointKind};
 use cyclic::{Cyclic, Exchange, Shared, RESET_ALL};
 pub use fields::OutputField;
 pub use frames::Request;
@@ -827,6 +827,20 @@ impl Engine {
         Ok(AxisStatus::decode(
             &all[axis * cia402::STATUS_LEN..(axis + 1) * cia402::STATUS_LEN],
         ))
+    }
+
+    /// Whether the axis is in a state to move, as the RT thread published it last cycle: one
+    /// atomic load (no lock on the axis state, no allocation), for the command paths that must
+    /// refuse a setpoint to an axis that cannot follow it (docs/ros.md, "The command path").
+    pub fn axis_gate(&self, axis: usize) -> Result<AxisGate> {
+        let ex = self.exchange()?;
+        let word = ex.axes.gates.get(axis).ok_or_else(|| {
+            Error::Invalid(format!(
+                "axis index {axis} is out of range (the plan has {} axes)",
+                ex.plan.axes.len()
+            ))
+        })?;
+        Ok(AxisGate::unpack(word.load(Ordering::Acquire)))
     }
 
     /// The latest process image (inputs as last received, outputs as last sent).

@@ -164,6 +164,15 @@ impl PyJointTable {
         Ok(())
     }
 
+    /// What stopped joint number `joint`'s axis, as the node saw it ("" nothing, "the command
+    /// watchdog", "a panic", "a lapse of the control lease"): named when the native path
+    /// refuses a command to it. ValueError for another text.
+    fn set_cause(&self, joint: usize, cause: &str) -> PyResult<()> {
+        self.table
+            .set_cause(joint, cause)
+            .map_err(PyValueError::new_err)
+    }
+
     /// Resolve a serialized `JointState` as the native path would: the setpoints when it applies
     /// them itself, None when it leaves the message to Python. ValueError if the bytes are not
     /// a JointState.

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ether_ros import _native
+from ether_ros.config.cia402 import acceleration_limit
 from ether_ros.errors import EtherRosError
 from ether_ros.ros import bridge
 from ether_ros.ros.bridge import AxisRejected
@@ -197,20 +198,40 @@ def trajectory_plan(
 
 def _check_approach(axis: Any, first: float, within: float) -> None:
     """The way from where the axis is commanded to be now to the trajectory's first point,
-    ``within`` seconds: refused when it needs more than the velocity limit. A first point at
+    ``within`` seconds: refused when it needs more than the velocity limit, or more than the
+    acceleration limit (``max_acceleration``, default the deceleration: docs/cia402.md) starting
+    from the velocity the axis is commanded to have — the engine would join the path within
+    the limits and arrive late, off the trajectory's timing. A first point at
     time 0 (of a goal stamped now) or already past is no target: the engine replaces it with the
     axis's commanded state and joins the rest of the path from there within the axis's
     acceleration and velocity limits, never steering back to it (docs/ros.md, "Hand-overs")."""
     if within <= 0:
         return
     st = bridge.axis_status(axis)
-    here = float(st["target_position"] if st["state"] == "operation_enabled" else st["position"])
-    limit = float(axis.spec.config.velocity_limit)
-    speed = abs(first - here) / within
+    enabled = st["state"] == "operation_enabled"
+    here = float(st["target_position"] if enabled else st["position"])
+    config = axis.spec.config
+    limit = float(config.velocity_limit)
+    distance = first - here
+    speed = abs(distance) / within
     if speed > limit * (1 + 1e-9):
         raise AxisRejected(
             f"joint {axis.name!r}: from {here:.4g} to the first point {first:g} in {within:.3f} s "
             f"needs {speed:.3g} on average, beyond the velocity limit ±{limit:g}"
+        )
+    amax = float(acceleration_limit(config))
+    if not math.isfinite(amax):
+        return
+    # The least constant acceleration that covers the distance in the time, from the velocity
+    # the axis has now: distance = v0·t + a·t²/2.
+    v0 = float(st.get("desired_velocity", 0.0) or 0.0) if enabled else 0.0
+    needed = 2.0 * abs(distance - v0 * within) / (within * within)
+    if needed > amax * (1 + 1e-9):
+        raise AxisRejected(
+            f"joint {axis.name!r}: the first point {first:g} lies {abs(distance):.4g} from where "
+            f"the joint is commanded to be ({here:.4g}, moving at {v0:.3g}); reaching it in "
+            f"{within:.3f} s needs an acceleration of {needed:.3g}, beyond the acceleration limit "
+            f"{amax:g} (max_acceleration, default the deceleration)"
         )
 
 
@@ -267,3 +288,36 @@ def axis_extra_values(axes: Mapping[str, Any]) -> list[tuple[str, str, float]]:
 def has_extras(axes: Mapping[str, Any]) -> bool:
     """Whether some axis has ``extras:`` configured (``joint_extras`` is published then)."""
     return any(axis.spec.extras for axis in axes.values())
+
+
+@dataclass(frozen=True)
+class AxisState:
+    """One axis's entry in ``joint_extras``' per-axis arrays: the state the diagnostics report
+    for it (``diagnostics.axis_statuses``), from its status, its commanded mode, the bus's panic
+    and what stopped it as the node saw it."""
+
+    joint: str
+    state: str
+    enable_wanted: bool
+    mode_reached: bool
+    restart_blocked: bool
+    limit_active: bool
+    outside_limits: bool
+    stopped_by: str
+    blocked: str
+
+
+def axis_state(joint: str, mode: str, st: Mapping[str, Any], panic: bool, cause: str) -> AxisState:
+    """The ``AxisState`` of axis ``joint`` from its ``Axis.status()`` ``st``: ``blocked`` is
+    ``bridge.axis_blocker``'s sentence, as in the diagnostics."""
+    return AxisState(
+        joint=joint,
+        state=str(st.get("state", "")),
+        enable_wanted=bool(st.get("enable_wanted", False)),
+        mode_reached=bool(st.get("mode_reached", False)),
+        restart_blocked=bool(st.get("restart_blocked", False)),
+        limit_active=bool(st.get("limit_active", False)),
+        outside_limits=bool(st.get("outside_limits", False)),
+        stopped_by=cause,
+        blocked=bridge.axis_blocker(st, mode, panic, cause=cause),
+    )

@@ -33,7 +33,7 @@ import logging
 import os
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -333,6 +333,16 @@ class NativeCommandPath:
             return
         for i, (name, axis) in enumerate(axes.items()):
             joints.set_kind(i, None if name in held else bridge.setpoint_kind(axis))
+
+    def set_causes(self, axes: dict[str, Any], causes: Mapping[str, str]) -> None:
+        """What stopped each axis that it did not ask to stop, by joint (the node's
+        ``_stop_cause``): the native path names it when it refuses a command to the axis.
+        ``axes`` are all of them, in the table's order."""
+        joints = self._joints
+        if joints is None:
+            return
+        for i, name in enumerate(axes):
+            joints.set_cause(i, causes.get(name, ""))
 
     def update_joints(self, axes: dict[str, Any]) -> None:
         """Take each axis's setpoint kind from its mode again (after a mode change)."""

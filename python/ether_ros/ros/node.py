@@ -407,13 +407,15 @@ class EtherRosNode(LifecycleNode):
         )
         self._topic_watcher.start()
         # Joint commands for an axis that cannot move (in fault, restart blocked, disabled, the
-        # bus in panic) are left to Python, which refuses them saying why, instead of being
-        # written natively to an axis that will not follow them; a thread of its own looks at
-        # the axes every AXIS_WATCH_PERIOD_S and holds those joints in Python (as a mode change
-        # does for its joints).
+        # bus in panic) are refused, saying why, instead of being written to an axis that will
+        # not follow them: on the native path by the receiver itself, from the state the RT
+        # thread published last cycle (crates/commands, `JointTable::blocked`); in Python by
+        # `_refuse_blocked`. A thread of its own looks at the axes every AXIS_WATCH_PERIOD_S to
+        # note what stopped each one (`_stop_cause`), which both name in their answers.
         self._hold_lock = threading.Lock()
         self._held_mode: set[str] = set()
         self._held_blocked: frozenset[str] = frozenset()
+        self._causes_sent: dict[str, str] = {}
         # What stopped an axis it did not ask to stop, by joint (``_note_stop_cause``).
         self._stop_cause: dict[str, str] = {}
         self._axis_watch_stop = threading.Event()
@@ -678,6 +680,7 @@ class EtherRosNode(LifecycleNode):
                 if joints.has_extras(self._axes)
                 else None
             ),
+            axis_states=self._axis_states if self._axes else None,
         )
         self._samples.start()
         self._restart_snapshot_timer(self._param_ms("ros.snapshot_period_ms"))
@@ -861,6 +864,7 @@ class EtherRosNode(LifecycleNode):
                 ros_numbers["joint_commands_deferred"] = joint_commands["deferred"]
                 ros_numbers["joint_commands_refused"] = joint_commands["refused"]
                 ros_numbers["joint_commands_refused_lease"] = joint_commands["refused_lease"]
+                ros_numbers["joint_commands_refused_blocked"] = joint_commands["blocked"]
                 ros_numbers["joint_commands_refused_throttled"] = joint_commands["throttled"]
         supervisor = getattr(bus, "supervisor", None)
         problems = supervisor.branch_problems() if supervisor is not None else []
@@ -905,6 +909,14 @@ class EtherRosNode(LifecycleNode):
         )
         statuses.append(security.status(name, self._security, self._lease.status()))
         self._diag_pub.publish(diagnostics.array(statuses, self.get_clock().now().to_msg()))
+
+    def _axis_states(self) -> list[joints.AxisState]:
+        """Every axis's state for ``joint_extras``, as the diagnostics report it."""
+        causes = dict(self._stop_cause)
+        return [
+            joints.axis_state(name, mode, st, self._panic, causes.get(name, ""))
+            for name, mode, st in self._axis_reports()
+        ]
 
     def _axis_reports(self) -> list[tuple[str, str, dict[str, Any]]]:
         """(joint, commanded mode, status) of every axis, for the diagnostics."""
@@ -1147,11 +1159,15 @@ class EtherRosNode(LifecycleNode):
             self._stop_cause.setdefault(name, "the command watchdog")
 
     def _apply_holds(self) -> None:
-        """Leave to Python the joint commands of the axes changing mode or blocked."""
+        """Leave to Python the joint commands of the axes changing mode, and tell the native
+        path what stopped each axis (it refuses commands to a blocked axis by itself)."""
         with self._hold_lock:
             native, axes = self._native_joints, self._axes
             if native is not None and axes:
-                native.set_held(axes, self._held_mode | self._held_blocked)
+                native.set_held(axes, self._held_mode)
+                causes = dict(self._stop_cause)
+                native.set_causes(axes, causes)
+                self._causes_sent = causes
 
     def _axis_watch_loop(self) -> None:
         while not self._axis_watch_stop.wait(AXIS_WATCH_PERIOD_S):
@@ -1159,7 +1175,7 @@ class EtherRosNode(LifecycleNode):
                 continue
             try:
                 blocked = self._blocked_axes()
-                if blocked != self._held_blocked:
+                if blocked != self._held_blocked or self._stop_cause != self._causes_sent:
                     self._held_blocked = blocked
                     self._apply_holds()
             except Exception as exc:  # the watch must outlive a bad round (a closing bus)

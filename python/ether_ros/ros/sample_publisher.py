@@ -41,6 +41,7 @@ from sensor_msgs.msg import JointState
 
 from ether_ros.config.bus import JointSpec
 from ether_ros.ros import bridge
+from ether_ros.ros.joints import AxisState
 from ether_ros.ros.layout import BusSpec
 
 log = logging.getLogger(__name__)
@@ -85,6 +86,7 @@ class SamplePublisher:
         axis_slaves: dict[str, str] | None = None,
         feeder_priority: int = 0,
         axis_extras: Callable[[], list[tuple[str, str, float]]] | None = None,
+        axis_states: Callable[[], list[AxisState]] | None = None,
     ) -> None:
         self._bus = bus
         self._spec = spec
@@ -97,6 +99,8 @@ class SamplePublisher:
         # (joint, extra, value in SI) of every axis extra, read like the axes' joint_states
         # part; None when no axis has extras (no joint_extras then).
         self._axis_extras = axis_extras
+        # Each axis's state for joint_extras (``AxisState``); None when the bus has no axes.
+        self._axis_states = axis_states
         # Frames carrying each slave's data (a bit mask), and each axis joint's slave: what
         # the sample's stale_mask is checked against.
         self._frame_masks = bridge.frame_masks(bus)
@@ -263,9 +267,9 @@ class SamplePublisher:
             joint_state = self._joint_state(stamp, image, inputs_by_slave, stale_slaves)
             if joint_state.name:  # every joint stale: no message at all
                 self._pub["joint_states"].publish(joint_state)
-        if self._axis_extras is not None:
+        if self._axis_extras is not None or self._axis_states is not None:
             extras = self._joint_extras(stamp, stale_slaves)
-            if extras.joints:  # every axis with extras stale: no message at all
+            if extras.joints or extras.axes:  # nothing to report: no message at all
                 self._pub["joint_extras"].publish(extras)
         self.counters.published_decoded += 1
 
@@ -282,6 +286,18 @@ class SamplePublisher:
         msg.joints = [joint for joint, _, _ in entries]
         msg.names = [name for _, name, _ in entries]
         msg.values = [value for _, _, value in entries]
+        # Every axis's state, also of an axis whose inputs are stale: the engine's own view
+        # (a stale axis is stopped by its group's watchdog, which its state then says).
+        states = self._axis_states() if self._axis_states is not None else []
+        msg.axes = [s.joint for s in states]
+        msg.states = [s.state for s in states]
+        msg.enable_wanted = [s.enable_wanted for s in states]
+        msg.mode_reached = [s.mode_reached for s in states]
+        msg.restart_blocked = [s.restart_blocked for s in states]
+        msg.limit_active = [s.limit_active for s in states]
+        msg.outside_limits = [s.outside_limits for s in states]
+        msg.stopped_by = [s.stopped_by for s in states]
+        msg.blocked = [s.blocked for s in states]
         return msg
 
     def _joint_state(

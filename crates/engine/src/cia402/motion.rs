@@ -318,6 +318,239 @@ pub fn limit_torque(
     torque * (headroom / band).clamp(0.0, 1.0)
 }
 
+/// Cycles of history the cst limiter keeps (positions read, torques written).
+const CST_HISTORY: usize = 16;
+/// The velocity from positions: the difference over this many cycles (an encoder count does
+/// not jitter as a drive's velocity actual does; a short span keeps the estimate recent).
+const CST_SPAN: usize = 2;
+/// Observations of the torque's effect before the gain counts as known.
+const CST_LEARNED: u32 = 4;
+/// Share of each new observation in the gain estimate.
+const CST_GAIN_SMOOTHING: f64 = 0.2;
+/// A torque counts for learning the gain from this share of the torque limit up (below it,
+/// friction is a large part of what the torque does).
+const CST_LEARN_SHARE: f64 = 0.25;
+/// Once the gain is known, the bands below the bounds span at least what the torque limit adds
+/// to the speed in this many cycles: a loop on the predicted speed slow enough for a latency a
+/// cycle or two off the assumed one (no chatter), still reaching the bound in a few ms.
+const CST_BAND_CYCLES: f64 = 6.0;
+/// A position read equal to the last one while the predicted speed exceeds this share of the
+/// velocity limit is a stale input (an encoder that fine moves many counts per cycle there).
+const STALE_SPEED_SHARE: f64 = 0.05;
+/// Until the gain is known the torque rises to the torque limit over this many cycles at the
+/// fastest: the axis's response is seen before it is fast.
+const CST_RISE_CYCLES: f64 = 40.0;
+
+/// The velocity limit and the braking envelope in cst, against a drive that acts on a torque
+/// only a few cycles after it is written (`latency`) and reports a velocity that jitters.
+///
+/// A torque limit can take a light axis to its velocity limit within a few cycles, faster
+/// than a loop on the velocity read can react: the speed the axis will have when a torque
+/// written now takes effect is predicted instead (a Smith predictor). The velocity comes from
+/// the positions read ([`CST_SPAN`] cycles apart), and the torques written since (still in
+/// flight to the drive) are added through the axis's gain — its acceleration per unit of
+/// torque, learned from the positions while a steady torque accelerates it. Until the gain is
+/// known the torque rises gradually ([`CST_RISE_CYCLES`]) and the prediction extrapolates the
+/// acceleration seen. The predicted velocity and position go to [`limit_torque`].
+#[derive(Clone, Copy, Debug)]
+pub struct CstLimiter {
+    positions: [f64; CST_HISTORY],
+    torques: [f64; CST_HISTORY],
+    /// Cycles recorded since the reset (saturating).
+    count: usize,
+    /// Next slot of the rings.
+    head: usize,
+    /// Acceleration per unit of torque (SI); 0: not known yet.
+    gain: f64,
+    learned: u32,
+    /// The torque written last cycle.
+    last: f64,
+    /// The speed predicted and the velocity limit's band of the last cycle.
+    predicted: f64,
+    vband: f64,
+}
+
+impl Default for CstLimiter {
+    fn default() -> Self {
+        CstLimiter {
+            positions: [0.0; CST_HISTORY],
+            torques: [0.0; CST_HISTORY],
+            count: 0,
+            head: 0,
+            gain: 0.0,
+            learned: 0,
+            last: 0.0,
+            predicted: 0.0,
+            vband: 0.0,
+        }
+    }
+}
+
+impl CstLimiter {
+    /// Forget the motion (a new entry into cst, a disable); the gain learned is kept: it is
+    /// the axis's, not the motion's.
+    pub fn restart(&mut self) {
+        let (gain, learned) = (self.gain, self.learned);
+        *self = CstLimiter {
+            gain,
+            learned,
+            ..Default::default()
+        };
+    }
+
+    /// The gain learned (0 while unknown).
+    pub fn gain(&self) -> f64 {
+        if self.learned >= CST_LEARNED {
+            self.gain
+        } else {
+            0.0
+        }
+    }
+
+    /// Was the last cut the velocity limit's (the predicted speed within its band below
+    /// `vmax` or above it), not the braking envelope's?
+    pub fn near_velocity_limit(&self, vmax: f64) -> bool {
+        self.predicted.abs() + self.vband >= vmax
+    }
+
+    /// Entry `back` cycles before the newest of `ring` (0: the newest).
+    fn at(&self, ring: &[f64; CST_HISTORY], back: usize) -> f64 {
+        let back = back.min(self.count.saturating_sub(1));
+        ring[(self.head + CST_HISTORY - 1 - back) % CST_HISTORY]
+    }
+
+    /// One cycle: the position read now, the torque asked for (already within the torque
+    /// limit); returns the torque to write and whether a bound cut it. `latency`: cycles from
+    /// a torque written to its effect in the positions read; `dt` the cycle (s).
+    #[allow(clippy::too_many_arguments)]
+    pub fn step(
+        &mut self,
+        position: f64,
+        torque: f64,
+        limits: (f64, f64),
+        decel: f64,
+        vmax: f64,
+        torque_max: f64,
+        latency: usize,
+        dt: f64,
+    ) -> (f64, bool) {
+        // A read that repeats the last position while the axis moves is a stale input (a frame
+        // late or lost on a loaded host), not a stop: taken as such it would halve the speed
+        // estimate and let a burst of torque through. The position is carried on instead.
+        let position = if self.count > 0
+            && position == self.at(&self.positions, 0)
+            && self.predicted.abs() > STALE_SPEED_SHARE * vmax
+        {
+            position + self.predicted * dt
+        } else {
+            position
+        };
+        self.positions[self.head] = position;
+        self.torques[self.head] = self.last;
+        self.head = (self.head + 1) % CST_HISTORY;
+        self.count = (self.count + 1).min(CST_HISTORY);
+        let latency = latency.min(CST_HISTORY - 2 * CST_SPAN - 1);
+        let n = CST_SPAN as f64;
+        let (velocity, accel) = if self.count > 2 * CST_SPAN {
+            let (p0, p1, p2) = (
+                self.at(&self.positions, 0),
+                self.at(&self.positions, CST_SPAN),
+                self.at(&self.positions, 2 * CST_SPAN),
+            );
+            (
+                (p0 - p1) / (n * dt),
+                (p0 - 2.0 * p1 + p2) / (n * n * dt * dt),
+            )
+        } else {
+            (0.0, 0.0)
+        };
+        // The acceleration seen is that of the last 2·span cycles, caused by the torques
+        // written `latency` cycles before those: learn the gain where they were steady, away
+        // from the position limits (where a drive may stop the axis by itself).
+        if self.count >= CST_HISTORY {
+            let (mut lo, mut hi, mut sum) = (f64::INFINITY, f64::NEG_INFINITY, 0.0);
+            for back in latency..latency + 2 * CST_SPAN {
+                let t = self.at(&self.torques, back);
+                lo = lo.min(t);
+                hi = hi.max(t);
+                sum += t;
+            }
+            let mean = sum / (2 * CST_SPAN) as f64;
+            // Steady or rising evenly (the gradual rise while the gain is unknown): the mean
+            // is the torque at the middle of the window.
+            let steady = hi - lo <= 0.5 * mean.abs() && lo * hi > 0.0;
+            let inside = position - limits.0 > 0.05 * (limits.1 - limits.0)
+                && limits.1 - position > 0.05 * (limits.1 - limits.0);
+            if steady && inside && mean.abs() >= CST_LEARN_SHARE * torque_max {
+                let seen = accel / mean;
+                if seen > 0.0 && seen.is_finite() {
+                    self.gain = if self.learned == 0 {
+                        seen
+                    } else {
+                        self.gain + CST_GAIN_SMOOTHING * (seen - self.gain)
+                    };
+                    self.learned = self.learned.saturating_add(1);
+                }
+            }
+        }
+        // The velocity estimate is for the middle of its span; the torque written now takes
+        // effect `latency` cycles after the newest position.
+        let horizon = latency as f64 + 0.5 * n;
+        let gain = self.gain();
+        let predicted = if gain > 0.0 {
+            let mut in_flight = 0.0;
+            for back in 0..latency + CST_SPAN / 2 {
+                in_flight += self.at(&self.torques, back);
+            }
+            velocity + gain * in_flight * dt
+        } else {
+            velocity + accel * horizon * dt
+        };
+        let ahead = position + 0.5 * (velocity + predicted) * horizon * dt;
+        // Bands: the braking envelope's, and the velocity limit's — at least what the torque
+        // limit adds in `CST_BAND_CYCLES` once the gain is known, so that a cycle's error of
+        // the prediction does not turn the fade into braking (chatter).
+        let mut band = if decel.is_finite() {
+            (decel * 0.01).max(1e-3)
+        } else if vmax.is_finite() {
+            (vmax * 0.1).max(1e-3)
+        } else {
+            0.1
+        };
+        let mut vband = if vmax.is_finite() {
+            band.max(vmax * 0.2)
+        } else {
+            band
+        };
+        if gain > 0.0 {
+            let step = CST_BAND_CYCLES * gain * torque_max * dt;
+            band = band.max(step);
+            vband = vband.max(step);
+        }
+        let mut out = limit_torque(
+            torque,
+            ahead,
+            predicted,
+            limits,
+            decel,
+            vmax,
+            torque_max,
+            (band, vband),
+        );
+        if gain == 0.0 && out * self.last >= 0.0 && out.abs() > self.last.abs() {
+            // Unknown gain: a gradual rise (a reversal starts from zero).
+            let rise = torque_max / CST_RISE_CYCLES;
+            out = out.signum() * out.abs().min(self.last.abs() + rise);
+        } else if gain == 0.0 && out * self.last < 0.0 && out * torque > 0.0 {
+            out = out.signum() * out.abs().min(torque_max / CST_RISE_CYCLES);
+        }
+        self.last = out;
+        self.predicted = predicted;
+        self.vband = vband;
+        (out, out != torque)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -4,6 +4,7 @@
 
 use super::{AxisPlan, Mode};
 use crate::handover::SeqBuffer;
+use std::sync::atomic::AtomicU64;
 
 /// What the command slot of an axis holds (the latest of each request).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -265,6 +266,42 @@ impl AxisStatus {
     }
 }
 
+/// What a command path must know of an axis before it hands the axis a setpoint (is it in a
+/// state to move?), published by the RT thread every cycle in one atomic word per axis: read
+/// without a lock and without allocating (the native joint command path reads it for every
+/// command, `AxisExchange::gates`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct AxisGate {
+    /// The drive's state (`DriveState` as u8).
+    pub state: u8,
+    /// `status_flags` of the cycle.
+    pub flags: u16,
+    pub error_code: u16,
+    pub last_fault_code: u16,
+    /// False until the RT thread has run the axis once.
+    pub published: bool,
+}
+
+impl AxisGate {
+    pub fn pack(self) -> u64 {
+        self.state as u64
+            | (self.flags as u64) << 8
+            | (self.error_code as u64) << 24
+            | (self.last_fault_code as u64) << 40
+            | (self.published as u64) << 63
+    }
+
+    pub fn unpack(w: u64) -> AxisGate {
+        AxisGate {
+            state: w as u8,
+            flags: (w >> 8) as u16,
+            error_code: (w >> 24) as u16,
+            last_fault_code: (w >> 40) as u16,
+            published: w >> 63 != 0,
+        }
+    }
+}
+
 /// The hand-over buffers of all axes for one cyclic run (shared by the engine and the RT
 /// thread): the commands of all axes in one buffer (a multi-axis command is one write, taken
 /// over in one cycle), one trajectory slot per axis, one status buffer for all.
@@ -272,6 +309,8 @@ pub struct AxisExchange {
     pub commands: SeqBuffer,
     pub trajectories: Vec<SeqBuffer>,
     pub status: SeqBuffer,
+    /// `AxisGate::pack` per axis, stored by the RT thread every cycle.
+    pub gates: Box<[AtomicU64]>,
     pub trajectory_capacity: usize,
 }
 
@@ -293,6 +332,7 @@ impl AxisExchange {
                 })
                 .collect(),
             status: SeqBuffer::new(&vec![0u8; axes.len() * STATUS_LEN]),
+            gates: axes.iter().map(|_| AtomicU64::new(0)).collect(),
             trajectory_capacity,
         }
     }
