@@ -49,8 +49,8 @@ SUCCEEDED = 4
 ROUNDING_RAW = 2
 # cst: the velocity limit is held by the master's torque, which acts a few cycles after the
 # velocity it reacts to (the inputs' and the drive's latency): the speed may pass the limit by
-# what the torque limit adds in those cycles.
-# cst under load: see test_cst_held_at_a_limit_keeps_the_velocity_limit_and_does_not_chatter.
+# what the torque limit adds in those cycles, and more when frames are late on a loaded host
+# (test_cst_held_at_a_limit_keeps_the_velocity_limit_and_does_not_chatter).
 CST_LOADED_MARGIN = 1.5
 
 
