@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from arm_ros import settled
 from ether_ros import _native
 from ether_ros.config import BusConfig, load_bus_config
 from ether_ros.config.cia402 import acceleration_limit, object_index
@@ -284,17 +285,16 @@ def test_goals_from_a_stale_state_or_the_past_are_joined_within_the_limits(wire:
     past = fjt.send(make_goal(JOINTS, points, start=time.time() - 0.9, goal_time_tolerance=2.0))
     outcome = past.wait()
     assert outcome.status == SUCCEEDED, outcome
-    time.sleep(0.2)
-    # A first point older than the goal's own time tolerance: refused, nothing moves.
-    here = _positions(r)
+    # A first point older than the goal's own time tolerance: refused, nothing moves (both
+    # readings from joint_states taken after the arm came to rest: a loaded host delays them).
+    here = settled(r.client)
     points = [(0.0, [here[j] for j in JOINTS]), (2.0, [0.5, -0.5])]
     old = fjt.send(
         make_goal(JOINTS, points, start=time.time() - 0.9, goal_time_tolerance=0.5)
     ).wait()
     assert old.error_code == Result.OLD_HEADER_TIMESTAMP, old
     assert "in the past" in old.error_string
-    time.sleep(0.3)
-    now = _positions(r)
+    now = settled(r.client)
     assert all(abs(now[j] - here[j]) < 1e-3 for j in JOINTS), (here, now)
     wire.on = False
     cycle_s = cfg.bus.cycle_us * 1e-6
