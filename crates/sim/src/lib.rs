@@ -22,4 +22,4 @@ pub mod spec;
 pub mod topology;
 
 pub use network::Network;
-pub use spec::{MailboxSpec, SlaveSpec};
+pub use spec::{MailboxSpec, SlaveSpec, SpecError};

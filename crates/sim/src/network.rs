@@ -350,11 +350,16 @@ impl Network {
     /// auto-increment order). The device model is created from the spec's `device` and
     /// `params`; a device the chosen chip cannot carry is refused with the reason
     /// (`SlaveSpec::check_emulatable`).
-    pub fn add_slave(&mut self, mut spec: SlaveSpec) -> Result<usize, String> {
-        spec.check_emulatable()?;
+    pub fn add_slave(&mut self, mut spec: SlaveSpec) -> Result<usize, crate::SpecError> {
+        use crate::SpecError;
+        spec.check_emulatable()
+            .map_err(|m| SpecError::new("sii", m))?;
         let pos = self.slaves.len();
-        spec.upstream = self.check_upstream(&spec, pos)?;
-        let device = crate::devices::create(&spec.device, &spec.params, &spec.loopback_links)?;
+        spec.upstream = self
+            .check_upstream(&spec, pos)
+            .map_err(|m| SpecError::new("upstream", m))?;
+        let device = crate::devices::create(&spec.device, &spec.params, &spec.loopback_links)
+            .map_err(|m| SpecError::new("device", m))?;
         let now = self.now();
         let mut esc = Esc::new(spec, pos, now);
         esc.device = device;
@@ -373,11 +378,14 @@ impl Network {
         if let Some(next) = topology::listed_out_of_order(&self.nodes) {
             self.nodes.pop();
             let (parent, port) = spec_upstream.expect("not the first slave");
-            return Err(format!(
-                "slave '{name}' on port {port} of '{}': the frame reaches it before '{}' (ports \
-                 are visited in the order 0, 3, 1, 2), so it must be listed before it",
-                lock(&self.slaves[parent]).spec.name,
-                lock(&self.slaves[next]).spec.name
+            return Err(SpecError::new(
+                "upstream",
+                format!(
+                    "slave '{name}' on port {port} of '{}': the frame reaches it before '{}' \
+                     (ports are visited in the order 0, 3, 1, 2), so it must be listed before it",
+                    lock(&self.slaves[parent]).spec.name,
+                    lock(&self.slaves[next]).spec.name
+                ),
             ));
         }
         self.slaves.push(Arc::new(PiMutex::new(esc)));

@@ -16,6 +16,35 @@ pub struct MailboxSpec {
     pub tx_size: u16,
 }
 
+/// Why the network refused a slave: the spec's field that is wrong (`"sii"`, `"upstream"`,
+/// `"device"`) and the reason in words. The Python binding raises it as `InvalidRequest` with
+/// the field as data, so a caller learns which part of the spec to fix without parsing text.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct SpecError {
+    /// The field of [`SlaveSpec`] that cannot be carried out.
+    pub field: &'static str,
+    /// What is wrong, naming the slave.
+    pub message: String,
+}
+
+impl SpecError {
+    /// A refusal of `field` with `message`.
+    pub fn new(field: &'static str, message: impl Into<String>) -> SpecError {
+        SpecError {
+            field,
+            message: message.into(),
+        }
+    }
+}
+
+impl std::fmt::Display for SpecError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.message)
+    }
+}
+
+impl std::error::Error for SpecError {}
+
 #[derive(Clone, Debug)]
 pub struct SlaveSpec {
     pub name: String,
