@@ -1,6 +1,8 @@
 //! The virtual EtherCAT network: a tree of virtual slave controllers (ESCs) that process real
 //! frames, with device applications (firmware models) and fault injection.
 
+#![warn(missing_docs)]
+
 pub mod chip;
 pub(crate) mod coe;
 pub(crate) mod dc;
