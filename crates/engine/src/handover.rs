@@ -216,27 +216,10 @@ impl SampleRing {
         }
     }
 
-    pub fn capacity(&self) -> usize {
-        self.capacity
-    }
-
-    pub fn image_len(&self) -> usize {
-        self.image_len
-    }
-
-    /// Samples dropped because the consumer lagged.
+    /// Samples dropped because the consumer lagged (the tests check the count).
+    #[cfg(test)]
     pub fn dropped(&self) -> u64 {
         self.dropped.load(Ordering::Relaxed)
-    }
-
-    pub fn len(&self) -> usize {
-        self.head
-            .load(Ordering::Acquire)
-            .wrapping_sub(self.tail.load(Ordering::Acquire))
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
     }
 
     /// Producer: append a sample. Returns false (and counts it) when the ring is full.

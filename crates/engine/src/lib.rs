@@ -7,10 +7,10 @@
 //! after the cyclic frame.
 
 pub mod cia402;
-pub mod cyclic;
-pub mod fields;
-pub mod frames;
-pub mod handover;
+pub(crate) mod cyclic;
+pub(crate) mod fields;
+pub(crate) mod frames;
+pub(crate) mod handover;
 pub mod plan;
 pub mod rt;
 pub mod stats;
