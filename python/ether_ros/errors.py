@@ -11,7 +11,7 @@ decides by the data, never by parsing a message::
     EtherRosError
     ├── ConfigError (file, line, field, value)
     ├── MessageError (topic, field)
-    ├── InvalidRequest (also a ValueError): an argument the Rust core refused
+    ├── InvalidRequest (field, code; also a ValueError): an argument the Rust core refused
     ├── BusError (slave)
     │   ├── AlStateRefused (slave, state, reached, code)
     │   ├── AlStateTimeout (slave, state, reached, timeout_s)
@@ -273,7 +273,30 @@ class FrameTimeout(LinkError):
 class InvalidRequest(EtherRosError, ValueError):
     """The Rust core (engine, simulator) refused an argument before doing anything: the text
     says what is wrong. A ``ValueError`` as well, so a caller that checks its input that way
-    keeps working."""
+    keeps working.
+
+    The simulator's refusals carry the refused ``field`` (``"SlaveSpec.pdram_kib"``,
+    ``"Drop.rate"``, ``"SlaveSpec.device"``, ``"slave"`` for a position argument) and a
+    ``code`` saying why, one of the ``*`` constants below; both are None where the core gives
+    no more than the text (the engine's refusals today)."""
+
+    field: str | None = None
+    code: str | None = None
+
+    #: A number outside the range its field allows.
+    OUT_OF_RANGE = "out_of_range"
+    #: A value of the right type that the field does not allow (an unknown name, a bad form).
+    BAD_VALUE = "bad_value"
+    #: No slave at the position given.
+    NO_SLAVE = "no_slave"
+    #: The slave has no object dictionary entry at the index and subindex given.
+    NO_ENTRY = "no_entry"
+    #: Nothing is connected to the port given.
+    NOT_CONNECTED = "not_connected"
+    #: The simulator already serves an interface.
+    BUSY = "busy"
+    #: The simulator cannot build what the spec describes (device model, topology, chip).
+    REFUSED = "refused"
 
 
 class EngineError(LinkError):

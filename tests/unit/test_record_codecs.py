@@ -1,6 +1,6 @@
 """The record codecs moved into the protocol crate (SyncManager and FMMU registers, SII
-categories and their records, SDO segments) give the bytes the Python code gave before, and
-the errors of the Rust core arrive as the classes of ``ether_ros.errors``.
+categories and their records, SDO segments and initiate headers) give the bytes the Python code
+gave before, and the errors of the Rust core arrive as the classes of ``ether_ros.errors``.
 
 The references below are the removed Python encoders, kept here as the specification of the
 bytes; ``tests/data/sii_golden.json`` holds digests of the SII images (and of their decoding)
@@ -19,7 +19,7 @@ import pytest
 
 from ether_ros import _native
 from ether_ros._native import protocol
-from ether_ros._native.protocol import coe, sii_word
+from ether_ros._native.protocol import coe, sdo_abort, sii_word
 from ether_ros.config.esi import load_esi
 from ether_ros.config.sii import build_sii, parse_sii
 from ether_ros.errors import EtherRosError, InvalidRequest, LinkError
@@ -119,6 +119,69 @@ def test_sdo_segments_are_the_bytes_of_before() -> None:
         )
     assert protocol.coe_header(coe.SERVICE_SDO_INFORMATION) == struct.pack("<H", 8 << 12)
     assert protocol.parse_sdo_segment(b"\x00\x20") is None
+
+
+def _old_sdo(command: int, index: int, subindex: int, data: bytes = bytes(4)) -> bytes:
+    """The master's SDO initiate builder before the move (``master/coe.py``)."""
+    return (
+        struct.pack("<H", coe.SERVICE_SDO_REQUEST << 12)
+        + struct.pack("<BHB", command, index, subindex)
+        + data
+    )
+
+
+def test_sdo_initiate_headers_are_the_bytes_of_before() -> None:
+    """Every kind of initiate header: built, compared with the old bit-fiddling, parsed back."""
+    request, ccs_up, ccs_down = (
+        coe.SERVICE_SDO_REQUEST,
+        coe.CCS_UPLOAD_INITIATE,
+        coe.CCS_DOWNLOAD_INITIATE,
+    )
+    for ca in (False, True):
+        ca_bit = coe.COMPLETE_ACCESS if ca else 0
+        # Upload initiate request: no flags, zero data.
+        new = protocol.sdo_initiate(request, ccs_up, 0x1C12, 1, ca)
+        assert new == _old_sdo(ccs_up << coe.SPECIFIER_SHIFT | ca_bit, 0x1C12, 1)
+        assert protocol.parse_sdo_header(new) == (request, ccs_up, ca, 0x1C12, 1, None, 0)
+        # Normal download initiate: size indicated, the size in the data field.
+        new = protocol.sdo_initiate(request, ccs_down, 0x7000, 0, ca, 300)
+        command = ccs_down << coe.SPECIFIER_SHIFT | ca_bit | coe.SIZE_INDICATED
+        assert new == _old_sdo(command, 0x7000, 0, struct.pack("<I", 300))
+        assert protocol.parse_sdo_header(new) == (request, ccs_down, ca, 0x7000, 0, None, 300)
+        # Expedited download of 1 to 4 bytes.
+        for n in range(1, 5):
+            data = bytes(range(1, n + 1))
+            new = protocol.sdo_expedited(request, ccs_down, 0x6040, 0, data, ca)
+            command = (
+                ccs_down << coe.SPECIFIER_SHIFT
+                | ca_bit
+                | (4 - n) << coe.EXPEDITED_UNUSED_SHIFT
+                | coe.EXPEDITED
+                | coe.SIZE_INDICATED
+            )
+            assert new == _old_sdo(command, 0x6040, 0, data.ljust(4, b"\x00"))
+            parsed = protocol.parse_sdo_header(new)
+            assert parsed is not None
+            assert parsed[5] == data
+    # Abort: the code in the data field.
+    new = protocol.sdo_abort_message(request, 0x1008, 0, sdo_abort.ABORT_TOGGLE_BIT)
+    assert new == _old_sdo(
+        coe.CS_ABORT << coe.SPECIFIER_SHIFT, 0x1008, 0, struct.pack("<I", 0x05030000)
+    )
+    assert protocol.parse_sdo_header(new) == (
+        request,
+        coe.CS_ABORT,
+        False,
+        0x1008,
+        0,
+        None,
+        sdo_abort.ABORT_TOGGLE_BIT,
+    )
+    # An expedited transfer carries 1 to 4 bytes; a short message is no header.
+    for bad in (b"", bytes(5)):
+        with pytest.raises(ValueError, match="1 to 4 bytes"):
+            protocol.sdo_expedited(request, ccs_down, 0x6040, 0, bad)
+    assert protocol.parse_sdo_header(new[:9]) is None
 
 
 def _old_sii_complete(image: bytes) -> bool:

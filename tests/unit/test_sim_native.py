@@ -25,6 +25,7 @@ from ether_ros._native import (
     SlaveSpec,
 )
 from ether_ros._native.protocol import sii_checksum
+from ether_ros.errors import InvalidRequest
 from ether_ros.testing.netns import VethPair, thread_in_netns
 from ether_ros.testing.wait import wait_for
 
@@ -205,11 +206,11 @@ def test_faults_and_bad_input_are_reported() -> None:
     assert RefuseOp(slave=0) == RefuseOp(slave=0, on=True) != RefuseOp(slave=0, on=False)
     assert repr(Link(up=False, at=2)) == "Link(up=False, at=2, port=None)"
     # What only the network knows is checked when the fault is injected.
-    with pytest.raises(IndexError, match="no slave at position 4"):
+    with pytest.raises(InvalidRequest, match="no slave at position 4"):
         net.inject(Reset(slave=4))
     with pytest.raises(TypeError, match=r"inject\(\) takes a fault \(Drop, .*\), not str"):
         net.inject("drop")  # type: ignore[arg-type]
-    with pytest.raises(IndexError, match="no slave at position 3"):
+    with pytest.raises(InvalidRequest, match="no slave at position 3"):
         net.slave_info(3)
     # A slave spec is checked when made: a wrong type, an unknown or a missing field is
     # named (with the type it belongs to).
@@ -228,6 +229,49 @@ def test_faults_and_bad_input_are_reported() -> None:
     with pytest.raises(OSError, match="nosuchif0"):
         net.run_on_interface("nosuchif0")
     assert not net.running
+
+
+def test_refusals_are_typed_errors_naming_the_field_with_a_code() -> None:
+    """Every refusal of the simulator's bindings is an ``InvalidRequest`` (still a ValueError)
+    whose ``field`` says what to fix and whose ``code`` says why, as data."""
+    net = SimNetwork(seed=3, manual_clock_ns=1)
+    net.add_slave(spec())
+    cases: list[tuple[Any, str, str]] = [
+        (lambda: spec(pdram_kib=61), "SlaveSpec.pdram_kib", InvalidRequest.OUT_OF_RANGE),
+        (lambda: spec(esc="z80"), "SlaveSpec.esc", InvalidRequest.BAD_VALUE),
+        (
+            lambda: spec(entries=[(0x2000, 0, "x", 7, 32, "rx", False, None)]),
+            "SlaveSpec.entries",
+            InvalidRequest.BAD_VALUE,
+        ),
+        (lambda: net.add_slave(spec(device="toaster")), "SlaveSpec.device", "refused"),
+        (
+            lambda: net.add_slave(spec(upstream=(5, 1))),
+            "SlaveSpec.upstream",
+            InvalidRequest.REFUSED,
+        ),
+        (lambda: Drop(rate=2), "Drop.rate", InvalidRequest.OUT_OF_RANGE),
+        (lambda: Reset(slave=-1), "Reset.slave", InvalidRequest.OUT_OF_RANGE),
+        (lambda: Link(up=False, port=2), "Link.port", InvalidRequest.BAD_VALUE),
+        (lambda: net.inject(Link(up=False, at=0, port=2)), "Link.port", "not_connected"),
+        (lambda: net.inject(Reset(slave=4)), "slave", InvalidRequest.NO_SLAVE),
+        (lambda: net.od_read(0, 0x1234, 0), "index", InvalidRequest.NO_ENTRY),
+        (lambda: net.od_write(0, 0x1234, 0, b"\0"), "index", InvalidRequest.NO_ENTRY),
+        (lambda: net.run_on_interface("lo", link="carrier-pigeon"), "link", "bad_value"),
+        (lambda: net.run_on_interface("lo", timing="slow"), "timing", "bad_value"),
+        (lambda: net.run_on_interface("lo", threads=65), "threads", "out_of_range"),
+    ]
+    for make, field, code in cases:
+        with pytest.raises(InvalidRequest) as err:
+            make()
+        assert isinstance(err.value, ValueError)
+        assert (err.value.field, err.value.code) == (field, code), str(err.value)
+        if field.startswith("SlaveSpec.") and code == InvalidRequest.REFUSED:
+            assert str(err.value).startswith("slave 'tiny': "), str(err.value)
+            assert "slave 'tiny'" not in str(err.value)[len("slave 'tiny': ") :]
+        elif "." in field:
+            assert field in str(err.value)
+    assert len(net) == 1, "a refused slave is not kept"
 
 
 @pytest.mark.netns

@@ -15,12 +15,19 @@ use std::fmt;
 /// borrow from the serialized buffer.
 #[derive(Debug, Clone, PartialEq)]
 pub struct WriteRequest<'a> {
+    /// Target slave by name (empty: by `position`, or all slaves).
     pub slave: &'a str,
+    /// Target slave by bus position, used when `slave` is empty (-1: none given).
     pub position: i32,
+    /// Write the variable on every slave that has it, not one.
     pub all_slaves: bool,
+    /// The variable by name (`a_ellipse100`) or by object (`0x7000:0d`, hexadecimal).
     pub variable: &'a str,
+    /// The numeric value to write (ignored when `text` is set).
     pub value: f64,
+    /// The value as text (`true`, `0x1F`, `-12`), which wins over `value` when not empty.
     pub text: &'a str,
+    /// Echoed in the `write_results` answer so the caller can match it to this request.
     pub request_id: u32,
 }
 
@@ -28,15 +35,28 @@ pub struct WriteRequest<'a> {
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum CdrError {
     /// Fewer bytes than the field at `offset` needs.
-    Truncated { field: &'static str, offset: usize },
+    Truncated {
+        /// Which field was cut short.
+        field: &'static str,
+        /// Byte offset at which the field starts.
+        offset: usize,
+    },
     /// The encapsulation header names a representation other than plain CDR.
     Encapsulation(u16),
     /// A string that is not NUL-terminated or not UTF-8.
-    BadString { field: &'static str },
+    BadString {
+        /// Which string field is malformed.
+        field: &'static str,
+    },
     /// A string with a NUL before its end: C code (rclpy's conversion to Python, any
     /// `strlen`) would see only the part before it, so `Kp100_knee\0junk` would act on
     /// `Kp100_knee`. Refused, never truncated.
-    EmbeddedNul { field: &'static str, at: usize },
+    EmbeddedNul {
+        /// Which string field holds the NUL.
+        field: &'static str,
+        /// Byte index of the NUL within the string.
+        at: usize,
+    },
 }
 
 impl fmt::Display for CdrError {
@@ -186,10 +206,12 @@ pub struct F64Seq<'a> {
 }
 
 impl F64Seq<'_> {
+    /// Number of `f64` elements (the byte length over 8).
     pub fn len(&self) -> usize {
         self.bytes.len() / 8
     }
 
+    /// True when the sequence has no element (an unset `position`/`velocity`/`effort`).
     pub fn is_empty(&self) -> bool {
         self.bytes.is_empty()
     }
@@ -208,11 +230,17 @@ impl F64Seq<'_> {
 /// vector given to [`decode_joint_state`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct JointCommand<'a> {
+    /// Header stamp, seconds: with `stamp_nanosec`, when the publisher sent it.
     pub stamp_sec: i32,
+    /// Header stamp, nanoseconds within `stamp_sec`.
     pub stamp_nanosec: u32,
+    /// Header frame id; not used for control, kept so a log can show it.
     pub frame_id: &'a str,
+    /// Target positions per joint (rad or m), empty when not commanded.
     pub position: F64Seq<'a>,
+    /// Target velocities per joint, empty when not commanded.
     pub velocity: F64Seq<'a>,
+    /// Target efforts (torques) per joint, empty when not commanded.
     pub effort: F64Seq<'a>,
 }
 

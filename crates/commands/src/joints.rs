@@ -22,11 +22,17 @@ use crate::table::Resolution;
 /// One axis: its joint name, its index in the engine and its limits (SI units).
 #[derive(Debug, Clone, PartialEq)]
 pub struct JointEntry {
+    /// The joint name a `JointState` message uses for this axis.
     pub name: String,
+    /// Index of the axis in the engine's plan.
     pub axis: usize,
+    /// Lowest position a command may ask for (SI units, from the axis config).
     pub position_min: f64,
+    /// Highest position a command may ask for.
     pub position_max: f64,
+    /// Largest velocity magnitude a command may ask for.
     pub velocity_limit: f64,
+    /// Largest torque magnitude a command may ask for.
     pub torque_limit: f64,
 }
 
@@ -95,10 +101,12 @@ impl JointTable {
         Ok(())
     }
 
+    /// Number of joints in the table.
     pub fn len(&self) -> usize {
         self.joints.len()
     }
 
+    /// True when the bus has no joint (joint commands are then refused).
     pub fn is_empty(&self) -> bool {
         self.joints.is_empty()
     }

@@ -26,6 +26,7 @@ pub const MAX_WRITERS: usize = 32;
 /// Longest holder name kept (longer names are cut at a character boundary).
 pub const HOLDER_LEN: usize = 128;
 
+/// A publisher's global id as rmw reports it: what the lease compares to know who sent.
 pub type Gid = [u8; GID_LEN];
 
 /// Whether a request may command the bus.
@@ -44,11 +45,15 @@ pub enum Verdict {
 /// The lease state at one instant (a consistent copy).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct LeaseState {
+    /// Whether the lease is checked at all (off: every publisher may command).
     pub enabled: bool,
     /// CLOCK_MONOTONIC ns the lease runs out (0: nobody holds it).
     pub expires_ns: i64,
+    /// Increases with every grant, so a stale renewal cannot extend a newer lease.
     pub token: u64,
+    /// Who holds the lease, as the holder named itself (for messages and the status topic).
     pub holder: String,
+    /// The holder's publishers: messages from these gids pass the lease check.
     pub gids: Vec<Gid>,
 }
 
@@ -136,6 +141,7 @@ impl std::fmt::Debug for LeaseGate {
 }
 
 impl LeaseGate {
+    /// A gate with the lease off (everyone may command) until Python enables it.
     pub fn new() -> LeaseGate {
         LeaseGate::default()
     }

@@ -21,11 +21,13 @@
 //! fair per publisher, and with the control lease on ([`lease`]) only the holder's publishers
 //! get past the first check.
 
+#![warn(missing_docs)]
+
 pub mod cdr;
 pub mod joints;
 pub mod lease;
 pub mod panic_keys;
-pub mod rcl;
+pub(crate) mod rcl;
 pub mod receiver;
 pub mod table;
 

@@ -55,8 +55,11 @@ pub enum Sent {
     /// The request went out with this sequence number; CLOCK_MONOTONIC times when the read
     /// that held the key returned and when the request was sent.
     Request {
+        /// Sequence number rcl gave the request.
         sequence: i64,
+        /// CLOCK_MONOTONIC ns when the read that held the key returned.
         read_ns: i64,
+        /// CLOCK_MONOTONIC ns when the request was sent.
         at_ns: i64,
     },
     /// It could not be sent (the service is not available, an rcl error): why.
@@ -69,12 +72,19 @@ pub enum Sent {
 /// the reader sees the end of the input) and the SCHED_FIFO priority to ask for (0: none).
 #[derive(Debug, Clone)]
 pub struct PanicKeyHandles {
+    /// Path of the librcl rclpy loaded (the same copy, so handles are compatible).
     pub librcl: String,
+    /// Path of the librcutils rclpy loaded.
     pub librcutils: String,
+    /// Address of the rcl node (`handle.pointer`).
     pub node: usize,
+    /// Address of the rcl client of the `panic` service.
     pub client: usize,
+    /// The terminal to read keys from (borrowed, never closed here).
     pub terminal: RawFd,
+    /// Write end of the pipe the other bytes are passed on to (owned, closed at the end).
     pub forward: RawFd,
+    /// SCHED_FIFO priority for the thread (0: normal scheduling).
     pub priority: i32,
 }
 
@@ -95,6 +105,8 @@ pub struct PanicKeys {
 }
 
 impl PanicKeys {
+    /// Load rcl and start the thread that reads the terminal and sends the panic request on a
+    /// panic key; an error says which library or symbol could not be loaded.
     pub fn start(handles: PanicKeyHandles) -> Result<PanicKeys, String> {
         let rcl = Rcl::load(&handles.librcl, &handles.librcutils)?;
         let mut pipe = [0 as RawFd; 2];
@@ -154,6 +166,7 @@ impl PanicKeys {
         self.shared.dropped.load(Ordering::SeqCst)
     }
 
+    /// True while the thread runs (it ends with the terminal's input or on an error).
     pub fn is_running(&self) -> bool {
         self.shared.running.load(Ordering::SeqCst)
     }

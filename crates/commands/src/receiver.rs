@@ -72,7 +72,9 @@ impl MessageKind {
 /// What requests are resolved against (it must match the receiver's [`MessageKind`]).
 #[derive(Debug, Clone)]
 pub enum Resolver {
+    /// Resolve `WriteVariable` requests against the output variables of the bus.
     Writes(CommandTable),
+    /// Resolve `JointState` commands against the joints of the bus.
     Joints(JointTable),
 }
 
@@ -105,11 +107,17 @@ const MESSAGE_CAPACITY: usize = 4096;
 /// from their `handle.pointer`). `results` is the `write_results` publisher, 0 for none.
 #[derive(Debug, Clone)]
 pub struct ReceiverHandles {
+    /// Path of the librcl rclpy loaded (the same copy, so the handles are compatible).
     pub librcl: String,
+    /// Path of the librcutils rclpy loaded.
     pub librcutils: String,
+    /// Address of the rcl context (`handle.pointer`), for the wait set.
     pub context: usize,
+    /// Address of the rcl subscription the thread takes messages from.
     pub subscription: usize,
+    /// Address of the `write_results` publisher (0: answers are not published).
     pub results: usize,
+    /// The message type the subscription carries.
     pub message: MessageKind,
     /// The control lease to check every message against (None: everyone may command).
     pub lease: Option<Arc<LeaseGate>>,
@@ -141,12 +149,16 @@ pub struct ReceiverCounters {
     pub undecodable: u64,
     /// rcl wait/take errors and failed result publications.
     pub rcl_errors: u64,
+    /// Answers that could not be published (counted apart from the rcl wait/take errors).
     pub publish_errors: u64,
     /// Middleware delivery (publisher's source stamp to the subscription's receive stamp), for
     /// messages whose stamps are both set: last, largest and sum (ns).
     pub delivery_last_ns: u64,
+    /// Largest middleware delivery seen (ns).
     pub delivery_max_ns: u64,
+    /// Sum of the delivery times (ns), for the mean with `delivery_count`.
     pub delivery_sum_ns: u64,
+    /// Messages whose delivery time is in the sum.
     pub delivery_count: u64,
 }
 
@@ -303,12 +315,14 @@ impl CommandReceiver {
         *lock(&self.shared.target) = None;
     }
 
+    /// True while the receiver thread runs.
     pub fn is_running(&self) -> bool {
         lock(&self.thread)
             .as_ref()
             .is_some_and(|t| !t.is_finished())
     }
 
+    /// A consistent copy of the counters, for the node's statistics.
     pub fn counters(&self) -> ReceiverCounters {
         let c = &self.shared.counters;
         let get = |a: &AtomicU64| a.load(Ordering::Relaxed);
@@ -337,6 +351,7 @@ impl CommandReceiver {
         self.shared.last_command_ns.load(Ordering::Acquire)
     }
 
+    /// The last rcl or decoding error the thread met, as text (empty: none).
     pub fn last_error(&self) -> String {
         lock(&self.shared.last_error).clone()
     }

@@ -22,14 +22,21 @@ use crate::cdr::WriteRequest;
 /// How a variable's value is encoded (the kind of its ESI data type).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Kind {
+    /// A boolean (one bit).
     Bool,
+    /// A signed integer of the entry's bit length.
     Int,
+    /// An unsigned integer of the entry's bit length.
     Uint,
+    /// An IEEE 754 single.
     Real32,
+    /// An IEEE 754 double.
     Real64,
 }
 
 impl Kind {
+    /// The kind of a data type name as the Python side gives it (`"bool"`, `"int"`, `"uint"`,
+    /// `"real32"`, `"real64"`); None for any other.
     pub fn parse(name: &str) -> Option<Kind> {
         Some(match name {
             "bool" => Kind::Bool,
@@ -55,14 +62,21 @@ impl Kind {
 /// One output variable: where its bits are in the process image and which values it takes.
 #[derive(Debug, Clone, PartialEq)]
 pub struct VariableEntry {
+    /// The variable's name as the slave's ESI names it (what requests use).
     pub name: String,
+    /// Index of the object the variable maps.
     pub index: u16,
+    /// Subindex of the object the variable maps.
     pub subindex: u8,
     /// Bits from the start of the whole process image.
     pub bit_offset: usize,
+    /// Width of the variable in the process image, in bits.
     pub bit_length: u32,
+    /// How its value is encoded.
     pub kind: Kind,
+    /// Smallest value its data type (or the configuration) allows.
     pub minimum: f64,
+    /// Largest value its data type (or the configuration) allows.
     pub maximum: f64,
     /// The master checks more than type and range for this variable (a Laelaps II leg's
     /// trajectory against its workspace and current outputs): every write of it goes to Python.
@@ -70,9 +84,13 @@ pub struct VariableEntry {
 }
 
 #[derive(Debug, Clone, PartialEq)]
+/// One slave and its output variables, in the order Python gave them.
 pub struct SlaveEntry {
+    /// The slave's configured name (what `WriteVariable.slave` names).
     pub name: String,
+    /// The slave's position on the bus (what `WriteVariable.position` names).
     pub position: i64,
+    /// The output variables a request may write.
     pub outputs: Vec<VariableEntry>,
 }
 
@@ -93,6 +111,8 @@ pub enum Resolution {
 const LISTED: usize = 8;
 
 #[derive(Debug, Clone, Default)]
+/// The output variables of every slave, built once from the configuration: the receiver
+/// thread resolves `WriteVariable` requests against it without asking Python.
 pub struct CommandTable {
     slaves: Vec<SlaveEntry>,
 }
@@ -130,6 +150,7 @@ impl CommandTable {
         Ok(CommandTable { slaves })
     }
 
+    /// The slaves of the table, in bus order.
     pub fn slaves(&self) -> &[SlaveEntry] {
         &self.slaves
     }

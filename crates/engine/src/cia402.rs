@@ -48,13 +48,18 @@ pub fn setpoint_kind(mode: Mode) -> Option<SetpointKind> {
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[repr(u8)]
+/// What a setpoint command sets: the code travels in the command slot (`AxisCommand::setpoint_kind`).
 pub enum SetpointKind {
+    /// A position setpoint (position modes).
     Position = 1,
+    /// A velocity setpoint (velocity modes).
     Velocity = 2,
+    /// A torque setpoint (torque modes).
     Torque = 3,
 }
 
 impl SetpointKind {
+    /// The kind of a command slot code; None for 0 (a trajectory) and unknown codes.
     pub fn from_code(code: u8) -> Option<SetpointKind> {
         Some(match code {
             1 => SetpointKind::Position,
@@ -66,6 +71,7 @@ impl SetpointKind {
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// What the engine commands the drive when the axis is to stop (disable, panic, watchdog).
 pub enum OnStop {
     /// Controlword "quick stop": the drive ramps down per its 0x605A quick stop option code.
     QuickStop,
@@ -83,6 +89,7 @@ impl OnStop {
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// What happens after the drive reports a fault.
 pub enum FaultReset {
     /// Reset and re-enable after a back-off, at most `fault_retries` times in a row.
     Auto,
@@ -91,6 +98,7 @@ pub enum FaultReset {
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// Whether an axis that stopped by itself may resume without a deliberate enable.
 pub enum Restart {
     /// After a panic, a watchdog stop, a fault (reset automatically or not) or any other stop
     /// the drive made by itself, the axis stays out of Operation Enabled until an explicit
@@ -115,17 +123,29 @@ pub enum ModeChangeVelocity {
 /// following error i32, torques i16.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct AxisMap {
+    /// Controlword (0x6040).
     pub controlword: usize,
+    /// Statusword (0x6041).
     pub statusword: usize,
+    /// Modes of operation (0x6060).
     pub mode: Option<usize>,
+    /// Modes of operation display (0x6061).
     pub mode_display: Option<usize>,
+    /// Target position (0x607A).
     pub target_position: Option<usize>,
+    /// Target velocity (0x60FF).
     pub target_velocity: Option<usize>,
+    /// Target torque (0x6071).
     pub target_torque: Option<usize>,
+    /// Position actual value (0x6064).
     pub position: Option<usize>,
+    /// Velocity actual value (0x606C).
     pub velocity: Option<usize>,
+    /// Torque actual value (0x6077).
     pub torque: Option<usize>,
+    /// Error code (0x603F).
     pub error_code: Option<usize>,
+    /// Following error actual value (0x60F4).
     pub following_error: Option<usize>,
 }
 
@@ -160,23 +180,35 @@ impl AxisMap {
 /// Limits in SI units; setpoints outside are clamped (and counted).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Limits {
+    /// Lowest position (SI).
     pub position_min: f64,
+    /// Highest position (SI).
     pub position_max: f64,
     /// Largest |velocity|; also bounds the CSP target's step per cycle.
     pub velocity_max: f64,
+    /// Largest |torque| (SI).
     pub torque_max: f64,
 }
 
 #[derive(Clone, Debug, PartialEq)]
+/// Everything the RT thread needs to drive one CiA 402 axis: where its objects are in the
+/// image, its scaling, limits and policies. Built once from the configuration.
 pub struct AxisPlan {
+    /// The axis name, for messages and statistics.
     pub name: String,
+    /// Where the axis's objects sit in the process image.
     pub map: AxisMap,
     /// The mode commanded at start.
     pub mode: Mode,
+    /// SI units per raw position unit: position = raw × position_scale + position_offset.
     pub position_scale: f64,
+    /// SI position of raw position 0.
     pub position_offset: f64,
+    /// SI units per raw velocity unit.
     pub velocity_scale: f64,
+    /// SI units per raw torque unit.
     pub torque_scale: f64,
+    /// The limits setpoints are clamped to.
     pub limits: Limits,
     /// Deceleration (SI/s², > 0) of the quiet stop a mode change or an enable starts with, and
     /// of the braking envelope before the position limits in csv, pv and cst; ∞: at once.
@@ -186,11 +218,15 @@ pub struct AxisPlan {
     /// commanded state within it, in csp (the targets' second difference) and csv (the velocity
     /// target's step); ∞: only the velocity limit bounds the step.
     pub max_acceleration: f64,
+    /// How fast the axis may be moving for a mode change to be accepted.
     pub mode_change_velocity: ModeChangeVelocity,
+    /// Whether the axis may resume by itself after a stop it did not command.
     pub restart: Restart,
     /// |following error| above this (SI) sets the status flag; 0 = not checked.
     pub following_error_window: f64,
+    /// What the engine commands the drive when the axis is to stop.
     pub on_stop: OnStop,
+    /// What happens after a fault.
     pub fault_reset: FaultReset,
     /// Automatic resets in a row before giving up (auto policy).
     pub fault_retries: u32,
@@ -343,6 +379,7 @@ struct Feedback {
 
 /// The controller of one axis: RT-thread state between cycles.
 pub struct AxisController {
+    /// The axis's plan (fixed for the run).
     pub plan: AxisPlan,
     command: AxisCommand,
     /// The mode of the previous cycle's command: a change starts the new mode afresh.
@@ -410,10 +447,12 @@ pub struct AxisController {
     homing_seen: u32,
     homing_active: bool,
     homing_cycles: u32,
+    /// What the controller published last cycle.
     pub status: AxisStatus,
 }
 
 impl AxisController {
+    /// A controller for `plan`, with room for trajectories of `trajectory_capacity` points.
     pub fn new(plan: AxisPlan, trajectory_capacity: usize) -> AxisController {
         let command = AxisCommand::initial(plan.mode);
         AxisController {
@@ -1232,6 +1271,7 @@ impl AxisController {
 /// The axis stage of the cycle: every axis's controller plus the buffers they are fed from and
 /// publish into, preallocated.
 pub struct Axes {
+    /// One controller per axis, in plan order.
     pub controllers: Vec<AxisController>,
     command_bytes: Vec<u8>,
     command_version: u64,
@@ -1244,6 +1284,7 @@ pub struct Axes {
 }
 
 impl Axes {
+    /// The stage for the axes of `plans`, every buffer allocated here (never in the cycle).
     pub fn new(plans: &[AxisPlan], trajectory_capacity: usize) -> Axes {
         Axes {
             controllers: plans
@@ -1266,6 +1307,7 @@ impl Axes {
         }
     }
 
+    /// True when the plan has no axis (the stage does nothing).
     pub fn is_empty(&self) -> bool {
         self.controllers.is_empty()
     }

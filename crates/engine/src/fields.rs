@@ -7,8 +7,11 @@
 /// values little-endian); `raw` holds the bits, unsigned, upper bits beyond bit_length must be 0.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct OutputField {
+    /// Bits from the start of the process image to the field's first bit.
     pub bit_offset: usize,
+    /// Width of the field in bits (1..=64).
     pub bit_length: u32,
+    /// The new value's bits, unsigned, right-aligned.
     pub raw: u64,
 }
 

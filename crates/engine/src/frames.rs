@@ -6,9 +6,13 @@ use ether_ros_protocol::{self as wire, Command, FrameBuilder, MASTER_MAC, MAX_FR
 /// One datagram of a `transact` call: data to write, or a length to read.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Request {
+    /// The datagram command (APRD, FPWR, BRD, ...).
     pub cmd: Command,
+    /// The datagram address (ADP and ADO, or a logical address).
     pub address: u32,
+    /// Data to write; None for a read of `len` bytes.
     pub data: Option<Vec<u8>>,
+    /// Bytes to read when `data` is None.
     pub len: usize,
 }
 

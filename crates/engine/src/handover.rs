@@ -118,6 +118,7 @@ pub mod flags {
 /// One cycle as the real-time thread saw it.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct SampleRecord {
+    /// The cycle number.
     pub cycle: u64,
     /// Actual wake-up, CLOCK_MONOTONIC ns.
     pub t_wake_ns: u64,
@@ -131,6 +132,7 @@ pub struct SampleRecord {
     pub rtt_ns: u32,
     /// Sum of the logical datagrams' working counters of the replies processed this cycle.
     pub wkc: u16,
+    /// What happened in the cycle (`flags`).
     pub flags: u16,
     /// Distributed-clock difference (see docs/engine.md, "DC modes").
     pub dc_diff_ns: i32,
@@ -159,6 +161,7 @@ impl SampleRecord {
         out[52..56].fill(0);
     }
 
+    /// Read a record from its `RECORD_LEN` bytes.
     pub fn decode(b: &[u8]) -> SampleRecord {
         let u64_at = |i: usize| u64::from_le_bytes(b[i..i + 8].try_into().unwrap());
         let u32_at = |i: usize| u32::from_le_bytes(b[i..i + 4].try_into().unwrap());
@@ -216,27 +219,10 @@ impl SampleRing {
         }
     }
 
-    pub fn capacity(&self) -> usize {
-        self.capacity
-    }
-
-    pub fn image_len(&self) -> usize {
-        self.image_len
-    }
-
-    /// Samples dropped because the consumer lagged.
+    /// Samples dropped because the consumer lagged (the tests check the count).
+    #[cfg(test)]
     pub fn dropped(&self) -> u64 {
         self.dropped.load(Ordering::Relaxed)
-    }
-
-    pub fn len(&self) -> usize {
-        self.head
-            .load(Ordering::Acquire)
-            .wrapping_sub(self.tail.load(Ordering::Acquire))
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
     }
 
     /// Producer: append a sample. Returns false (and counts it) when the ring is full.

@@ -6,11 +6,13 @@
 //! it. While cyclic, `transact` posts its frame to a one-slot mailbox that the RT thread sends
 //! after the cyclic frame.
 
+#![warn(missing_docs)]
+
 pub mod cia402;
-pub mod cyclic;
-pub mod fields;
-pub mod frames;
-pub mod handover;
+pub(crate) mod cyclic;
+pub(crate) mod fields;
+pub(crate) mod frames;
+pub(crate) mod handover;
 pub mod plan;
 pub mod rt;
 pub mod stats;
@@ -151,6 +153,8 @@ impl std::fmt::Display for Error {
 
 impl std::error::Error for Error {}
 
+/// The engine's result: every failure is an [`Error`] that the bindings turn into the
+/// typed Python error of its kind.
 pub type Result<T> = std::result::Result<T, Error>;
 
 enum LinkState {
@@ -162,7 +166,9 @@ enum LinkState {
 /// Counters and histogram summaries, as `stats()` reports them.
 #[derive(Clone, Debug, Default)]
 pub struct StatsSnapshot {
+    /// Counters by name (cycles, lost frames, ...).
     pub counters: Vec<(&'static str, u64)>,
+    /// Histogram summaries by name (wake latency, execution, period, round trip).
     pub histograms: Vec<(&'static str, Summary)>,
     /// Per cyclic frame of the current (or last) run, in plan order.
     pub frames: Vec<FrameSnapshot>,
@@ -173,14 +179,19 @@ pub struct StatsSnapshot {
 pub struct FrameSnapshot {
     /// Sent every this many cycles.
     pub every: u32,
+    /// The frame's counters by name (sent, lost, late, ...).
     pub counters: Vec<(&'static str, u64)>,
+    /// The frame's round trip.
     pub rtt: Summary,
     /// 1 + the cycle whose reply last came back whole (0: none yet) and its arrival
     /// (CLOCK_MONOTONIC ns): how fresh the frame's inputs in the image are.
     pub last_good_cycle: u64,
+    /// When that reply arrived (CLOCK_MONOTONIC ns).
     pub last_good_ns: u64,
 }
 
+/// The real-time EtherCAT engine: owns the link, runs the cyclic exchange on its RT thread,
+/// passes acyclic frames through it, and hands the image, samples and axis statuses to Python.
 pub struct Engine {
     shared: Arc<Shared>,
     state: Mutex<LinkState>,
@@ -254,6 +265,7 @@ impl Engine {
         }
     }
 
+    /// The link's description (interface and kind), for messages.
     pub fn describe(&self) -> &str {
         &self.description
     }
@@ -483,10 +495,12 @@ impl Engine {
         *state = LinkState::Closed;
     }
 
+    /// True once `close` gave the link back.
     pub fn is_closed(&self) -> bool {
         matches!(*lock(&self.state), LinkState::Closed)
     }
 
+    /// True while the cyclic RT thread runs.
     pub fn is_running(&self) -> bool {
         matches!(*lock(&self.state), LinkState::Cyclic(_))
             && self.shared.alive.load(Ordering::Acquire)
@@ -880,6 +894,7 @@ impl Engine {
         (records, images, ex.plan.image_len)
     }
 
+    /// A consistent copy of the counters and histograms.
     pub fn stats(&self) -> StatsSnapshot {
         let s = &self.shared.stats;
         StatsSnapshot {
@@ -974,6 +989,7 @@ impl Engine {
         self.shared.panic.store(false, Ordering::Release);
     }
 
+    /// True after a panic stop until the panic is reset.
     pub fn is_panicked(&self) -> bool {
         self.shared.panic.load(Ordering::Acquire)
     }

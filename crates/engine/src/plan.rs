@@ -9,6 +9,7 @@ use ether_ros_protocol::{
 };
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// How the cycle orders its work: when outputs are taken and the frame goes out.
 pub enum Order {
     /// Receive the previous reply, then send at once at wake-up: constant send instant, one
     /// cycle of latency (IgH's order).
@@ -18,17 +19,29 @@ pub enum Order {
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// One datagram of a cyclic frame.
 pub enum CyclicDatagram {
     /// FPWR 0x0910: the master's system time to the reference clock.
-    DcWriteRef { station: u16 },
+    DcWriteRef {
+        /// Station address of the DC reference clock.
+        station: u16,
+    },
     /// FRMW 0x0910: the reference clock's time to every other DC slave.
-    DcSync { station: u16 },
+    DcSync {
+        /// Station address of the DC reference clock.
+        station: u16,
+    },
     /// LRW, LRD or LWR of `length` image bytes at `image_offset`.
     Logical {
+        /// LRW, LRD or LWR.
         command: Logical,
+        /// Logical start address.
         address: u32,
+        /// Bytes of the datagram.
         length: usize,
+        /// Where the bytes are in the process image.
         image_offset: usize,
+        /// Working counter a good reply has.
         expected_wkc: u16,
     },
 }
@@ -38,12 +51,16 @@ pub enum CyclicDatagram {
 /// 0x0008 bit 9) get an LRD for their inputs and an LWR for their outputs (+1 each).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Logical {
+    /// Logical read write (outputs and inputs in one datagram).
     Lrw,
+    /// Logical read (inputs only).
     Lrd,
+    /// Logical write (outputs only).
     Lwr,
 }
 
 impl Logical {
+    /// The datagram command code of this logical command.
     pub fn command(self) -> Command {
         match self {
             Logical::Lrw => Command::Lrw,
@@ -66,6 +83,7 @@ impl Logical {
 /// One cyclic frame: its datagrams and how often it goes out.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct FramePlan {
+    /// The frame's datagrams, in order.
     pub datagrams: Vec<CyclicDatagram>,
     /// Sent in the cycles `cycle % every == 0` (a group running at 1/every of the base rate).
     pub every: u32,
@@ -75,50 +93,79 @@ pub struct FramePlan {
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// Which clock follows which in the distributed clock.
 pub enum DcMode {
+    /// No distributed clock.
     Off,
+    /// The reference clock is steered to the master's clock.
     RefFollowsMaster,
+    /// The master's cycle is steered to the reference clock.
     MasterFollowsRef,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// The distributed clock part of the plan.
 pub struct DcPlan {
+    /// Which clock follows which.
     pub mode: DcMode,
     /// DC system time = CLOCK_MONOTONIC + time_offset_ns.
     pub time_offset_ns: i64,
+    /// Shift of SYNC0 against the cycle start (ns).
     pub sync0_shift_ns: i64,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// The scheduling policy of the RT thread.
 pub enum Policy {
+    /// SCHED_FIFO at `priority`.
     Fifo,
+    /// SCHED_DEADLINE with `runtime_ns` per cycle.
     Deadline,
+    /// SCHED_OTHER (no real-time guarantee; tests and development).
     Other,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// How the RT thread is set up.
 pub struct RtPlan {
+    /// Scheduling policy.
     pub policy: Policy,
+    /// SCHED_FIFO priority (0: none).
     pub priority: i32,
+    /// CPU to pin the thread to (None: any).
     pub cpu: Option<usize>,
+    /// SCHED_DEADLINE runtime per cycle (ns).
     pub runtime_ns: u64,
+    /// Lock the process's memory (mlockall) so the cycle never faults a page in.
     pub lock_memory: bool,
 }
 
 #[derive(Clone, Debug, PartialEq)]
+/// Everything a cyclic run needs, fixed when it starts: the cycle, the frames, the image and
+/// its initial and safe contents, the DC and RT setup, the axes. Built from Python's typed
+/// contracts and checked by `validate`.
 pub struct Plan {
+    /// Cycle time (ns).
     pub cycle_ns: u64,
+    /// How the cycle orders its work.
     pub order: Order,
     /// The cyclic frames, all sent back to back at the cycle's wake-up (those due).
     pub frames: Vec<FramePlan>,
+    /// Bytes of the process image.
     pub image_len: usize,
+    /// (offset, length) of the output bytes in the image.
     pub output_ranges: Vec<(usize, usize)>,
+    /// The image the first cycle sends.
     pub initial_image: Vec<u8>,
+    /// The outputs a stop (panic, watchdog) sends.
     pub safe_image: Vec<u8>,
+    /// The distributed clock setup.
     pub dc: DcPlan,
+    /// The RT thread setup.
     pub rt: RtPlan,
     /// 0 = off.
     pub watchdog_ns: u64,
+    /// Samples the ring to Python holds.
     pub ring_capacity: usize,
     /// CiA 402 axes driven by the axis stage of the cycle (docs/cia402.md).
     pub axes: Vec<AxisPlan>,
@@ -143,9 +190,13 @@ pub const MAX_EVERY: u32 = 10_000;
 pub struct FrameLayout {
     /// The frame with everything fixed filled in (headers); data is refreshed every cycle.
     pub template: Vec<u8>,
+    /// Bytes of the frame.
     pub len: usize,
+    /// Sent every this many cycles.
     pub every: u32,
+    /// The frame's own watchdog (ns; 0: none).
     pub watchdog_ns: u64,
+    /// Where each datagram sits in the frame.
     pub slots: Vec<DatagramSlot>,
     /// (frame offset, image offset, length) of every LRW/LWR datagram: image to frame.
     pub writes: Vec<(usize, usize, usize)>,
@@ -164,6 +215,7 @@ pub struct FrameLayout {
 /// The layout of the whole cycle: every frame, and the image's output ranges.
 #[derive(Clone, Debug, Default)]
 pub struct CycleLayout {
+    /// Every frame's layout, in plan order.
     pub frames: Vec<FrameLayout>,
     /// Image output ranges (image offset, length), merged into runs.
     pub outputs: Vec<(usize, usize)>,

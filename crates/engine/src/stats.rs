@@ -41,6 +41,8 @@ fn bucket_width(i: usize) -> u64 {
     }
 }
 
+/// A lock-free histogram of durations (ns) with logarithmic buckets: the RT thread records,
+/// any thread reads a summary.
 pub struct Histogram {
     buckets: Box<[AtomicU64]>,
     count: AtomicU64,
@@ -52,12 +54,19 @@ pub struct Histogram {
 /// A histogram's summary in ns.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Summary {
+    /// Values recorded.
     pub count: u64,
+    /// Smallest value.
     pub min: u64,
+    /// Largest value.
     pub max: u64,
+    /// Mean value.
     pub mean: f64,
+    /// Median (bucket resolution).
     pub p50: u64,
+    /// 99th percentile.
     pub p99: u64,
+    /// 99.9th percentile.
     pub p999: u64,
 }
 
@@ -87,6 +96,7 @@ impl Histogram {
         }
     }
 
+    /// Forget every value recorded.
     pub fn reset(&self) {
         for b in self.buckets.iter() {
             b.store(0, Relaxed);
@@ -133,17 +143,29 @@ impl Histogram {
 /// Event counters of the cyclic exchange (monotonic until `reset`).
 #[derive(Default)]
 pub struct Counters {
+    /// Cycles run.
     pub cycles: AtomicU64,
+    /// Cyclic frames whose reply did not come back.
     pub lost_frames: AtomicU64,
+    /// Cyclic replies that came back after their cycle.
     pub late_frames: AtomicU64,
+    /// Frames received that match no frame sent.
     pub unmatched_frames: AtomicU64,
+    /// Replies with a working counter other than expected.
     pub wkc_errors: AtomicU64,
+    /// Times the output watchdog stopped the outputs.
     pub watchdog_trips: AtomicU64,
+    /// Panic stops.
     pub panics: AtomicU64,
+    /// Cycles that took longer than the cycle time.
     pub overruns: AtomicU64,
+    /// Frames the link failed to send.
     pub send_errors: AtomicU64,
+    /// Acyclic frames passed through the cycle.
     pub acyclic_frames: AtomicU64,
+    /// Acyclic frames without an answer in time.
     pub acyclic_timeouts: AtomicU64,
+    /// Samples Python did not take in time (the ring was full).
     pub samples_dropped: AtomicU64,
 }
 
@@ -166,6 +188,7 @@ impl Counters {
         ]
     }
 
+    /// Set every counter to 0.
     pub fn reset(&self) {
         for (_, c) in self.named() {
             c.store(0, Relaxed);
@@ -179,7 +202,9 @@ impl Counters {
 pub struct FrameStats {
     /// Times the frame went out.
     pub sent: AtomicU64,
+    /// Times the frame's reply did not come back.
     pub lost: AtomicU64,
+    /// Times the frame's reply came back after its cycle.
     pub late: AtomicU64,
     /// Replies with a logical datagram's working counter other than expected.
     pub wkc_errors: AtomicU64,
@@ -187,15 +212,18 @@ pub struct FrameStats {
     pub last_wkc: AtomicU64,
     /// Times the frame's own (group) watchdog tripped.
     pub watchdog_trips: AtomicU64,
+    /// The frame's round trip.
     pub rtt: Histogram,
     /// Freshness (kept by `reset`: it is state, not a count): 1 + the cycle whose reply last
     /// came back whole (every working counter as expected; 0: none yet), and when it arrived
     /// (CLOCK_MONOTONIC ns).
     pub last_good_cycle: AtomicU64,
+    /// When that reply arrived (CLOCK_MONOTONIC ns).
     pub last_good_ns: AtomicU64,
 }
 
 impl FrameStats {
+    /// The counters by name, for the snapshot.
     pub fn named(&self) -> [(&'static str, &AtomicU64); 6] {
         [
             ("sent", &self.sent),
@@ -207,6 +235,7 @@ impl FrameStats {
         ]
     }
 
+    /// Set the counters to 0 (the freshness stays: it is state).
     pub fn reset(&self) {
         for (_, c) in self.named() {
             c.store(0, Relaxed);
@@ -218,16 +247,22 @@ impl FrameStats {
 /// Everything `stats()` reports.
 #[derive(Default)]
 pub struct Stats {
+    /// Event counters.
     pub counters: Counters,
+    /// Actual minus planned wake-up.
     pub wake_latency: Histogram,
+    /// Wake-up to cyclic frame sent.
     pub exec: Histogram,
+    /// Time between wake-ups.
     pub period: Histogram,
+    /// Round trip of the cyclic frames.
     pub rtt: Histogram,
     /// Time inside the link's send call for the cyclic frame (part of `exec`).
     pub send: Histogram,
 }
 
 impl Stats {
+    /// The histograms by name, for the snapshot.
     pub fn histograms(&self) -> [(&'static str, &Histogram); 5] {
         [
             ("wake_latency", &self.wake_latency),
@@ -238,6 +273,7 @@ impl Stats {
         ]
     }
 
+    /// Reset every counter and histogram.
     pub fn reset(&self) {
         self.counters.reset();
         for (_, h) in self.histograms() {

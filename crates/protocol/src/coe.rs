@@ -6,6 +6,8 @@
 //! request/response after it: command byte (bits 5..=7 command specifier, bit 4 complete access
 //! on initiate or toggle on segments, bits 2..=3 unused bytes of an expedited transfer, bit 1
 //! expedited, bit 0 size indicator or last segment), index (2), subindex (1), 4 data bytes.
+//! The initiate and abort messages are [`SdoHeader`] (command byte [`InitiateCommand`]), the
+//! segments [`Segment`]: the master's SDO client and the simulator's server use only these.
 
 crate::named_constants! {
     /// Services, specifiers, opcodes and sizes, by name.
@@ -260,6 +262,197 @@ impl<'a> Segment<'a> {
     }
 }
 
+/// The command byte of an SDO initiate request or response, or of an abort (ETG.1000.6
+/// §5.6.2.1, §5.6.2.4, §5.6.2.7), as bit fields: bits 5..=7 specifier, bit 4 complete access,
+/// bits 2..=3 bytes of the 4 that hold no data (expedited with size indicated), bit 1
+/// expedited, bit 0 size indicated. The master's SDO client and the simulator's SDO server
+/// build and read it only through this type, so the bit layout is written once.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct InitiateCommand {
+    /// Command specifier (bits 5..=7): `CCS_*` from the master, `SCS_*` from the slave,
+    /// `CS_ABORT` from either.
+    pub specifier: u8,
+    /// Complete access (bit 4): the whole object from subindex 0 or 1 in one transfer.
+    pub complete_access: bool,
+    /// Bytes of the 4 data bytes that hold no data (bits 2..=3); meaningful only when
+    /// `expedited` and `size_indicated` are both set.
+    pub unused: u8,
+    /// Expedited transfer (bit 1): the data is in the 4 data bytes of the message.
+    pub expedited: bool,
+    /// Size indicated (bit 0): the size is given, in the data field of a normal transfer or
+    /// by `unused` of an expedited one.
+    pub size_indicated: bool,
+}
+
+impl InitiateCommand {
+    /// The command byte.
+    pub const fn encode(&self) -> u8 {
+        (self.specifier << SPECIFIER_SHIFT)
+            | if self.complete_access {
+                COMPLETE_ACCESS
+            } else {
+                0
+            }
+            | ((self.unused & 0x03) << EXPEDITED_UNUSED_SHIFT)
+            | if self.expedited { EXPEDITED } else { 0 }
+            | if self.size_indicated {
+                SIZE_INDICATED
+            } else {
+                0
+            }
+    }
+
+    /// The fields of a command byte.
+    pub const fn decode(byte: u8) -> InitiateCommand {
+        InitiateCommand {
+            specifier: byte >> SPECIFIER_SHIFT,
+            complete_access: byte & COMPLETE_ACCESS != 0,
+            unused: (byte >> EXPEDITED_UNUSED_SHIFT) & 0x03,
+            expedited: byte & EXPEDITED != 0,
+            size_indicated: byte & SIZE_INDICATED != 0,
+        }
+    }
+}
+
+/// The 10-byte SDO header of an initiate request or response and of an abort (ETG.1000.6
+/// §5.6.2): CoE header, command byte ([`InitiateCommand`]), index (2), subindex (1) and the 4
+/// data bytes (the data of an expedited transfer, the size of a normal one, the abort code).
+/// A normal transfer's first data follows the header; the caller appends it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SdoHeader {
+    /// The CoE service of the message (`SERVICE_SDO_REQUEST` or `SERVICE_SDO_RESPONSE`).
+    pub service: u16,
+    /// The command byte's fields.
+    pub command: InitiateCommand,
+    /// Object index.
+    pub index: u16,
+    /// Subindex (with complete access: 0 or 1, where the transfer starts).
+    pub subindex: u8,
+    /// The 4 data bytes, as on the wire.
+    pub data: [u8; 4],
+}
+
+impl SdoHeader {
+    /// A header with no transfer flags and zero data: an upload initiate request, a download
+    /// initiate response.
+    pub const fn new(
+        service: u16,
+        specifier: u8,
+        index: u16,
+        subindex: u8,
+        complete_access: bool,
+    ) -> SdoHeader {
+        SdoHeader {
+            service,
+            command: InitiateCommand {
+                specifier,
+                complete_access,
+                unused: 0,
+                expedited: false,
+                size_indicated: false,
+            },
+            index,
+            subindex,
+            data: [0; 4],
+        }
+    }
+
+    /// An expedited transfer of `data` (1 to 4 bytes; `None` otherwise) with its size
+    /// indicated: a download initiate request or an upload initiate response.
+    pub fn expedited(
+        service: u16,
+        specifier: u8,
+        index: u16,
+        subindex: u8,
+        complete_access: bool,
+        data: &[u8],
+    ) -> Option<SdoHeader> {
+        if data.is_empty() || data.len() > 4 {
+            return None;
+        }
+        let mut h = SdoHeader::new(service, specifier, index, subindex, complete_access);
+        h.command.expedited = true;
+        h.command.size_indicated = true;
+        h.command.unused = (4 - data.len()) as u8;
+        h.data[..data.len()].copy_from_slice(data);
+        Some(h)
+    }
+
+    /// A normal transfer of `size` bytes (size indicated, the size in the data field): a
+    /// download initiate request or an upload initiate response; the first data follows.
+    pub const fn normal(
+        service: u16,
+        specifier: u8,
+        index: u16,
+        subindex: u8,
+        complete_access: bool,
+        size: u32,
+    ) -> SdoHeader {
+        let mut h = SdoHeader::new(service, specifier, index, subindex, complete_access);
+        h.command.size_indicated = true;
+        h.data = size.to_le_bytes();
+        h
+    }
+
+    /// An abort of the transfer of `index:subindex` with `code` (`ABORT_*`).
+    pub const fn abort(service: u16, index: u16, subindex: u8, code: u32) -> SdoHeader {
+        let mut h = SdoHeader::new(service, CS_ABORT, index, subindex, false);
+        h.data = code.to_le_bytes();
+        h
+    }
+
+    /// The 10 bytes of the header.
+    pub const fn encode(&self) -> [u8; SDO_HEADER_LEN] {
+        let h = header(self.service);
+        let i = self.index.to_le_bytes();
+        let d = self.data;
+        [
+            h[0],
+            h[1],
+            self.command.encode(),
+            i[0],
+            i[1],
+            self.subindex,
+            d[0],
+            d[1],
+            d[2],
+            d[3],
+        ]
+    }
+
+    /// Decode the first 10 bytes of `message` (CoE header first); `None` when shorter.
+    pub fn decode(message: &[u8]) -> Option<SdoHeader> {
+        let h = Header::decode(message)?;
+        let m = message.get(..SDO_HEADER_LEN)?;
+        Some(SdoHeader {
+            service: h.service,
+            command: InitiateCommand::decode(m[2]),
+            index: u16::from_le_bytes([m[3], m[4]]),
+            subindex: m[5],
+            data: [m[6], m[7], m[8], m[9]],
+        })
+    }
+
+    /// The data of an expedited transfer (the bytes the unused count leaves; all 4 when the
+    /// size is not indicated), `None` when the transfer is not expedited.
+    pub fn expedited_data(&self) -> Option<&[u8]> {
+        if !self.command.expedited {
+            return None;
+        }
+        let n = if self.command.size_indicated {
+            4 - usize::from(self.command.unused)
+        } else {
+            4
+        };
+        Some(&self.data[..n])
+    }
+
+    /// The data field as a number: the size of a normal transfer, the code of an abort.
+    pub const fn word(&self) -> u32 {
+        u32::from_le_bytes(self.data)
+    }
+}
+
 /// Name of an object code (`"VAR"`, `"ARRAY"`, `"RECORD"`).
 pub fn object_code_name(code: u8) -> Option<&'static str> {
     Some(match code {
@@ -452,5 +645,77 @@ mod tests {
                 assert_eq!(Segment::decode(&enc), Some(s), "length {n}");
             }
         }
+    }
+
+    #[test]
+    fn initiate_headers_round_trip_and_match_etg1000_6() {
+        // Expedited download of 2 bytes (ETG.1000.6 §5.6.2.1): 001 0 10 1 1 = 0x2B.
+        let e = SdoHeader::expedited(
+            SERVICE_SDO_REQUEST,
+            CCS_DOWNLOAD_INITIATE,
+            0x6040,
+            0,
+            false,
+            &[0x0F, 0x00],
+        )
+        .unwrap();
+        assert_eq!(e.encode(), [0x00, 0x20, 0x2B, 0x40, 0x60, 0, 0x0F, 0, 0, 0]);
+        assert_eq!(SdoHeader::decode(&e.encode()), Some(e));
+        assert_eq!(e.expedited_data(), Some(&[0x0F, 0x00][..]));
+        for n in 1..=4 {
+            let data = [1, 2, 3, 4];
+            let h = SdoHeader::expedited(
+                SERVICE_SDO_RESPONSE,
+                SCS_UPLOAD_INITIATE,
+                0x1000,
+                0,
+                false,
+                &data[..n],
+            )
+            .unwrap();
+            let back = SdoHeader::decode(&h.encode()).unwrap();
+            assert_eq!(back.expedited_data(), Some(&data[..n]));
+        }
+        assert_eq!(
+            SdoHeader::expedited(SERVICE_SDO_REQUEST, 1, 0x1000, 0, false, &[]),
+            None
+        );
+        assert_eq!(
+            SdoHeader::expedited(SERVICE_SDO_REQUEST, 1, 0x1000, 0, false, &[0; 5]),
+            None
+        );
+        // Upload initiate request with complete access: 010 1 00 0 0 = 0x50.
+        let u = SdoHeader::new(SERVICE_SDO_REQUEST, CCS_UPLOAD_INITIATE, 0x1C12, 0, true);
+        assert_eq!(u.encode(), [0x00, 0x20, 0x50, 0x12, 0x1C, 0, 0, 0, 0, 0]);
+        assert_eq!(SdoHeader::decode(&u.encode()), Some(u));
+        assert_eq!(u.expedited_data(), None);
+        // Normal upload response of 300 bytes: 010 0 00 0 1 = 0x41, size in the data field.
+        let n = SdoHeader::normal(
+            SERVICE_SDO_RESPONSE,
+            SCS_UPLOAD_INITIATE,
+            0x1008,
+            0,
+            false,
+            300,
+        );
+        assert_eq!(
+            n.encode(),
+            [0x00, 0x30, 0x41, 0x08, 0x10, 0, 0x2C, 0x01, 0, 0]
+        );
+        assert_eq!(SdoHeader::decode(&n.encode()), Some(n));
+        assert_eq!(n.word(), 300);
+        // Abort: 100 0 00 0 0 = 0x80, the code in the data field.
+        let a = SdoHeader::abort(SERVICE_SDO_REQUEST, 0x7000, 1, ABORT_TOGGLE_BIT);
+        assert_eq!(
+            a.encode(),
+            [0x00, 0x20, 0x80, 0x00, 0x70, 1, 0, 0, 0x03, 0x05]
+        );
+        assert_eq!(SdoHeader::decode(&a.encode()), Some(a));
+        assert_eq!(a.word(), ABORT_TOGGLE_BIT);
+        // Every command byte decodes and encodes to itself.
+        for byte in 0..=255u8 {
+            assert_eq!(InitiateCommand::decode(byte).encode(), byte);
+        }
+        assert_eq!(SdoHeader::decode(&[0x00, 0x20, 0x40]), None);
     }
 }

@@ -62,6 +62,29 @@ macro_rules! coded_texts {
     };
 }
 
+/// Little-endian field readers of the record codecs (SyncManager and FMMU registers, the SII
+/// categories' records): the one place that says how a multi-byte field sits in a record.
+/// Callers have checked the record's length, so an index out of range is a bug.
+pub(crate) mod le {
+    /// The u16 at byte `at` of `b`.
+    pub(crate) const fn u16_at(b: &[u8], at: usize) -> u16 {
+        u16::from_le_bytes([b[at], b[at + 1]])
+    }
+
+    /// The u32 at byte `at` of `b`.
+    pub(crate) const fn u32_at(b: &[u8], at: usize) -> u32 {
+        u32::from_le_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]])
+    }
+
+    /// The 8-byte window record a SyncManager register set and an SII SyncM entry share:
+    /// start (u16), length (u16), then four single bytes.
+    pub(crate) const fn window(start: u16, length: u16, tail: [u8; 4]) -> [u8; 8] {
+        let s = start.to_le_bytes();
+        let l = length.to_le_bytes();
+        [s[0], s[1], l[0], l[1], tail[0], tail[1], tail[2], tail[3]]
+    }
+}
+
 pub mod address;
 pub mod al;
 pub mod cia402;

@@ -367,26 +367,19 @@ pub mod sm {
 
         /// The 8 register bytes.
         pub const fn encode(&self) -> [u8; Record::LEN] {
-            let s = self.start.to_le_bytes();
-            let l = self.length.to_le_bytes();
-            [
-                s[0],
-                s[1],
-                l[0],
-                l[1],
-                self.control,
-                self.status,
-                self.activate,
-                self.pdi_control,
-            ]
+            crate::le::window(
+                self.start,
+                self.length,
+                [self.control, self.status, self.activate, self.pdi_control],
+            )
         }
 
         /// Decode the first 8 bytes of `data` (`None` when shorter).
         pub fn decode(data: &[u8]) -> Option<Record> {
             let r = data.get(..Record::LEN)?;
             Some(Record {
-                start: u16::from_le_bytes([r[0], r[1]]),
-                length: u16::from_le_bytes([r[2], r[3]]),
+                start: crate::le::u16_at(r, 0),
+                length: crate::le::u16_at(r, 2),
                 control: r[4],
                 status: r[5],
                 activate: r[6],
@@ -488,11 +481,11 @@ pub mod fmmu {
         pub fn decode(data: &[u8]) -> Option<Record> {
             let r = data.get(..ACTIVATE as usize + 1)?;
             Some(Record {
-                logical_start: u32::from_le_bytes([r[0], r[1], r[2], r[3]]),
-                length: u16::from_le_bytes([r[4], r[5]]),
+                logical_start: crate::le::u32_at(r, 0),
+                length: crate::le::u16_at(r, 4),
                 logical_start_bit: r[6],
                 logical_stop_bit: r[7],
-                physical_start: u16::from_le_bytes([r[8], r[9]]),
+                physical_start: crate::le::u16_at(r, 8),
                 physical_start_bit: r[10],
                 kind: r[11],
                 activate: r[12],

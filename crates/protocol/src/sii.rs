@@ -187,26 +187,19 @@ pub mod syncm {
     impl Record {
         /// The 8 bytes.
         pub const fn encode(&self) -> [u8; RECORD_LEN] {
-            let s = self.start.to_le_bytes();
-            let l = self.length.to_le_bytes();
-            [
-                s[0],
-                s[1],
-                l[0],
-                l[1],
-                self.control,
-                self.status,
-                self.enable,
-                self.kind,
-            ]
+            crate::le::window(
+                self.start,
+                self.length,
+                [self.control, self.status, self.enable, self.kind],
+            )
         }
 
         /// Decode the first 8 bytes of `data` (`None` when shorter).
         pub fn decode(data: &[u8]) -> Option<Record> {
             let r = data.get(..RECORD_LEN)?;
             Some(Record {
-                start: u16::from_le_bytes([r[0], r[1]]),
-                length: u16::from_le_bytes([r[2], r[3]]),
+                start: crate::le::u16_at(r, 0),
+                length: crate::le::u16_at(r, 2),
                 control: r[4],
                 status: r[5],
                 enable: r[6],
@@ -355,12 +348,12 @@ pub mod pdo {
         pub fn decode(data: &[u8]) -> Option<Record> {
             let r = data.get(..RECORD_LEN)?;
             Some(Record {
-                index: u16::from_le_bytes([r[0], r[1]]),
+                index: crate::le::u16_at(r, 0),
                 entries: r[2],
                 sync_manager: r[3],
                 synchronization: r[4],
                 name: r[5],
-                flags: u16::from_le_bytes([r[6], r[7]]),
+                flags: crate::le::u16_at(r, 6),
             })
         }
     }
@@ -404,12 +397,12 @@ pub mod pdo {
         pub fn decode(data: &[u8]) -> Option<Entry> {
             let r = data.get(..RECORD_LEN)?;
             Some(Entry {
-                index: u16::from_le_bytes([r[0], r[1]]),
+                index: crate::le::u16_at(r, 0),
                 subindex: r[2],
                 name: r[3],
                 data_type: r[4],
                 bit_length: r[5],
-                flags: u16::from_le_bytes([r[6], r[7]]),
+                flags: crate::le::u16_at(r, 6),
             })
         }
     }
@@ -497,8 +490,8 @@ pub mod dc {
         /// Decode the first 24 bytes of `data` (`None` when shorter).
         pub fn decode(data: &[u8]) -> Option<Record> {
             let r = data.get(..RECORD_LEN)?;
-            let u16_at = |i: usize| u16::from_le_bytes([r[i], r[i + 1]]);
-            let u32_at = |i: usize| u32::from_le_bytes([r[i], r[i + 1], r[i + 2], r[i + 3]]);
+            let u16_at = |i: usize| crate::le::u16_at(r, i);
+            let u32_at = |i: usize| crate::le::u32_at(r, i);
             Some(Record {
                 cycle_time_sync0: u32_at(0),
                 shift_time_sync0: u32_at(4) as i32,

@@ -13,20 +13,13 @@ use ether_ros_engine::{
 };
 use ether_ros_protocol::{Command, MAX_FRAME_LEN};
 use ether_ros_sim::network::Network;
-use pyo3::exceptions::{PyException, PyValueError};
+use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList, PyTuple, PyType};
 
 use crate::sim_bindings::SimNetwork;
 
-/// A class of `ether_ros.errors` (`Exception` if that module cannot be imported). The classes
-/// are defined there once; the extension raises them and re-exports the engine's.
-fn errors_class<'py>(py: Python<'py>, name: &str) -> Bound<'py, PyType> {
-    py.import("ether_ros.errors")
-        .and_then(|m| m.getattr(name))
-        .and_then(|c| c.cast_into::<PyType>().map_err(PyErr::from))
-        .unwrap_or_else(|_| py.get_type::<PyException>())
-}
+use crate::errors::errors_class;
 
 /// `ether_ros.errors.EngineError` (a `LinkError`).
 fn engine_error(py: Python<'_>) -> Bound<'_, PyType> {

@@ -6,6 +6,7 @@ use pyo3::prelude::*;
 mod command_bindings;
 mod contracts;
 mod engine_bindings;
+mod errors;
 mod protocol_bindings;
 mod sim_bindings;
 mod sim_faults;

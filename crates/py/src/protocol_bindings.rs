@@ -413,6 +413,89 @@ fn parse_sdo_segment<'py>(
     })
 }
 
+/// The 10-byte header of an SDO initiate message without expedited data: with `size` a normal
+/// transfer of that many bytes (size indicated; the first data follows, appended by the
+/// caller), without it an upload initiate request or a download initiate response.
+#[pyfunction]
+#[pyo3(signature = (service, specifier, index, subindex, complete_access = false, size = None))]
+fn sdo_initiate<'py>(
+    py: Python<'py>,
+    service: u16,
+    specifier: u8,
+    index: u16,
+    subindex: u8,
+    complete_access: bool,
+    size: Option<u32>,
+) -> Bound<'py, PyBytes> {
+    let h = match size {
+        Some(n) => {
+            p::coe::SdoHeader::normal(service, specifier, index, subindex, complete_access, n)
+        }
+        None => p::coe::SdoHeader::new(service, specifier, index, subindex, complete_access),
+    };
+    PyBytes::new(py, &h.encode())
+}
+
+/// An expedited SDO initiate message carrying `data` (1 to 4 bytes) with its size indicated.
+#[pyfunction]
+#[pyo3(signature = (service, specifier, index, subindex, data, complete_access = false))]
+fn sdo_expedited<'py>(
+    py: Python<'py>,
+    service: u16,
+    specifier: u8,
+    index: u16,
+    subindex: u8,
+    data: &[u8],
+    complete_access: bool,
+) -> PyResult<Bound<'py, PyBytes>> {
+    let h =
+        p::coe::SdoHeader::expedited(service, specifier, index, subindex, complete_access, data)
+            .ok_or_else(|| {
+                PyValueError::new_err(format!(
+                    "an expedited SDO transfer carries 1 to 4 bytes, not {}",
+                    data.len()
+                ))
+            })?;
+    Ok(PyBytes::new(py, &h.encode()))
+}
+
+/// An SDO abort message of `service` for `index:subindex` with `code`.
+#[pyfunction]
+fn sdo_abort_message<'py>(
+    py: Python<'py>,
+    service: u16,
+    index: u16,
+    subindex: u8,
+    code: u32,
+) -> Bound<'py, PyBytes> {
+    PyBytes::new(
+        py,
+        &p::coe::SdoHeader::abort(service, index, subindex, code).encode(),
+    )
+}
+
+/// A decoded SDO initiate or abort header, as `parse_sdo_header` returns it.
+type PySdoHeader<'py> = (u16, u8, bool, u16, u8, Option<Bound<'py, PyBytes>>, u32);
+
+/// `(service, specifier, complete_access, index, subindex, expedited_data, word)` of an SDO
+/// initiate or abort message: `expedited_data` is the data of an expedited transfer (None
+/// otherwise), `word` the data field as a number (the size of a normal transfer, an abort's
+/// code). None when the message is shorter than the 10-byte header.
+#[pyfunction]
+fn parse_sdo_header<'py>(py: Python<'py>, message: &[u8]) -> Option<PySdoHeader<'py>> {
+    p::coe::SdoHeader::decode(message).map(|h| {
+        (
+            h.service,
+            h.command.specifier,
+            h.command.complete_access,
+            h.index,
+            h.subindex,
+            h.expedited_data().map(|d| PyBytes::new(py, d)),
+            h.word(),
+        )
+    })
+}
+
 /// The 6-byte mailbox header of a message of `length` bytes after it.
 #[pyfunction]
 #[pyo3(signature = (length, mbx_type, counter, address = 0))]
@@ -1023,6 +1106,10 @@ pub fn register(parent: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(foe_message, &m)?)?;
     m.add_function(wrap_pyfunction!(parse_foe, &m)?)?;
     m.add_function(wrap_pyfunction!(foe_error_text, &m)?)?;
+    m.add_function(wrap_pyfunction!(sdo_initiate, &m)?)?;
+    m.add_function(wrap_pyfunction!(sdo_expedited, &m)?)?;
+    m.add_function(wrap_pyfunction!(sdo_abort_message, &m)?)?;
+    m.add_function(wrap_pyfunction!(parse_sdo_header, &m)?)?;
     parent.add("protocol", &m)?;
     py.import("sys")?.getattr("modules")?.set_item(MODULE, &m)?;
     Ok(())

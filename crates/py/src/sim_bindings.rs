@@ -38,7 +38,7 @@ use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
-use pyo3::exceptions::{PyIndexError, PyOSError, PyRuntimeError, PyValueError};
+use pyo3::exceptions::{PyOSError, PyRuntimeError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList, PyTuple};
 
@@ -54,13 +54,16 @@ use ether_ros_sim::runner::{Runner, RunnerOptions, Timing};
 use ether_ros_sim::soe::IdnSpec;
 use ether_ros_sim::{FoeSpec, MailboxSpec, Network, SlaveSpec};
 
+use crate::errors::{invalid, Reason};
 use crate::sim_faults::Fault;
 
 /// Most firmware worker threads `run_on_interface` starts.
 const MAX_FIRMWARE_THREADS: usize = 64;
 
-fn bad_key(key: &str, expected: &str) -> PyErr {
-    PyValueError::new_err(format!("SlaveSpec.{key}: expected {expected}"))
+/// `InvalidRequest("SlaveSpec.key: expected ...")` with the field `SlaveSpec.key`.
+fn bad_key(key: &str, reason: Reason, expected: &str) -> PyErr {
+    let field = format!("SlaveSpec.{key}");
+    invalid(&field, reason, format!("{field}: expected {expected}"))
 }
 
 /// Little-endian bytes (`None`: empty, read as zeros).
@@ -71,7 +74,8 @@ fn bytes_of(v: &Bound<'_, PyAny>, key: &str) -> PyResult<Vec<u8>> {
     if let Ok(b) = v.cast::<PyBytes>() {
         return Ok(b.as_bytes().to_vec());
     }
-    v.extract::<Vec<u8>>().map_err(|_| bad_key(key, "bytes"))
+    v.extract::<Vec<u8>>()
+        .map_err(|_| bad_key(key, Reason::BadValue, "bytes"))
 }
 
 /// A standard mailbox (SM0 = rx, master → slave; SM1 = tx), used when SII words 0x18..=0x1B
@@ -268,10 +272,14 @@ impl PySlaveSpec {
                 "rw" => Access::ReadWrite,
                 "wo" => Access::WriteOnly,
                 other => {
-                    return Err(PyValueError::new_err(format!(
-                        "SlaveSpec.entries: entry 0x{index:04X}:{subindex} has access '{other}', \
-                         expected 'ro', 'rw' or 'wo'"
-                    )))
+                    return Err(invalid(
+                        "SlaveSpec.entries",
+                        Reason::BadValue,
+                        format!(
+                            "SlaveSpec.entries: entry 0x{index:04X}:{subindex} has access \
+                             '{other}', expected 'ro', 'rw' or 'wo'"
+                        ),
+                    ))
                 }
             };
             let value = bytes_of(&default, "entries")?;
@@ -315,12 +323,12 @@ impl PySlaveSpec {
         });
         if let Some(k) = pdram_kib {
             if !(1..=60).contains(&k) {
-                return Err(bad_key("pdram_kib", "int 1..=60"));
+                return Err(bad_key("pdram_kib", Reason::OutOfRange, "int 1..=60"));
             }
             s.pdram_kib = k;
         }
         if let Some(name) = esc {
-            s.esc = EscChip::from_name(&name).map_err(|e| bad_key("esc", &e))?;
+            s.esc = EscChip::from_name(&name).map_err(|e| bad_key("esc", Reason::BadValue, &e))?;
         }
         s.lrw_supported = lrw.unwrap_or(s.lrw_supported);
         s.safeop_op_timeout_ms = safeop_op_timeout_ms.unwrap_or(s.safeop_op_timeout_ms);
@@ -459,8 +467,21 @@ impl SimNetwork {
 fn slave(net: &Network, pos: usize) -> PyResult<PiGuard<'_, Esc>> {
     let n = net.len();
     net.try_slave(pos).ok_or_else(|| {
-        PyIndexError::new_err(format!("no slave at position {pos} (the network has {n})"))
+        invalid(
+            "slave",
+            Reason::NoSlave,
+            format!("no slave at position {pos} (the network has {n})"),
+        )
     })
+}
+
+/// The refusal of an object dictionary access to an entry slave `pos` does not have.
+fn no_entry(pos: usize, index: u16, subindex: u8) -> PyErr {
+    invalid(
+        "index",
+        Reason::NoEntry,
+        format!("slave {pos} has no object entry 0x{index:04X}:{subindex}"),
+    )
 }
 
 #[pymethods]
@@ -485,9 +506,13 @@ impl SimNetwork {
     fn add_slave(&self, spec: PyRef<'_, PySlaveSpec>) -> PyResult<usize> {
         let s = spec.inner.clone();
         let name = s.name.clone();
-        self.lock()?
-            .add_slave(s)
-            .map_err(|e| PyValueError::new_err(format!("slave '{name}': {e}")))
+        self.lock()?.add_slave(s).map_err(|e| {
+            let field = format!("SlaveSpec.{}", e.field);
+            // Some reasons already name the slave; say it once.
+            let prefix = format!("slave '{name}': ");
+            let why = e.message.strip_prefix(&prefix).unwrap_or(&e.message);
+            invalid(&field, Reason::Refused, format!("{prefix}{why}"))
+        })
     }
 
     fn __len__(&self) -> PyResult<usize> {
@@ -549,16 +574,26 @@ impl SimNetwork {
         threads: Option<usize>,
         timing: &str,
     ) -> PyResult<()> {
-        let kind: LinkKind = link.parse().map_err(PyValueError::new_err)?;
-        let timing: Timing = timing.parse().map_err(PyValueError::new_err)?;
+        let kind: LinkKind = link
+            .parse()
+            .map_err(|e: String| invalid("link", Reason::BadValue, e))?;
+        let timing: Timing = timing
+            .parse()
+            .map_err(|e: String| invalid("timing", Reason::BadValue, e))?;
         if threads.is_some_and(|n| n > MAX_FIRMWARE_THREADS) {
-            return Err(PyValueError::new_err(format!(
-                "threads = {}: at most {MAX_FIRMWARE_THREADS} firmware threads",
-                threads.unwrap_or(0)
-            )));
+            return Err(invalid(
+                "threads",
+                Reason::OutOfRange,
+                format!(
+                    "threads = {}: at most {MAX_FIRMWARE_THREADS} firmware threads",
+                    threads.unwrap_or(0)
+                ),
+            ));
         }
         if self.runner.as_ref().is_some_and(|r| r.is_running()) {
-            return Err(PyRuntimeError::new_err(
+            return Err(invalid(
+                "ifname",
+                Reason::Busy,
                 "the simulator already runs on an interface; call stop() first",
             ));
         }
@@ -571,6 +606,7 @@ impl SimNetwork {
         let name = ifname.to_string();
         let r = py
             .detach(move || Runner::start_with(net, &name, options))
+            // An OSError (the CLI falls back from AF_XDP to AF_PACKET on it).
             .map_err(|e| PyOSError::new_err(format!("cannot serve EtherCAT on '{ifname}': {e}")))?;
         self.runner = Some(r);
         Ok(())
@@ -623,9 +659,14 @@ impl SimNetwork {
                     let target = match f.port {
                         None | Some(0) => pos,
                         Some(p) => net.slave_on_port(pos, p).ok_or_else(|| {
-                            PyValueError::new_err(format!(
-                                "Link: nothing is connected to port {p} of slave {pos} ('{name}')"
-                            ))
+                            invalid(
+                                "Link.port",
+                                Reason::NotConnected,
+                                format!(
+                                    "Link.port: nothing is connected to port {p} of slave {pos} \
+                                     ('{name}')"
+                                ),
+                            )
                         })?,
                     };
                     net.set_link_cut(target, !f.up);
@@ -639,7 +680,7 @@ impl SimNetwork {
             }
             Fault::DriveFault(f) => net
                 .inject_device_fault(f.slave, &f.error, f.axis)
-                .map_err(PyValueError::new_err)?,
+                .map_err(|e| invalid("DriveFault", Reason::Refused, e))?,
             Fault::Seed(f) => net.rng = Rng::new(f.seed),
             Fault::Clear => {
                 net.faults = Default::default();
@@ -753,9 +794,7 @@ impl SimNetwork {
         let s = slave(&net, pos)?;
         match s.od.get_bytes(index, subindex) {
             Some(b) => Ok(PyBytes::new(py, b)),
-            None => Err(PyValueError::new_err(format!(
-                "slave {pos} has no object entry 0x{index:04X}:{subindex}"
-            ))),
+            None => Err(no_entry(pos, index, subindex)),
         }
     }
 
@@ -766,9 +805,7 @@ impl SimNetwork {
         if s.od.set_bytes(index, subindex, data) {
             Ok(())
         } else {
-            Err(PyValueError::new_err(format!(
-                "slave {pos} has no object entry 0x{index:04X}:{subindex}"
-            )))
+            Err(no_entry(pos, index, subindex))
         }
     }
 

@@ -13,33 +13,58 @@
 use std::fmt::Display;
 
 use ether_ros_sim::devices::cia402::{DriveFault as Cia402Fault, MAX_AXES};
-use pyo3::exceptions::{PyTypeError, PyValueError};
+use pyo3::exceptions::PyTypeError;
+
+use crate::errors::{invalid, Reason};
 use pyo3::prelude::*;
 
-/// `ValueError("Type.field: why")`.
+/// `InvalidRequest("Type.field: why")` with the field `Type.field` and the reason as data.
+fn refused(ty: &str, field: &str, reason: Reason, why: impl Display) -> PyErr {
+    let field = format!("{ty}.{field}");
+    invalid(&field, reason, format!("{field}: {why}"))
+}
+
+/// A value the field does not allow (not a range question).
 fn bad(ty: &str, field: &str, why: impl Display) -> PyErr {
-    PyValueError::new_err(format!("{ty}.{field}: {why}"))
+    refused(ty, field, Reason::BadValue, why)
 }
 
 /// `v` as `T` when within `lo..=hi`, else a ValueError naming the type and the field. Integers
 /// arrive as i64 so that a negative one gets this message rather than an OverflowError.
 fn within<T: TryFrom<i64>>(ty: &str, field: &str, v: i64, lo: i64, hi: i64) -> PyResult<T> {
     if !(lo..=hi).contains(&v) {
-        return Err(bad(ty, field, format!("{v} is outside {lo}..={hi}")));
+        return Err(refused(
+            ty,
+            field,
+            Reason::OutOfRange,
+            format!("{v} is outside {lo}..={hi}"),
+        ));
     }
-    T::try_from(v).map_err(|_| bad(ty, field, format!("{v} does not fit")))
+    T::try_from(v).map_err(|_| refused(ty, field, Reason::OutOfRange, format!("{v} does not fit")))
 }
 
 fn within_f(ty: &str, field: &str, v: f64, lo: f64, hi: f64) -> PyResult<f64> {
     if !(lo..=hi).contains(&v) {
-        return Err(bad(ty, field, format!("{v} is outside {lo}..={hi}")));
+        return Err(refused(
+            ty,
+            field,
+            Reason::OutOfRange,
+            format!("{v} is outside {lo}..={hi}"),
+        ));
     }
     Ok(v)
 }
 
 /// A slave position (the network checks that it exists when the fault is injected).
 fn position(ty: &str, field: &str, v: i64) -> PyResult<usize> {
-    usize::try_from(v).map_err(|_| bad(ty, field, format!("{v} is not a slave position")))
+    usize::try_from(v).map_err(|_| {
+        refused(
+            ty,
+            field,
+            Reason::OutOfRange,
+            format!("{v} is not a slave position"),
+        )
+    })
 }
 
 /// Largest `Drop.burst`: a burst longer than this is a link down, which `Link` says better.

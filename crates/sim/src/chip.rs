@@ -47,6 +47,8 @@ impl EscChip {
     /// Names accepted in the config (`sim.esc`) and the slave spec (`esc`).
     pub const NAMES: &'static [&'static str] = &["et1100", "et1200", "lan9252"];
 
+    /// The chip of a name as specs and the CLI give it (`et1100`, `et1200`, `lan9252`); an error
+    /// lists the names known.
     pub fn from_name(name: &str) -> Result<EscChip, String> {
         match name.to_ascii_lowercase().as_str() {
             "et1100" => Ok(EscChip::Et1100),
@@ -59,6 +61,7 @@ impl EscChip {
         }
     }
 
+    /// The chip's name as specs give it (lower case).
     pub fn name(self) -> &'static str {
         match self {
             EscChip::Et1100 => "et1100",
@@ -67,6 +70,7 @@ impl EscChip {
         }
     }
 
+    /// What the chip has (ports, SyncManagers, FMMUs, process RAM): the limits a spec must fit.
     pub const fn profile(self) -> ChipProfile {
         use feature::*;
         // Every Beckhoff ASIC sets bits 2..=8: DC, 64-bit DC, both low-jitter/enhanced link

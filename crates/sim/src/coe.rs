@@ -7,8 +7,9 @@
 //! payload into its own mailbox message. Nothing a master sends can make this code panic: a
 //! malformed request is answered with an abort or ignored.
 //!
-//! The CoE header and the SDO segments are read and written with the protocol crate's codecs
-//! (`ether_ros_protocol::coe::{Header, Segment, toggle_message}`), the ones the master uses.
+//! The CoE header, the SDO initiate and abort messages and the SDO segments are read and
+//! written with the protocol crate's codecs (`ether_ros_protocol::coe::{Header, SdoHeader,
+//! Segment, toggle_message}`), the ones the master uses.
 //!
 //! Wire layout facts used here (all little endian):
 //! - CoE header (2 bytes): bits 0..=8 number, 9..=11 reserved, 12..=15 service.
@@ -34,13 +35,13 @@ pub mod service {
 pub mod abort {
     pub use ether_ros_protocol::coe::{
         ABORT_CANNOT_MAP as CANNOT_MAP, ABORT_DEVICE_STATE as DEVICE_STATE,
-        ABORT_INVALID_COMMAND as INVALID_COMMAND, ABORT_LENGTH_MISMATCH as LENGTH_MISMATCH,
-        ABORT_LENGTH_TOO_HIGH as LENGTH_TOO_HIGH, ABORT_LENGTH_TOO_LOW as LENGTH_TOO_LOW,
-        ABORT_NO_OBJECT as NO_OBJECT, ABORT_NO_SUBINDEX as NO_SUBINDEX,
-        ABORT_PDO_TOO_LONG as PDO_TOO_LONG, ABORT_READ_ONLY as READ_ONLY,
-        ABORT_SUBINDEX0_NOT_ZERO as SUBINDEX0_NOT_ZERO, ABORT_TOGGLE_BIT as TOGGLE_BIT,
-        ABORT_UNSUPPORTED_ACCESS as UNSUPPORTED_ACCESS, ABORT_VALUE_RANGE as VALUE_RANGE,
-        ABORT_VALUE_TOO_HIGH as VALUE_TOO_HIGH, ABORT_WRITE_ONLY as WRITE_ONLY,
+        ABORT_INVALID_COMMAND as INVALID_COMMAND, ABORT_LENGTH_TOO_HIGH as LENGTH_TOO_HIGH,
+        ABORT_LENGTH_TOO_LOW as LENGTH_TOO_LOW, ABORT_NO_OBJECT as NO_OBJECT,
+        ABORT_NO_SUBINDEX as NO_SUBINDEX, ABORT_PDO_TOO_LONG as PDO_TOO_LONG,
+        ABORT_READ_ONLY as READ_ONLY, ABORT_SUBINDEX0_NOT_ZERO as SUBINDEX0_NOT_ZERO,
+        ABORT_TOGGLE_BIT as TOGGLE_BIT, ABORT_UNSUPPORTED_ACCESS as UNSUPPORTED_ACCESS,
+        ABORT_VALUE_RANGE as VALUE_RANGE, ABORT_VALUE_TOO_HIGH as VALUE_TOO_HIGH,
+        ABORT_WRITE_ONLY as WRITE_ONLY,
     };
 }
 
@@ -106,31 +107,17 @@ fn u16_at(b: &[u8], at: usize) -> Option<u16> {
     Some(u16::from_le_bytes([*b.get(at)?, *b.get(at + 1)?]))
 }
 
+#[cfg(test)]
 fn u32_at(b: &[u8], at: usize) -> Option<u32> {
     let s = b.get(at..at + 4)?;
     Some(u32::from_le_bytes([s[0], s[1], s[2], s[3]]))
 }
 
-/// An SDO frame: CoE header (service), command byte, index, subindex and 4 data bytes.
-fn sdo_frame(service: u16, command: u8, index: u16, subindex: u8, data: [u8; 4]) -> Vec<u8> {
-    let mut v = Vec::with_capacity(10);
-    v.extend_from_slice(&facts::header(service));
-    v.push(command);
-    v.extend_from_slice(&index.to_le_bytes());
-    v.push(subindex);
-    v.extend_from_slice(&data);
-    v
-}
-
 /// SDO abort. Sent with the SDO request service, as slave stacks do; masters accept either.
 fn abort_frame(index: u16, subindex: u8, code: u32) -> Vec<u8> {
-    sdo_frame(
-        service::SDO_REQUEST,
-        cs::ABORT << facts::SPECIFIER_SHIFT,
-        index,
-        subindex,
-        code.to_le_bytes(),
-    )
+    facts::SdoHeader::abort(service::SDO_REQUEST, index, subindex, code)
+        .encode()
+        .to_vec()
 }
 
 fn is_string(data_type: u16) -> bool {
@@ -332,12 +319,12 @@ impl CoeServer {
             self.transfer = Transfer::Idle;
             return Some(abort_frame(index, subindex, abort::INVALID_COMMAND));
         }
-        let command = r[2];
-        match command >> facts::SPECIFIER_SHIFT {
+        // Initiate and segment messages keep the specifier in the same bits (5..=7).
+        match facts::InitiateCommand::decode(r[2]).specifier {
             cs::DOWNLOAD_INITIATE => Some(self.download_initiate(r, od, al_state)),
             cs::SEGMENT_DOWN_REQ => Some(self.download_segment(r, od, al_state)),
             cs::UPLOAD_INITIATE => Some(self.upload_initiate(r, od, max_payload)),
-            cs::UPLOAD_SEGMENT_REQ => Some(self.upload_segment(command, max_payload)),
+            cs::UPLOAD_SEGMENT_REQ => Some(self.upload_segment(r, max_payload)),
             cs::ABORT => {
                 // The master gives up: forget the transfer, no answer.
                 self.transfer = Transfer::Idle;
@@ -352,19 +339,17 @@ impl CoeServer {
 
     fn download_initiate(&mut self, r: &[u8], od: &mut ObjectDictionary, al: u8) -> Vec<u8> {
         self.transfer = Transfer::Idle;
-        let (command, index, subindex) = (r[2], u16_at(r, 3).unwrap_or(0), r[5]);
-        let complete_access = command & facts::COMPLETE_ACCESS != 0;
-        let expedited = command & facts::EXPEDITED != 0;
-        let (size, first) = if expedited {
-            let n = if command & facts::SIZE_INDICATED != 0 {
-                4 - ((command >> facts::EXPEDITED_UNUSED_SHIFT) & 0x03) as usize
-            } else {
-                4
-            };
-            (n, &r[6..6 + n])
+        // The caller checked the length: the header decodes.
+        let Some(h) = facts::SdoHeader::decode(r) else {
+            return abort_frame(0, 0, abort::INVALID_COMMAND);
+        };
+        let (index, subindex) = (h.index, h.subindex);
+        let complete_access = h.command.complete_access;
+        let (size, first) = if let Some(d) = h.expedited_data() {
+            (d.len(), d)
         } else {
-            let size = u32_at(r, 6).unwrap_or(0) as usize;
-            let data = &r[10..];
+            let size = h.word() as usize;
+            let data = &r[facts::SDO_HEADER_LEN..];
             (size, &data[..data.len().min(size)])
         };
         // Refuse early what can never succeed, before the master sends all the segments.
@@ -385,18 +370,15 @@ impl CoeServer {
                 toggle: false,
             };
         }
-        let ca = if complete_access {
-            facts::COMPLETE_ACCESS
-        } else {
-            0
-        };
-        sdo_frame(
+        facts::SdoHeader::new(
             service::SDO_RESPONSE,
-            cs::DOWNLOAD_INITIATE_RESP << facts::SPECIFIER_SHIFT | ca,
+            cs::DOWNLOAD_INITIATE_RESP,
             index,
             subindex,
-            [0; 4],
+            complete_access,
         )
+        .encode()
+        .to_vec()
     }
 
     fn download_segment(&mut self, r: &[u8], od: &mut ObjectDictionary, al: u8) -> Vec<u8> {
@@ -452,42 +434,39 @@ impl CoeServer {
 
     fn upload_initiate(&mut self, r: &[u8], od: &ObjectDictionary, max_payload: usize) -> Vec<u8> {
         self.transfer = Transfer::Idle;
-        let (command, index, subindex) = (r[2], u16_at(r, 3).unwrap_or(0), r[5]);
-        let complete_access = command & facts::COMPLETE_ACCESS != 0;
+        let Some(h) = facts::SdoHeader::decode(r) else {
+            return abort_frame(0, 0, abort::INVALID_COMMAND);
+        };
+        let (index, subindex) = (h.index, h.subindex);
+        let complete_access = h.command.complete_access;
         let data = match Self::read(od, index, subindex, complete_access) {
             Ok(d) => d,
             Err(code) => return abort_frame(index, subindex, code),
         };
-        let ca = if complete_access {
-            facts::COMPLETE_ACCESS
-        } else {
-            0
-        };
-        let resp = cs::UPLOAD_INITIATE_RESP << facts::SPECIFIER_SHIFT | ca;
-        if (1..=4).contains(&data.len()) {
-            let mut d = [0u8; 4];
-            d[..data.len()].copy_from_slice(&data);
-            let unused = (4 - data.len()) as u8;
-            return sdo_frame(
-                service::SDO_RESPONSE,
-                resp | unused << facts::EXPEDITED_UNUSED_SHIFT
-                    | facts::EXPEDITED
-                    | facts::SIZE_INDICATED,
-                index,
-                subindex,
-                d,
-            );
+        let resp = cs::UPLOAD_INITIATE_RESP;
+        if let Some(h) = facts::SdoHeader::expedited(
+            service::SDO_RESPONSE,
+            resp,
+            index,
+            subindex,
+            complete_access,
+            &data,
+        ) {
+            return h.encode().to_vec();
         }
         // Normal upload: complete size, then as much data as the mailbox holds; the rest
         // follows in segments the master asks for.
-        let first = data.len().min(max_payload - 10);
-        let mut v = sdo_frame(
+        let first = data.len().min(max_payload - facts::SDO_HEADER_LEN);
+        let mut v = facts::SdoHeader::normal(
             service::SDO_RESPONSE,
-            resp | facts::SIZE_INDICATED,
+            resp,
             index,
             subindex,
-            (data.len() as u32).to_le_bytes(),
-        );
+            complete_access,
+            data.len() as u32,
+        )
+        .encode()
+        .to_vec();
         v.extend_from_slice(&data[..first]);
         if first < data.len() {
             self.transfer = Transfer::Upload {
@@ -501,7 +480,7 @@ impl CoeServer {
         v
     }
 
-    fn upload_segment(&mut self, command: u8, max_payload: usize) -> Vec<u8> {
+    fn upload_segment(&mut self, r: &[u8], max_payload: usize) -> Vec<u8> {
         let Transfer::Upload {
             index,
             subindex,
@@ -512,7 +491,10 @@ impl CoeServer {
         else {
             return abort_frame(0, 0, abort::INVALID_COMMAND);
         };
-        let this_toggle = command & facts::TOGGLE != 0;
+        let Some(request) = facts::Segment::decode(r) else {
+            return abort_frame(index, subindex, abort::INVALID_COMMAND);
+        };
+        let this_toggle = request.toggle;
         if this_toggle != toggle {
             return abort_frame(index, subindex, abort::TOGGLE_BIT);
         }
@@ -1012,7 +994,12 @@ mod tests {
     fn req(command: u8, index: u16, sub: u8, data: &[u8]) -> Vec<u8> {
         let mut d = [0u8; 4];
         d[..data.len().min(4)].copy_from_slice(&data[..data.len().min(4)]);
-        let mut v = sdo_frame(service::SDO_REQUEST, command, index, sub, d);
+        // Raw bytes on purpose: the tests state the wire image, not the codec's view of it.
+        let mut v = facts::header(service::SDO_REQUEST).to_vec();
+        v.push(command);
+        v.extend_from_slice(&index.to_le_bytes());
+        v.push(sub);
+        v.extend_from_slice(&d);
         if data.len() > 4 {
             v.extend_from_slice(&data[4..]);
         }

@@ -11,8 +11,11 @@ use crate::od::ObjectDictionary;
 /// (0x1001) and five manufacturer-specific bytes. The ESC sends it through the mailbox.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Emergency {
+    /// CiA 301 emergency error code (the protocol crate's `emergency` table names them).
     pub error_code: u16,
+    /// The error register (0x1001) sent with the code.
     pub error_register: u8,
+    /// Manufacturer-specific data bytes of the emergency message.
     pub data: [u8; 5],
 }
 

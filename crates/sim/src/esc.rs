@@ -24,9 +24,13 @@ use crate::sm::{SyncManager, ACT_ENABLE, ACT_REPEAT, WATCHDOG_TRIGGER};
 use crate::soe::SoeServer;
 use crate::spec::{MailboxSpec, SlaveSpec};
 
+/// Size of the ESC's address space (registers and process RAM).
 pub const MEM_SIZE: usize = 0x1_0000;
+/// End of the register area: process RAM starts here.
 pub const REGISTER_END: usize = reg::PDRAM as usize;
+/// FMMUs an ESC of this simulator has (at most; the chip may have fewer).
 pub const N_FMMU: usize = 8;
+/// SyncManagers an ESC of this simulator has (at most; the chip may have fewer).
 pub const N_SM: usize = 8;
 /// Default watchdog divider (100 µs units) and process-data watchdog time (100 ms).
 const DEFAULT_WD_DIVIDER: u16 = 0x09C2;
@@ -52,16 +56,25 @@ pub struct SlaveCounters {
     /// Frames in which a logical datagram reached this slave's FMMUs (its process data went
     /// by): with groups at their own cycles, this is the slave's own exchange rate.
     pub process_data_frames: u64,
+    /// Steps of the device model.
     pub device_steps: u64,
+    /// Device steps skipped because the model was not due.
     pub device_steps_skipped: u64,
+    /// SYNC0 events raised.
     pub sync0_events: u64,
+    /// SYNC0 events whose device step started late.
     pub sync0_late_starts: u64,
     /// SYNC0 events a frame latched because the firmware's worker had not got to them yet.
     pub sync0_frame_latches: u64,
+    /// Times the process data watchdog expired.
     pub watchdog_expirations: u64,
+    /// Mailbox messages received from the master.
     pub mailbox_received: u64,
+    /// Mailbox messages sent to the master.
     pub mailbox_sent: u64,
+    /// Mailbox errors answered (unknown protocol, bad header, ...).
     pub mailbox_errors: u64,
+    /// AL state transitions refused.
     pub al_errors: u64,
 }
 
@@ -127,22 +140,31 @@ const fn sm_base(k: usize) -> usize {
     at(reg::SM0) + k * at(reg::SM_LEN)
 }
 
+/// One virtual EtherCAT slave controller: its memory and registers, SyncManagers, FMMUs,
+/// distributed clock, EEPROM, mailbox, object dictionary and the device model behind it.
 pub struct Esc {
+    /// The spec the slave was built from.
     pub spec: SlaveSpec,
+    /// Position on the bus (auto-increment order).
     pub position: usize,
     mem: Box<[u8]>,
+    /// The SyncManagers as the master configured them.
     pub sm: [SyncManager; N_SM],
     fmmus: Vec<Fmmu>,
     sii: Sii,
+    /// The distributed clock (local time, SYNC0/1).
     pub dc: DcClock,
     pdram_end: usize,
+    /// The object dictionary the CoE server and the device model share.
     pub od: ObjectDictionary,
     coe: CoeServer,
     /// The SoE server, for a slave whose SII announces SoE (word 0x1C bit 4).
     soe: Option<SoeServer>,
     /// The FoE server, for a slave whose SII announces FoE (word 0x1C bit 3).
     foe: Option<FoeServer>,
+    /// The device model (firmware), None for a slave without one.
     pub device: Option<Box<dyn DeviceApp>>,
+    /// The standard mailbox from the spec (used when the SII leaves it out).
     pub mailbox: Option<MailboxSpec>,
     boot_mailbox: Option<MailboxSpec>,
     mbx_queue: VecDeque<Vec<u8>>,
@@ -162,8 +184,11 @@ pub struct Esc {
     eeprom_at_pdi: bool,
     /// Deterministic jitter of the DC time stamps (xorshift state).
     dc_noise: u64,
+    /// Current AL state (the protocol crate's `al` values).
     pub al_state: u8,
+    /// AL status error flag (bit 4 of 0x0130).
     pub al_error: bool,
+    /// AL status code (0x0134) of the last refused transition.
     pub al_code: u16,
     /// Host time of the current frame at this slave (frame time + propagation delay).
     pub now: u64,
@@ -172,6 +197,7 @@ pub struct Esc {
     /// Per port: ns after the frame's arrival at port 0 at which it comes back into that port
     /// (None: the port is closed). Latched by a write to 0x0900.
     pub port_return_ns: [Option<u64>; 4],
+    /// Time (ns) of the next SYNC0 event, None when SYNC0 is off.
     pub sync0_next: Option<u64>,
     sync0_cycle: u64,
     /// A SYNC0 event has fired since SYNC0 was last activated: the application runs on its
@@ -179,13 +205,17 @@ pub struct Esc {
     sync0_fired: bool,
     app_next_step: u64,
     wd_last_trigger: u64,
+    /// The process data watchdog ran out (outputs are no longer valid).
     pub watchdog_expired: bool,
     outputs_since_safeop: bool,
     outputs_received: bool,
+    /// Fault: refuse SAFEOP to OP (the `refuse_op` fault).
     pub refuse_op: bool,
     /// Host time at which a SAFEOP->OP request arrived that waits for valid outputs.
     op_pending_since: Option<u64>,
+    /// Fault: the mailbox stops answering (the `stall_mailbox` fault).
     pub mailbox_stalled: bool,
+    /// Counters of what the slave did, for the statistics.
     pub counters: SlaveCounters,
     /// A logical datagram of the current frame hit an FMMU.
     process_data_seen: bool,
@@ -306,11 +336,13 @@ impl Esc {
         self.mem[a..a + 8].copy_from_slice(&v.to_le_bytes());
     }
 
+    /// The 16-bit little-endian value at address `a` as stored.
     pub fn get16(&self, a: u16) -> u16 {
         let a = a as usize;
         u16::from_le_bytes([self.mem[a], self.mem[a + 1]])
     }
 
+    /// The 32-bit little-endian value at address `a` as stored.
     pub fn get32(&self, a: u16) -> u32 {
         let a = a as usize;
         u32::from_le_bytes([
@@ -321,6 +353,7 @@ impl Esc {
         ])
     }
 
+    /// The 64-bit little-endian value at address `a` as stored.
     pub fn get64(&self, a: u16) -> u64 {
         let a = a as usize;
         let mut b = [0u8; 8];
@@ -379,6 +412,8 @@ impl Esc {
         self.put16(reg::SII_CONTROL, status);
     }
 
+    /// True once the EEPROM content was loaded into the registers (the SII control register's
+    /// not-loaded bit is clear).
     pub fn eeprom_loaded(&self) -> bool {
         self.get16(reg::SII_CONTROL) & sii::NOT_LOADED == 0
     }
@@ -397,6 +432,7 @@ impl Esc {
         self.put16(reg::DL_STATUS, s);
     }
 
+    /// Write the AL state, error flag and status code into their registers (after a change).
     pub fn update_al_registers(&mut self) {
         let status = al::AlStatus {
             state: self.al_state,
@@ -407,10 +443,12 @@ impl Esc {
         self.put16(reg::AL_STATUS_CODE, self.al_code);
     }
 
+    /// Configured station address (0x0010).
     pub fn station_address(&self) -> u16 {
         self.get16(reg::STATION_ADDRESS)
     }
 
+    /// Station alias (0x0012).
     pub fn alias(&self) -> u16 {
         self.get16(reg::STATION_ALIAS)
     }
@@ -426,6 +464,8 @@ impl Esc {
         (self.mem[reg::SM_COUNT as usize] as usize).min(N_SM)
     }
 
+    /// True when the alias is activated (DL control's alias bit), so configured-address
+    /// datagrams may use it.
     pub fn alias_enabled(&self) -> bool {
         self.mem[at(reg::DL_CONTROL_ALIAS)] & 1 != 0
     }
@@ -435,18 +475,22 @@ impl Esc {
         adp == self.station_address() || (self.alias_enabled() && adp == self.alias())
     }
 
+    /// The EEPROM image.
     pub fn sii_image(&self) -> &[u8] {
         &self.sii.image
     }
 
+    /// Make each EEPROM read take `ns` (0: answer at once), to test a master's busy polling.
     pub fn set_sii_busy_ns(&mut self, ns: u64) {
         self.sii.busy_ns = ns;
     }
 
+    /// Local time of the distributed clock (ns).
     pub fn local_time(&self) -> u64 {
         self.dc.local(self.now)
     }
 
+    /// System time of the distributed clock (ns, local time plus offset).
     pub fn system_time(&self) -> u64 {
         self.dc
             .local(self.now)
@@ -810,6 +854,8 @@ impl Esc {
             cfg & !ether_ros_protocol::sii::CONFIG_RESET_PDI_ACCESS;
     }
 
+    /// True when the PDI holds the EEPROM interface (EEPROM configuration): the master cannot
+    /// read it then.
     pub fn eeprom_at_pdi(&self) -> bool {
         self.eeprom_at_pdi
     }
@@ -924,6 +970,7 @@ impl Esc {
         self.sync0_next = Some(next);
     }
 
+    /// True while SYNC0 events are scheduled.
     pub fn sync0_active(&self) -> bool {
         self.sync0_next.is_some()
     }
@@ -1318,6 +1365,7 @@ impl Esc {
             .sum()
     }
 
+    /// Bytes of process data the slave sends (its input SyncManagers).
     pub fn input_bytes(&self) -> usize {
         self.pd_sms
             .iter()
@@ -1555,6 +1603,7 @@ impl Esc {
         self.sm[k].repeat_ack = self.sm[k].activate & ACT_REPEAT != 0;
     }
 
+    /// Messages waiting in the send mailbox queue.
     pub fn mailbox_queue_len(&self) -> usize {
         self.mbx_queue.len()
     }
@@ -1899,6 +1948,7 @@ impl Esc {
         self.service_mailbox();
     }
 
+    /// Named values of the device model and the ESC, for `SimNetwork.probe`.
     pub fn probe(&self) -> Vec<(&'static str, f64)> {
         self.device.as_ref().map(|d| d.probe()).unwrap_or_default()
     }
@@ -1912,6 +1962,7 @@ const DIGITAL_OUTPUTS_END: usize = DIGITAL_OUTPUTS + reg::DIGITAL_OUTPUTS_LEN as
 /// One process-data SyncManager of the slave and the map of the PDOs it carries.
 #[derive(Clone, Debug, Default)]
 pub struct PdSm {
+    /// SyncManager number.
     pub number: usize,
     /// Master → slave (SII type 3); else slave → master (type 4).
     pub output: bool,
@@ -1919,6 +1970,7 @@ pub struct PdSm {
     pub op_only: bool,
     /// Mode and direction (control bits 0..3) the slave expects: buffered or one buffer.
     pub control: u8,
+    /// The PDOs it carries and where their entries are in the buffer.
     pub map: PdoMap,
 }
 

@@ -6,10 +6,12 @@
 pub struct Rng(u64);
 
 impl Rng {
+    /// A generator seeded with `seed`: the same seed gives the same faults.
     pub fn new(seed: u64) -> Self {
         Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1)
     }
 
+    /// The next pseudo-random 64-bit number (deterministic for a seed).
     pub fn next_u64(&mut self) -> u64 {
         let mut x = self.0;
         x ^= x >> 12;
@@ -24,6 +26,7 @@ impl Rng {
         (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
     }
 
+    /// A pseudo-random number in `0..n` (0 when `n` is 0).
     pub fn below(&mut self, n: usize) -> usize {
         if n == 0 {
             0
@@ -41,6 +44,7 @@ pub struct Faults {
     pub drop_rate: f64,
     /// Frames dropped per burst (at least 1).
     pub drop_burst: u32,
+    /// Frames still to drop of the burst in progress.
     pub drop_remaining: u32,
     /// Dropped frames are lost before reaching slave 0 (true) instead of on the way back after
     /// every slave processed them (false, the default: the master loses the answer, the slaves

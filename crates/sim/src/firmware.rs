@@ -56,7 +56,9 @@ pub struct WorkerStats {
     pub demoted: AtomicU64,
     /// 1 while it runs at real-time priority.
     pub realtime: AtomicU64,
+    /// Slaves this worker advances.
     pub slaves: AtomicU64,
+    /// Times the worker woke up to advance its slaves.
     pub wakeups: AtomicU64,
     /// Slaves advanced (one lock, one `advance_firmware`).
     pub advances: AtomicU64,
@@ -75,6 +77,8 @@ pub struct Roster {
 }
 
 impl Roster {
+    /// The roster of `cells`, stamped with the network's `generation` so a worker notices when
+    /// slaves were added or removed.
     pub fn new(cells: Vec<SlaveCell>, generation: Arc<AtomicU64>) -> Arc<Roster> {
         Arc::new(Roster {
             cells: Mutex::new(cells),
@@ -122,6 +126,7 @@ pub fn share(cells: &[SlaveCell], workers: usize) -> Vec<Vec<usize>> {
 pub struct Workers {
     stop: Arc<AtomicBool>,
     handles: Vec<JoinHandle<()>>,
+    /// Per-worker counters, for the simulator's statistics.
     pub stats: Vec<Arc<WorkerStats>>,
 }
 
@@ -157,10 +162,12 @@ impl Workers {
         })
     }
 
+    /// Number of worker threads.
     pub fn threads(&self) -> usize {
         self.handles.len()
     }
 
+    /// Stop the workers and wait for them to end.
     pub fn stop(&mut self) {
         self.stop.store(true, Ordering::SeqCst);
         for h in self.handles.drain(..) {

@@ -22,27 +22,41 @@ const MAX_DATAGRAMS: usize = 128;
 /// Where time comes from: the host's monotonic clock, or a value tests set.
 #[derive(Clone, Copy, Debug)]
 pub enum Clock {
+    /// CLOCK_MONOTONIC.
     Monotonic,
+    /// A time (ns) the tests set and move.
     Manual(u64),
 }
 
 /// Network-wide counters.
 #[derive(Clone, Debug, Default)]
 pub struct NetStats {
+    /// Frames received.
     pub frames_seen: u64,
+    /// Frames answered.
     pub frames_answered: u64,
+    /// Frames dropped by the drop fault.
     pub frames_dropped: u64,
+    /// Frames corrupted by the corrupt fault.
     pub frames_corrupted: u64,
+    /// Frames with a malformed EtherCAT header or datagram.
     pub frames_malformed: u64,
+    /// Frames of another EtherType, ignored.
     pub frames_not_ethercat: u64,
+    /// Datagrams processed.
     pub datagrams: u64,
+    /// Datagrams with an unknown command.
     pub unknown_commands: u64,
+    /// Datagrams per command code.
     pub per_command: [u64; 15],
+    /// Polls without a frame.
     pub polls: u64,
+    /// Answers the runner could not send.
     pub send_errors: u64,
     /// Longest gap between two frames received by the runner, and longest time one frame
     /// took from its receipt to its answer leaving (ns; the runner's own measurement).
     pub max_frame_gap_ns: u64,
+    /// Longest time one frame took to process (ns).
     pub max_frame_ns: u64,
 }
 
@@ -178,14 +192,20 @@ const NS_PER_BYTE: u64 = 80;
 /// (4) and the inter-frame gap (12), IEEE 802.3.
 const FRAME_OVERHEAD_BYTES: u64 = 24;
 
+/// The virtual bus: slaves in frame visiting order, the tree they form, the clock, the
+/// injected faults and the statistics. Frames go through [`Network::process_frame`].
 pub struct Network {
     slaves: Vec<SlaveCell>,
     /// Each slave's place in the tree (ports, delay, upstream), as the topology walk needs it;
     /// `link_down` from `faults.cut_links`.
     nodes: Vec<Node>,
+    /// Where time comes from.
     pub clock: Clock,
+    /// The faults injected now.
     pub faults: Faults,
+    /// Random source of the probabilistic faults (seeded, so runs repeat).
     pub rng: Rng,
+    /// Frame and datagram counters.
     pub stats: NetStats,
     /// The frame's path through the tree, recomputed when slaves or links change.
     walk: Walk,
@@ -225,6 +245,7 @@ pub(crate) fn monotonic_ns() -> u64 {
 }
 
 impl Network {
+    /// An empty network on the monotonic clock.
     pub fn new() -> Self {
         Network {
             slaves: Vec::new(),
@@ -254,6 +275,7 @@ impl Network {
         n
     }
 
+    /// Current time (ns) on the network's clock.
     pub fn now(&self) -> u64 {
         match self.clock {
             Clock::Monotonic => monotonic_ns(),
@@ -273,6 +295,7 @@ impl Network {
         self.slaves.len()
     }
 
+    /// True when the network has no slave.
     pub fn is_empty(&self) -> bool {
         self.slaves.is_empty()
     }
@@ -297,6 +320,7 @@ impl Network {
         self.generation.clone()
     }
 
+    /// Where the device firmware runs (frame thread or workers).
     pub fn firmware_mode(&self) -> FirmwareMode {
         self.firmware
     }
@@ -323,6 +347,7 @@ impl Network {
         self.roster = Some(roster);
     }
 
+    /// Forget the firmware workers' roster (the runner stops its workers).
     pub fn clear_roster(&mut self) {
         self.roster = None;
     }
@@ -350,11 +375,16 @@ impl Network {
     /// auto-increment order). The device model is created from the spec's `device` and
     /// `params`; a device the chosen chip cannot carry is refused with the reason
     /// (`SlaveSpec::check_emulatable`).
-    pub fn add_slave(&mut self, mut spec: SlaveSpec) -> Result<usize, String> {
-        spec.check_emulatable()?;
+    pub fn add_slave(&mut self, mut spec: SlaveSpec) -> Result<usize, crate::SpecError> {
+        use crate::SpecError;
+        spec.check_emulatable()
+            .map_err(|m| SpecError::new("sii", m))?;
         let pos = self.slaves.len();
-        spec.upstream = self.check_upstream(&spec, pos)?;
-        let device = crate::devices::create(&spec.device, &spec.params, &spec.loopback_links)?;
+        spec.upstream = self
+            .check_upstream(&spec, pos)
+            .map_err(|m| SpecError::new("upstream", m))?;
+        let device = crate::devices::create(&spec.device, &spec.params, &spec.loopback_links)
+            .map_err(|m| SpecError::new("device", m))?;
         let now = self.now();
         let mut esc = Esc::new(spec, pos, now);
         esc.device = device;
@@ -373,11 +403,14 @@ impl Network {
         if let Some(next) = topology::listed_out_of_order(&self.nodes) {
             self.nodes.pop();
             let (parent, port) = spec_upstream.expect("not the first slave");
-            return Err(format!(
-                "slave '{name}' on port {port} of '{}': the frame reaches it before '{}' (ports \
-                 are visited in the order 0, 3, 1, 2), so it must be listed before it",
-                lock(&self.slaves[parent]).spec.name,
-                lock(&self.slaves[next]).spec.name
+            return Err(SpecError::new(
+                "upstream",
+                format!(
+                    "slave '{name}' on port {port} of '{}': the frame reaches it before '{}' \
+                     (ports are visited in the order 0, 3, 1, 2), so it must be listed before it",
+                    lock(&self.slaves[parent]).spec.name,
+                    lock(&self.slaves[next]).spec.name
+                ),
             ));
         }
         self.slaves.push(Arc::new(PiMutex::new(esc)));
@@ -558,6 +591,7 @@ impl Network {
         self.poll_at(now);
     }
 
+    /// Advance device models, SYNC0 and watchdogs to `now` without a frame.
     pub fn poll_at(&mut self, now: u64) {
         self.stats.polls += 1;
         for (k, cell) in self.slaves.iter().enumerate() {
@@ -574,6 +608,7 @@ impl Network {
         self.process_frame_at(frame, now)
     }
 
+    /// Process `frame` in place at time `now`; true when it is answered.
     pub fn process_frame_at(&mut self, frame: &mut [u8], now: u64) -> bool {
         self.stats.frames_seen += 1;
         let end = match wire::check_frame(frame) {

@@ -21,20 +21,30 @@ pub mod dtype {
 /// Access rights per AL state group, as in ESI `<Access>`: ro, rw, wo.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Access {
+    /// Read in every state, never written.
     ReadOnly,
+    /// Read and written.
     ReadWrite,
+    /// Written, never read.
     WriteOnly,
 }
 
 /// One subindex of the dictionary.
 #[derive(Clone, Debug)]
 pub struct Entry {
+    /// Object index.
     pub index: u16,
+    /// Subindex.
     pub subindex: u8,
+    /// Name (SDO Information).
     pub name: String,
+    /// CoE data type (the protocol crate's `dtype`).
     pub data_type: u16,
+    /// Size in bits.
     pub bit_length: u16,
+    /// Who may read and write it.
     pub access: Access,
+    /// May be mapped into a PDO.
     pub pdo_mappable: bool,
     /// Current value, `ceil(bit_length / 8)` bytes, little endian.
     pub value: Vec<u8>,
@@ -43,8 +53,11 @@ pub struct Entry {
 /// One object (index) with its name and object code (7 VAR, 8 ARRAY, 9 RECORD).
 #[derive(Clone, Debug)]
 pub struct Object {
+    /// Object index.
     pub index: u16,
+    /// Name (SDO Information).
     pub name: String,
+    /// Object code (VAR, ARRAY, RECORD).
     pub object_code: u8,
 }
 
@@ -57,10 +70,12 @@ pub struct ObjectDictionary {
 }
 
 impl ObjectDictionary {
+    /// An empty dictionary.
     pub fn new() -> Self {
         Self::default()
     }
 
+    /// Add an object (its entries are added with `add_entry`).
     pub fn add_object(&mut self, object: Object) {
         self.objects.insert(object.index, object);
     }
@@ -118,20 +133,24 @@ impl ObjectDictionary {
         }
     }
 
+    /// The object at `index`.
     pub fn object(&self, index: u16) -> Option<&Object> {
         self.objects.get(&index)
     }
 
+    /// Every object, in index order.
     pub fn objects(&self) -> impl Iterator<Item = &Object> {
         self.objects.values()
     }
 
+    /// The entry at `index:subindex`.
     pub fn entry(&self, index: u16, subindex: u8) -> Option<&Entry> {
         self.by_key
             .get(&(index, subindex))
             .map(|&i| &self.entries[i])
     }
 
+    /// The entry at `index:subindex`, to change it.
     pub fn entry_mut(&mut self, index: u16, subindex: u8) -> Option<&mut Entry> {
         self.by_key
             .get(&(index, subindex))
@@ -145,6 +164,7 @@ impl ObjectDictionary {
         v
     }
 
+    /// The raw value (little endian) of `index:subindex`.
     pub fn get_bytes(&self, index: u16, subindex: u8) -> Option<&[u8]> {
         self.entry(index, subindex).map(|e| e.value.as_slice())
     }
@@ -201,10 +221,12 @@ impl ObjectDictionary {
         }
     }
 
+    /// The value of `index:subindex` read as a boolean (false when absent).
     pub fn get_bool(&self, index: u16, subindex: u8) -> bool {
         self.get_int(index, subindex) & 1 != 0
     }
 
+    /// Every entry, in index and subindex order.
     pub fn entries(&self) -> &[Entry] {
         &self.entries
     }

@@ -55,6 +55,7 @@ unsafe impl<T: Send> Send for PiMutex<T> {}
 unsafe impl<T: Send> Sync for PiMutex<T> {}
 
 impl<T> PiMutex<T> {
+    /// A mutex holding `value`.
     pub fn new(value: T) -> PiMutex<T> {
         PiMutex {
             word: AtomicU32::new(0),
@@ -91,6 +92,7 @@ impl<T> PiMutex<T> {
     }
 }
 
+/// The lock held on a [`PiMutex`]: derefs to the value and unlocks when dropped.
 pub struct PiGuard<'a, T> {
     mutex: &'a PiMutex<T>,
     // Not Send: a PI futex is released by the thread that holds it.

@@ -104,10 +104,12 @@ impl std::str::FromStr for Timing {
 /// How the runner serves an interface.
 #[derive(Clone, Copy, Debug)]
 pub struct RunnerOptions {
+    /// How frames are received and sent (AF_PACKET or AF_XDP).
     pub link: LinkKind,
     /// Firmware worker threads: None = one per CPU the process may use; 0 = none (the frame
     /// thread runs the firmware inline, the model before the workers).
     pub threads: Option<usize>,
+    /// When answers are sent (as soon as processed, or when the modelled wire would bring them).
     pub timing: Timing,
 }
 
@@ -127,7 +129,9 @@ pub struct Runner {
     handle: Option<JoinHandle<()>>,
     workers: Option<Workers>,
     net: Arc<Mutex<Network>>,
+    /// The interface the runner serves.
     pub interface: String,
+    /// The answer timing it was started with.
     pub timing: Timing,
 }
 
@@ -227,6 +231,7 @@ impl Runner {
             .map_or_else(Vec::new, |w| w.stats.clone())
     }
 
+    /// Stop the frame thread and the firmware workers and wait for them.
     pub fn stop(&mut self) {
         self.stop.store(true, Ordering::SeqCst);
         if let Some(h) = self.handle.take() {
@@ -238,6 +243,7 @@ impl Runner {
         }
     }
 
+    /// True while the frame thread runs.
     pub fn is_running(&self) -> bool {
         self.handle.as_ref().is_some_and(|h| !h.is_finished())
     }

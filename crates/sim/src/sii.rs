@@ -34,9 +34,13 @@ pub fn categories(image: &[u8]) -> Vec<(u16, &[u8])> {
 /// One SyncManager of the SII SyncM category.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct SiiSyncManager {
+    /// Physical start address of the SyncManager.
     pub start: u16,
+    /// Length in bytes.
     pub len: u16,
+    /// Control register value (mode and direction).
     pub control: u8,
+    /// Enable bits (bit 0 enabled).
     pub enable: u8,
     /// 1 mailbox out, 2 mailbox in, 3 process data out, 4 process data in (0 unused).
     pub kind: u8,
@@ -63,8 +67,11 @@ pub fn sync_managers(image: &[u8]) -> Vec<SiiSyncManager> {
 /// (index, subindex, bit length).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct SiiPdo {
+    /// PDO index (0x1600.. RxPDO, 0x1A00.. TxPDO).
     pub index: u16,
+    /// SyncManager the PDO is assigned to.
     pub sync_manager: u8,
+    /// Its entries: (index, subindex, bit length).
     pub entries: Vec<(u16, u8, u16)>,
 }
 
@@ -101,12 +108,15 @@ pub fn pdos(image: &[u8], category: u16) -> Vec<SiiPdo> {
 /// The EEPROM and the state of its register interface.
 #[derive(Clone, Debug)]
 pub struct Sii {
+    /// The EEPROM contents (16-bit words, little endian).
     pub image: Vec<u8>,
+    /// How long one EEPROM read keeps the interface busy (ns); 0: answers at once.
     pub busy_ns: u64,
     busy_until: u64,
 }
 
 impl Sii {
+    /// An EEPROM holding `image`.
     pub fn new(mut image: Vec<u8>) -> Self {
         if image.len() % 2 == 1 {
             image.push(0xff);
@@ -133,6 +143,7 @@ impl Sii {
         s
     }
 
+    /// True while a read started earlier is still in progress at `now`.
     pub fn busy(&self, now: u64) -> bool {
         now < self.busy_until
     }

@@ -14,8 +14,8 @@
 
 /// Control, status and activate bits: the protocol crate's (`ether_ros_protocol::reg::sm`).
 pub use ether_ros_protocol::reg::sm::{
-    ACTIVATE_ENABLE as ACT_ENABLE, DIR_MASK, DIR_WRITE as DIR_ECAT_WRITES, MODE_BUFFERED,
-    MODE_MAILBOX, MODE_MASK, REPEAT as ACT_REPEAT, WATCHDOG as WATCHDOG_TRIGGER,
+    ACTIVATE_ENABLE as ACT_ENABLE, DIR_MASK, DIR_WRITE as DIR_ECAT_WRITES, MODE_MAILBOX, MODE_MASK,
+    REPEAT as ACT_REPEAT, WATCHDOG as WATCHDOG_TRIGGER,
 };
 
 /// Where a SyncManager may lie: the process RAM (0x1000 on) or the digital output registers

@@ -38,6 +38,7 @@ use ether_ros_protocol::soe::{self as facts, Header};
 pub struct IdnSpec {
     /// The IDN (bit 15 P, bits 12..=14 parameter set, bits 0..=11 number).
     pub idn: u16,
+    /// The IDN's name, as the SoE Information service returns it.
     pub name: String,
     /// The attribute element (`ether_ros_protocol::soe::attribute`).
     pub attribute: u32,

@@ -10,29 +10,75 @@ use crate::soe::IdnSpec;
 /// Standard (or bootstrap) mailbox placement.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct MailboxSpec {
+    /// Physical address of the receive mailbox (SM0, master to slave).
     pub rx_offset: u16,
+    /// Size of the receive mailbox in bytes.
     pub rx_size: u16,
+    /// Physical address of the send mailbox (SM1, slave to master).
     pub tx_offset: u16,
+    /// Size of the send mailbox in bytes.
     pub tx_size: u16,
 }
 
+/// Why the network refused a slave: the spec's field that is wrong (`"sii"`, `"upstream"`,
+/// `"device"`) and the reason in words. The Python binding raises it as `InvalidRequest` with
+/// the field as data, so a caller learns which part of the spec to fix without parsing text.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct SpecError {
+    /// The field of [`SlaveSpec`] that cannot be carried out.
+    pub field: &'static str,
+    /// What is wrong, naming the slave.
+    pub message: String,
+}
+
+impl SpecError {
+    /// A refusal of `field` with `message`.
+    pub fn new(field: &'static str, message: impl Into<String>) -> SpecError {
+        SpecError {
+            field,
+            message: message.into(),
+        }
+    }
+}
+
+impl std::fmt::Display for SpecError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.message)
+    }
+}
+
+impl std::error::Error for SpecError {}
+
 #[derive(Clone, Debug)]
+/// Everything the simulator needs to build one virtual slave: identity, SII image, object
+/// dictionary, device model and its wiring. The Python binding's `SlaveSpec` fills it.
 pub struct SlaveSpec {
+    /// The slave's name, used in messages and by the control socket.
     pub name: String,
+    /// Vendor id (informational: the master reads the identity from the SII).
     pub vendor_id: u32,
+    /// Product code (informational, as `vendor_id`).
     pub product_code: u32,
+    /// Revision number (informational, as `vendor_id`).
     pub revision: u32,
+    /// Serial number (informational, as `vendor_id`).
     pub serial: u32,
     /// Used only when the SII image is too short to carry the alias (word 4).
     pub alias: u16,
+    /// The SII EEPROM image.
     pub sii: Vec<u8>,
+    /// The CoE objects of the dictionary.
     pub objects: Vec<Object>,
+    /// The CoE entries of the dictionary with their defaults.
     pub entries: Vec<Entry>,
     /// The IDN dictionary of a drive with SoE (the same for each of its drives); the SoE
     /// server adds the configuration lists and the IDNs the PDOs map.
     pub idns: Vec<IdnSpec>,
+    /// The device model that runs the slave's firmware (`devices::create`).
     pub device: String,
+    /// Parameters of the device model (`sim.params`).
     pub params: Vec<(String, f64)>,
+    /// Drift of the slave's local clock (ppm).
     pub drift_ppm: f64,
     /// One-way delay of the link into this slave's port 0 (cable and the upstream slave's
     /// forwarding), ns.
@@ -40,7 +86,9 @@ pub struct SlaveSpec {
     /// Where port 0 is connected: `(index of the parent slave, parent's port 1..=3)`. None:
     /// the previous slave's port 1 (a line), or the master for the first slave.
     pub upstream: Option<(usize, u8)>,
+    /// The ESC has distributed clocks.
     pub dc_supported: bool,
+    /// PREOP to SAFEOP is refused unless SYNC0 is active with a cycle time.
     pub dc_required: bool,
     /// Standard mailbox; when None it is taken from SII words 0x18..=0x1B (if non-zero).
     pub mailbox: Option<MailboxSpec>,

@@ -12,7 +12,7 @@
 //! time latches 0x0900..0x090C).
 
 /// The port order (0 → 3 → 1 → 2) and the forwarding ports: the protocol crate's.
-pub use ether_ros_protocol::topology::{forwarding_ports, order_rank, PORT_ORDER};
+pub use ether_ros_protocol::topology::forwarding_ports;
 
 /// One slave as the walk needs it.
 #[derive(Clone, Copy, Debug)]

@@ -205,13 +205,21 @@ fn slaves_must_be_added_in_visiting_order() {
     net.add_slave(spec("x", 2, Some((0, 1)), 100)).unwrap();
     // Port 3 comes before port 1: a slave there would be reached before x.
     let err = net.add_slave(spec("y", 3, Some((0, 3)), 100)).unwrap_err();
+    assert_eq!(err.field, "upstream");
+    let err = err.to_string();
     assert!(err.contains("'y'") && err.contains("before 'x'"), "{err}");
     assert_eq!(net.len(), 2, "the refused slave is not kept");
-    let err = net.add_slave(spec("z", 4, Some((0, 1)), 100)).unwrap_err();
+    let err = net
+        .add_slave(spec("z", 4, Some((0, 1)), 100))
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("port 1 of 'coupler' is taken by 'x'"), "{err}");
     let mut small = spec("w", 5, Some((0, 2)), 100);
     small.esc = EscChip::Lan9252;
     net.add_slave(small).unwrap();
-    let err = net.add_slave(spec("v", 6, Some((2, 2)), 100)).unwrap_err();
+    let err = net
+        .add_slave(spec("v", 6, Some((2, 2)), 100))
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("has no port 2"), "{err}");
 }

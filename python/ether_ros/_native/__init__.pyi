@@ -516,7 +516,9 @@ class Clear:
 
 @final
 class SimNetwork:
-    """A line of virtual EtherCAT slave controllers (see docs/simulator.md)."""
+    """A line of virtual EtherCAT slave controllers (see docs/simulator.md). A refused spec,
+    fault or argument raises ``ether_ros.errors.InvalidRequest`` with the ``field`` and a
+    ``code``; an interface that cannot be served an ``OSError``."""
 
     def __new__(cls, seed: int = 1, manual_clock_ns: int | None = None) -> Self: ...
     def add_slave(self, spec: SlaveSpec) -> int: ...

@@ -20,8 +20,12 @@ from ether_ros._native.protocol import (
     emergency_text,
     format_address,
     object_code_name,
+    parse_sdo_header,
     parse_sdo_segment,
     sdo_abort,
+    sdo_abort_message,
+    sdo_expedited,
+    sdo_initiate,
     sdo_segment,
     sdo_toggle_message,
 )
@@ -105,12 +109,6 @@ class EntryDescription:
         return f"rw({states}) ro" if read else f"wo({states})"
 
 
-def _sdo(command: int, index: int, subindex: int, data: bytes = b"\x00\x00\x00\x00") -> bytes:
-    return (
-        coe_header(coe.SERVICE_SDO_REQUEST) + struct.pack("<BHB", command, index, subindex) + data
-    )
-
-
 def _service(payload: bytes) -> int:
     return payload[1] >> 4 if len(payload) >= 2 else -1
 
@@ -167,9 +165,9 @@ class SdoClient:
             reply = self.mailbox.receive(MailboxType.COE, self.timeout_s)
         except MailboxError as e:
             raise e.in_context(what) from None
-        if len(reply) >= coe.SDO_HEADER_LEN and reply[2] >> coe.SPECIFIER_SHIFT == coe.CS_ABORT:
-            code = struct.unpack_from("<I", reply, 6)[0]
-            raise SdoAbort(self.slave_name, index, subindex, code, context=what)
+        header = parse_sdo_header(reply)
+        if header is not None and header[1] == coe.CS_ABORT:
+            raise SdoAbort(self.slave_name, index, subindex, header[6], context=what)
         if _service(reply) != coe.SERVICE_SDO_RESPONSE or len(reply) < coe.SDO_HEADER_LEN:
             raise self._fail(what, f"unexpected CoE reply {reply[:10].hex(' ')}")
         return reply
@@ -179,13 +177,15 @@ class SdoClient:
         with contextlib.suppress(MailboxError):
             self.mailbox.send(
                 MailboxType.COE,
-                _sdo(coe.CS_ABORT << coe.SPECIFIER_SHIFT, index, subindex, struct.pack("<I", code)),
+                sdo_abort_message(coe.SERVICE_SDO_REQUEST, index, subindex, code),
                 0.1,
             )
 
     def _check_echo(self, reply: bytes, scs: int, index: int, subindex: int, what: str) -> None:
-        got_index, got_sub = struct.unpack_from("<HB", reply, 3)
-        if reply[2] >> coe.SPECIFIER_SHIFT != scs or (got_index, got_sub) != (index, subindex):
+        header = parse_sdo_header(reply)
+        assert header is not None  # _exchange checked the length
+        _service, specifier, _ca, got_index, got_sub, _data, _word = header
+        if specifier != scs or (got_index, got_sub) != (index, subindex):
             self._abort(index, subindex, sdo_abort.ABORT_INVALID_COMMAND)
             raise self._fail(
                 what,
@@ -198,26 +198,20 @@ class SdoClient:
         """Read an entry (or, with complete access, the whole object from ``subindex`` 0 or 1)."""
         what = self._what("upload", index, subindex, complete_access)
         self.mailbox.flush()
-        command = coe.CCS_UPLOAD_INITIATE << coe.SPECIFIER_SHIFT | (
-            coe.COMPLETE_ACCESS if complete_access else 0
+        request = sdo_initiate(
+            coe.SERVICE_SDO_REQUEST, coe.CCS_UPLOAD_INITIATE, index, subindex, complete_access
         )
-        reply = self._exchange(_sdo(command, index, subindex), what, index, subindex)
+        reply = self._exchange(request, what, index, subindex)
         self._check_echo(reply, coe.SCS_UPLOAD_INITIATE, index, subindex, what)
-        flags = reply[2]
-        if flags & coe.EXPEDITED:  # the data is in the 4 data bytes
-            size = (
-                4 - ((flags >> coe.EXPEDITED_UNUSED_SHIFT) & 0x03)
-                if flags & coe.SIZE_INDICATED
-                else 4
-            )
-            return reply[6 : 6 + size]
-        size = struct.unpack_from("<I", reply, 6)[0]
+        header = parse_sdo_header(reply)
+        assert header is not None  # _exchange checked the length
+        expedited, size = header[5], header[6]
+        if expedited is not None:  # the data is in the 4 data bytes
+            return expedited
         data = bytearray(reply[coe.SDO_HEADER_LEN : coe.SDO_HEADER_LEN + size])
-        toggle = 0
+        toggle = False
         while len(data) < size:
-            request = sdo_toggle_message(
-                coe.SERVICE_SDO_REQUEST, coe.CCS_UPLOAD_SEGMENT, bool(toggle)
-            )
+            request = sdo_toggle_message(coe.SERVICE_SDO_REQUEST, coe.CCS_UPLOAD_SEGMENT, toggle)
             segment = self._exchange(request, what, index, subindex)
             decoded = parse_sdo_segment(segment)
             if decoded is None or decoded[1] != coe.SCS_UPLOAD_SEGMENT:
@@ -225,13 +219,13 @@ class SdoClient:
                 got = f"0x{segment[2]:02X}" if len(segment) > 2 else f"{len(segment)} bytes"
                 raise self._fail(what, f"expected an upload segment, got {got}")
             _service, _specifier, seg_toggle, last, body = decoded
-            if seg_toggle != bool(toggle):
+            if seg_toggle != toggle:
                 self._abort(index, subindex, sdo_abort.ABORT_TOGGLE_BIT)
                 raise self._fail(what, "slave did not alternate the toggle bit")
             data += body
             if last or not body:
                 break
-            toggle ^= coe.TOGGLE
+            toggle = not toggle
         if len(data) != size:
             raise self._fail(what, f"slave announced {size} bytes but sent {len(data)}")
         return bytes(data)
@@ -244,28 +238,35 @@ class SdoClient:
         """Write an entry (or, with complete access, the object from ``subindex`` 0 or 1)."""
         what = self._what("download", index, subindex, complete_access)
         self.mailbox.flush()
-        ca = coe.COMPLETE_ACCESS if complete_access else 0
         if 0 < len(data) <= 4:
-            command = (
-                coe.CCS_DOWNLOAD_INITIATE << coe.SPECIFIER_SHIFT
-                | ca
-                | (4 - len(data)) << coe.EXPEDITED_UNUSED_SHIFT
-                | coe.EXPEDITED
-                | coe.SIZE_INDICATED
+            request = sdo_expedited(
+                coe.SERVICE_SDO_REQUEST,
+                coe.CCS_DOWNLOAD_INITIATE,
+                index,
+                subindex,
+                data,
+                complete_access,
             )
-            reply = self._exchange(
-                _sdo(command, index, subindex, data.ljust(4, b"\x00")), what, index, subindex
-            )
+            reply = self._exchange(request, what, index, subindex)
             self._check_echo(reply, coe.SCS_DOWNLOAD_INITIATE, index, subindex, what)
             return
         room = self.mailbox.max_send_payload - coe.SDO_HEADER_LEN
         first = data[:room]
-        command = coe.CCS_DOWNLOAD_INITIATE << coe.SPECIFIER_SHIFT | ca | coe.SIZE_INDICATED
-        request = _sdo(command, index, subindex, struct.pack("<I", len(data))) + first
+        request = (
+            sdo_initiate(
+                coe.SERVICE_SDO_REQUEST,
+                coe.CCS_DOWNLOAD_INITIATE,
+                index,
+                subindex,
+                complete_access,
+                len(data),
+            )
+            + first
+        )
         reply = self._exchange(request, what, index, subindex)
         self._check_echo(reply, coe.SCS_DOWNLOAD_INITIATE, index, subindex, what)
         sent = len(first)
-        toggle = 0
+        toggle = False
         segment_room = self.mailbox.max_send_payload - SEGMENT_HEADER_LEN
         while sent < len(data):
             chunk = data[sent : sent + segment_room]
@@ -273,18 +274,19 @@ class SdoClient:
             segment = sdo_segment(
                 coe.SERVICE_SDO_REQUEST,
                 coe.CCS_DOWNLOAD_SEGMENT,
-                bool(toggle),
+                toggle,
                 sent == len(data),
                 chunk,
             )
             reply = self._exchange(segment, what, index, subindex)
-            if reply[2] >> coe.SPECIFIER_SHIFT != coe.SCS_DOWNLOAD_SEGMENT:
+            answer = parse_sdo_segment(reply)
+            if answer is None or answer[1] != coe.SCS_DOWNLOAD_SEGMENT:
                 self._abort(index, subindex, sdo_abort.ABORT_INVALID_COMMAND)
                 raise self._fail(what, f"expected a segment answer, got 0x{reply[2]:02X}")
-            if reply[2] & coe.TOGGLE != toggle:
+            if answer[2] != toggle:
                 self._abort(index, subindex, sdo_abort.ABORT_TOGGLE_BIT)
                 raise self._fail(what, "slave did not alternate the toggle bit")
-            toggle ^= coe.TOGGLE
+            toggle = not toggle
 
     # ---- SDO Information --------------------------------------------------------------------
 
@@ -307,13 +309,10 @@ class SdoClient:
                 raise e.in_context(what) from None
             if _service(reply) != coe.SERVICE_SDO_INFORMATION or len(reply) < coe.INFO_HEADER_LEN:
                 # An SDO abort in answer to an information request: the service is missing.
-                if (
-                    len(reply) >= coe.SDO_HEADER_LEN
-                    and reply[2] >> coe.SPECIFIER_SHIFT == coe.CS_ABORT
-                ):
-                    code = struct.unpack_from("<I", reply, 6)[0]
+                header = parse_sdo_header(reply)
+                if header is not None and header[1] == coe.CS_ABORT:
                     raise SdoAbort(
-                        self.slave_name, index, subindex, code, context=what, verb="failed"
+                        self.slave_name, index, subindex, header[6], context=what, verb="failed"
                     )
                 raise self._fail(what, f"unexpected CoE reply {reply[:10].hex(' ')}")
             got = reply[2] & coe.INFO_OPCODE_MASK

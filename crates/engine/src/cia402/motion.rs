@@ -31,6 +31,7 @@ impl Interpolator {
         };
     }
 
+    /// The value at time `t` (ns): the ramp's, then `to` once it is done.
     pub fn value(&self, t: i64) -> f64 {
         if self.span <= 0 || t >= self.t_to + self.span {
             return self.to;
@@ -138,7 +139,9 @@ pub fn sample_velocity(points: &[Point], t: i64, cursor: &mut usize) -> (f64, bo
 /// A mode change or an enable starts the new mode with one (docs/cia402.md, "Mode changes").
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct StopRamp {
+    /// Position where the stop started (SI).
     pub position: f64,
+    /// Velocity where the stop started (SI).
     pub velocity: f64,
 }
 

@@ -11,6 +11,7 @@ use std::sync::atomic::AtomicU64;
 pub struct AxisCommand {
     /// Wanted in Operation Enabled (false: the `on_stop` command).
     pub enable: bool,
+    /// The mode of operation wanted.
     pub mode: Mode,
     /// Incremented for every fault reset asked for.
     pub reset_count: u32,
@@ -19,9 +20,11 @@ pub struct AxisCommand {
     pub seq: u64,
     /// 0: the last command is a trajectory, else a SetpointKind code.
     pub setpoint_kind: u8,
+    /// The setpoint value (SI) of a setpoint command.
     pub value: f64,
     /// When the setpoint arrived (CLOCK_MONOTONIC ns), or the trajectory's start.
     pub t_ns: i64,
+    /// Points in the axis's trajectory slot for a trajectory command.
     pub trajectory_len: u32,
     /// Incremented by every explicit enable: the deliberate action a blocked restart waits for.
     pub enable_count: u32,
@@ -33,6 +36,7 @@ pub struct AxisCommand {
 pub const COMMAND_LEN: usize = 48;
 
 impl AxisCommand {
+    /// The command an axis starts with: disabled, in `mode`, nothing to follow.
     pub fn initial(mode: Mode) -> AxisCommand {
         AxisCommand {
             enable: false,
@@ -48,6 +52,7 @@ impl AxisCommand {
         }
     }
 
+    /// Write the command into its slot bytes `b`.
     pub fn encode(&self, b: &mut [u8]) {
         b[0] = self.enable as u8;
         b[1] = self.mode as i8 as u8;
@@ -63,6 +68,7 @@ impl AxisCommand {
         b[44..48].fill(0);
     }
 
+    /// Read a command from its slot bytes `b`.
     pub fn decode(b: &[u8]) -> AxisCommand {
         let u32_at = |i: usize| u32::from_le_bytes(b[i..i + 4].try_into().unwrap());
         let u64_at = |i: usize| u64::from_le_bytes(b[i..i + 8].try_into().unwrap());
@@ -84,8 +90,11 @@ impl AxisCommand {
 /// One trajectory point: `t_ns` after the trajectory's start, position and velocity (SI).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Point {
+    /// Time after the trajectory's start (ns).
     pub t_ns: i64,
+    /// Position (SI).
     pub position: f64,
+    /// Velocity (SI).
     pub velocity: f64,
 }
 
@@ -96,12 +105,14 @@ pub const POINT_LEN: usize = 24;
 pub const TRAJECTORY_HEADER: usize = 8;
 
 impl Point {
+    /// Write the point into its slot bytes `b`.
     pub fn encode(&self, b: &mut [u8]) {
         b[0..8].copy_from_slice(&self.t_ns.to_le_bytes());
         b[8..16].copy_from_slice(&self.position.to_le_bytes());
         b[16..24].copy_from_slice(&self.velocity.to_le_bytes());
     }
 
+    /// Read a point from its slot bytes `b`.
     pub fn decode(b: &[u8]) -> Point {
         let u64_at = |i: usize| u64::from_le_bytes(b[i..i + 8].try_into().unwrap());
         Point {
@@ -154,30 +165,51 @@ pub mod status_flags {
 /// What the RT thread publishes about an axis every cycle.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct AxisStatus {
+    /// The cycle the status is of.
     pub cycle: u64,
+    /// Statusword as read.
     pub statusword: u16,
+    /// Controlword as sent.
     pub controlword: u16,
+    /// Drive state decoded from the statusword (`DriveState` code).
     pub state: u8,
+    /// Modes of operation display as read.
     pub mode_display: i8,
+    /// Status flags (`status_flags`).
     pub flags: u16,
+    /// Error code (0x603F) as read.
     pub error_code: u16,
     /// The error code seen when the last fault was detected.
     pub last_fault_code: u16,
+    /// Position actual value, raw.
     pub position_raw: i32,
+    /// Velocity actual value, raw.
     pub velocity_raw: i32,
+    /// Torque actual value, raw.
     pub torque_raw: i16,
+    /// Following error, raw.
     pub following_error_raw: i32,
+    /// Position target sent this cycle, raw.
     pub target_position_raw: i32,
+    /// Position (SI).
     pub position: f64,
+    /// Velocity (SI).
     pub velocity: f64,
+    /// Torque (SI).
     pub torque: f64,
+    /// Following error (SI).
     pub following_error: f64,
     /// The position target sent this cycle (SI).
     pub target_position: f64,
+    /// Position setpoints clamped to the limits so far.
     pub position_clamps: u32,
+    /// Velocity setpoints clamped so far.
     pub velocity_clamps: u32,
+    /// Torque setpoints clamped so far.
     pub torque_clamps: u32,
+    /// Faults the drive reported so far.
     pub faults: u32,
+    /// Fault resets sent so far.
     pub fault_resets: u32,
     /// Homing runs ended (attained or error) so far.
     pub homing_runs: u32,
@@ -188,6 +220,7 @@ pub struct AxisStatus {
     pub desired_velocity: f64,
     /// The velocity and torque targets sent this cycle (SI; 0 when not mapped or not used).
     pub target_velocity: f64,
+    /// The torque target sent this cycle (SI; 0 when not mapped or not used).
     pub target_torque: f64,
 }
 
@@ -195,6 +228,7 @@ pub struct AxisStatus {
 pub const STATUS_LEN: usize = 144;
 
 impl AxisStatus {
+    /// Write the status into its buffer bytes `b`.
     pub fn encode(&self, b: &mut [u8]) {
         b[0..8].copy_from_slice(&self.cycle.to_le_bytes());
         b[8..10].copy_from_slice(&self.statusword.to_le_bytes());
@@ -228,6 +262,7 @@ impl AxisStatus {
         b[136..144].fill(0);
     }
 
+    /// Read a status from its buffer bytes `b`.
     pub fn decode(b: &[u8]) -> AxisStatus {
         let u16_at = |i: usize| u16::from_le_bytes(b[i..i + 2].try_into().unwrap());
         let u32_at = |i: usize| u32::from_le_bytes(b[i..i + 4].try_into().unwrap());
@@ -306,15 +341,20 @@ impl AxisGate {
 /// thread): the commands of all axes in one buffer (a multi-axis command is one write, taken
 /// over in one cycle), one trajectory slot per axis, one status buffer for all.
 pub struct AxisExchange {
+    /// The commands of all axes (one write per multi-axis command).
     pub commands: SeqBuffer,
+    /// One trajectory slot per axis.
     pub trajectories: Vec<SeqBuffer>,
+    /// The statuses of all axes, written by the RT thread every cycle.
     pub status: SeqBuffer,
     /// `AxisGate::pack` per axis, stored by the RT thread every cycle.
     pub gates: Box<[AtomicU64]>,
+    /// Points a trajectory slot holds.
     pub trajectory_capacity: usize,
 }
 
 impl AxisExchange {
+    /// The buffers for `axes`, each slot with room for `trajectory_capacity` points.
     pub fn new(axes: &[AxisPlan], trajectory_capacity: usize) -> AxisExchange {
         let mut commands = vec![0u8; axes.len() * COMMAND_LEN];
         for (a, b) in axes.iter().zip(commands.chunks_exact_mut(COMMAND_LEN)) {
@@ -337,10 +377,12 @@ impl AxisExchange {
         }
     }
 
+    /// Number of axes.
     pub fn len(&self) -> usize {
         self.trajectories.len()
     }
 
+    /// True when there is no axis.
     pub fn is_empty(&self) -> bool {
         self.trajectories.is_empty()
     }

@@ -300,9 +300,13 @@ pub fn quick_stop_ramp(code: i64, profile: f64, quick: f64) -> (StopRamp, bool) 
 /// Faults the drive knows (detected or injected).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum DriveFault {
+    /// Over-current in the power stage (CiA 402 error code 0x2310).
     OverCurrent,
+    /// Encoder signal lost (error code 0x7305).
     Encoder,
+    /// DC link under-voltage (error code 0x3220).
     UnderVoltage,
+    /// Following error beyond the configured window (error code 0x8611).
     FollowingError,
     /// Process data stopped (not OP, or the watchdog expired) while the power stage was on.
     Communication,
@@ -357,7 +361,9 @@ impl DriveFault {
 /// Simulation parameters of a `cia402` slave (`sim.params`), the same for every axis.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Cia402Config {
+    /// The motor model of every axis.
     pub motor: MotorParams,
+    /// Where the home and limit switches sit.
     pub switches: Switches,
 }
 
@@ -365,7 +371,9 @@ pub struct Cia402Config {
 /// `home` upwards; the limit switches at ±`limit` (0: none).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Switches {
+    /// Joint angle (rad) from which the home switch is active.
     pub home: f64,
+    /// Joint angle magnitude (rad) of the limit switches (0: none).
     pub limit: f64,
 }
 
@@ -394,6 +402,8 @@ impl Cia402Config {
         "limit_switch_rad",
     ];
 
+    /// The configuration from the bus config's `sim.params`; an unknown or invalid parameter is
+    /// an error naming it.
     pub fn from_params(params: &[(String, f64)]) -> Result<Self, String> {
         let mut m = MotorParams::default();
         let mut switches = Switches::default();
@@ -1607,6 +1617,7 @@ pub struct Cia402Drive {
 }
 
 impl Cia402Drive {
+    /// A drive with the axes and parameters of `config`, in its power-on state.
     pub fn new(config: Cia402Config) -> Self {
         let keys = (0..MAX_AXES)
             .map(|n| AXIS_KEYS.map(|(i, s, _)| (i + n as u16 * AXIS_OFFSET, s)))

@@ -154,7 +154,8 @@ impl DeviceApp for GenericIo {
     }
 }
 
-/// Build the generic I/O dictionary (also used by tests elsewhere in the crate).
+/// Build the generic I/O dictionary (the tests build a fresh one to check it).
+#[cfg(test)]
 pub fn object_dictionary() -> ObjectDictionary {
     use crate::od::{dtype, Access};
     let mut od = ObjectDictionary::new();

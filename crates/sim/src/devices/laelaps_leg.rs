@@ -90,8 +90,11 @@ struct Piv {
 /// `ki` = Ki100/100, the integral gain in % per deg·s.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Gains {
+    /// Proportional gain of the joint controller.
     pub kp: f64,
+    /// Velocity (derivative) gain of the joint controller.
     pub kv: f64,
+    /// Integral gain of the joint controller.
     pub ki: f64,
 }
 
@@ -178,9 +181,11 @@ impl Commands {
 /// Device parameters from the bus config (`sim.params`).
 #[derive(Clone, Copy, Debug)]
 pub struct LaelapsLegConfig {
+    /// Geometry and dynamics of the leg.
     pub leg: LegParams,
     /// Initial toe position (m) at power-on; default: standing on the floor below the hip.
     pub initial_x: f64,
+    /// Initial toe height (m) at power-on; None: on the floor.
     pub initial_y: Option<f64>,
     /// The treadmill belt runs at this factor times the trot's mean stance speed 4·a·f
     /// (0: the floor stands still).
@@ -202,6 +207,8 @@ impl LaelapsLegConfig {
         "initial_toe_y_m",
     ];
 
+    /// The configuration from the bus config's `sim.params`; an unknown or invalid parameter is
+    /// an error naming it.
     pub fn from_params(params: &[(String, f64)]) -> Result<Self, String> {
         let mut c = Self {
             leg: LegParams::default(),
@@ -283,6 +290,7 @@ pub struct LaelapsLeg {
 }
 
 impl LaelapsLeg {
+    /// A leg in its power-on state with `config`.
     pub fn new(config: LaelapsLegConfig) -> Self {
         let q = config.initial_pose();
         let toe = forward(q);
@@ -309,14 +317,17 @@ impl LaelapsLeg {
         }
     }
 
+    /// The control mode the master last selected.
     pub fn mode(&self) -> Mode {
         self.mode
     }
 
+    /// The leg's physics model (state of the joints and the toe), for probes and tests.
     pub fn physics(&self) -> &LegPhysics {
         &self.physics
     }
 
+    /// The trajectory the leg's controller follows, for probes and tests.
     pub fn trajectory(&self) -> &Trajectory {
         &self.trajectory
     }
@@ -326,6 +337,7 @@ impl LaelapsLeg {
         self.measured
     }
 
+    /// The joint angles the controller aims at now.
     pub fn desired(&self) -> JointAngles {
         self.desired
     }

@@ -32,7 +32,9 @@ pub fn forward(q: JointAngles) -> (f64, f64) {
     (x, y)
 }
 
-/// Jacobian d(x, y)/d(theta1, theta2) of eq. 4.1, rows (x, y).
+/// Jacobian d(x, y)/d(theta1, theta2) of eq. 4.1, rows (x, y); the tests check the physics
+/// model against it.
+#[cfg(test)]
 pub fn jacobian(q: JointAngles) -> [[f64; 2]; 2] {
     [
         [L1 * q.theta1.cos(), L2 * q.theta2.cos()],

@@ -1,15 +1,15 @@
 //! Device applications (firmware models) the simulator can run behind a virtual ESC.
 
 pub mod cia402;
-pub mod generic_io;
+pub(crate) mod generic_io;
 pub mod laelaps_leg;
-pub mod leg_kinematics;
-pub mod leg_physics;
-pub mod loopback;
-pub mod od_slots;
-pub mod period_clock;
-pub mod servo_motor;
-pub mod trajectory;
+pub(crate) mod leg_kinematics;
+pub(crate) mod leg_physics;
+pub(crate) mod loopback;
+pub(crate) mod od_slots;
+pub(crate) mod period_clock;
+pub(crate) mod servo_motor;
+pub(crate) mod trajectory;
 
 use crate::device::DeviceApp;
 
