@@ -139,13 +139,19 @@ impl PyFoeSpec {
         inner.firmware = firmware.unwrap_or(inner.firmware);
         inner.busy = busy.unwrap_or(inner.busy);
         if inner.firmware.is_empty() {
-            return Err(PyValueError::new_err(
+            return Err(invalid(
+                "FoeSpec.firmware",
+                Reason::BadValue,
                 "FoeSpec.firmware: expected a file name",
             ));
         }
-        inner
-            .check()
-            .map_err(|e| PyValueError::new_err(format!("FoeSpec.files: {e}")))?;
+        inner.check().map_err(|e| {
+            invalid(
+                "FoeSpec.files",
+                Reason::Refused,
+                format!("FoeSpec.files: {e}"),
+            )
+        })?;
         Ok(Self { inner })
     }
 

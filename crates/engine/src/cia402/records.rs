@@ -311,13 +311,16 @@ pub struct AxisGate {
     pub state: u8,
     /// `status_flags` of the cycle.
     pub flags: u16,
+    /// The drive's error code (0x603F) of the cycle.
     pub error_code: u16,
+    /// The code of the drive's last fault, kept after the fault is reset (names a stop).
     pub last_fault_code: u16,
     /// False until the RT thread has run the axis once.
     pub published: bool,
 }
 
 impl AxisGate {
+    /// The gate as the one atomic word the RT thread stores (state, flags, codes, published).
     pub fn pack(self) -> u64 {
         self.state as u64
             | (self.flags as u64) << 8
@@ -326,6 +329,7 @@ impl AxisGate {
             | (self.published as u64) << 63
     }
 
+    /// The gate a word from `pack` holds.
     pub fn unpack(w: u64) -> AxisGate {
         AxisGate {
             state: w as u8,
