@@ -337,9 +337,6 @@ const CST_LEARN_SHARE: f64 = 0.25;
 /// to the speed in this many cycles: a loop on the predicted speed slow enough for a latency a
 /// cycle or two off the assumed one (no chatter), still reaching the bound in a few ms.
 const CST_BAND_CYCLES: f64 = 6.0;
-/// A position read equal to the last one while the predicted speed exceeds this share of the
-/// velocity limit is a stale input (an encoder that fine moves many counts per cycle there).
-const STALE_SPEED_SHARE: f64 = 0.05;
 /// Until the gain is known the torque rises to the torque limit over this many cycles at the
 /// fastest: the axis's response is seen before it is fast.
 const CST_RISE_CYCLES: f64 = 40.0;
@@ -437,17 +434,6 @@ impl CstLimiter {
         latency: usize,
         dt: f64,
     ) -> (f64, bool) {
-        // A read that repeats the last position while the axis moves is a stale input (a frame
-        // late or lost on a loaded host), not a stop: taken as such it would halve the speed
-        // estimate and let a burst of torque through. The position is carried on instead.
-        let position = if self.count > 0
-            && position == self.at(&self.positions, 0)
-            && self.predicted.abs() > STALE_SPEED_SHARE * vmax
-        {
-            position + self.predicted * dt
-        } else {
-            position
-        };
         self.positions[self.head] = position;
         self.torques[self.head] = self.last;
         self.head = (self.head + 1) % CST_HISTORY;
