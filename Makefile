@@ -30,11 +30,11 @@ lint: build
 test-rust:
 	cargo test --workspace -q
 
-# The tests run in parallel (pytest-xdist), a test file (a docs page) to a worker, one worker more than the
-# cores: most of a test's time is waiting for a bus, a node or a simulator (one worker keeps
-# this 2-core machine at a load of about 0.8), so three files at once cut the wall time to about
-# a third; PYTEST_WORKERS=0 runs them in this one process.
-PYTEST_WORKERS ?= $(shell echo $$(( $$(nproc) + 1 )))
+# The tests run in parallel (pytest-xdist), a test file (a docs page) to a worker, one worker
+# per core: a third worker on this 2-core machine took the load to 10 at times, where a Python
+# node stalls for a second (its engine watchdog then trips, as designed). PYTEST_WORKERS=0 runs
+# them in this one process.
+PYTEST_WORKERS ?= $(shell nproc)
 # The ethercrab probe (a third-party master the tests check the simulator with) is built before
 # the tests start: built inside a test, under a loaded machine, it ran into the test's timeout.
 probe:

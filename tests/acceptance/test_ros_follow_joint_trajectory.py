@@ -159,8 +159,10 @@ def test_a_new_goal_preempts_the_running_one_without_a_jump(
 ) -> None:
     client = rig.client
     home(fjt, client)
-    first = fjt.send(make_goal(["elbow", "wrist_1"], [(2.0, [1.0, -1.0])]))
-    deadline = time.monotonic() + 10
+    # A long first goal: the second must reach the server before it ends (a loaded host took
+    # longer than the rest of a 2 s goal).
+    first = fjt.send(make_goal(["elbow", "wrist_1"], [(8.0, [1.0, -1.0])]))
+    deadline = time.monotonic() + 20
     while positions(client)["elbow"] < 0.2:
         assert time.monotonic() < deadline, "the goal did not start"
         time.sleep(0.01)

@@ -94,8 +94,8 @@ def cache_dir() -> Path | None:
     try:
         folder.mkdir(mode=0o700, parents=True, exist_ok=True)
         st = folder.stat()
-    except OSError as exc:
-        _warn_once(f"ESI cache off: cannot use {folder}: {exc.strerror}")
+    except OSError as exc:  # no home, a read-only one: parsing as before is all it costs
+        log.debug("ESI cache off: cannot use %s: %s", folder, exc.strerror)
         return None
     if st.st_uid != os.geteuid() or st.st_mode & (stat.S_IWGRP | stat.S_IWOTH):
         _warn_once(
