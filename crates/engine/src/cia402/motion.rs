@@ -513,7 +513,9 @@ impl CstLimiter {
         };
         if gain > 0.0 {
             let step = CST_BAND_CYCLES * gain * torque_max * dt;
-            band = band.max(step);
+            // The position envelope's band from the torque asked for: sized from the torque
+            // limit it faded a light push (2 of 8 N·m) out 54 mrad short of the limit.
+            band = band.max(CST_BAND_CYCLES * gain * torque.abs().min(torque_max) * dt);
             vband = vband.max(step);
         }
         let mut out = limit_torque(
